@@ -1,0 +1,1 @@
+//! HTTP + websocket API (axum): translation only, no science.

@@ -1,0 +1,66 @@
+//! The device seam: a bench plays an exciter drive signal and captures the
+//! laser displacement and the microphone, block by block like an audio
+//! callback. The virtual bench ([`crate::physics`]) and the hardware bench
+//! (feature `hardware`) implement the same trait, so the measurement
+//! [`crate::procedure`] does not know which one it drives.
+//!
+//! Synchronous and blocking by design: the daemon runs a bench on a blocking
+//! thread it owns; nothing here is async.
+
+use crate::recording::Signals;
+
+/// Hard limits of a bench; a procedure never exceeds them.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Limits {
+    /// Largest allowed |x| of the part (m).
+    pub max_displacement_m: f64,
+    /// Largest allowed amplifier output amplitude (V peak).
+    pub max_drive_v: f64,
+}
+
+/// One captured block, handed to the observer while a sweep runs.
+#[derive(Debug, Clone, Copy)]
+pub struct Block<'a> {
+    /// Index of the first sample of the block within the sweep.
+    pub start_sample: usize,
+    pub displacement_m: &'a [f64],
+    pub microphone_v: &'a [f64],
+    pub drive_v: &'a [f64],
+}
+
+/// What the observer wants after a block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    Continue,
+    /// Ramp the drive down and stop (cancel, shutdown, limit exceeded).
+    Abort,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error("aborted")]
+    Aborted,
+    #[error("laser out of range at t = {t_s:.3} s")]
+    LaserOutOfRange { t_s: f64 },
+    #[error("device error: {0}")]
+    Device(String),
+}
+
+/// A measurement bench: exciter output, microphone and laser input.
+pub trait Bench: Send {
+    /// Stable identifier (shown in /readyz and stored with measurements).
+    fn id(&self) -> &str;
+    fn sample_rate_hz(&self) -> f64;
+    fn limits(&self) -> Limits;
+    /// Plays `drive_v` (amplifier output, V) from rest and captures all
+    /// channels for exactly `drive_v.len()` samples. `observer` sees every
+    /// block as it is captured; `Control::Abort` ramps the drive down within
+    /// a few milliseconds and returns `BenchError::Aborted`.
+    fn run(
+        &mut self,
+        drive_v: &[f64],
+        observer: &mut dyn FnMut(Block<'_>) -> Control,
+    ) -> Result<Signals, BenchError>;
+    /// Short human-readable description (preset, part, device names).
+    fn describe(&self) -> String;
+}

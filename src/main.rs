@@ -1,0 +1,42 @@
+//! `springbench`: argument parsing and wiring only.
+use clap::{Parser, Subcommand};
+use springbench::cli;
+
+#[derive(Parser)]
+#[command(
+    name = "springbench",
+    version,
+    about = "Dynamic measurement of loudspeaker suspension parts"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the bench daemon (the default when no command is given).
+    Serve(cli::serve::ServeArgs),
+    /// Analyse a recording set (pre.wav, main.wav, meta.json).
+    Analyze(cli::analyze::AnalyzeArgs),
+    /// Run the standard procedure on the virtual bench and write a recording set.
+    Simulate(cli::simulate::SimulateArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        None => cli::serve::run(cli::serve::ServeArgs::default()),
+        Some(Command::Serve(a)) => cli::serve::run(a),
+        Some(Command::Analyze(a)) => cli::analyze::run(a),
+        Some(Command::Simulate(a)) => cli::simulate::run(a),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // One clear line on stderr, never a panic.
+            eprintln!("springbench: error: {e}");
+            std::process::ExitCode::from(2)
+        }
+    }
+}

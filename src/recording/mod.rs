@@ -1,0 +1,495 @@
+//! Recording sets on disk: `pre.wav`, `main.wav` and `meta.json` in one directory.
+//!
+//! The layout is the one of `shared/data/reference-recordings` (see its README):
+//! WAV files (IEEE float32, or PCM 16/24/32-bit) with any number of channels,
+//! and a `meta.json` naming which channel holds which signal:
+//!
+//! ```json
+//! { "moving_mass_kg": 0.05, "sample_rate_hz": 48000,
+//!   "channels": { "displacement": 0, "microphone": 1, "drive": 2 } }
+//! ```
+//!
+//! Extensions (all optional, all read back):
+//! - `"channel_scale": { "displacement": 0.01 }`: physical units per full scale
+//!   for PCM files (metres per full scale for the laser, volts for the others).
+//!   Float files are taken as physical values (scale 1) unless a scale is given.
+//! - any other field is kept in [`Meta::extra`] and written back unchanged.
+//!
+//! This module does file I/O; everything downstream of it works on [`Signals`].
+
+use serde::{Deserialize, Serialize};
+use std::io::{Read, Seek, Write};
+use std::path::Path;
+
+/// Errors reading or writing a recording set. `Display` is one line, for the CLI and the API.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a readable WAV file: {reason}")]
+    Wav { path: String, reason: String },
+    #[error("{path}: invalid meta.json: {reason}")]
+    Meta { path: String, reason: String },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Which WAV channel holds which signal (0-based).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Channels {
+    pub displacement: usize,
+    pub microphone: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive: Option<usize>,
+}
+
+/// Physical units per digital full scale, per signal (PCM files).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ChannelScale {
+    /// Metres per full scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub displacement: Option<f64>,
+    /// Volts per full scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub microphone: Option<f64>,
+    /// Volts per full scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive: Option<f64>,
+}
+
+/// What a user knows about a recording set (`meta.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Meta {
+    /// Moving mass: part plus inner clamp, weighed (kg).
+    pub moving_mass_kg: f64,
+    /// Sample rate of both WAV files (Hz).
+    pub sample_rate_hz: f64,
+    pub channels: Channels,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel_scale: Option<ChannelScale>,
+    /// Any further fields, kept as they are.
+    #[serde(flatten)]
+    pub extra: serde_json::Map<String, serde_json::Value>,
+}
+
+impl Meta {
+    /// Standard three-channel layout (0 displacement, 1 microphone, 2 drive).
+    pub fn standard(moving_mass_kg: f64, sample_rate_hz: f64) -> Meta {
+        Meta {
+            moving_mass_kg,
+            sample_rate_hz,
+            channels: Channels {
+                displacement: 0,
+                microphone: 1,
+                drive: Some(2),
+            },
+            channel_scale: None,
+            extra: Default::default(),
+        }
+    }
+
+    /// Checks the physical plausibility of the fields; one-line error.
+    pub fn validate(&self) -> Result<(), RecordingError> {
+        if !self.moving_mass_kg.is_finite() || self.moving_mass_kg <= 0.0 {
+            return Err(RecordingError::Invalid(format!(
+                "moving_mass_kg must be a positive number of kilograms, got {}",
+                self.moving_mass_kg
+            )));
+        }
+        if !self.sample_rate_hz.is_finite() || self.sample_rate_hz <= 0.0 {
+            return Err(RecordingError::Invalid(format!(
+                "sample_rate_hz must be positive, got {}",
+                self.sample_rate_hz
+            )));
+        }
+        if let Some(s) = &self.channel_scale {
+            for (name, v) in [
+                ("displacement", s.displacement),
+                ("microphone", s.microphone),
+                ("drive", s.drive),
+            ] {
+                if let Some(v) = v {
+                    if !v.is_finite() || v == 0.0 {
+                        return Err(RecordingError::Invalid(format!(
+                            "channel_scale.{name} must be a finite non-zero number, got {v}"
+                        )));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The signals of one sweep, in SI units, sampled at `sample_rate_hz`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Signals {
+    pub sample_rate_hz: f64,
+    /// Laser displacement (m); positive moves the part out of the box.
+    pub displacement_m: Vec<f64>,
+    /// Microphone output (V); sensitivity unknown to the analysis.
+    pub microphone_v: Vec<f64>,
+    /// Exciter drive (V), when recorded.
+    pub drive_v: Option<Vec<f64>>,
+}
+
+impl Signals {
+    pub fn len(&self) -> usize {
+        self.displacement_m.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.displacement_m.is_empty()
+    }
+    pub fn duration_s(&self) -> f64 {
+        self.len() as f64 / self.sample_rate_hz
+    }
+    /// Every sample finite, channels of equal length.
+    pub fn validate(&self, what: &str) -> Result<(), RecordingError> {
+        let n = self.displacement_m.len();
+        if self.microphone_v.len() != n || self.drive_v.as_ref().is_some_and(|d| d.len() != n) {
+            return Err(RecordingError::Invalid(format!(
+                "{what}: channels have different lengths"
+            )));
+        }
+        let chans: [(&str, Option<&Vec<f64>>); 3] = [
+            ("displacement", Some(&self.displacement_m)),
+            ("microphone", Some(&self.microphone_v)),
+            ("drive", self.drive_v.as_ref()),
+        ];
+        for (name, c) in chans {
+            if let Some(c) = c {
+                if let Some(i) = c.iter().position(|v| !v.is_finite()) {
+                    return Err(RecordingError::Invalid(format!(
+                        "{what}: {name} channel has a non-finite sample (NaN or infinity) at sample {i} (t = {:.4} s)",
+                        i as f64 / self.sample_rate_hz
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A complete recording set: small-signal pre-measurement and large-signal main sweep.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordingSet {
+    pub meta: Meta,
+    pub pre: Signals,
+    pub main: Signals,
+}
+
+impl RecordingSet {
+    /// Reads `DIR/meta.json`, `DIR/pre.wav`, `DIR/main.wav`.
+    pub fn read_dir(dir: impl AsRef<Path>) -> Result<RecordingSet, RecordingError> {
+        let dir = dir.as_ref();
+        let meta_path = dir.join("meta.json");
+        let text = std::fs::read_to_string(&meta_path).map_err(|source| RecordingError::Io {
+            path: meta_path.display().to_string(),
+            source,
+        })?;
+        let meta = parse_meta(&text).map_err(|reason| RecordingError::Meta {
+            path: meta_path.display().to_string(),
+            reason,
+        })?;
+        let open = |name: &str| {
+            let p = dir.join(name);
+            let f = std::fs::File::open(&p).map_err(|source| RecordingError::Io {
+                path: p.display().to_string(),
+                source,
+            })?;
+            Ok::<_, RecordingError>((p, std::io::BufReader::new(f)))
+        };
+        let (pp, pre) = open("pre.wav")?;
+        let pre = read_signals(pre, &meta).map_err(|e| e.with_path(&pp))?;
+        let (mp, main) = open("main.wav")?;
+        let main = read_signals(main, &meta).map_err(|e| e.with_path(&mp))?;
+        Ok(RecordingSet { meta, pre, main })
+    }
+
+    /// Reads a set from in-memory parts (the API's multipart import).
+    pub fn from_bytes(
+        meta_json: &[u8],
+        pre_wav: &[u8],
+        main_wav: &[u8],
+    ) -> Result<RecordingSet, RecordingError> {
+        let text = std::str::from_utf8(meta_json).map_err(|_| RecordingError::Meta {
+            path: "meta".into(),
+            reason: "not UTF-8 text".into(),
+        })?;
+        let meta = parse_meta(text).map_err(|reason| RecordingError::Meta {
+            path: "meta".into(),
+            reason,
+        })?;
+        let pre = read_signals(std::io::Cursor::new(pre_wav), &meta)
+            .map_err(|e| e.with_path(Path::new("pre")))?;
+        let main = read_signals(std::io::Cursor::new(main_wav), &meta)
+            .map_err(|e| e.with_path(Path::new("main")))?;
+        Ok(RecordingSet { meta, pre, main })
+    }
+
+    /// Writes the set as float32 WAV files in the standard channel layout
+    /// (0 displacement, 1 microphone, 2 drive when present) plus meta.json.
+    pub fn write_dir(&self, dir: impl AsRef<Path>) -> Result<(), RecordingError> {
+        let dir = dir.as_ref();
+        std::fs::create_dir_all(dir).map_err(|source| RecordingError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let io = |p: &Path| {
+            let p = p.display().to_string();
+            move |source| RecordingError::Io {
+                path: p.clone(),
+                source,
+            }
+        };
+        for (name, s) in [("pre.wav", &self.pre), ("main.wav", &self.main)] {
+            let p = dir.join(name);
+            let bytes = signals_to_wav_bytes(s)?;
+            std::fs::write(&p, bytes).map_err(io(&p))?;
+        }
+        let mut meta = self.meta.clone();
+        meta.channels = Channels {
+            displacement: 0,
+            microphone: 1,
+            drive: self.pre.drive_v.as_ref().map(|_| 2),
+        };
+        meta.channel_scale = None;
+        let p = dir.join("meta.json");
+        let mut f = std::fs::File::create(&p).map_err(io(&p))?;
+        let text = serde_json::to_string_pretty(&meta).expect("meta serialises");
+        f.write_all(text.as_bytes()).map_err(io(&p))?;
+        f.write_all(b"\n").map_err(io(&p))?;
+        Ok(())
+    }
+}
+
+impl RecordingError {
+    fn with_path(self, p: &Path) -> RecordingError {
+        match self {
+            RecordingError::Wav { reason, .. } => RecordingError::Wav {
+                path: p.display().to_string(),
+                reason,
+            },
+            RecordingError::Invalid(m) => RecordingError::Invalid(format!("{}: {m}", p.display())),
+            e => e,
+        }
+    }
+}
+
+/// Parses and validates meta.json text.
+pub fn parse_meta(text: &str) -> Result<Meta, String> {
+    let meta: Meta = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    meta.validate().map_err(|e| e.to_string())?;
+    Ok(meta)
+}
+
+/// Reads one WAV stream and picks the channels named in `meta`.
+pub fn read_signals<R: Read>(reader: R, meta: &Meta) -> Result<Signals, RecordingError> {
+    let wav_err = |reason: String| RecordingError::Wav {
+        path: String::new(),
+        reason,
+    };
+    let mut r = hound::WavReader::new(reader).map_err(|e| wav_err(e.to_string()))?;
+    let spec = r.spec();
+    let nch = spec.channels as usize;
+    if (spec.sample_rate as f64 - meta.sample_rate_hz).abs() > 1e-6 * meta.sample_rate_hz {
+        return Err(RecordingError::Invalid(format!(
+            "sample rate {} Hz differs from meta.json's sample_rate_hz {}",
+            spec.sample_rate, meta.sample_rate_hz
+        )));
+    }
+    let ch = meta.channels;
+    for (name, idx) in [
+        ("displacement", Some(ch.displacement)),
+        ("microphone", Some(ch.microphone)),
+        ("drive", ch.drive),
+    ] {
+        if let Some(i) = idx {
+            if i >= nch {
+                return Err(RecordingError::Invalid(format!(
+                    "meta.json puts the {name} signal on channel {i}, but the file has only {nch} channel(s)"
+                )));
+            }
+        }
+    }
+    let interleaved: Vec<f64> = match (spec.sample_format, spec.bits_per_sample) {
+        (hound::SampleFormat::Float, 32) => r
+            .samples::<f32>()
+            .map(|s| s.map(|v| v as f64))
+            .collect::<Result<_, _>>()
+            .map_err(|e| wav_err(e.to_string()))?,
+        (hound::SampleFormat::Int, b @ (8 | 16 | 24 | 32)) => {
+            let full = (1u64 << (b - 1)) as f64;
+            r.samples::<i32>()
+                .map(|s| s.map(|v| v as f64 / full))
+                .collect::<Result<_, _>>()
+                .map_err(|e| wav_err(e.to_string()))?
+        }
+        (f, b) => {
+            return Err(wav_err(format!(
+                "unsupported sample format {f:?} with {b} bits"
+            )))
+        }
+    };
+    let is_pcm = spec.sample_format == hound::SampleFormat::Int;
+    let scale = meta.channel_scale.unwrap_or_default();
+    if is_pcm && scale.displacement.is_none() {
+        return Err(RecordingError::Invalid(
+            "PCM file: meta.json needs channel_scale.displacement (metres per full scale) to read the laser channel".into(),
+        ));
+    }
+    let frames = interleaved.len() / nch.max(1);
+    let pick = |c: usize, s: Option<f64>| -> Vec<f64> {
+        let g = s.unwrap_or(1.0);
+        (0..frames).map(|k| interleaved[k * nch + c] * g).collect()
+    };
+    let sig = Signals {
+        sample_rate_hz: meta.sample_rate_hz,
+        displacement_m: pick(ch.displacement, scale.displacement),
+        microphone_v: pick(ch.microphone, scale.microphone),
+        drive_v: ch.drive.map(|c| pick(c, scale.drive)),
+    };
+    sig.validate("recording")?;
+    Ok(sig)
+}
+
+/// Encodes signals as a float32 WAV (0 displacement m, 1 microphone V, 2 drive V when present).
+pub fn signals_to_wav_bytes(s: &Signals) -> Result<Vec<u8>, RecordingError> {
+    let nch = if s.drive_v.is_some() { 3 } else { 2 };
+    let spec = hound::WavSpec {
+        channels: nch,
+        sample_rate: s.sample_rate_hz.round() as u32,
+        bits_per_sample: 32,
+        sample_format: hound::SampleFormat::Float,
+    };
+    let mut cur = std::io::Cursor::new(Vec::with_capacity(s.len() * nch as usize * 4 + 64));
+    {
+        let mut w = hound::WavWriter::new(&mut cur, spec).map_err(|e| RecordingError::Wav {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+        write_frames(&mut w, s).map_err(|e| RecordingError::Wav {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+        w.finalize().map_err(|e| RecordingError::Wav {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+    }
+    Ok(cur.into_inner())
+}
+
+fn write_frames<W: Write + Seek>(
+    w: &mut hound::WavWriter<W>,
+    s: &Signals,
+) -> Result<(), hound::Error> {
+    for k in 0..s.len() {
+        w.write_sample(s.displacement_m[k] as f32)?;
+        w.write_sample(s.microphone_v[k] as f32)?;
+        if let Some(d) = &s.drive_v {
+            w.write_sample(d[k] as f32)?;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sig(n: usize) -> Signals {
+        Signals {
+            sample_rate_hz: 48000.0,
+            displacement_m: (0..n).map(|i| 1e-3 * (i as f64 * 0.01).sin()).collect(),
+            microphone_v: (0..n).map(|i| 0.1 * (i as f64 * 0.02).cos()).collect(),
+            drive_v: Some((0..n).map(|i| (i as f64 * 0.03).sin()).collect()),
+        }
+    }
+
+    #[test]
+    fn float_round_trip_is_exact_to_f32() {
+        let dir = tempfile::tempdir().unwrap();
+        let set = RecordingSet {
+            meta: Meta::standard(0.05, 48000.0),
+            pre: sig(1000),
+            main: sig(500),
+        };
+        set.write_dir(dir.path()).unwrap();
+        let back = RecordingSet::read_dir(dir.path()).unwrap();
+        assert_eq!(back.meta.moving_mass_kg, 0.05);
+        assert_eq!(back.pre.len(), 1000);
+        assert_eq!(back.main.len(), 500);
+        for (a, b) in set.pre.displacement_m.iter().zip(&back.pre.displacement_m) {
+            assert!((a - b).abs() <= 1e-3 * f32::EPSILON as f64, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn pcm24_with_scale_and_other_channel_order() {
+        // 2 channels: 0 microphone, 1 displacement; 24-bit PCM, 20 mm full scale.
+        let spec = hound::WavSpec {
+            channels: 2,
+            sample_rate: 8000,
+            bits_per_sample: 24,
+            sample_format: hound::SampleFormat::Int,
+        };
+        let mut cur = std::io::Cursor::new(Vec::new());
+        {
+            let mut w = hound::WavWriter::new(&mut cur, spec).unwrap();
+            for k in 0..100 {
+                w.write_sample(1000 * k).unwrap(); // microphone
+                w.write_sample(-(1 << 22)).unwrap(); // displacement: -0.5 full scale
+            }
+            w.finalize().unwrap();
+        }
+        let meta: Meta = serde_json::from_str(
+            r#"{"moving_mass_kg":0.1,"sample_rate_hz":8000,"channels":{"displacement":1,"microphone":0},
+                "channel_scale":{"displacement":0.02},"operator":"kept"}"#,
+        )
+        .unwrap();
+        let s = read_signals(std::io::Cursor::new(cur.into_inner()), &meta).unwrap();
+        assert_eq!(s.len(), 100);
+        assert!((s.displacement_m[3] + 0.01).abs() < 1e-12);
+        assert!((s.microphone_v[2] - 2000.0 / (1u64 << 23) as f64).abs() < 1e-12);
+        assert!(s.drive_v.is_none());
+        assert_eq!(meta.extra["operator"], "kept");
+    }
+
+    #[test]
+    fn clear_errors() {
+        let bad = parse_meta(
+            r#"{"moving_mass_kg":-1,"sample_rate_hz":48000,"channels":{"displacement":0,"microphone":1}}"#,
+        );
+        assert!(bad.unwrap_err().contains("moving_mass_kg"));
+        let meta = Meta {
+            channels: Channels {
+                displacement: 0,
+                microphone: 5,
+                drive: None,
+            },
+            ..Meta::standard(0.05, 48000.0)
+        };
+        let bytes = signals_to_wav_bytes(&sig(10)).unwrap();
+        let e = read_signals(std::io::Cursor::new(bytes.clone()), &meta)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("channel 5") && e.contains("3 channel"), "{e}");
+        let meta = Meta::standard(0.05, 44100.0);
+        let e = read_signals(std::io::Cursor::new(bytes), &meta)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("sample rate"), "{e}");
+        let mut s = sig(10);
+        s.microphone_v[4] = f64::NAN;
+        let e = s.validate("pre").unwrap_err().to_string();
+        assert!(e.contains("microphone") && e.contains("sample 4"), "{e}");
+        let e = RecordingSet::read_dir("/nonexistent/dir")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("meta.json"), "{e}");
+    }
+}

@@ -1,0 +1,1 @@
+//! Runner: one task owns each bench, queues and executes jobs, emits events.

@@ -1,0 +1,1 @@
+//! SQLite storage (sqlx): parts, jobs, measurements, recordings, events.
