@@ -19,6 +19,9 @@ pub struct PartSpec {
     pub r_ns_per_m: f64,
     /// Effective area (m^2).
     pub ss_m2: f64,
+    /// Physical effects beyond the basic force balance (hidden effects for tests).
+    #[serde(default)]
+    pub effects: crate::effects::Effects,
 }
 
 /// Names of the built-in part presets.
