@@ -1,1 +1,271 @@
-//! Daemon configuration (TOML).
+//! Daemon configuration (TOML). Every field is optional; `Config::default()`
+//! is what `cargo run --release` uses: one virtual bench on 127.0.0.1:8750,
+//! data in `./springbench-data`. See `deploy/springbench.toml` for an
+//! annotated example.
+
+use crate::bench::Limits;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Roles of bearer tokens; each role includes the rights of the ones before it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// Reads jobs, parts, measurements, events, metrics.
+    Viewer,
+    /// Also submits and cancels jobs, imports recordings, runs fits.
+    Operator,
+    /// Also reads the configuration.
+    Admin,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Token {
+    /// A label for logs (never the secret itself).
+    pub name: String,
+    /// The bearer secret (at least 16 characters).
+    pub token: String,
+    pub role: Role,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Auth {
+    pub tokens: Vec<Token>,
+}
+
+/// Which kind of device a bench is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BenchKind {
+    /// The physics simulation ([`crate::physics::VirtualBench`]).
+    Virtual,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchConfig {
+    /// Stable identifier, used in job requests (`bench`) and stored with measurements.
+    pub id: String,
+    #[serde(default = "default_kind")]
+    pub kind: BenchKind,
+    /// Virtual bench: the preset part mounted when a job names none.
+    #[serde(default = "default_preset")]
+    pub preset: String,
+    /// Virtual bench: noise seed of the first job (incremented per run).
+    #[serde(default)]
+    pub seed: u64,
+    /// Hard limits; a job may ask for tighter ones, never for wider ones.
+    #[serde(default = "default_limits")]
+    pub limits: Limits,
+}
+
+fn default_kind() -> BenchKind {
+    BenchKind::Virtual
+}
+fn default_preset() -> String {
+    DEFAULT_PRESET.to_string()
+}
+fn default_limits() -> Limits {
+    Limits {
+        max_displacement_m: 0.015,
+        max_drive_v: 20.0,
+    }
+}
+
+/// Preset mounted on the default virtual bench.
+pub const DEFAULT_PRESET: &str = "spider-4in";
+
+/// Defaults applied to a job that leaves a field out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JobDefaults {
+    /// Target peak displacement of the narrow sweep (m).
+    pub target_xpeak_m: f64,
+    /// Identification method: "two-signal" or "one-signal".
+    pub method: crate::identify::Method,
+    /// Order of K(x); chosen from the data when absent.
+    pub order: Option<usize>,
+}
+
+impl Default for JobDefaults {
+    fn default() -> Self {
+        JobDefaults {
+            target_xpeak_m: crate::procedure::ProcedureConfig::default().levels_m[0],
+            method: crate::identify::Method::TwoSignal,
+            order: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Listen address; port 0 picks a free port (the bound address is printed at start).
+    pub bind: String,
+    /// Directory of the SQLite database (created if missing).
+    pub data_dir: PathBuf,
+    /// Largest accepted upload (multipart import), bytes; larger requests get 413.
+    pub max_upload_bytes: usize,
+    /// Largest accepted JSON body, bytes.
+    pub max_json_bytes: usize,
+    pub auth: Auth,
+    pub benches: Vec<BenchConfig>,
+    pub defaults: JobDefaults,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            bind: "127.0.0.1:8750".into(),
+            data_dir: PathBuf::from("./springbench-data"),
+            max_upload_bytes: 256 * 1024 * 1024,
+            max_json_bytes: 1024 * 1024,
+            auth: Auth::default(),
+            benches: vec![BenchConfig {
+                id: "virtual-1".into(),
+                kind: BenchKind::Virtual,
+                preset: default_preset(),
+                seed: 1,
+                limits: default_limits(),
+            }],
+            defaults: JobDefaults::default(),
+        }
+    }
+}
+
+impl Config {
+    /// Reads and validates a TOML file.
+    pub fn load(path: &Path) -> Result<Config, String> {
+        let text =
+            std::fs::read_to_string(path).map_err(|e| format!("config {}: {e}", path.display()))?;
+        Config::parse(&text).map_err(|e| format!("config {}: {e}", path.display()))
+    }
+
+    /// Parses and validates TOML text.
+    pub fn parse(text: &str) -> Result<Config, String> {
+        let cfg: Config = toml::from_str(text).map_err(|e| one_line(&e.to_string()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Checks everything that would otherwise fail later (or, worse, silently).
+    pub fn validate(&self) -> Result<(), String> {
+        if self.benches.is_empty() {
+            return Err("at least one [[benches]] entry is needed".into());
+        }
+        let mut ids = std::collections::HashSet::new();
+        for b in &self.benches {
+            if b.id.is_empty()
+                || !b
+                    .id
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+            {
+                return Err(format!(
+                    "bench id '{}': use letters, digits, '-', '_' or '.'",
+                    b.id
+                ));
+            }
+            if !ids.insert(b.id.as_str()) {
+                return Err(format!("bench id '{}' is used twice", b.id));
+            }
+            let l = b.limits;
+            if !(l.max_displacement_m.is_finite()
+                && l.max_displacement_m > 0.0
+                && l.max_displacement_m <= 0.1)
+            {
+                return Err(format!(
+                    "bench '{}': limits.max_displacement_m must be in (0, 0.1] m, got {}",
+                    b.id, l.max_displacement_m
+                ));
+            }
+            if !(l.max_drive_v.is_finite() && l.max_drive_v > 0.0) {
+                return Err(format!(
+                    "bench '{}': limits.max_drive_v must be > 0 V, got {}",
+                    b.id, l.max_drive_v
+                ));
+            }
+        }
+        let mut secrets = std::collections::HashSet::new();
+        for t in &self.auth.tokens {
+            if t.token.len() < 16 {
+                return Err(format!(
+                    "auth token '{}': the secret must have at least 16 characters",
+                    t.name
+                ));
+            }
+            if !secrets.insert(t.token.as_str()) {
+                return Err(format!(
+                    "auth token '{}': the same secret is used twice",
+                    t.name
+                ));
+            }
+        }
+        let x = self.defaults.target_xpeak_m;
+        if !(x.is_finite() && x > 0.0) {
+            return Err(format!("defaults.target_xpeak_m must be > 0 m, got {x}"));
+        }
+        if self.max_upload_bytes == 0 || self.max_json_bytes == 0 {
+            return Err("max_upload_bytes and max_json_bytes must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// True when no tokens are configured: the daemon then binds to loopback only.
+    pub fn open_access(&self) -> bool {
+        self.auth.tokens.is_empty()
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn example_config_in_deploy_parses() {
+        let text = include_str!("../deploy/springbench.toml");
+        let cfg = Config::parse(text).expect("deploy/springbench.toml is valid");
+        assert_eq!(cfg.benches.len(), 1);
+        assert_eq!(cfg.auth.tokens.len(), 3);
+        assert_eq!(cfg.benches[0].limits.max_displacement_m, 0.015);
+    }
+
+    #[test]
+    fn empty_config_is_the_default() {
+        assert_eq!(Config::parse("").unwrap(), Config::default());
+        assert!(Config::default().open_access());
+    }
+
+    #[test]
+    fn bad_configs_are_refused_with_a_reason() {
+        let e = Config::parse("bnid = \"x\"").unwrap_err();
+        assert!(e.contains("bnid"), "{e}");
+        let e = Config::parse("[[benches]]\nid = \"a\"\n[[benches]]\nid = \"a\"").unwrap_err();
+        assert!(e.contains("twice"), "{e}");
+        let e = Config::parse(
+            "[[benches]]\nid = \"a\"\nlimits = { max_displacement_m = -1.0, max_drive_v = 1.0 }",
+        )
+        .unwrap_err();
+        assert!(e.contains("max_displacement_m"), "{e}");
+        let e =
+            Config::parse("[[auth.tokens]]\nname = \"x\"\ntoken = \"short\"\nrole = \"viewer\"")
+                .unwrap_err();
+        assert!(e.contains("16"), "{e}");
+        let e = Config::parse(
+            "[[auth.tokens]]\nname = \"x\"\ntoken = \"0123456789abcdefg\"\nrole = \"boss\"",
+        )
+        .unwrap_err();
+        assert!(e.contains("boss") || e.contains("role"), "{e}");
+    }
+
+    #[test]
+    fn roles_are_ordered() {
+        assert!(Role::Viewer < Role::Operator && Role::Operator < Role::Admin);
+    }
+}
