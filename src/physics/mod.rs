@@ -39,6 +39,16 @@ pub fn parse_part_toml(_text: &str) -> Result<PartSpec, String> {
     Err("part TOML not implemented yet".into())
 }
 
+/// Fast offline path: runs the standard procedure on a [`VirtualBench`] with
+/// `part` and returns the recording set (pre + first narrow sweep) that
+/// `analyze` reads. Used by `simulate`, the tests and the diagnostics suite.
+pub fn simulate_recording_set(
+    _part: &PartSpec,
+    _seed: u64,
+) -> Result<crate::recording::RecordingSet, String> {
+    Err("simulation not implemented yet".into())
+}
+
 /// The virtual bench: implements [`crate::bench::Bench`].
 pub struct VirtualBench {
     pub part: PartSpec,
