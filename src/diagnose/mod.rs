@@ -3,6 +3,10 @@
 //! CONTRACT shared with the CLI and the daemon (owned by the diagnostics work):
 //! `DiagnoseOptions`, `Diagnosis`, `diagnose`, `plot_names`, `plot`.
 
+pub mod regress;
+pub mod stats;
+pub mod synth;
+
 use crate::effects::EffectId;
 use crate::identify::{AnalyzeOptions, Report};
 use crate::recording::RecordingSet;
