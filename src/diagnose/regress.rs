@@ -250,7 +250,7 @@ pub fn inverse_spd(g: &DMatrix<f64>) -> DMatrix<f64> {
                 let l = eig.eigenvalues[k];
                 if l > max * 1e-13 {
                     let v = eig.eigenvectors.column(k);
-                    inv += (&v * v.transpose()) / l;
+                    inv += (v * v.transpose()) / l;
                 }
             }
             inv
