@@ -1,0 +1,254 @@
+//! Per-period harmonic analysis along a sweep and resonance detection.
+
+use nalgebra::{DMatrix, DVector};
+use realfft::num_complex::Complex64;
+
+/// Fractional sample positions of the upward zero crossings of `reference`
+/// (a signal whose fundamental dominates, e.g. the drive, or the displacement
+/// minus its mean). A hysteresis of `hysteresis` (in signal units) suppresses
+/// crossings caused by noise; periods whose length differs by more than 30 %
+/// from both neighbours are dropped.
+pub fn period_marks(reference: &[f64], hysteresis: f64) -> Vec<f64> {
+    let mut marks = Vec::new();
+    let mut armed = false;
+    for i in 1..reference.len() {
+        let (a, b) = (reference[i - 1], reference[i]);
+        if b < -hysteresis {
+            armed = true;
+        }
+        if armed && a < 0.0 && b >= 0.0 {
+            // Walk back over the crossing for a linear interpolation.
+            let frac = if b != a { -a / (b - a) } else { 0.0 };
+            marks.push((i - 1) as f64 + frac);
+            armed = false;
+        }
+    }
+    marks
+}
+
+/// One period of a signal: dc and complex harmonic amplitudes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PeriodHarmonics {
+    /// Start and end of the period (fractional samples).
+    pub start: f64,
+    pub end: f64,
+    /// Frequency of the period (Hz).
+    pub freq_hz: f64,
+    /// Mean over the period.
+    pub dc: f64,
+    /// Complex amplitude of harmonic h = 1..=H (index h-1), such that the
+    /// signal is `dc + sum_h Re(c_h exp(j h theta))`, theta running from 0 to
+    /// 2 pi over the period (a cubic in t that follows the local frequency).
+    pub harmonics: Vec<Complex64>,
+    /// Largest and smallest sample inside the period.
+    pub max: f64,
+    pub min: f64,
+}
+
+impl PeriodHarmonics {
+    pub fn amplitude(&self, h: usize) -> f64 {
+        self.harmonics.get(h - 1).map_or(0.0, |c| c.norm())
+    }
+    /// Centre of the period (fractional samples).
+    pub fn centre(&self) -> f64 {
+        0.5 * (self.start + self.end)
+    }
+}
+
+/// Least-squares fit of dc + `n_harm` harmonics to `signal` over each period
+/// given by consecutive `marks` (fractional samples in the signal's own rate).
+pub fn harmonics_per_period(
+    signal: &[f64],
+    marks: &[f64],
+    sample_rate_hz: f64,
+    n_harm: usize,
+) -> Vec<PeriodHarmonics> {
+    let p = 1 + 2 * n_harm;
+    let mut out = Vec::with_capacity(marks.len().saturating_sub(1));
+    let mut g = DMatrix::<f64>::zeros(p, p);
+    let mut r = DVector::<f64>::zeros(p);
+    let mut basis = vec![0.0; p];
+    let two_pi = 2.0 * std::f64::consts::PI;
+    // Phase slope (rad/sample) at each mark: derivative of the parabola through
+    // three neighbouring marks (phase 2 pi per mark), one-sided at the ends.
+    let slope = |k: usize| -> f64 {
+        if marks.len() < 3 {
+            return two_pi / (marks[1] - marks[0]);
+        }
+        let lo = k.saturating_sub(1).min(marks.len() - 3);
+        let t = [marks[lo], marks[lo + 1], marks[lo + 2]];
+        let x = marks[k];
+        let mut d = 0.0;
+        for i in 0..3 {
+            let mut li = 0.0;
+            for j in 0..3 {
+                if j == i {
+                    continue;
+                }
+                let mut prod = 1.0 / (t[i] - t[j]);
+                for l in 0..3 {
+                    if l != i && l != j {
+                        prod *= (x - t[l]) / (t[i] - t[l]);
+                    }
+                }
+                li += prod;
+            }
+            d += two_pi * (lo + i) as f64 * li;
+        }
+        d
+    };
+    for k in 0..marks.len().saturating_sub(1) {
+        let (ta, tb) = (marks[k], marks[k + 1]);
+        let (sa, sb) = (slope(k), slope(k + 1));
+        let i0 = ta.ceil().max(0.0) as usize;
+        let i1 = (tb.ceil() as usize).min(signal.len());
+        if i1 <= i0 + p {
+            continue;
+        }
+        let period = tb - ta;
+        g.fill(0.0);
+        r.fill(0.0);
+        let (mut mx, mut mn) = (f64::NEG_INFINITY, f64::INFINITY);
+        for (i, &s) in signal.iter().enumerate().take(i1).skip(i0) {
+            // Cubic Hermite phase: 0 -> 2 pi over the period, with the local
+            // frequency at both ends (follows the sweep inside the period).
+            let u = (i as f64 - ta) / period;
+            let (u2, u3) = (u * u, u * u * u);
+            let th = (u3 - 2.0 * u2 + u) * period * sa
+                + (3.0 * u2 - 2.0 * u3) * two_pi
+                + (u3 - u2) * period * sb;
+            basis[0] = 1.0;
+            for h in 1..=n_harm {
+                let (sn, cs) = (h as f64 * th).sin_cos();
+                basis[2 * h - 1] = cs;
+                basis[2 * h] = sn;
+            }
+            for a in 0..p {
+                r[a] += basis[a] * s;
+                for b in 0..=a {
+                    g[(a, b)] += basis[a] * basis[b];
+                }
+            }
+            mx = mx.max(s);
+            mn = mn.min(s);
+        }
+        for a in 0..p {
+            for b in 0..a {
+                g[(b, a)] = g[(a, b)];
+            }
+        }
+        let Some(ch) = g.clone().cholesky() else {
+            continue;
+        };
+        let c = ch.solve(&r);
+        out.push(PeriodHarmonics {
+            start: ta,
+            end: tb,
+            freq_hz: sample_rate_hz / period,
+            dc: c[0],
+            // a cos + b sin = Re((a - j b) e^{j theta})
+            harmonics: (1..=n_harm)
+                .map(|h| Complex64::new(c[2 * h - 1], -c[2 * h]))
+                .collect(),
+            max: mx,
+            min: mn,
+        });
+    }
+    out
+}
+
+/// Resonance found as the interior maximum of `magnitude` (one value per
+/// period, along the sweep). Returns the index and a sub-period position from
+/// a parabola through the peak and its neighbours. None when the maximum sits
+/// within `edge` periods of either end, or the curve does not fall by at least
+/// `min_drop` (relative) on both sides: no resonance inside the sweep.
+pub fn resonance_peak(magnitude: &[f64], edge: usize, min_drop: f64) -> Option<(usize, f64)> {
+    let n = magnitude.len();
+    if n < 2 * edge + 3 {
+        return None;
+    }
+    let (imax, &vmax) = magnitude
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
+    if imax < edge || imax + edge >= n || vmax.is_nan() || vmax <= 0.0 {
+        return None;
+    }
+    let left_min = magnitude[..imax]
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
+    let right_min = magnitude[imax + 1..]
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
+    if left_min > (1.0 - min_drop) * vmax || right_min > (1.0 - min_drop) * vmax {
+        return None;
+    }
+    let (a, b, c) = (magnitude[imax - 1], vmax, magnitude[imax + 1]);
+    let den = a - 2.0 * b + c;
+    let off = if den < 0.0 {
+        (0.5 * (a - c) / den).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    };
+    Some((imax, imax as f64 + off))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    #[test]
+    fn harmonics_of_a_known_signal_along_a_sweep() {
+        // Linear sweep 30 -> 60 Hz at 6 kHz, x = dc + A1 cos + A2 cos(2.) + A3 sin(3.)
+        let fs = 6000.0;
+        let n = 30_000;
+        let (f1, f2) = (30.0, 60.0);
+        let dur = n as f64 / fs;
+        let phase = |t: f64| 2.0 * PI * (f1 * t + 0.5 * (f2 - f1) / dur * t * t);
+        let drive: Vec<f64> = (0..n).map(|i| phase(i as f64 / fs).sin()).collect();
+        let x: Vec<f64> = (0..n)
+            .map(|i| {
+                let ph = phase(i as f64 / fs) - 0.7;
+                -0.3e-3 + 5e-3 * ph.cos() + 0.4e-3 * (2.0 * ph).cos() + 0.1e-3 * (3.0 * ph).sin()
+            })
+            .collect();
+        let marks = period_marks(&drive, 0.1);
+        // about 45 Hz * 5 s periods
+        assert!((marks.len() as f64 - 225.0).abs() < 3.0, "{}", marks.len());
+        let per = harmonics_per_period(&x, &marks, fs, 4);
+        assert_eq!(per.len(), marks.len() - 1);
+        for p in &per {
+            let t = p.centre() / fs;
+            let f_true = f1 + (f2 - f1) * t / dur;
+            assert!(
+                (p.freq_hz / f_true - 1.0).abs() < 2e-3,
+                "{} {}",
+                p.freq_hz,
+                f_true
+            );
+            assert!((p.dc + 0.3e-3).abs() < 1e-7, "{}", p.dc);
+            assert!((p.amplitude(1) / 5e-3 - 1.0).abs() < 1e-5);
+            assert!((p.amplitude(2) / 0.4e-3 - 1.0).abs() < 1e-3);
+            assert!((p.amplitude(3) / 0.1e-3 - 1.0).abs() < 3e-3);
+            assert!(p.amplitude(4) < 1e-7);
+        }
+        let mag: Vec<f64> = per.iter().map(|p| p.amplitude(1)).collect();
+        assert!(resonance_peak(&mag, 3, 0.1).is_none(), "flat: no resonance");
+    }
+
+    #[test]
+    fn resonance_peak_interior_only() {
+        let peak: Vec<f64> = (0..50)
+            .map(|i| 1.0 / (1.0 + ((i as f64 - 20.3) / 4.0).powi(2)))
+            .collect();
+        let (i, pos) = resonance_peak(&peak, 3, 0.2).unwrap();
+        assert_eq!(i, 20);
+        assert!((pos - 20.3).abs() < 0.05, "{pos}");
+        let rising: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        assert!(resonance_peak(&rising, 3, 0.2).is_none());
+        assert!(resonance_peak(&[], 3, 0.2).is_none());
+    }
+}
