@@ -4,6 +4,16 @@
 //!
 //! CONTRACT shared with the daemon (owned by the virtual-bench work):
 //! `PartSpec`, `preset`, `preset_names`, `parse_part_toml`, `VirtualBench::new`.
+//!
+//! Layout: [`model`] (equations, RK4), [`virtual_bench`] (sensors, streaming
+//! [`crate::bench::Bench`]), [`truth`] (what a simulation used, `truth.json`).
+
+pub mod model;
+pub mod truth;
+pub mod virtual_bench;
+
+pub use model::BenchParams;
+pub use virtual_bench::VirtualBench;
 
 use serde::{Deserialize, Serialize};
 
@@ -24,39 +34,247 @@ pub struct PartSpec {
     pub effects: crate::effects::Effects,
 }
 
+impl PartSpec {
+    /// One-line error naming the first implausible field.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |n: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{n} must be a positive number, got {v}"))
+            }
+        };
+        pos("moving_mass_kg", self.moving_mass_kg)?;
+        pos("ss_m2", self.ss_m2)?;
+        if !self.r_ns_per_m.is_finite() || self.r_ns_per_m < 0.0 {
+            return Err(format!("r_ns_per_m must be >= 0, got {}", self.r_ns_per_m));
+        }
+        if self.k_coeffs_si.is_empty() {
+            return Err("k_coeffs_si must hold at least k0".into());
+        }
+        if self.k_coeffs_si.len() > 12 {
+            return Err(format!(
+                "k_coeffs_si holds {} coefficients; at most 12 are supported",
+                self.k_coeffs_si.len()
+            ));
+        }
+        if let Some((i, v)) = self
+            .k_coeffs_si
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !v.is_finite())
+        {
+            return Err(format!("k_coeffs_si[{i}] must be finite, got {v}"));
+        }
+        pos("k_coeffs_si[0] (k0)", self.k_coeffs_si[0])?;
+        self.effects.validate()?;
+        Ok(())
+    }
+
+    /// K(x) (N/m).
+    pub fn stiffness_n_per_m(&self, x_m: f64) -> f64 {
+        self.k_coeffs_si
+            .iter()
+            .rev()
+            .fold(0.0, |acc, &c| acc * x_m + c)
+    }
+
+    /// Small-signal resonance sqrt(k0/m) / 2 pi (Hz).
+    pub fn f0_hz(&self) -> f64 {
+        (self.k_coeffs_si[0] / self.moving_mass_kg).sqrt() / (2.0 * std::f64::consts::PI)
+    }
+
+    /// Q = sqrt(k0 m) / R.
+    pub fn q(&self) -> f64 {
+        (self.k_coeffs_si[0] * self.moving_mass_kg).sqrt() / self.r_ns_per_m
+    }
+}
+
+/// The preset TOML format: the fields of [`PartSpec`] plus an optional description.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PartToml {
+    name: String,
+    #[serde(default)]
+    #[allow(dead_code)]
+    description: Option<String>,
+    moving_mass_kg: f64,
+    k_coeffs_si: Vec<f64>,
+    r_ns_per_m: f64,
+    ss_m2: f64,
+    #[serde(default)]
+    effects: crate::effects::Effects,
+}
+
+const PRESETS: [(&str, &str); 5] = [
+    ("spider_3in", include_str!("../../presets/spider_3in.toml")),
+    ("spider_4in", include_str!("../../presets/spider_4in.toml")),
+    ("cone_6in", include_str!("../../presets/cone_6in.toml")),
+    ("cone_18in", include_str!("../../presets/cone_18in.toml")),
+    (
+        "passive_radiator",
+        include_str!("../../presets/passive_radiator.toml"),
+    ),
+];
+
 /// Names of the built-in part presets.
 pub fn preset_names() -> Vec<&'static str> {
-    Vec::new()
+    PRESETS.iter().map(|(n, _)| *n).collect()
 }
 
 /// A built-in preset by name.
 pub fn preset(name: &str) -> Result<PartSpec, String> {
-    Err(format!("unknown preset '{name}'"))
+    let (_, text) = PRESETS.iter().find(|(n, _)| *n == name).ok_or_else(|| {
+        format!(
+            "unknown preset '{name}' (known: {})",
+            preset_names().join(", ")
+        )
+    })?;
+    parse_part_toml(text).map_err(|e| format!("preset '{name}': {e}"))
 }
 
-/// Parses a part description in the presets' TOML format.
-pub fn parse_part_toml(_text: &str) -> Result<PartSpec, String> {
-    Err("part TOML not implemented yet".into())
+/// Parses a part description in the presets' TOML format; one-line error.
+pub fn parse_part_toml(text: &str) -> Result<PartSpec, String> {
+    let t: PartToml = toml::from_str(text).map_err(|e| {
+        // toml's message spans several lines (with a source excerpt); keep one.
+        let msg = e.message().trim().replace('\n', "; ");
+        match e.span() {
+            Some(s) => {
+                let line = text[..s.start.min(text.len())].lines().count().max(1);
+                format!("part TOML, line {line}: {msg}")
+            }
+            None => format!("part TOML: {msg}"),
+        }
+    })?;
+    let p = PartSpec {
+        name: t.name,
+        moving_mass_kg: t.moving_mass_kg,
+        k_coeffs_si: t.k_coeffs_si,
+        r_ns_per_m: t.r_ns_per_m,
+        ss_m2: t.ss_m2,
+        effects: t.effects,
+    };
+    p.validate().map_err(|e| format!("part TOML: {e}"))?;
+    Ok(p)
 }
 
 /// Fast offline path: runs the standard procedure on a [`VirtualBench`] with
 /// `part` and returns the recording set (pre + first narrow sweep) that
 /// `analyze` reads. Used by `simulate`, the tests and the diagnostics suite.
 pub fn simulate_recording_set(
-    _part: &PartSpec,
-    _seed: u64,
+    part: &PartSpec,
+    seed: u64,
 ) -> Result<crate::recording::RecordingSet, String> {
-    Err("simulation not implemented yet".into())
+    simulate(part, seed, &SimulateOptions::default()).map(|s| s.set)
 }
 
-/// The virtual bench: implements [`crate::bench::Bench`].
-pub struct VirtualBench {
-    pub part: PartSpec,
-    pub seed: u64,
+/// Options of [`simulate`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SimulateOptions {
+    pub bench: BenchParams,
+    pub procedure: crate::procedure::ProcedureConfig,
 }
 
-impl VirtualBench {
-    pub fn new(part: PartSpec, seed: u64) -> VirtualBench {
-        VirtualBench { part, seed }
+/// Result of [`simulate`].
+#[derive(Debug, Clone)]
+pub struct Simulation {
+    pub set: crate::recording::RecordingSet,
+    pub outcome: crate::procedure::Outcome,
+    /// What the simulation used (the `truth.json` document).
+    pub truth: serde_json::Value,
+}
+
+/// Runs the standard procedure on a virtual bench with `part` (the moving
+/// mass of the procedure is the part's) and returns the recording set, the
+/// procedure outcome and the truth.
+pub fn simulate(part: &PartSpec, seed: u64, opts: &SimulateOptions) -> Result<Simulation, String> {
+    part.validate()?;
+    opts.bench.validate()?;
+    let mut vb = VirtualBench::new(part.clone(), seed).with_bench(opts.bench);
+    let mut cfg = opts.procedure.clone();
+    cfg.moving_mass_kg = part.moving_mass_kg;
+    struct Quiet;
+    impl crate::procedure::Observer for Quiet {}
+    let outcome = crate::procedure::run(&mut vb, &cfg, &mut Quiet).map_err(|e| e.to_string())?;
+    let first = outcome
+        .narrow
+        .first()
+        .ok_or("the procedure made no narrow sweep")?;
+    let mut meta = crate::recording::Meta::standard(part.moving_mass_kg, opts.bench.sample_rate_hz);
+    meta.extra.insert(
+        "source".into(),
+        serde_json::json!(format!(
+            "springbench simulate (part '{}', seed {seed})",
+            part.name
+        )),
+    );
+    let set = crate::recording::RecordingSet {
+        meta,
+        pre: outcome.pre.clone(),
+        main: first.signals.clone(),
+    };
+    let truth = truth::truth_json(part, &opts.bench, seed, &outcome);
+    Ok(Simulation {
+        set,
+        outcome,
+        truth,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_parse_and_are_plausible() {
+        assert_eq!(preset_names().len(), 5);
+        for name in preset_names() {
+            let p = preset(name).unwrap();
+            assert_eq!(p.name, name);
+            // Typical magnitudes (method notes): f0 10-50 Hz, Q 2-15.
+            assert!(
+                (10.0..=50.0).contains(&p.f0_hz()),
+                "{name}: f0 {}",
+                p.f0_hz()
+            );
+            assert!((2.0..=15.0).contains(&p.q()), "{name}: Q {}", p.q());
+            // Restoring force F = K(x) x strictly increasing over +-15 mm
+            // (one equilibrium, no snap-through).
+            let f = |x: f64| p.stiffness_n_per_m(x) * x;
+            let mut last = f(-0.015);
+            for i in 1..=300 {
+                let x = -0.015 + 0.03 * i as f64 / 300.0;
+                assert!(f(x) > last, "{name}: F(x) not increasing at {x}");
+                last = f(x);
+            }
+        }
+        assert!(preset("woofer").unwrap_err().contains("spider_4in"));
+    }
+
+    #[test]
+    fn bad_part_toml_gives_clear_errors() {
+        let ok = "name='a'\nmoving_mass_kg=0.05\nk_coeffs_si=[1000.0]\nr_ns_per_m=1\nss_m2=0.002\n";
+        assert_eq!(parse_part_toml(ok).unwrap().k_coeffs_si, vec![1000.0]);
+        let cases = [
+            (ok.replace("0.05", "-0.05"), "moving_mass_kg"),
+            (ok.replace("[1000.0]", "[]"), "k_coeffs_si"),
+            (ok.replace("[1000.0]", "[-5.0]"), "k0"),
+            (ok.replace("ss_m2=0.002", "ss_m2=0"), "ss_m2"),
+            (ok.replace("r_ns_per_m=1", "r_ns=1"), "r_ns"),
+            (
+                format!("{ok}[effects.creep]\nk_n_per_m=100\ntau_s=-1\n"),
+                "creep.tau_s",
+            ),
+            (format!("{ok}[effects.warp]\nx=1\n"), "warp"),
+            ("name='a'\nmoving_mass_kg=\n".to_string(), "line 2"),
+        ];
+        for (text, want) in cases {
+            let e = parse_part_toml(&text).unwrap_err();
+            assert!(e.contains(want), "{want}: {e}");
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+        let with_fx = format!("{ok}[effects.coulomb_friction]\nforce_n=0.1\n");
+        let p = parse_part_toml(&with_fx).unwrap();
+        assert_eq!(p.effects.coulomb_friction.unwrap().v_eps_m_per_s, 2e-3);
     }
 }

@@ -8,7 +8,6 @@
 //! CONTRACT (owned by the virtual-bench work): types and `run` signature are
 //! shared with the daemon; change them only together.
 
-use crate::bench::Bench;
 use crate::recording::Signals;
 use serde::{Deserialize, Serialize};
 
@@ -59,6 +58,10 @@ pub enum Step {
 pub struct Outcome {
     /// The small-signal sweep that was kept (after the level check).
     pub pre: Signals,
+    /// The stimulus of `pre`.
+    pub pre_sweep: SweepSpec,
+    /// Small-signal resonance read off the pre-measurement (peak of |X/Mic|, Hz).
+    pub f0_hz: f64,
     /// One narrow sweep per requested level, in the order of `levels_m`.
     pub narrow: Vec<NarrowSweep>,
     /// Stimulus time a real bench would need for all sweeps played, searches included (s).
@@ -74,6 +77,12 @@ pub struct NarrowSweep {
     pub drive_v: f64,
     pub f_start_hz: f64,
     pub f_end_hz: f64,
+    /// The complete stimulus.
+    pub sweep: SweepSpec,
+    /// Large-signal resonance found in the sweep (peak of |X/Mic| of the fundamental, Hz).
+    pub resonance_hz: f64,
+    /// Largest |x| of the sweep (m).
+    pub xpeak_m: f64,
     pub signals: Signals,
 }
 
@@ -102,13 +111,7 @@ pub enum ProcedureError {
     Failed(String),
 }
 
-/// Runs the standard procedure on `bench`.
-pub fn run(
-    _bench: &mut dyn Bench,
-    _cfg: &ProcedureConfig,
-    _obs: &mut dyn Observer,
-) -> Result<Outcome, ProcedureError> {
-    Err(ProcedureError::Failed(
-        "procedure not implemented yet".into(),
-    ))
-}
+mod run;
+pub mod sweep;
+pub use run::run;
+pub use sweep::SweepSpec;

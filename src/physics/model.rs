@@ -1,0 +1,445 @@
+//! The lumped model of the pneumatic bench and its fixed-step RK4 integrator.
+//!
+//! State (SI): part displacement `x` (positive out of the box) and velocity
+//! `v`; exciter cone displacement `xd` (positive into the box) and velocity
+//! `vd`; box gauge pressure `p`; exciter current `i` (only with `Le > 0`,
+//! otherwise algebraic); creep state `xr` (standard linear solid).
+//!
+//! Equations:
+//! - exciter: `Le i' = u - Re i - Bl vd`, `Mmd vd' = Bl i - Rmd vd - Kmd xd - Sd p`
+//!   (positive current pushes the cone into the box; the box pressure pushes it out)
+//! - part: `m v' = Ss p - R v - K(x) x - F_effects`
+//! - box volume `V = V0 - Sd xd + Ss x`; adiabatic air spring with leak:
+//!   `p' = -gamma (p0 + p) V'/V - p/tau_leak` (linear box: `-gamma p0 V'/V0 - p/tau_leak`),
+//!   `tau_leak = RAL CAB`.
+//!
+//! The drive is given per sample; between samples it is interpolated linearly.
+
+use crate::effects::Effects;
+use serde::{Deserialize, Serialize};
+
+/// Exciter loudspeaker (voltage driven).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Exciter {
+    pub re_ohm: f64,
+    /// Voice-coil inductance (H); 0 makes the current algebraic.
+    #[serde(default)]
+    pub le_h: f64,
+    pub bl_tm: f64,
+    pub mmd_kg: f64,
+    pub rmd_ns_per_m: f64,
+    pub kmd_n_per_m: f64,
+    pub sd_m2: f64,
+}
+
+/// The closed box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxParams {
+    pub volume_m3: f64,
+    pub gamma: f64,
+    pub p0_pa: f64,
+    /// Leak time constant RAL*CAB (s); `f64::INFINITY` (or absent in JSON) = no leak.
+    #[serde(default = "inf")]
+    pub leak_tau_s: f64,
+    /// Adiabatic (nonlinear) air spring; false = linearised `p = -gamma p0 dV/V0`.
+    pub adiabatic: bool,
+}
+
+fn inf() -> f64 {
+    f64::INFINITY
+}
+
+/// Laser triangulation sensor.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Laser {
+    /// White noise (m RMS).
+    pub noise_m: f64,
+    /// Measuring range +-range_m; beyond it the sample is flagged out of range.
+    pub range_m: f64,
+    /// Quantisation step (m); 0 = none.
+    #[serde(default)]
+    pub quantisation_m: f64,
+    /// Delay of the laser path (s).
+    #[serde(default)]
+    pub delay_s: f64,
+}
+
+/// Microphone in the box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Microphone {
+    pub gain_v_per_pa: f64,
+    /// White noise referred to the pressure (Pa RMS).
+    pub noise_pa: f64,
+    /// Delay of the microphone path (s), in addition to the `channel_delay` effect.
+    #[serde(default)]
+    pub delay_s: f64,
+}
+
+/// Everything of the bench except the part.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchParams {
+    pub sample_rate_hz: f64,
+    /// RK4 steps per sample (1 or 2 is plenty at 48 kHz).
+    pub substeps: u32,
+    pub exciter: Exciter,
+    #[serde(rename = "box")]
+    pub box_: BoxParams,
+    pub laser: Laser,
+    pub microphone: Microphone,
+    /// ADC full scale of the microphone and drive inputs (V peak); beyond it the samples clip.
+    pub adc_full_scale_v: f64,
+}
+
+impl Default for BenchParams {
+    /// The bench of the independent reference simulator
+    /// (`shared/data/reference-recordings/README.md` and its truth.json `bench`).
+    fn default() -> Self {
+        BenchParams {
+            sample_rate_hz: 48000.0,
+            substeps: 1,
+            exciter: Exciter {
+                re_ohm: 5.5,
+                le_h: 0.0,
+                bl_tm: 20.0,
+                mmd_kg: 0.25,
+                rmd_ns_per_m: 3.0,
+                kmd_n_per_m: 3000.0,
+                sd_m2: 0.115,
+            },
+            box_: BoxParams {
+                volume_m3: 0.095,
+                gamma: 1.4,
+                p0_pa: 101325.0,
+                leak_tau_s: 1.0,
+                adiabatic: true,
+            },
+            laser: Laser {
+                noise_m: 1e-6,
+                range_m: 0.025,
+                quantisation_m: 0.0,
+                delay_s: 0.0,
+            },
+            microphone: Microphone {
+                gain_v_per_pa: 0.0137,
+                noise_pa: 0.3,
+                delay_s: 0.0,
+            },
+            adc_full_scale_v: 100.0,
+        }
+    }
+}
+
+impl BenchParams {
+    /// One-line error naming the first implausible field.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |n: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("bench.{n} must be a positive number, got {v}"))
+            }
+        };
+        let nonneg = |n: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(format!("bench.{n} must be >= 0, got {v}"))
+            }
+        };
+        pos("sample_rate_hz", self.sample_rate_hz)?;
+        if self.substeps == 0 || self.substeps > 64 {
+            return Err(format!(
+                "bench.substeps must be 1..=64, got {}",
+                self.substeps
+            ));
+        }
+        let e = &self.exciter;
+        pos("exciter.re_ohm", e.re_ohm)?;
+        nonneg("exciter.le_h", e.le_h)?;
+        pos("exciter.bl_tm", e.bl_tm)?;
+        pos("exciter.mmd_kg", e.mmd_kg)?;
+        nonneg("exciter.rmd_ns_per_m", e.rmd_ns_per_m)?;
+        nonneg("exciter.kmd_n_per_m", e.kmd_n_per_m)?;
+        pos("exciter.sd_m2", e.sd_m2)?;
+        let b = &self.box_;
+        pos("box.volume_m3", b.volume_m3)?;
+        pos("box.gamma", b.gamma)?;
+        pos("box.p0_pa", b.p0_pa)?;
+        if b.leak_tau_s.is_nan() || b.leak_tau_s <= 0.0 {
+            return Err(format!(
+                "bench.box.leak_tau_s must be > 0 (inf = no leak), got {}",
+                b.leak_tau_s
+            ));
+        }
+        nonneg("laser.noise_m", self.laser.noise_m)?;
+        pos("laser.range_m", self.laser.range_m)?;
+        nonneg("laser.quantisation_m", self.laser.quantisation_m)?;
+        nonneg("laser.delay_s", self.laser.delay_s)?;
+        pos("microphone.gain_v_per_pa", self.microphone.gain_v_per_pa)?;
+        nonneg("microphone.noise_pa", self.microphone.noise_pa)?;
+        nonneg("microphone.delay_s", self.microphone.delay_s)?;
+        pos("adc_full_scale_v", self.adc_full_scale_v)?;
+        Ok(())
+    }
+}
+
+/// Number of state variables.
+pub const NSTATE: usize = 7;
+/// Indices into the state vector.
+pub mod idx {
+    pub const X: usize = 0;
+    pub const V: usize = 1;
+    pub const XD: usize = 2;
+    pub const VD: usize = 3;
+    pub const P: usize = 4;
+    pub const I: usize = 5;
+    pub const XR: usize = 6;
+}
+
+/// Plain-number view of the part and the bench used inside the derivative.
+#[derive(Debug, Clone)]
+pub struct Model {
+    pub m: f64,
+    pub k: Vec<f64>,
+    pub r: f64,
+    pub ss: f64,
+    pub fx: Effects,
+    pub ex: Exciter,
+    pub bx: BoxParams,
+    /// gamma p0 / V0
+    kbox: f64,
+    inv_tau_leak: f64,
+}
+
+/// Instantaneous powers (W) and stored energies (J) for the energy balance.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Energy {
+    /// Electrical input power u*i.
+    pub input_w: f64,
+    /// All dissipated power (Re, Rmd, R, leak, effects).
+    pub dissipated_w: f64,
+    /// Kinetic + spring + magnetic + gas energy.
+    pub stored_j: f64,
+}
+
+impl Model {
+    pub fn new(part: &super::PartSpec, bench: &BenchParams) -> Model {
+        let bx = bench.box_;
+        Model {
+            m: part.moving_mass_kg,
+            k: part.k_coeffs_si.clone(),
+            r: part.r_ns_per_m,
+            ss: part.ss_m2,
+            fx: part.effects,
+            ex: bench.exciter,
+            bx,
+            kbox: bx.gamma * bx.p0_pa / bx.volume_m3,
+            inv_tau_leak: if bx.leak_tau_s.is_finite() {
+                1.0 / bx.leak_tau_s
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// K(x) (N/m).
+    #[inline]
+    pub fn stiffness(&self, x: f64) -> f64 {
+        let mut acc = 0.0;
+        for &c in self.k.iter().rev() {
+            acc = acc * x + c;
+        }
+        acc
+    }
+
+    /// Force of the effects on the part (opposing, N), without creep's state derivative.
+    #[inline]
+    fn effect_force(&self, t: f64, x: f64, v: f64, xr: f64) -> f64 {
+        let mut f = 0.0;
+        let fx = &self.fx;
+        if let Some(c) = &fx.coulomb_friction {
+            f += c.force_n * (v / c.v_eps_m_per_s).tanh();
+        }
+        if let Some(q) = &fx.quadratic_damping {
+            f += q.coeff_ns2_per_m2 * v * v.abs();
+        }
+        if let Some(d) = &fx.damping_vs_displacement {
+            f += (d.r1_ns_per_m2 * x + d.r2_ns_per_m3 * x * x) * v;
+        }
+        if let Some(c) = &fx.creep {
+            f += c.k_n_per_m * (x - xr);
+        }
+        if let Some(s) = &fx.stiffness_drift {
+            f += s.dk0_dt_n_per_m_s * t * x;
+        }
+        f
+    }
+
+    #[inline]
+    fn current(&self, s: &[f64; NSTATE], u: f64) -> f64 {
+        if self.ex.le_h > 0.0 {
+            s[idx::I]
+        } else {
+            (u - self.ex.bl_tm * s[idx::VD]) / self.ex.re_ohm
+        }
+    }
+
+    /// Time derivative of the state at time `t` with drive `u`.
+    #[inline]
+    pub fn deriv(&self, t: f64, s: &[f64; NSTATE], u: f64) -> [f64; NSTATE] {
+        let (x, v, xd, vd, p, xr) = (
+            s[idx::X],
+            s[idx::V],
+            s[idx::XD],
+            s[idx::VD],
+            s[idx::P],
+            s[idx::XR],
+        );
+        let ex = &self.ex;
+        let i = self.current(s, u);
+        let di = if ex.le_h > 0.0 {
+            (u - ex.re_ohm * i - ex.bl_tm * vd) / ex.le_h
+        } else {
+            0.0
+        };
+        let fe = self.effect_force(t, x, v, xr);
+        let a = (self.ss * p - self.r * v - self.stiffness(x) * x - fe) / self.m;
+        let ad =
+            (ex.bl_tm * i - ex.rmd_ns_per_m * vd - ex.kmd_n_per_m * xd - ex.sd_m2 * p) / ex.mmd_kg;
+        let dvol = -ex.sd_m2 * vd + self.ss * v;
+        let dp = if self.bx.adiabatic {
+            let vol = self.bx.volume_m3 - ex.sd_m2 * xd + self.ss * x;
+            -self.bx.gamma * (self.bx.p0_pa + p) * dvol / vol
+        } else {
+            -self.kbox * dvol
+        } - p * self.inv_tau_leak;
+        let dxr = match &self.fx.creep {
+            Some(c) => (x - xr) / c.tau_s,
+            None => 0.0,
+        };
+        [v, a, vd, ad, dp, di, dxr]
+    }
+
+    /// Powers and stored energy at a state (for the energy-balance test).
+    pub fn energy(&self, t: f64, s: &[f64; NSTATE], u: f64) -> Energy {
+        let (x, v, xd, vd, p, xr) = (
+            s[idx::X],
+            s[idx::V],
+            s[idx::XD],
+            s[idx::VD],
+            s[idx::P],
+            s[idx::XR],
+        );
+        let ex = &self.ex;
+        let i = self.current(s, u);
+        // Spring energy of the part: integral of K(x) x dx = sum k_j x^(j+2)/(j+2).
+        let mut spring = 0.0;
+        for (j, &c) in self.k.iter().enumerate() {
+            spring += c * x.powi(j as i32 + 2) / (j as f64 + 2.0);
+        }
+        let mut stored = 0.5 * self.m * v * v
+            + spring
+            + 0.5 * ex.mmd_kg * vd * vd
+            + 0.5 * ex.kmd_n_per_m * xd * xd
+            + 0.5 * ex.le_h * i * i;
+        let mut diss = ex.re_ohm * i * i + ex.rmd_ns_per_m * vd * vd + self.r * v * v;
+        let bx = &self.bx;
+        if bx.adiabatic {
+            // Internal energy of the gas minus the work of the atmosphere outside.
+            let vol = bx.volume_m3 - ex.sd_m2 * xd + self.ss * x;
+            let pabs = bx.p0_pa + p;
+            stored += (pabs * vol - bx.p0_pa * bx.volume_m3) / (bx.gamma - 1.0)
+                + bx.p0_pa * (vol - bx.volume_m3);
+            // Only exact without a leak (the leak changes the air mass).
+            diss += 0.0;
+        } else {
+            stored += 0.5 * p * p / self.kbox;
+            diss += p * p * self.inv_tau_leak / self.kbox;
+        }
+        let fx = &self.fx;
+        if let Some(c) = &fx.coulomb_friction {
+            diss += c.force_n * (v / c.v_eps_m_per_s).tanh() * v;
+        }
+        if let Some(q) = &fx.quadratic_damping {
+            diss += q.coeff_ns2_per_m2 * v * v * v.abs();
+        }
+        if let Some(d) = &fx.damping_vs_displacement {
+            diss += (d.r1_ns_per_m2 * x + d.r2_ns_per_m3 * x * x) * v * v;
+        }
+        if let Some(c) = &fx.creep {
+            stored += 0.5 * c.k_n_per_m * (x - xr) * (x - xr);
+            diss += c.k_n_per_m * (x - xr) * (x - xr) / c.tau_s;
+        }
+        let _ = t;
+        Energy {
+            input_w: u * i,
+            dissipated_w: diss,
+            stored_j: stored,
+        }
+    }
+}
+
+/// Fixed-step RK4 integration of [`Model`], one sample at a time.
+#[derive(Debug, Clone)]
+pub struct Integrator {
+    pub model: Model,
+    pub state: [f64; NSTATE],
+    /// Time of `state` (s) since the start of the recording.
+    pub t: f64,
+    dt_sample: f64,
+    substeps: u32,
+}
+
+impl Integrator {
+    pub fn new(model: Model, sample_rate_hz: f64, substeps: u32) -> Integrator {
+        Integrator {
+            model,
+            state: [0.0; NSTATE],
+            t: 0.0,
+            dt_sample: 1.0 / sample_rate_hz,
+            substeps: substeps.max(1),
+        }
+    }
+
+    /// Advances one sample period; the drive goes linearly from `u0` to `u1`.
+    #[inline]
+    pub fn step(&mut self, u0: f64, u1: f64) {
+        let n = self.substeps;
+        let h = self.dt_sample / n as f64;
+        let t0 = self.t;
+        for k in 0..n {
+            let a = k as f64 / n as f64;
+            let b = (k as f64 + 0.5) / n as f64;
+            let c = (k as f64 + 1.0) / n as f64;
+            let ua = u0 + (u1 - u0) * a;
+            let ub = u0 + (u1 - u0) * b;
+            let uc = u0 + (u1 - u0) * c;
+            let t = t0 + a * self.dt_sample;
+            rk4(&self.model, t, h, &mut self.state, ua, ub, uc);
+        }
+        self.t = t0 + self.dt_sample;
+    }
+}
+
+#[inline]
+fn rk4(m: &Model, t: f64, h: f64, s: &mut [f64; NSTATE], ua: f64, ub: f64, uc: f64) {
+    let add = |s: &[f64; NSTATE], k: &[f64; NSTATE], f: f64| {
+        let mut o = *s;
+        for j in 0..NSTATE {
+            o[j] += f * k[j];
+        }
+        o
+    };
+    let k1 = m.deriv(t, s, ua);
+    let k2 = m.deriv(t + 0.5 * h, &add(s, &k1, 0.5 * h), ub);
+    let k3 = m.deriv(t + 0.5 * h, &add(s, &k2, 0.5 * h), ub);
+    let k4 = m.deriv(t + h, &add(s, &k3, h), uc);
+    for j in 0..NSTATE {
+        s[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+    }
+}
