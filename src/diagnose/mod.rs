@@ -3,7 +3,9 @@
 //! CONTRACT shared with the CLI and the daemon (owned by the diagnostics work):
 //! `DiagnoseOptions`, `Diagnosis`, `diagnose`, `plot_names`, `plot`.
 
+pub mod engine;
 pub mod regress;
+pub mod spectrum;
 pub mod stats;
 pub mod synth;
 

@@ -43,7 +43,7 @@ impl SynthSpec {
             k_coeffs_si: vec![2400.0, 1.2e5, 3.6e7, -4.8e8, 1.44e11],
             r_ns_per_m: 1.83,
             effects: Effects::default(),
-            force_amplitude_n: 0.6,
+            force_amplitude_n: 2.0,
             f_start_hz: 30.0,
             f_end_hz: 60.0,
             duration_s: 4.0,

@@ -1,0 +1,1082 @@
+//! The diagnostics engine on force-balance data: the linear-in-parameters
+//! force balance
+//!
+//! `m a = s mic + c - sum_i k_i x^(i+1) - R v - (effect terms)`
+//!
+//! (`s` the force per microphone volt, `c` an offset), candidate effects with
+//! their regressors and hyper-parameter searches, ranking by blocked
+//! cross-validation and a block-robust Wald test, identifiability by variance
+//! inflation, and the forward-selection ladder.
+
+use super::regress::{block_bounds, collinearity_r2, BlockGram};
+use super::stats::{f_upper_p, t_two_sided_p};
+use crate::effects::{
+    ChannelDelay, CoulombFriction, Creep, DampingVsDisplacement, EffectId, Effects,
+    QuadraticDamping, StiffnessDrift,
+};
+use crate::identify::ForceBalanceData;
+use nalgebra::DVector;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the engine. The defaults are the documented design choices
+/// (docs/diagnostics.md), not tuned to any data set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineOptions {
+    /// Highest power of K(x) in the base model; chosen from the data when None.
+    pub order: Option<usize>,
+    /// Effects forced into the model from the start.
+    pub forced: Vec<EffectId>,
+    /// Number of contiguous time blocks (batch-means covariance).
+    pub blocks: usize,
+    /// Number of contiguous cross-validation folds (runs of blocks).
+    pub folds: usize,
+    /// Family-wise significance level per ladder step (Bonferroni over candidates).
+    pub alpha: f64,
+    /// Variance inflation above which a candidate cannot be told apart from the model.
+    pub vif_limit: f64,
+    /// Most effects the ladder adds.
+    pub max_steps: usize,
+    /// Highest K(x) power the order selection and `stiffness_order` may reach.
+    pub max_order: usize,
+}
+
+impl Default for EngineOptions {
+    fn default() -> Self {
+        EngineOptions {
+            order: None,
+            forced: Vec::new(),
+            blocks: 40,
+            folds: 5,
+            alpha: 0.01,
+            vif_limit: 200.0,
+            max_steps: 6,
+            max_order: 10,
+        }
+    }
+}
+
+/// A candidate extension of the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Term {
+    Effect(EffectId),
+    /// One more power of K(x) (not physics; guards against a too-low order).
+    StiffnessOrder,
+}
+
+impl Term {
+    pub fn name(self) -> &'static str {
+        match self {
+            Term::Effect(e) => e.as_str(),
+            Term::StiffnessOrder => "stiffness_order",
+        }
+    }
+
+    /// The experiment that separates this term from the model when this data cannot.
+    pub fn separating_experiment(self) -> &'static str {
+        match self {
+            Term::Effect(EffectId::CoulombFriction) => {
+                "a second drive level (dry friction does not grow with amplitude, viscous damping does)"
+            }
+            Term::Effect(EffectId::QuadraticDamping) => {
+                "a second drive level (v|v| damping grows with amplitude, viscous damping does not)"
+            }
+            Term::Effect(EffectId::DampingVsDisplacement) => {
+                "a second drive level or a larger excursion (damping that depends on x changes with it)"
+            }
+            Term::Effect(EffectId::Creep) => {
+                "a wider frequency range (the small-signal sweep) or an added mass that moves the resonance"
+            }
+            Term::Effect(EffectId::StiffnessDrift) => {
+                "a repeated measurement some minutes later (drift changes K(0) between runs)"
+            }
+            Term::Effect(EffectId::ChannelDelay) => {
+                "an added mass (moves the resonance, so delay and damping separate)"
+            }
+            Term::StiffnessOrder => "a higher drive level (a larger displacement range)",
+        }
+    }
+}
+
+/// Fitted model: what is in it and how well it explains the data.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FittedModel {
+    pub order: usize,
+    /// Effects in the model in the order they were added (forced first).
+    pub effect_ids: Vec<EffectId>,
+    pub effects: Effects,
+    /// Standard errors of the effect parameters (same names), block-robust.
+    pub effects_se: serde_json::Value,
+    /// K(x) = sum k_i x^i (N/m, x in m) of this model.
+    pub stiffness_coefficients: Vec<f64>,
+    pub r_ns_per_m: f64,
+    pub force_per_mic_n_per_v: f64,
+    pub residual_percent: f64,
+    /// Residual of blocked cross-validation (held-out data).
+    pub cv_residual_percent: f64,
+}
+
+/// One candidate, ranked against the model it would extend.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CandidateResult {
+    pub effect: String,
+    /// Reduction of the held-out model error (structured part) when added (%).
+    pub error_reduction_percent: f64,
+    /// Reduction of the held-out residual when added (%).
+    pub residual_reduction_percent: f64,
+    pub significant: bool,
+    pub p_value: f64,
+    /// Significance level after the Bonferroni correction this test was held to.
+    pub alpha: f64,
+    /// Fitted parameters (names of effects.rs, SI).
+    pub parameters: serde_json::Value,
+    /// Block-robust standard errors of the parameters.
+    pub parameters_se: serde_json::Value,
+    /// Largest variance inflation factor of the candidate's regressors.
+    pub variance_inflation: f64,
+    pub identifiable: bool,
+    /// The model term the candidate is most collinear with.
+    pub collinear_with: String,
+    /// "cannot tell from this data ..." and the separating experiment, when not identifiable.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    pub cv_residual_percent: f64,
+    #[serde(skip)]
+    pub hyper: Option<f64>,
+    #[serde(skip)]
+    pub cv_sse: f64,
+}
+
+/// One step of the ladder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LadderStep {
+    pub effects: Vec<String>,
+    pub order: usize,
+    pub residual_percent: f64,
+    pub cv_residual_percent: f64,
+    pub model_error_percent: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub added: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p_value: Option<f64>,
+}
+
+/// Everything the engine found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineResult {
+    pub base: FittedModel,
+    pub model: FittedModel,
+    pub candidates: Vec<CandidateResult>,
+    pub ladder: Vec<LadderStep>,
+    pub noise_floor_percent: f64,
+    pub model_error_percent: f64,
+    pub base_model_error_percent: f64,
+    /// Residual of the final and the base model (N), sample by sample.
+    pub residual_n: Vec<f64>,
+    pub base_residual_n: Vec<f64>,
+    /// Modelled inertia force m a of the final model (N).
+    pub modelled_force_n: Vec<f64>,
+    pub spectrum: super::spectrum::ResidualSpectrum,
+    /// Order chosen for the base model and how.
+    pub order_note: String,
+}
+
+/// Model specification: K order plus effects with their hyper-parameter.
+#[derive(Debug, Clone, PartialEq)]
+struct Spec {
+    order: usize,
+    effects: Vec<(EffectId, f64)>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Role {
+    Mic,
+    Intercept,
+    K(usize),
+    R,
+    Eff(EffectId, usize),
+}
+
+impl Role {
+    fn name(self) -> String {
+        match self {
+            Role::Mic => "the force scale (microphone)".into(),
+            Role::Intercept => "the force offset".into(),
+            Role::K(0) => "k0 (linear stiffness)".into(),
+            Role::K(i) => format!("the x^{} term of K(x)", i),
+            Role::R => "R (viscous damping)".into(),
+            Role::Eff(e, _) => e.as_str().into(),
+        }
+    }
+}
+
+/// Data prepared for the engine.
+pub struct Prepared<'a> {
+    d: &'a ForceBalanceData,
+    y: Vec<f64>,
+    ones: Vec<f64>,
+    /// x / x_scale in [-1, 1].
+    u: Vec<f64>,
+    x_scale: f64,
+    v_max: f64,
+    /// RMS(v) / RMS(x): a typical angular frequency of the motion (rad/s).
+    omega_typ: f64,
+    t_centered: Vec<f64>,
+    bounds: Vec<(usize, usize)>,
+    rms_y: f64,
+    duration_s: f64,
+}
+
+fn legendre_cols(x: &[f64], u: &[f64], order: usize) -> Vec<Vec<f64>> {
+    // x * P_i(u), i = 0..=order.
+    let n = x.len();
+    let mut cols: Vec<Vec<f64>> = Vec::with_capacity(order + 1);
+    let mut p_prev = vec![1.0; n];
+    let mut p_cur = u.to_vec();
+    cols.push(x.to_vec());
+    if order >= 1 {
+        cols.push((0..n).map(|t| x[t] * p_cur[t]).collect());
+    }
+    for i in 1..order {
+        let fi = i as f64;
+        let p_next: Vec<f64> = (0..n)
+            .map(|t| ((2.0 * fi + 1.0) * u[t] * p_cur[t] - fi * p_prev[t]) / (fi + 1.0))
+            .collect();
+        cols.push((0..n).map(|t| x[t] * p_next[t]).collect());
+        p_prev = std::mem::replace(&mut p_cur, p_next);
+    }
+    cols
+}
+
+/// Monomial coefficients (in u) of the Legendre polynomials P_0..P_order.
+fn legendre_monomials(order: usize) -> Vec<Vec<f64>> {
+    let mut out: Vec<Vec<f64>> = vec![vec![1.0]];
+    if order >= 1 {
+        out.push(vec![0.0, 1.0]);
+    }
+    for i in 1..order {
+        let fi = i as f64;
+        let mut next = vec![0.0; i + 2];
+        for (j, &c) in out[i].iter().enumerate() {
+            next[j + 1] += (2.0 * fi + 1.0) * c / (fi + 1.0);
+        }
+        for (j, &c) in out[i - 1].iter().enumerate() {
+            next[j] -= fi * c / (fi + 1.0);
+        }
+        out.push(next);
+    }
+    out
+}
+
+/// First-order low-pass of x with time constant tau (exact for a piecewise
+/// constant input), started at x[0]: the relaxed position of the creep model.
+fn creep_column(x: &[f64], fs: f64, tau: f64) -> Vec<f64> {
+    let alpha = 1.0 - (-1.0 / (fs * tau)).exp();
+    let mut xr = x.first().copied().unwrap_or(0.0);
+    x.iter()
+        .map(|&xi| {
+            let out = xi - xr;
+            xr += alpha * (xi - xr);
+            out
+        })
+        .collect()
+}
+
+/// mic(t + d) by 4-point Lagrange interpolation (d in seconds, any sign).
+fn shifted(mic: &[f64], fs: f64, d: f64) -> Vec<f64> {
+    let n = mic.len() as isize;
+    let s = d * fs;
+    let k = s.floor();
+    let f = s - k;
+    let k = k as isize;
+    let at = |i: isize| mic[i.clamp(0, n - 1) as usize];
+    let (c0, c1, c2, c3) = (
+        -f * (f - 1.0) * (f - 2.0) / 6.0,
+        (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0,
+        -(f + 1.0) * f * (f - 2.0) / 2.0,
+        (f + 1.0) * f * (f - 1.0) / 6.0,
+    );
+    (0..n)
+        .map(|i| {
+            let j = i + k;
+            c0 * at(j - 1) + c1 * at(j) + c2 * at(j + 1) + c3 * at(j + 2)
+        })
+        .collect()
+}
+
+fn derivative(sig: &[f64], fs: f64) -> Vec<f64> {
+    let n = sig.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
+            if b > a {
+                (sig[b] - sig[a]) * fs / (b - a) as f64
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+impl<'a> Prepared<'a> {
+    pub fn new(d: &'a ForceBalanceData, blocks: usize) -> Result<Prepared<'a>, String> {
+        let n = d.x_m.len();
+        if n < 400 {
+            return Err(format!(
+                "force-balance data too short for diagnostics: {n} samples (need at least 400)"
+            ));
+        }
+        if d.v_m_per_s.len() != n || d.a_m_per_s2.len() != n || d.mic_v.len() != n {
+            return Err("force-balance data: signals of different length".into());
+        }
+        let positive = |v: f64| v > 0.0 && v.is_finite();
+        if !positive(d.mass_kg) || !positive(d.sample_rate_hz) {
+            return Err("force-balance data: mass and sample rate must be positive".into());
+        }
+        let all = [&d.x_m, &d.v_m_per_s, &d.a_m_per_s2, &d.mic_v];
+        if all.iter().any(|s| s.iter().any(|v| !v.is_finite())) {
+            return Err("force-balance data contains NaN or infinite samples".into());
+        }
+        let x_scale = d.x_m.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let v_max = d.v_m_per_s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if x_scale <= 0.0 || v_max <= 0.0 {
+            return Err("force-balance data: the part does not move".into());
+        }
+        let rms = |s: &[f64]| (s.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let omega_typ = rms(&d.v_m_per_s) / rms(&d.x_m).max(f64::MIN_POSITIVE);
+        let y: Vec<f64> = d.a_m_per_s2.iter().map(|a| d.mass_kg * a).collect();
+        let rms_y = (y.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
+        let fs = d.sample_rate_hz;
+        let t_mid = (n as f64 - 1.0) / 2.0 / fs;
+        Ok(Prepared {
+            d,
+            ones: vec![1.0; n],
+            u: d.x_m.iter().map(|x| x / x_scale).collect(),
+            x_scale,
+            v_max,
+            omega_typ,
+            t_centered: (0..n).map(|i| i as f64 / fs - t_mid).collect(),
+            bounds: block_bounds(n, blocks.max(4)),
+            rms_y,
+            duration_s: n as f64 / fs,
+            y,
+        })
+    }
+
+    fn fs(&self) -> f64 {
+        self.d.sample_rate_hz
+    }
+
+    /// Columns of one effect at hyper-parameter `h` (none for channel delay).
+    fn effect_cols(&self, e: EffectId, h: f64) -> Vec<Vec<f64>> {
+        let (x, v) = (&self.d.x_m, &self.d.v_m_per_s);
+        match e {
+            EffectId::CoulombFriction => vec![v.iter().map(|v| (v / h).tanh()).collect()],
+            EffectId::QuadraticDamping => vec![v.iter().map(|v| v * v.abs()).collect()],
+            EffectId::DampingVsDisplacement => vec![
+                x.iter().zip(v).map(|(x, v)| x * v).collect(),
+                x.iter().zip(v).map(|(x, v)| x * x * v).collect(),
+            ],
+            EffectId::Creep => vec![creep_column(x, self.fs(), h)],
+            EffectId::StiffnessDrift => {
+                vec![x.iter().zip(&self.t_centered).map(|(x, t)| x * t).collect()]
+            }
+            EffectId::ChannelDelay => vec![],
+        }
+    }
+
+    fn mic_col(&self, spec: &Spec) -> Vec<f64> {
+        match spec
+            .effects
+            .iter()
+            .find(|(e, _)| *e == EffectId::ChannelDelay)
+        {
+            Some(&(_, d)) => shifted(&self.d.mic_v, self.fs(), d),
+            None => self.d.mic_v.clone(),
+        }
+    }
+
+    fn columns(&self, spec: &Spec) -> (Vec<Vec<f64>>, Vec<Role>) {
+        let mut cols = vec![self.mic_col(spec), self.ones.clone()];
+        let mut roles = vec![Role::Mic, Role::Intercept];
+        for (i, c) in legendre_cols(&self.d.x_m, &self.u, spec.order)
+            .into_iter()
+            .enumerate()
+        {
+            cols.push(c);
+            roles.push(Role::K(i));
+        }
+        cols.push(self.d.v_m_per_s.clone());
+        roles.push(Role::R);
+        for &(e, h) in &spec.effects {
+            for (k, c) in self.effect_cols(e, h).into_iter().enumerate() {
+                cols.push(c);
+                roles.push(Role::Eff(e, k));
+            }
+        }
+        (cols, roles)
+    }
+}
+
+/// A model built on the data: its columns and block Gram.
+struct Built {
+    spec: Spec,
+    cols: Vec<Vec<f64>>,
+    roles: Vec<Role>,
+    gram: BlockGram,
+}
+
+impl Built {
+    fn new(p: &Prepared, spec: Spec) -> Built {
+        let (cols, roles) = p.columns(&spec);
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let gram = BlockGram::build(&refs, &p.y, &p.bounds);
+        Built {
+            spec,
+            cols,
+            roles,
+            gram,
+        }
+    }
+
+    fn refs(&self) -> Vec<&[f64]> {
+        self.cols.iter().map(|c| c.as_slice()).collect()
+    }
+
+    /// Gram with candidate columns added (and the mic column replaced for a delay).
+    fn with(&self, p: &Prepared, drop_mic: bool, new_cols: &[Vec<f64>]) -> BlockGram {
+        let nrefs: Vec<&[f64]> = new_cols.iter().map(|c| c.as_slice()).collect();
+        self.gram.augment(
+            &self.refs(),
+            if drop_mic { Some(0) } else { None },
+            &nrefs,
+            &p.y,
+            &p.bounds,
+        )
+    }
+}
+
+fn golden_min(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> f64) -> (f64, f64) {
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let mut a = hi - g * (hi - lo);
+    let mut b = lo + g * (hi - lo);
+    let mut fa = f(a);
+    let mut fb = f(b);
+    for _ in 0..iters {
+        if fa < fb {
+            hi = b;
+            b = a;
+            fb = fa;
+            a = hi - g * (hi - lo);
+            fa = f(a);
+        } else {
+            lo = a;
+            a = b;
+            fa = fb;
+            b = lo + g * (hi - lo);
+            fb = f(b);
+        }
+    }
+    if fa < fb {
+        (a, fa)
+    } else {
+        (b, fb)
+    }
+}
+
+/// Block-robust Wald test of the last `q` coefficients of a fit of `gram`.
+fn wald_last(gram: &BlockGram, beta: &DVector<f64>, q: usize) -> (f64, Vec<f64>) {
+    let p = gram.p;
+    let cov = gram.block_covariance(beta);
+    let nb = gram.blocks.len() as f64;
+    let se: Vec<f64> = (p - q..p).map(|i| cov[(i, i)].max(0.0).sqrt()).collect();
+    let pval = if q == 1 {
+        let t = beta[p - 1] / se[0];
+        if se[0] > 0.0 {
+            t_two_sided_p(t, nb - 1.0)
+        } else {
+            1.0
+        }
+    } else {
+        let sub = cov.view((p - q, p - q), (q, q)).clone_owned();
+        let g = beta.rows(p - q, q).clone_owned();
+        let inv = super::regress::inverse_spd(&sub);
+        let w = (g.transpose() * inv * &g)[(0, 0)];
+        let qf = q as f64;
+        let f = w * (nb - qf) / (qf * (nb - 1.0));
+        f_upper_p(f, qf, nb - qf)
+    };
+    (pval, se)
+}
+
+/// Percent of RMS(m a) of a sum of squared errors.
+fn pct(p: &Prepared, sse: f64) -> f64 {
+    100.0 * (sse / p.y.len() as f64).sqrt() / p.rms_y
+}
+
+fn model_error(res: f64, noise: f64) -> f64 {
+    (res * res - noise * noise).max(0.0).sqrt()
+}
+
+struct Evaluated {
+    hyper: Option<f64>,
+    gram: BlockGram,
+    q: usize,
+    drop_mic: bool,
+    /// p-value and standard errors of the test (for delay: of the linearised column).
+    p_value: f64,
+    se: Vec<f64>,
+    beta: DVector<f64>,
+}
+
+fn hyper_grid(p: &Prepared, e: EffectId) -> Option<Vec<f64>> {
+    let logspace = |lo: f64, hi: f64, n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|i| (lo.ln() + (hi.ln() - lo.ln()) * i as f64 / (n - 1) as f64).exp())
+            .collect()
+    };
+    match e {
+        EffectId::CoulombFriction => Some(logspace(p.v_max * 3e-4, p.v_max, 15)),
+        // Below omega tau = 0.5 the creep column is mostly the high-passed
+        // laser noise (and a damping force): no creep is measurable there.
+        EffectId::Creep => {
+            let lo = (0.5 / p.omega_typ).max(2.0 / p.fs());
+            Some(logspace(lo, (p.duration_s / 2.0).max(2.0 * lo), 15))
+        }
+        _ => None,
+    }
+}
+
+fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
+    match term {
+        Term::StiffnessOrder => {
+            let order = built.spec.order + 1;
+            let mut cols = legendre_cols(&p.d.x_m, &p.u, order);
+            let last = cols.pop().expect("order >= 0");
+            let gram = built.with(p, false, &[last]);
+            let fit = gram.fit();
+            let (p_value, se) = wald_last(&gram, &fit.beta, 1);
+            Evaluated {
+                hyper: None,
+                gram,
+                q: 1,
+                drop_mic: false,
+                p_value,
+                se,
+                beta: fit.beta,
+            }
+        }
+        Term::Effect(EffectId::ChannelDelay) => {
+            // Test: the linearised column d * s * mic'(t) added to the model.
+            let mic = &built.cols[0];
+            let dmic = derivative(mic, p.fs());
+            let lin = built.with(p, false, std::slice::from_ref(&dmic));
+            let lfit = lin.fit();
+            let (p_value, lse) = wald_last(&lin, &lfit.beta, 1);
+            let s = lfit.beta[0];
+            let d0 = if s != 0.0 {
+                lfit.beta[lin.p - 1] / s
+            } else {
+                0.0
+            };
+            let current = built
+                .spec
+                .effects
+                .iter()
+                .find(|(e, _)| *e == EffectId::ChannelDelay)
+                .map_or(0.0, |x| x.1);
+            // Refine the delay with the exact shift around the linear estimate.
+            let w = d0.abs().max(2.0 / p.fs());
+            let orig = &p.d.mic_v;
+            let sse_at = |d: f64| {
+                let col = shifted(orig, p.fs(), current + d);
+                built.with(p, true, &[col]).fit().sse
+            };
+            let (d_best, _) = golden_min(d0 - w, d0 + w, 18, sse_at);
+            let col = shifted(orig, p.fs(), current + d_best);
+            let gram = built.with(p, true, &[col]);
+            let fit = gram.fit();
+            let se_d = if s != 0.0 { lse[0] / s.abs() } else { f64::NAN };
+            Evaluated {
+                hyper: Some(current + d_best),
+                gram,
+                q: 0,
+                drop_mic: true,
+                p_value,
+                se: vec![se_d],
+                beta: fit.beta,
+            }
+        }
+        Term::Effect(e) => {
+            let (hyper, cols) = match hyper_grid(p, e) {
+                None => (None, p.effect_cols(e, 0.0)),
+                Some(grid) => {
+                    let sse_at = |h: f64| built.with(p, false, &p.effect_cols(e, h)).fit().sse;
+                    let sses: Vec<f64> = grid.iter().map(|&h| sse_at(h)).collect();
+                    let (ib, _) = sses
+                        .iter()
+                        .enumerate()
+                        .min_by(|a, b| a.1.total_cmp(b.1))
+                        .expect("grid not empty");
+                    let lo = grid[ib.saturating_sub(1)].ln();
+                    let hi = grid[(ib + 1).min(grid.len() - 1)].ln();
+                    let (lh, sse) = golden_min(lo, hi, 14, |l| sse_at(l.exp()));
+                    let h = if sse < sses[ib] { lh.exp() } else { grid[ib] };
+                    (Some(h), p.effect_cols(e, h))
+                }
+            };
+            let q = cols.len();
+            let gram = built.with(p, false, &cols);
+            let fit = gram.fit();
+            let (p_value, se) = wald_last(&gram, &fit.beta, q);
+            Evaluated {
+                hyper,
+                gram,
+                q,
+                drop_mic: false,
+                p_value,
+                se,
+                beta: fit.beta,
+            }
+        }
+    }
+}
+
+fn effect_params(e: EffectId, h: f64, coef: &[f64]) -> serde_json::Value {
+    use serde_json::json;
+    match e {
+        EffectId::CoulombFriction => json!({"force_n": -coef[0], "v_eps_m_per_s": h}),
+        EffectId::QuadraticDamping => json!({"coeff_ns2_per_m2": -coef[0]}),
+        EffectId::DampingVsDisplacement => {
+            json!({"r1_ns_per_m2": -coef[0], "r2_ns_per_m3": -coef[1]})
+        }
+        EffectId::Creep => json!({"k_n_per_m": -coef[0], "tau_s": h}),
+        EffectId::StiffnessDrift => json!({"dk0_dt_n_per_m_s": -coef[0]}),
+        EffectId::ChannelDelay => json!({"delay_s": h}),
+    }
+}
+
+fn effect_se(e: EffectId, se: &[f64]) -> serde_json::Value {
+    use serde_json::json;
+    match e {
+        EffectId::CoulombFriction => json!({"force_n": se[0]}),
+        EffectId::QuadraticDamping => json!({"coeff_ns2_per_m2": se[0]}),
+        EffectId::DampingVsDisplacement => json!({"r1_ns_per_m2": se[0], "r2_ns_per_m3": se[1]}),
+        EffectId::Creep => json!({"k_n_per_m": se[0]}),
+        EffectId::StiffnessDrift => json!({"dk0_dt_n_per_m_s": se[0]}),
+        EffectId::ChannelDelay => json!({"delay_s": se[0]}),
+    }
+}
+
+fn set_effect(effects: &mut Effects, e: EffectId, params: &serde_json::Value) {
+    let g = |k: &str| params.get(k).and_then(|v| v.as_f64()).unwrap_or(0.0);
+    match e {
+        EffectId::CoulombFriction => {
+            effects.coulomb_friction = Some(CoulombFriction {
+                force_n: g("force_n"),
+                v_eps_m_per_s: g("v_eps_m_per_s"),
+            })
+        }
+        EffectId::QuadraticDamping => {
+            effects.quadratic_damping = Some(QuadraticDamping {
+                coeff_ns2_per_m2: g("coeff_ns2_per_m2"),
+            })
+        }
+        EffectId::DampingVsDisplacement => {
+            effects.damping_vs_displacement = Some(DampingVsDisplacement {
+                r1_ns_per_m2: g("r1_ns_per_m2"),
+                r2_ns_per_m3: g("r2_ns_per_m3"),
+            })
+        }
+        EffectId::Creep => {
+            effects.creep = Some(Creep {
+                k_n_per_m: g("k_n_per_m"),
+                tau_s: g("tau_s"),
+            })
+        }
+        EffectId::StiffnessDrift => {
+            effects.stiffness_drift = Some(StiffnessDrift {
+                dk0_dt_n_per_m_s: g("dk0_dt_n_per_m_s"),
+            })
+        }
+        EffectId::ChannelDelay => {
+            effects.channel_delay = Some(ChannelDelay {
+                delay_s: g("delay_s"),
+            })
+        }
+    }
+}
+
+/// Default hyper-parameter of a forced effect: searched like a candidate.
+fn forced_hyper(p: &Prepared, built: &Built, e: EffectId) -> f64 {
+    evaluate(p, built, Term::Effect(e)).hyper.unwrap_or(0.0)
+}
+
+/// Fits `spec` fully and describes it.
+fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<f64>) {
+    let fit = built.gram.fit();
+    let cov = built.gram.block_covariance(&fit.beta);
+    let mut effects = Effects::default();
+    let mut se_map = serde_json::Map::new();
+    let mut k_leg = Vec::new();
+    let (mut r, mut s) = (0.0, 0.0);
+    for (i, role) in built.roles.iter().enumerate() {
+        match *role {
+            Role::Mic => s = fit.beta[i],
+            Role::K(_) => k_leg.push(-fit.beta[i]),
+            Role::R => r = -fit.beta[i],
+            _ => {}
+        }
+    }
+    for &(e, h) in &built.spec.effects {
+        let idx: Vec<usize> = built
+            .roles
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| matches!(r, Role::Eff(id, _) if *id == e))
+            .map(|(i, _)| i)
+            .collect();
+        let coef: Vec<f64> = idx.iter().map(|&i| fit.beta[i]).collect();
+        let se: Vec<f64> = idx.iter().map(|&i| cov[(i, i)].max(0.0).sqrt()).collect();
+        let params = effect_params(e, h, &coef);
+        set_effect(&mut effects, e, &params);
+        if !se.is_empty() {
+            se_map.insert(e.as_str().into(), effect_se(e, &se));
+        }
+    }
+    // K(x) = sum_i b_i P_i(u), u = x / xs  ->  monomial coefficients in x.
+    let mono = legendre_monomials(built.spec.order);
+    let mut k = vec![0.0; built.spec.order + 1];
+    for (i, b) in k_leg.iter().enumerate() {
+        for (j, c) in mono[i].iter().enumerate() {
+            k[j] += b * c;
+        }
+    }
+    for (j, kj) in k.iter_mut().enumerate() {
+        *kj /= p.x_scale.powi(j as i32);
+    }
+    let model = FittedModel {
+        order: built.spec.order,
+        effect_ids: built.spec.effects.iter().map(|e| e.0).collect(),
+        effects,
+        effects_se: serde_json::Value::Object(se_map),
+        stiffness_coefficients: k,
+        r_ns_per_m: r,
+        force_per_mic_n_per_v: s,
+        residual_percent: pct(p, fit.sse),
+        cv_residual_percent: pct(p, built.gram.cv_sse(folds)),
+    };
+    (model, fit.beta)
+}
+
+fn residual(p: &Prepared, built: &Built, beta: &DVector<f64>) -> (Vec<f64>, Vec<f64>) {
+    let n = p.y.len();
+    let mut model = vec![0.0; n];
+    for (c, b) in built.cols.iter().zip(beta.iter()) {
+        for (m, v) in model.iter_mut().zip(c) {
+            *m += b * v;
+        }
+    }
+    let res = p.y.iter().zip(&model).map(|(y, m)| y - m).collect();
+    (res, model)
+}
+
+/// Ranks every candidate against `built`.
+fn rank(
+    p: &Prepared,
+    built: &Built,
+    opts: &EngineOptions,
+) -> Vec<(Term, Evaluated, CandidateResult)> {
+    let mut terms: Vec<Term> = EffectId::ALL
+        .into_iter()
+        .filter(|e| !built.spec.effects.iter().any(|(x, _)| x == e))
+        .map(Term::Effect)
+        .collect();
+    if built.spec.order < opts.max_order {
+        terms.push(Term::StiffnessOrder);
+    }
+    let n_tests = terms.len().max(1) as f64;
+    let base_cv = built.gram.cv_sse(opts.folds);
+    let intercept = built.roles.iter().position(|r| *r == Role::Intercept);
+    let mut out = Vec::new();
+    for term in terms {
+        let ev = evaluate(p, built, term);
+        // Hyper-parameter searches test many shapes: count them as 4 tests more.
+        let searched = matches!(
+            term,
+            Term::Effect(EffectId::CoulombFriction)
+                | Term::Effect(EffectId::Creep)
+                | Term::Effect(EffectId::ChannelDelay)
+        );
+        let alpha = opts.alpha / n_tests / if searched { 5.0 } else { 1.0 };
+        let cv = ev.gram.cv_sse(opts.folds);
+        // Identifiability: variance inflation of the new regressors against the model's.
+        let total = ev.gram.total().g;
+        let pk = ev.gram.p - ev.q;
+        let (mut vif, mut with) = (1.0f64, String::new());
+        let (check, others): (Vec<usize>, Vec<usize>) = if ev.drop_mic {
+            // The shifted microphone against the rest, with the linear-delay column.
+            (vec![], vec![])
+        } else {
+            ((pk..ev.gram.p).collect(), (0..pk).collect())
+        };
+        for &j in &check {
+            let r2 = collinearity_r2(&total, j, &others, intercept);
+            let v = 1.0 / (1.0 - r2).max(1e-12);
+            if v >= vif {
+                vif = v;
+                // The single model term most correlated with this regressor.
+                let mut best = (0.0, String::new());
+                for &o in &others {
+                    if Some(o) == intercept {
+                        continue;
+                    }
+                    let r2o = collinearity_r2(&total, j, &[o, intercept.unwrap_or(o)], intercept);
+                    if r2o > best.0 {
+                        best = (r2o, built.roles[o].name());
+                    }
+                }
+                with = best.1;
+            }
+        }
+        if ev.drop_mic {
+            // The delay's linear column d s mic' against the model (mic' is
+            // close to a damping force near resonance).
+            let dmic = derivative(&built.cols[0], p.fs());
+            let lin = built.with(p, false, &[dmic]);
+            let g = lin.total().g;
+            let j = lin.p - 1;
+            let r2 = collinearity_r2(&g, j, &(0..j).collect::<Vec<_>>(), intercept);
+            vif = 1.0 / (1.0 - r2).max(1e-12);
+            with = Role::R.name();
+        }
+        let identifiable = vif <= opts.vif_limit;
+        let (params, se) = match term {
+            Term::Effect(e) => {
+                let coef: Vec<f64> = (pk..ev.gram.p).map(|i| ev.beta[i]).collect();
+                (
+                    effect_params(e, ev.hyper.unwrap_or(0.0), &coef),
+                    effect_se(e, &ev.se),
+                )
+            }
+            Term::StiffnessOrder => {
+                let power = built.spec.order + 1;
+                (serde_json::json!({ "order": power }), serde_json::json!({}))
+            }
+        };
+        let significant = ev.p_value < alpha && cv < base_cv && identifiable;
+        let note = (!identifiable).then(|| {
+            format!(
+                "cannot tell from this data: {} is collinear with {} (variance inflation {:.0}); to separate them: {}",
+                term.name(),
+                with,
+                vif,
+                term.separating_experiment()
+            )
+        });
+        let res = CandidateResult {
+            effect: term.name().into(),
+            error_reduction_percent: 0.0,
+            residual_reduction_percent: 100.0 * (1.0 - (cv / base_cv).sqrt()),
+            significant,
+            p_value: ev.p_value,
+            alpha,
+            parameters: params,
+            parameters_se: se,
+            variance_inflation: vif,
+            identifiable,
+            collinear_with: with,
+            note,
+            cv_residual_percent: pct(p, cv),
+            hyper: ev.hyper,
+            cv_sse: cv,
+        };
+        out.push((term, ev, res));
+    }
+    out
+}
+
+fn choose_order(p: &Prepared, forced: &[(EffectId, f64)], opts: &EngineOptions) -> (usize, String) {
+    if let Some(o) = opts.order {
+        return (o.min(opts.max_order), format!("order {o} as given"));
+    }
+    // Smallest order after which neither of the next two powers is significant.
+    let mut order = 1;
+    let alpha = opts.alpha / 2.0;
+    while order < opts.max_order {
+        let built = Built::new(
+            p,
+            Spec {
+                order,
+                effects: forced.to_vec(),
+            },
+        );
+        let base_cv = built.gram.cv_sse(opts.folds);
+        let mut cols = legendre_cols(&p.d.x_m, &p.u, (order + 2).min(opts.max_order));
+        let mut grew = None;
+        for extra in 1..=2usize {
+            if order + extra > opts.max_order {
+                break;
+            }
+            let new: Vec<Vec<f64>> = cols.drain(order + 1..order + 1 + extra).collect();
+            let gram = built.with(p, false, &new);
+            let fit = gram.fit();
+            let (pv, _) = wald_last(&gram, &fit.beta, extra);
+            if pv < alpha && gram.cv_sse(opts.folds) < base_cv {
+                grew = Some(order + extra);
+                break;
+            }
+            cols = legendre_cols(&p.d.x_m, &p.u, (order + 2).min(opts.max_order));
+        }
+        match grew {
+            Some(o) => order = o,
+            None => break,
+        }
+    }
+    (
+        order,
+        format!("order {order} chosen from the data (blocked CV and block-robust test)"),
+    )
+}
+
+/// Runs the whole engine on prepared data.
+pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, String> {
+    let p = Prepared::new(d, opts.blocks)?;
+    // Forced effects: their hyper-parameters are searched against the K-only model.
+    let mut forced: Vec<(EffectId, f64)> = Vec::new();
+    let mut forced_ids = opts.forced.clone();
+    forced_ids.dedup();
+    let (order0, _) = choose_order(&p, &[], opts);
+    for &e in &forced_ids {
+        if forced.iter().any(|f| f.0 == e) {
+            continue;
+        }
+        let built = Built::new(
+            &p,
+            Spec {
+                order: order0,
+                effects: forced.clone(),
+            },
+        );
+        forced.push((e, forced_hyper(&p, &built, e)));
+    }
+    let (order, order_note) = choose_order(&p, &forced, opts);
+    let mut built = Built::new(
+        &p,
+        Spec {
+            order,
+            effects: forced.clone(),
+        },
+    );
+    let (base, base_beta) = describe(&p, &built, opts.folds);
+    let (base_res, _) = residual(&p, &built, &base_beta);
+    let mut ladder = vec![LadderStep {
+        effects: forced.iter().map(|e| e.0.as_str().to_string()).collect(),
+        order,
+        residual_percent: base.residual_percent,
+        cv_residual_percent: base.cv_residual_percent,
+        model_error_percent: 0.0,
+        added: None,
+        p_value: None,
+    }];
+    let mut candidates: Option<Vec<CandidateResult>> = None;
+    let mut ladder_names: Vec<String> = ladder[0].effects.clone();
+    for _ in 0..opts.max_steps {
+        let ranked = rank(&p, &built, opts);
+        let best = ranked
+            .iter()
+            .filter(|r| r.2.significant)
+            .min_by(|a, b| a.2.cv_sse.total_cmp(&b.2.cv_sse))
+            .map(|r| (r.0, r.1.hyper, r.2.p_value));
+        if candidates.is_none() {
+            candidates = Some(ranked.iter().map(|r| r.2.clone()).collect());
+        }
+        let Some((term, hyper, pv)) = best else { break };
+        let mut spec = built.spec.clone();
+        match term {
+            Term::StiffnessOrder => spec.order += 1,
+            Term::Effect(e) => spec.effects.push((e, hyper.unwrap_or(0.0))),
+        }
+        built = Built::new(&p, spec);
+        let fit = built.gram.fit();
+        ladder_names.push(term.name().into());
+        ladder.push(LadderStep {
+            effects: ladder_names.clone(),
+            order: built.spec.order,
+            residual_percent: pct(&p, fit.sse),
+            cv_residual_percent: pct(&p, built.gram.cv_sse(opts.folds)),
+            model_error_percent: 0.0,
+            added: Some(term.name().into()),
+            p_value: Some(pv),
+        });
+    }
+    let (model, beta) = describe(&p, &built, opts.folds);
+    let (res, modelled) = residual(&p, &built, &beta);
+    let spectrum = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
+    let noise_floor_percent = 100.0 * spectrum.noise_variance.sqrt() / p.rms_y;
+    for step in &mut ladder {
+        step.model_error_percent = model_error(step.cv_residual_percent, noise_floor_percent);
+    }
+    let base_me = model_error(base.cv_residual_percent, noise_floor_percent);
+    let mut candidates = candidates.unwrap_or_default();
+    for c in &mut candidates {
+        let me = model_error(c.cv_residual_percent, noise_floor_percent);
+        c.error_reduction_percent = if base_me > 0.0 {
+            100.0 * (1.0 - me / base_me)
+        } else {
+            0.0
+        };
+    }
+    candidates.sort_by(|a, b| {
+        b.significant
+            .cmp(&a.significant)
+            .then(a.cv_sse.total_cmp(&b.cv_sse))
+    });
+    Ok(EngineResult {
+        model_error_percent: model_error(model.residual_percent, noise_floor_percent),
+        base_model_error_percent: model_error(base.residual_percent, noise_floor_percent),
+        base,
+        model,
+        candidates,
+        ladder,
+        noise_floor_percent,
+        residual_n: res,
+        base_residual_n: base_res,
+        modelled_force_n: modelled,
+        spectrum,
+        order_note,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn legendre_monomials_match_recurrence() {
+        let m = legendre_monomials(4);
+        // P_4 = (35 u^4 - 30 u^2 + 3) / 8
+        let want = [3.0 / 8.0, 0.0, -30.0 / 8.0, 0.0, 35.0 / 8.0];
+        for (a, b) in m[4].iter().zip(want) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        let x = [0.3, -0.7];
+        let u = [0.3, -0.7];
+        let cols = legendre_cols(&x, &u, 4);
+        let p4 = |u: f64| (35.0 * u.powi(4) - 30.0 * u * u + 3.0) / 8.0;
+        assert!((cols[4][1] - (-0.7) * p4(-0.7)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn shift_interpolates_a_sine_exactly_enough() {
+        let fs = 8000.0;
+        let s: Vec<f64> = (0..800)
+            .map(|i| (2.0 * 3.1 * 50.0 * i as f64 / fs).sin())
+            .collect();
+        let d = 3.3e-4;
+        let sh = shifted(&s, fs, d);
+        for (i, v) in sh.iter().enumerate().take(790).skip(10) {
+            let want = (2.0 * 3.1 * 50.0 * (i as f64 / fs + d)).sin();
+            assert!((v - want).abs() < 1e-6);
+        }
+    }
+}
