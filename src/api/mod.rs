@@ -1,1 +1,278 @@
 //! HTTP + websocket API (axum): translation only, no science.
+//!
+//! Every route is registered through [`routes`], which also returns the list
+//! of (method, path) pairs; a test keeps `api/openapi.yaml` equal to it.
+//! Errors are RFC 9457 problem documents ([`problem::Problem`]).
+
+pub mod auth;
+pub mod events;
+pub mod jobs;
+pub mod measurements;
+pub mod metrics;
+pub mod ops;
+pub mod problem;
+
+use crate::config::Config;
+use crate::runner::Runner;
+use crate::store::Store;
+use axum::extract::{DefaultBodyLimit, FromRequest, Request};
+use axum::routing::{get, post, MethodRouter};
+use axum::Router;
+use problem::Problem;
+use serde_json::Value;
+use std::sync::Arc;
+use tokio::sync::watch;
+
+#[derive(Clone)]
+pub struct AppState {
+    pub store: Store,
+    pub runner: Arc<Runner>,
+    pub cfg: Arc<Config>,
+    pub metrics: Arc<metrics::Metrics>,
+    /// Becomes true when the daemon shuts down (websockets close).
+    pub shutdown: watch::Receiver<bool>,
+}
+
+struct Reg {
+    router: Router<AppState>,
+    list: Vec<(&'static str, &'static str)>,
+}
+
+impl Reg {
+    fn add(mut self, method: &'static str, path: &'static str, h: MethodRouter<AppState>) -> Reg {
+        self.list.push((method, path));
+        self.router = self.router.route(path, h);
+        self
+    }
+}
+
+/// The router (without state) and the (method, path) pairs it serves.
+pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static str)>) {
+    let json_limit = DefaultBodyLimit::max(cfg.max_json_bytes);
+    let upload_limit = DefaultBodyLimit::max(cfg.max_upload_bytes);
+    let r = Reg {
+        router: Router::new(),
+        list: vec![],
+    }
+    .add("get", "/healthz", get(ops::healthz))
+    .add("get", "/readyz", get(ops::readyz))
+    .add("get", "/metrics", get(ops::metrics))
+    .add("get", "/api/v1/config", get(ops::config))
+    .add("get", "/api/v1/benches", get(ops::benches))
+    .add("post", "/api/v1/jobs", post(jobs::submit).layer(json_limit))
+    .add("get", "/api/v1/jobs", get(jobs::list))
+    .add("get", "/api/v1/jobs/{id}", get(jobs::get_one))
+    .add("post", "/api/v1/jobs/{id}/cancel", post(jobs::cancel))
+    .add("get", "/api/v1/parts", get(jobs::list_parts))
+    .add("get", "/api/v1/parts/{serial}", get(jobs::get_part))
+    .add(
+        "get",
+        "/api/v1/parts/{serial}/measurements",
+        get(jobs::part_measurements),
+    )
+    .add("get", "/api/v1/measurements", get(measurements::list))
+    .add(
+        "post",
+        "/api/v1/measurements",
+        post(measurements::import).layer(upload_limit),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}",
+        get(measurements::get_one),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}/recordings/{file}",
+        get(measurements::recording),
+    )
+    .add(
+        "post",
+        "/api/v1/measurements/{id}/fits",
+        post(measurements::fit).layer(json_limit),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}/fits",
+        get(measurements::list_fits),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}/diagnostics",
+        get(measurements::diagnostics),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}/plots/{file}",
+        get(measurements::plot),
+    )
+    .add("get", "/api/v1/events", get(events::events));
+    (r.router, r.list)
+}
+
+/// The complete application: routes, auth, metrics, problem+json fallbacks.
+pub fn app(state: AppState) -> Router {
+    let (router, _) = routes(&state.cfg);
+    router
+        .fallback(fallback)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_role,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            metrics::track,
+        ))
+        .with_state(state)
+}
+
+async fn fallback(uri: axum::http::Uri) -> Problem {
+    Problem::new(
+        axum::http::StatusCode::NOT_FOUND,
+        "not-found",
+        "Not found",
+        format!("no route {}", uri.path()),
+    )
+}
+
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> Problem {
+    Problem::new(
+        axum::http::StatusCode::METHOD_NOT_ALLOWED,
+        "method-not-allowed",
+        "Method not allowed",
+        format!("{method} is not allowed on {}", uri.path()),
+    )
+}
+
+/// A JSON request body: size limit -> 413, unreadable -> 400, both as problem+json.
+pub struct JsonBody(pub Value);
+
+impl<S: Send + Sync> FromRequest<S> for JsonBody {
+    type Rejection = Problem;
+    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
+        let bytes = axum::body::Bytes::from_request(req, state)
+            .await
+            .map_err(|e| {
+                if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
+                    Problem::new(e.status(), "too-large", "Request too large", e.body_text())
+                } else {
+                    Problem::bad_request(e.body_text())
+                }
+            })?;
+        let v: Value = serde_json::from_slice(&bytes)
+            .map_err(|e| Problem::bad_request(format!("the body is not valid JSON: {e}")))?;
+        Ok(JsonBody(v))
+    }
+}
+
+/// Page size: `limit` query parameter, default 50, at most 500.
+pub fn page_limit(limit: Option<i64>) -> Result<i64, Problem> {
+    match limit {
+        None => Ok(50),
+        Some(n) if (1..=500).contains(&n) => Ok(n),
+        Some(n) => Err(Problem::field(
+            "limit",
+            format!("must be from 1 to 500, got {n}"),
+        )),
+    }
+}
+
+/// An opaque cursor (a sequence number as text).
+pub fn parse_cursor(c: Option<&str>) -> Result<Option<i64>, Problem> {
+    match c {
+        None | Some("") => Ok(None),
+        Some(s) => s
+            .parse::<i64>()
+            .map(Some)
+            .map_err(|_| Problem::field("cursor", "not a cursor returned by this API")),
+    }
+}
+
+/// Query parameters; unreadable ones give a 400 problem document.
+pub struct Q<T>(pub T);
+
+impl<T, S> axum::extract::FromRequestParts<S> for Q<T>
+where
+    T: serde::de::DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = Problem;
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, Self::Rejection> {
+        axum::extract::Query::<T>::from_request_parts(parts, state)
+            .await
+            .map(|q| Q(q.0))
+            .map_err(|e| Problem::bad_request(e.body_text()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    /// (method, path) pairs of `paths:` in api/openapi.yaml (two-space indented YAML).
+    fn openapi_routes(text: &str) -> BTreeSet<(String, String)> {
+        let mut out = BTreeSet::new();
+        let mut in_paths = false;
+        let mut path: Option<String> = None;
+        for line in text.lines() {
+            if !line.starts_with(' ') && !line.is_empty() {
+                in_paths = line.starts_with("paths:");
+                continue;
+            }
+            if !in_paths {
+                continue;
+            }
+            if let Some(p) = line.strip_prefix("  /") {
+                path = Some(format!("/{}", p.trim_end().trim_end_matches(':')));
+            } else if let Some(m) = line.strip_prefix("    ") {
+                let m = m.trim_end().trim_end_matches(':');
+                if ["get", "post", "put", "patch", "delete"].contains(&m) {
+                    out.insert((m.to_string(), path.clone().expect("method before a path")));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn openapi_lists_exactly_the_routes_of_the_router() {
+        let doc = openapi_routes(include_str!("../../api/openapi.yaml"));
+        let (_, list) = routes(&Config::default());
+        let served: BTreeSet<(String, String)> = list
+            .iter()
+            .map(|(m, p)| (m.to_string(), p.to_string()))
+            .collect();
+        assert_eq!(served.len(), list.len(), "a route is registered twice");
+        let missing: Vec<_> = served.difference(&doc).collect();
+        let extra: Vec<_> = doc.difference(&served).collect();
+        assert!(
+            missing.is_empty() && extra.is_empty(),
+            "not in openapi.yaml: {missing:?}; in openapi.yaml but not served: {extra:?}"
+        );
+        assert!(served.len() >= 20);
+    }
+
+    #[test]
+    fn roles_per_route() {
+        use crate::config::Role;
+        use axum::http::Method;
+        assert_eq!(auth::required_role(&Method::GET, "/healthz"), None);
+        assert_eq!(
+            auth::required_role(&Method::GET, "/api/v1/jobs"),
+            Some(Role::Viewer)
+        );
+        assert_eq!(
+            auth::required_role(&Method::POST, "/api/v1/jobs/x/cancel"),
+            Some(Role::Operator)
+        );
+        assert_eq!(
+            auth::required_role(&Method::GET, "/api/v1/config"),
+            Some(Role::Admin)
+        );
+    }
+}

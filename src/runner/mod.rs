@@ -1,1 +1,665 @@
-//! Runner: one task owns each bench, queues and executes jobs, emits events.
+//! Runner: one task owns each bench, takes its queued jobs (priority, then
+//! FIFO), runs the measurement procedure on a blocking thread, fits the
+//! result with the identification core and stores everything in one
+//! transaction. Job state changes and step progress become stored events;
+//! live decimated samples are broadcast only.
+//!
+//! States: queued -> running -> succeeded | failed | cancelled | interrupted.
+//! A job still `running` at start (crash, kill -9) is marked `interrupted`
+//! and never re-run. At shutdown the running job is aborted (the bench ramps
+//! its drive down), then marked `interrupted`.
+
+pub mod events;
+pub mod job;
+
+use crate::bench::Bench;
+use crate::config::{BenchConfig, BenchKind, Config};
+use crate::identify::{self, AnalyzeOptions};
+use crate::physics::PartSpec;
+use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError, Step};
+use crate::recording::{Meta, RecordingSet};
+use crate::store::{Job, JobState, NewMeasurement, NewRecording, Store, StoreResult};
+pub use events::EventBus;
+pub use job::{FieldError, JobSpec};
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::{mpsc, Notify};
+use tokio::task::JoinHandle;
+
+/// What a bench is doing (for `/readyz`).
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchStatus {
+    pub id: String,
+    pub kind: BenchKind,
+    /// "idle", "running" or "stopped".
+    pub state: &'static str,
+    pub job_id: Option<String>,
+    /// The preset mounted when a job names none.
+    pub preset: String,
+}
+
+struct Slot {
+    cfg: BenchConfig,
+    notify: Notify,
+    status: Mutex<BenchStatus>,
+}
+
+/// Result of a cancel request.
+pub enum CancelOutcome {
+    /// The job was queued and is now cancelled.
+    Cancelled(Job),
+    /// The job is running; the bench is told to stop (it becomes `cancelled`).
+    Requested(Job),
+    /// The job had already finished.
+    Finished(Job),
+    NotFound,
+}
+
+pub struct Runner {
+    store: Store,
+    events: EventBus,
+    slots: HashMap<String, Arc<Slot>>,
+    /// Cancel flags of the running jobs, by job id.
+    running: Mutex<HashMap<String, Arc<AtomicBool>>>,
+    shutdown: Arc<AtomicBool>,
+}
+
+impl Runner {
+    /// Marks jobs cut off by an earlier stop as interrupted and starts one task per bench.
+    pub async fn start(
+        store: Store,
+        events: EventBus,
+        cfg: &Config,
+    ) -> StoreResult<(Arc<Runner>, Vec<JoinHandle<()>>)> {
+        for id in store.mark_interrupted().await? {
+            let problem = store.get_job(&id).await?.and_then(|j| j.problem);
+            events
+                .publish(
+                    "job.state",
+                    Some(&id),
+                    json!({"state": "interrupted", "problem": problem}),
+                )
+                .await?;
+            tracing::warn!(job = %id, "job was running when the daemon stopped: marked interrupted");
+        }
+        let slots = cfg
+            .benches
+            .iter()
+            .map(|b| {
+                (
+                    b.id.clone(),
+                    Arc::new(Slot {
+                        cfg: b.clone(),
+                        notify: Notify::new(),
+                        status: Mutex::new(BenchStatus {
+                            id: b.id.clone(),
+                            kind: b.kind,
+                            state: "idle",
+                            job_id: None,
+                            preset: b.preset.clone(),
+                        }),
+                    }),
+                )
+            })
+            .collect();
+        let runner = Arc::new(Runner {
+            store,
+            events,
+            slots,
+            running: Mutex::new(HashMap::new()),
+            shutdown: Arc::new(AtomicBool::new(false)),
+        });
+        let tasks = runner
+            .slots
+            .values()
+            .map(|slot| {
+                let r = runner.clone();
+                let slot = slot.clone();
+                tokio::spawn(async move { r.bench_loop(slot).await })
+            })
+            .collect();
+        Ok((runner, tasks))
+    }
+
+    pub fn events(&self) -> &EventBus {
+        &self.events
+    }
+
+    /// A job was queued on `bench_id`.
+    pub fn wake(&self, bench_id: &str) {
+        if let Some(s) = self.slots.get(bench_id) {
+            s.notify.notify_one();
+        }
+    }
+
+    pub fn bench_statuses(&self) -> Vec<BenchStatus> {
+        let mut v: Vec<_> = self
+            .slots
+            .values()
+            .map(|s| s.status.lock().unwrap().clone())
+            .collect();
+        v.sort_by(|a, b| a.id.cmp(&b.id));
+        v
+    }
+
+    /// Stops taking jobs; the running ones are aborted (and become interrupted).
+    pub fn shutdown(&self) {
+        self.shutdown.store(true, Ordering::SeqCst);
+        for s in self.slots.values() {
+            s.notify.notify_one();
+        }
+    }
+
+    pub async fn cancel(&self, id: &str) -> StoreResult<CancelOutcome> {
+        if self.store.cancel_queued(id).await? {
+            self.events
+                .publish("job.state", Some(id), json!({"state": "cancelled"}))
+                .await?;
+            return Ok(match self.store.get_job(id).await? {
+                Some(j) => CancelOutcome::Cancelled(j),
+                None => CancelOutcome::NotFound,
+            });
+        }
+        let flag = self.running.lock().unwrap().get(id).cloned();
+        let Some(job) = self.store.get_job(id).await? else {
+            return Ok(CancelOutcome::NotFound);
+        };
+        if let Some(flag) = flag {
+            if !job.state.is_terminal() {
+                flag.store(true, Ordering::SeqCst);
+                return Ok(CancelOutcome::Requested(job));
+            }
+        }
+        Ok(CancelOutcome::Finished(job))
+    }
+
+    async fn bench_loop(self: Arc<Self>, slot: Arc<Slot>) {
+        loop {
+            if self.shutdown.load(Ordering::SeqCst) {
+                break;
+            }
+            match self.store.next_queued(&slot.cfg.id).await {
+                Ok(Some(job)) => {
+                    if let Err(e) = self.run_one(&slot, job).await {
+                        tracing::error!(bench = %slot.cfg.id, "storing a job failed: {e}");
+                        tokio::time::sleep(Duration::from_secs(1)).await;
+                    }
+                }
+                Ok(None) => {
+                    let _ =
+                        tokio::time::timeout(Duration::from_secs(1), slot.notify.notified()).await;
+                }
+                Err(e) => {
+                    tracing::error!(bench = %slot.cfg.id, "reading the queue failed: {e}");
+                    tokio::time::sleep(Duration::from_secs(1)).await;
+                }
+            }
+        }
+        slot.status.lock().unwrap().state = "stopped";
+    }
+
+    async fn run_one(&self, slot: &Slot, job: Job) -> StoreResult<()> {
+        let flag = Arc::new(AtomicBool::new(false));
+        self.running
+            .lock()
+            .unwrap()
+            .insert(job.id.clone(), flag.clone());
+        let res = self.run_registered(slot, &job, flag).await;
+        self.running.lock().unwrap().remove(&job.id);
+        {
+            let mut st = slot.status.lock().unwrap();
+            st.state = if self.shutdown.load(Ordering::SeqCst) {
+                "stopped"
+            } else {
+                "idle"
+            };
+            st.job_id = None;
+        }
+        res
+    }
+
+    async fn run_registered(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        cancel: Arc<AtomicBool>,
+    ) -> StoreResult<()> {
+        if !self.store.start_job(&job.id).await? {
+            return Ok(()); // cancelled meanwhile
+        }
+        {
+            let mut st = slot.status.lock().unwrap();
+            st.state = "running";
+            st.job_id = Some(job.id.clone());
+        }
+        self.events
+            .publish("job.state", Some(&job.id), json!({"state": "running"}))
+            .await?;
+        tracing::info!(job = %job.id, bench = %slot.cfg.id, part = %job.part_serial, "job started");
+
+        let spec: Result<JobSpec, _> = serde_json::from_value(job.request.clone());
+        let started = Instant::now();
+        let outcome = match spec {
+            Err(e) => Err(Stop::Failed(problem(
+                "job-unreadable",
+                "Job request unreadable",
+                &format!("the stored request no longer parses: {e}"),
+            ))),
+            Ok(spec) => {
+                let (tx, mut rx) = mpsc::unbounded_channel();
+                let obs = JobObserver::new(tx, cancel.clone(), self.shutdown.clone(), spec.repeats);
+                let bench_cfg = slot.cfg.clone();
+                let seed = bench_cfg.seed.wrapping_add(job.seq as u64);
+                let job_id = job.id.clone();
+                let mut handle = tokio::task::spawn_blocking(move || {
+                    let mut obs = obs;
+                    execute(&job_id, &spec, &bench_cfg, seed, &mut obs)
+                });
+                let res = loop {
+                    tokio::select! {
+                        msg = rx.recv() => match msg {
+                            Some(m) => self.on_message(&job.id, m).await,
+                            None => break (&mut handle).await,
+                        },
+                        r = &mut handle => break r,
+                    }
+                };
+                while let Ok(m) = rx.try_recv() {
+                    self.on_message(&job.id, m).await;
+                }
+                match res {
+                    Ok(r) => r,
+                    Err(e) => Err(Stop::Failed(problem(
+                        "internal",
+                        "Job crashed",
+                        &format!("the measurement task ended abnormally: {e}"),
+                    ))),
+                }
+            }
+        };
+
+        let (state, prob, done) = match outcome {
+            Ok(done) => (JobState::Succeeded, None, Some(done)),
+            Err(Stop::Aborted) if self.shutdown.load(Ordering::SeqCst) => (
+                JobState::Interrupted,
+                Some(problem(
+                    "interrupted",
+                    "Job interrupted",
+                    "the daemon was stopped while this job was running; the bench was ramped down and the job was not re-run (submit it again)",
+                )),
+                None,
+            ),
+            Err(Stop::Aborted) => (JobState::Cancelled, None, None),
+            Err(Stop::Failed(p)) => (JobState::Failed, Some(p), None),
+        };
+        let (bench_time, log, recs, meas) = match done {
+            Some(d) => (Some(d.bench_time_s), d.log, d.recordings, d.measurements),
+            None => (None, vec![], vec![], vec![]),
+        };
+        self.store
+            .finish_job(&job.id, state, prob.as_ref(), bench_time, &log, recs, meas)
+            .await?;
+        let measurement_ids = self
+            .store
+            .get_job(&job.id)
+            .await?
+            .map(|j| j.measurement_ids)
+            .unwrap_or_default();
+        tracing::info!(job = %job.id, state = state.as_str(), wall_s = started.elapsed().as_secs_f64(), "job finished");
+        self.events
+            .publish(
+                "job.state",
+                Some(&job.id),
+                json!({"state": state.as_str(), "problem": prob, "bench_time_s": bench_time,
+                       "measurement_ids": measurement_ids}),
+            )
+            .await?;
+        Ok(())
+    }
+
+    async fn on_message(&self, job_id: &str, m: Msg) {
+        match m {
+            Msg::Progress {
+                step,
+                progress,
+                eta_s,
+            } => {
+                let step = step_name(step);
+                if let Err(e) = self.store.set_progress(job_id, step, progress, eta_s).await {
+                    tracing::warn!(job = %job_id, "progress not stored: {e}");
+                }
+                if let Err(e) = self
+                    .events
+                    .publish(
+                        "job.progress",
+                        Some(job_id),
+                        json!({"step": step, "progress": progress, "eta_s": eta_s}),
+                    )
+                    .await
+                {
+                    tracing::warn!(job = %job_id, "progress event not stored: {e}");
+                }
+            }
+            Msg::Samples(data) => {
+                self.events
+                    .publish_live("job.samples", Some(job_id), data)
+                    .await
+            }
+        }
+    }
+}
+
+pub fn step_name(s: Step) -> &'static str {
+    match s {
+        Step::PreMeasurement => "pre_measurement",
+        Step::ResonanceSearch => "resonance_search",
+        Step::NarrowSweep => "narrow_sweep",
+        Step::Fit => "fit",
+    }
+}
+
+/// An RFC 9457 problem document (as stored with a job).
+pub fn problem(kind: &str, title: &str, detail: &str) -> Value {
+    json!({"type": format!("/problems/{kind}"), "title": title, "status": 500, "detail": detail})
+}
+
+enum Stop {
+    /// Cancel or shutdown: the bench was ramped down.
+    Aborted,
+    Failed(Value),
+}
+
+struct Done {
+    bench_time_s: f64,
+    log: Vec<String>,
+    recordings: Vec<NewRecording>,
+    measurements: Vec<NewMeasurement>,
+}
+
+enum Msg {
+    Progress {
+        step: Step,
+        progress: f64,
+        eta_s: f64,
+    },
+    Samples(Value),
+}
+
+/// Live samples: about this many per second of signal, in chunks of `CHUNK`.
+const LIVE_RATE_HZ: f64 = 1000.0;
+const CHUNK: usize = 100;
+
+struct JobObserver {
+    tx: mpsc::UnboundedSender<Msg>,
+    cancel: Arc<AtomicBool>,
+    shutdown: Arc<AtomicBool>,
+    repeats: u32,
+    repeat: u32,
+    /// Fraction of a repeat taken by the procedure (the rest is the fit).
+    proc_share: f64,
+    last: Option<(Step, f64, Instant)>,
+    sample_rate_hz: f64,
+    decim: usize,
+    buf_x: Vec<f32>,
+    buf_p: Vec<f32>,
+    buf_t0: f64,
+    buf_step: Step,
+}
+
+impl JobObserver {
+    fn new(
+        tx: mpsc::UnboundedSender<Msg>,
+        cancel: Arc<AtomicBool>,
+        shutdown: Arc<AtomicBool>,
+        repeats: u32,
+    ) -> JobObserver {
+        JobObserver {
+            tx,
+            cancel,
+            shutdown,
+            repeats: repeats.max(1),
+            repeat: 0,
+            proc_share: 0.95,
+            last: None,
+            sample_rate_hz: 48000.0,
+            decim: 48,
+            buf_x: Vec::new(),
+            buf_p: Vec::new(),
+            buf_t0: 0.0,
+            buf_step: Step::PreMeasurement,
+        }
+    }
+
+    fn set_sample_rate(&mut self, hz: f64) {
+        self.sample_rate_hz = hz;
+        self.decim = ((hz / LIVE_RATE_HZ).round() as usize).max(1);
+    }
+
+    fn overall(&self, p: f64) -> f64 {
+        ((self.repeat as f64 + p.clamp(0.0, 1.0)) / self.repeats as f64).clamp(0.0, 1.0)
+    }
+
+    fn send_progress(&mut self, step: Step, progress: f64, eta_s: f64) {
+        let now = Instant::now();
+        let due = match self.last {
+            None => true,
+            Some((s, p, t)) => {
+                s != step || (progress - p).abs() >= 0.01 || now - t >= Duration::from_millis(250)
+            }
+        };
+        if due {
+            self.last = Some((step, progress, now));
+            let _ = self.tx.send(Msg::Progress {
+                step,
+                progress,
+                eta_s: eta_s.max(0.0),
+            });
+        }
+    }
+
+    fn flush_samples(&mut self) {
+        if self.buf_x.is_empty() {
+            return;
+        }
+        let dt = self.decim as f64 / self.sample_rate_hz;
+        let data = json!({"step": step_name(self.buf_step), "t0_s": self.buf_t0, "dt_s": dt,
+                          "x_m": self.buf_x, "microphone_v": self.buf_p});
+        self.buf_x.clear();
+        self.buf_p.clear();
+        let _ = self.tx.send(Msg::Samples(data));
+    }
+}
+
+impl Observer for JobObserver {
+    fn progress(&mut self, step: Step, progress: f64, eta_s: f64) {
+        let p = self.overall(progress * self.proc_share);
+        let left_repeats = (self.repeats - self.repeat - 1) as f64;
+        // eta: this repeat's remainder plus the same procedure again per repeat left
+        let per_repeat = if progress > 0.05 {
+            eta_s / (1.0 - progress).max(1e-3)
+        } else {
+            eta_s
+        };
+        self.send_progress(step, p, eta_s + left_repeats * per_repeat);
+    }
+
+    fn samples(&mut self, step: Step, block: crate::bench::Block<'_>) {
+        if block.start_sample == 0 || step != self.buf_step {
+            self.flush_samples();
+            self.buf_step = step;
+        }
+        let n = block.displacement_m.len().min(block.microphone_v.len());
+        for i in 0..n {
+            let k = block.start_sample + i;
+            if k % self.decim == 0 {
+                if self.buf_x.is_empty() {
+                    self.buf_t0 = k as f64 / self.sample_rate_hz;
+                }
+                self.buf_x.push(block.displacement_m[i] as f32);
+                self.buf_p.push(block.microphone_v[i] as f32);
+                if self.buf_x.len() >= CHUNK {
+                    self.flush_samples();
+                }
+            }
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed) || self.shutdown.load(Ordering::Relaxed)
+    }
+}
+
+/// Builds the bench device for one job.
+fn make_bench(
+    cfg: &BenchConfig,
+    part: PartSpec,
+    seed: u64,
+    limits: crate::bench::Limits,
+) -> Result<Box<dyn Bench>, String> {
+    match cfg.kind {
+        BenchKind::Virtual => virtual_bench(part, seed, limits),
+    }
+}
+
+fn virtual_bench(
+    _part: PartSpec,
+    _seed: u64,
+    _limits: crate::bench::Limits,
+) -> Result<Box<dyn Bench>, String> {
+    Err("the virtual bench is not available yet (physics::VirtualBench does not implement bench::Bench)".into())
+}
+
+fn procedure_stop(e: ProcedureError) -> Stop {
+    match e {
+        ProcedureError::Cancelled | ProcedureError::Bench(crate::bench::BenchError::Aborted) => {
+            Stop::Aborted
+        }
+        ProcedureError::Invalid(m) => Stop::Failed(problem(
+            "procedure-invalid",
+            "Procedure configuration refused",
+            &m,
+        )),
+        ProcedureError::Bench(e) => Stop::Failed(problem("bench", "Bench failed", &e.to_string())),
+        ProcedureError::Failed(m) => Stop::Failed(problem("procedure", "Procedure failed", &m)),
+    }
+}
+
+/// Runs a job on its own blocking thread: procedure per repeat, then the fit per narrow sweep.
+fn execute(
+    job_id: &str,
+    spec: &JobSpec,
+    bench_cfg: &BenchConfig,
+    seed: u64,
+    obs: &mut JobObserver,
+) -> Result<Done, Stop> {
+    let part = job::mounted_part(spec, bench_cfg)
+        .map_err(|e| Stop::Failed(problem("part", "Part not available", &e)))?;
+    let mut bench = make_bench(bench_cfg, part, seed, spec.limits)
+        .map_err(|e| Stop::Failed(problem("bench", "Bench not available", &e)))?;
+    obs.set_sample_rate(bench.sample_rate_hz());
+    let pcfg = ProcedureConfig {
+        moving_mass_kg: spec.moving_mass_kg,
+        levels_m: spec.levels_m.clone(),
+        ..ProcedureConfig::default()
+    };
+    let opts = AnalyzeOptions {
+        method: spec.method,
+        order: spec.order,
+    };
+    let config = json!({"procedure": pcfg, "analysis": opts, "limits": spec.limits,
+                        "bench": bench_cfg.id, "seed": seed, "bench_description": bench.describe()});
+    let mut done = Done {
+        bench_time_s: 0.0,
+        log: vec![],
+        recordings: vec![],
+        measurements: vec![],
+    };
+    for r in 0..spec.repeats {
+        obs.repeat = r;
+        let outcome = procedure::run(bench.as_mut(), &pcfg, obs).map_err(procedure_stop)?;
+        if obs.cancelled() {
+            return Err(Stop::Aborted);
+        }
+        done.bench_time_s += outcome.bench_time_s;
+        if spec.repeats > 1 {
+            done.log
+                .extend(outcome.log.iter().map(|l| format!("repeat {}: {l}", r + 1)));
+        } else {
+            done.log.extend(outcome.log.iter().cloned());
+        }
+        let pre_index = done.recordings.len();
+        done.recordings.push(recording("pre", &outcome.pre)?);
+        let n = outcome.narrow.len().max(1);
+        for (li, sweep) in outcome.narrow.iter().enumerate() {
+            let fit_p = obs.proc_share + (1.0 - obs.proc_share) * li as f64 / n as f64;
+            let p = obs.overall(fit_p);
+            obs.send_progress(Step::Fit, p, 0.0);
+            let mut meta = Meta::standard(spec.moving_mass_kg, outcome.pre.sample_rate_hz);
+            meta.channels.drive = outcome.pre.drive_v.as_ref().map(|_| 2);
+            let set = RecordingSet {
+                meta,
+                pre: outcome.pre.clone(),
+                main: sweep.signals.clone(),
+            };
+            let (result, analysis_error) = match identify::analyze(&set, &opts) {
+                Ok(rep) => (serde_json::to_value(&rep).ok(), None),
+                Err(e) => {
+                    done.log.push(format!(
+                        "analysis of level {} ({} m) failed: {e}",
+                        li + 1,
+                        sweep.target_xpeak_m
+                    ));
+                    (None, Some(e.to_string()))
+                }
+            };
+            let main_index = done.recordings.len();
+            done.recordings.push(recording("main", &sweep.signals)?);
+            let mut cfg_m = config.clone();
+            cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
+                                           "f_end_hz": sweep.f_end_hz});
+            done.measurements.push(NewMeasurement {
+                id: new_id(),
+                part_serial: spec.part.serial.clone(),
+                job_id: Some(job_id.to_string()),
+                source: "bench",
+                bench_id: Some(bench_cfg.id.clone()),
+                config: cfg_m,
+                meta: serde_json::to_value(&set.meta).unwrap_or(Value::Null),
+                result,
+                analysis_error,
+                target_xpeak_m: Some(sweep.target_xpeak_m),
+                repeat_index: Some(r as i64),
+                level_index: Some(li as i64),
+                pre: pre_index,
+                main: main_index,
+            });
+        }
+        obs.flush_samples();
+    }
+    Ok(done)
+}
+
+fn recording(kind: &'static str, s: &crate::recording::Signals) -> Result<NewRecording, Stop> {
+    let wav = crate::recording::signals_to_wav_bytes(s).map_err(|e| {
+        Stop::Failed(problem(
+            "recording",
+            "Recording could not be encoded",
+            &e.to_string(),
+        ))
+    })?;
+    Ok(NewRecording {
+        kind,
+        sample_rate_hz: s.sample_rate_hz,
+        frames: s.len() as i64,
+        wav,
+    })
+}
+
+/// A fresh id (UUID v4, text).
+pub fn new_id() -> String {
+    uuid::Uuid::new_v4().to_string()
+}

@@ -197,6 +197,19 @@ pub struct Event {
     pub data: Value,
 }
 
+/// A fit of a stored measurement.
+#[derive(Debug, Clone, Serialize)]
+pub struct Fit {
+    pub id: String,
+    pub measurement_id: String,
+    /// `{"effects": [...], "order": ..., "method": ...}` as accepted.
+    pub request: Value,
+    /// The refitted result document (with `model` and `diagnostics`).
+    pub result: Value,
+    pub software_version: String,
+    pub created_at: String,
+}
+
 /// Result of an insert that honours an idempotency key.
 pub enum Inserted {
     New(Job),
@@ -617,6 +630,62 @@ impl Store {
             .fetch_optional(&self.pool)
             .await?;
         Ok(row.map(|r| r.get::<Vec<u8>, _>(0)))
+    }
+
+    // ---- fits ----
+
+    /// Keeps a fit of a stored measurement (effects, order, the refitted report).
+    pub async fn insert_fit(
+        &self,
+        id: &str,
+        measurement_id: &str,
+        request: &Value,
+        result: &Value,
+    ) -> StoreResult<Fit> {
+        let t = now();
+        sqlx::query(
+            "INSERT INTO fits (id, measurement_id, request_json, result_json, software_version, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?)",
+        )
+        .bind(id.to_string())
+        .bind(measurement_id.to_string())
+        .bind(request.to_string())
+        .bind(result.to_string())
+        .bind(crate::VERSION)
+        .bind(t.clone())
+        .execute(&self.pool)
+        .await?;
+        Ok(Fit {
+            id: id.to_string(),
+            measurement_id: measurement_id.to_string(),
+            request: request.clone(),
+            result: result.clone(),
+            software_version: crate::VERSION.to_string(),
+            created_at: t,
+        })
+    }
+
+    /// The fits of a measurement, oldest first.
+    pub async fn list_fits(&self, measurement_id: &str) -> StoreResult<Vec<Fit>> {
+        let rows = sqlx::query(
+            "SELECT id, measurement_id, request_json, result_json, software_version, created_at \
+             FROM fits WHERE measurement_id = ? ORDER BY seq",
+        )
+        .bind(measurement_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(Fit {
+                    id: r.get(0),
+                    measurement_id: r.get(1),
+                    request: parse_json(&r.get::<String, _>(2))?,
+                    result: parse_json(&r.get::<String, _>(3))?,
+                    software_version: r.get(4),
+                    created_at: r.get(5),
+                })
+            })
+            .collect()
     }
 
     // ---- events ----

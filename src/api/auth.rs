@@ -1,0 +1,108 @@
+//! Bearer tokens with roles. Reads need `viewer`, submitting, cancelling,
+//! importing and fitting need `operator`, the configuration needs `admin`.
+//! `/healthz` and `/readyz` are open. Without configured tokens everything is
+//! open (the daemon then listens on loopback only). Websocket clients that
+//! cannot set headers may pass `?token=`.
+
+use super::problem::Problem;
+use super::AppState;
+use crate::config::Role;
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderValue, Method, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+
+/// The role a request needs; None for open routes.
+pub fn required_role(method: &Method, path: &str) -> Option<Role> {
+    if path == "/healthz" || path == "/readyz" {
+        return None;
+    }
+    if path == "/api/v1/config" {
+        return Some(Role::Admin);
+    }
+    if method == Method::GET || method == Method::HEAD {
+        Some(Role::Viewer)
+    } else {
+        Some(Role::Operator)
+    }
+}
+
+fn same(a: &[u8], b: &[u8]) -> bool {
+    // constant time for equal lengths
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+fn token_from(req: &Request) -> Option<String> {
+    if let Some(h) = req.headers().get(header::AUTHORIZATION) {
+        let s = h.to_str().ok()?;
+        let (scheme, tok) = s.split_once(' ')?;
+        if scheme.eq_ignore_ascii_case("bearer") {
+            return Some(tok.trim().to_string());
+        }
+        return None;
+    }
+    if req.uri().path() == "/api/v1/events" {
+        let q = req.uri().query()?;
+        for pair in q.split('&') {
+            if let Some(t) = pair.strip_prefix("token=") {
+                return Some(t.to_string());
+            }
+        }
+    }
+    None
+}
+
+pub async fn require_role(State(st): State<AppState>, req: Request, next: Next) -> Response {
+    if st.cfg.open_access() {
+        return next.run(req).await;
+    }
+    let Some(need) = required_role(req.method(), req.uri().path()) else {
+        return next.run(req).await;
+    };
+    let Some(tok) = token_from(&req) else {
+        let mut p = Problem::new(
+            StatusCode::UNAUTHORIZED,
+            "unauthorized",
+            "Authentication required",
+            "send 'Authorization: Bearer <token>'",
+        );
+        p.headers.push((
+            header::WWW_AUTHENTICATE,
+            HeaderValue::from_static("Bearer realm=\"springbench\""),
+        ));
+        return p.into_response();
+    };
+    let found = st
+        .cfg
+        .auth
+        .tokens
+        .iter()
+        .find(|t| same(t.token.as_bytes(), tok.as_bytes()));
+    match found {
+        None => {
+            let mut p = Problem::new(
+                StatusCode::UNAUTHORIZED,
+                "unauthorized",
+                "Invalid token",
+                "the bearer token is not known",
+            );
+            p.headers.push((
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"springbench\", error=\"invalid_token\""),
+            ));
+            p.into_response()
+        }
+        Some(t) if t.role < need => Problem::new(
+            StatusCode::FORBIDDEN,
+            "forbidden",
+            "Forbidden",
+            format!(
+                "token '{}' has role {:?}; this request needs {:?}",
+                t.name, t.role, need
+            )
+            .to_lowercase(),
+        )
+        .into_response(),
+        Some(_) => next.run(req).await,
+    }
+}

@@ -1,0 +1,196 @@
+//! Jobs and parts.
+
+use super::problem::{ApiResult, Problem};
+use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
+use crate::runner::{job, new_id, CancelOutcome};
+use crate::store::{Inserted, Job, JobState};
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Deserialize;
+use serde_json::{json, Value};
+use sha2::{Digest, Sha256};
+
+fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
+    let loc = format!("/api/v1/jobs/{}", j.id);
+    let mut r = (status, Json(j)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&loc) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    if replayed {
+        r.headers_mut()
+            .insert("idempotent-replayed", HeaderValue::from_static("true"));
+    }
+    r
+}
+
+/// `POST /api/v1/jobs`: validate, store as queued, wake the bench. 202 + Location.
+pub async fn submit(
+    State(st): State<AppState>,
+    headers: HeaderMap,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let key = match headers.get("idempotency-key") {
+        None => None,
+        Some(v) => match v.to_str() {
+            Ok(s) if !s.is_empty() && s.len() <= 255 => Some(s.to_string()),
+            _ => {
+                return Err(Problem::bad_request(
+                    "Idempotency-Key must be 1-255 visible ASCII characters",
+                ))
+            }
+        },
+    };
+    let spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
+    // serde_json maps are sorted: the text is canonical for equal bodies.
+    let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
+    let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
+    let id = new_id();
+    let inserted = st
+        .store
+        .insert_job(
+            &id,
+            &spec.bench,
+            (
+                &spec.part.serial,
+                spec.part.kind.as_deref(),
+                spec.part.notes.as_deref(),
+            ),
+            spec.priority,
+            &request,
+            &sha,
+            key.as_deref(),
+        )
+        .await?;
+    match inserted {
+        Inserted::New(j) => {
+            st.runner
+                .events()
+                .publish(
+                    "job.state",
+                    Some(&j.id),
+                    json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id}),
+                )
+                .await?;
+            st.runner.wake(&j.bench_id);
+            Ok(job_response(StatusCode::ACCEPTED, &j, false))
+        }
+        Inserted::Replayed(j) => Ok(job_response(StatusCode::OK, &j, true)),
+        Inserted::Conflict(j) => Err(Problem::new(
+            StatusCode::CONFLICT,
+            "idempotency-conflict",
+            "Idempotency key reused",
+            "this Idempotency-Key was used before with another request body",
+        )
+        .with_extra(json!({"job_id": j.id}))),
+    }
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+#[derive(Deserialize)]
+pub struct JobQuery {
+    state: Option<String>,
+    part: Option<String>,
+    limit: Option<i64>,
+    cursor: Option<String>,
+}
+
+/// `GET /api/v1/jobs?state=&part=&limit=&cursor=`: newest first.
+pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Json<Value>> {
+    let state = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(s) => Some(JobState::parse(s).ok_or_else(|| {
+            Problem::field(
+                "state",
+                "one of queued, running, succeeded, failed, cancelled, interrupted",
+            )
+        })?),
+    };
+    let limit = page_limit(q.limit)?;
+    let before = parse_cursor(q.cursor.as_deref())?;
+    let items = st
+        .store
+        .list_jobs(state, q.part.as_deref(), before, limit)
+        .await?;
+    let next = (items.len() as i64 == limit)
+        .then(|| items.last().map(|j| j.seq.to_string()))
+        .flatten();
+    Ok(Json(json!({"items": items, "next_cursor": next})))
+}
+
+pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Job>> {
+    st.store
+        .get_job(&id)
+        .await?
+        .map(Json)
+        .ok_or_else(|| Problem::not_found("job", &id))
+}
+
+/// `POST /api/v1/jobs/{id}/cancel`: 200 when a queued job is cancelled, 202
+/// when a running job is told to stop, 409 when it has finished.
+pub async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    match st.runner.cancel(&id).await? {
+        CancelOutcome::Cancelled(j) => Ok((StatusCode::OK, Json(j)).into_response()),
+        CancelOutcome::Requested(j) => Ok((StatusCode::ACCEPTED, Json(j)).into_response()),
+        CancelOutcome::Finished(j) => Err(Problem::new(
+            StatusCode::CONFLICT,
+            "job-finished",
+            "Job already finished",
+            format!(
+                "job '{}' is {}; it cannot be cancelled",
+                j.id,
+                j.state.as_str()
+            ),
+        )
+        .with_extra(json!({"state": j.state.as_str()}))),
+        CancelOutcome::NotFound => Err(Problem::not_found("job", &id)),
+    }
+}
+
+#[derive(Deserialize)]
+pub struct PageQuery {
+    limit: Option<i64>,
+    cursor: Option<String>,
+}
+
+/// `GET /api/v1/parts`: by serial.
+pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiResult<Json<Value>> {
+    let limit = page_limit(q.limit)?;
+    let items = st
+        .store
+        .list_parts(q.cursor.as_deref().filter(|c| !c.is_empty()), limit)
+        .await?;
+    let next = (items.len() as i64 == limit)
+        .then(|| items.last().map(|p| p.serial.clone()))
+        .flatten();
+    Ok(Json(json!({"items": items, "next_cursor": next})))
+}
+
+pub async fn get_part(
+    State(st): State<AppState>,
+    Path(serial): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let p = st
+        .store
+        .get_part(&serial)
+        .await?
+        .ok_or_else(|| Problem::not_found("part", &serial))?;
+    let mut v = serde_json::to_value(&p).map_err(Problem::internal)?;
+    v["measurements"] = json!(format!("/api/v1/parts/{serial}/measurements"));
+    Ok(Json(v))
+}
+
+pub async fn part_measurements(
+    State(st): State<AppState>,
+    Path(serial): Path<String>,
+    Q(q): Q<PageQuery>,
+) -> ApiResult<Json<Value>> {
+    if st.store.get_part(&serial).await?.is_none() {
+        return Err(Problem::not_found("part", &serial));
+    }
+    super::measurements::list_page(&st, Some(&serial), None, q.limit, q.cursor.as_deref()).await
+}

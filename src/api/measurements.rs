@@ -1,0 +1,543 @@
+//! Measurements: listing, result documents, raw recordings, import, fits,
+//! diagnostics and plots. The numeric work (analyze, diagnose, plot) runs on
+//! blocking threads.
+
+use super::problem::{ApiResult, Problem};
+use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
+use crate::diagnose::{self, DiagnoseOptions};
+use crate::effects::EffectId;
+use crate::identify::{self, AnalyzeOptions, Method};
+use crate::recording::{signals_to_wav_bytes, Meta, RecordingSet};
+use crate::runner::{job::valid_serial, new_id, FieldError};
+use crate::store::{MeasurementInfo, NewMeasurement, NewRecording};
+use axum::extract::{Multipart, Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+#[derive(Deserialize)]
+pub struct MeasQuery {
+    part: Option<String>,
+    job: Option<String>,
+    limit: Option<i64>,
+    cursor: Option<String>,
+}
+
+pub async fn list_page(
+    st: &AppState,
+    part: Option<&str>,
+    job: Option<&str>,
+    limit: Option<i64>,
+    cursor: Option<&str>,
+) -> ApiResult<Json<Value>> {
+    let limit = page_limit(limit)?;
+    let before = parse_cursor(cursor)?;
+    let items = st.store.list_measurements(part, job, before, limit).await?;
+    let next = (items.len() as i64 == limit)
+        .then(|| items.last().map(|m| m.seq.to_string()))
+        .flatten();
+    Ok(Json(json!({"items": items, "next_cursor": next})))
+}
+
+/// `GET /api/v1/measurements?part=&job=&limit=&cursor=`: newest first.
+pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<Json<Value>> {
+    list_page(
+        &st,
+        q.part.as_deref(),
+        q.job.as_deref(),
+        q.limit,
+        q.cursor.as_deref(),
+    )
+    .await
+}
+
+/// The result document (`identify::Report`, as `analyze --json` prints it)
+/// with the measurement's record under `measurement`.
+fn document(info: &MeasurementInfo, result: Option<Value>, meta: Value) -> Value {
+    let mut doc = match result {
+        Some(Value::Object(m)) => Value::Object(m),
+        _ => json!({}),
+    };
+    let mut rec = serde_json::to_value(info).unwrap_or(Value::Null);
+    rec["meta"] = meta;
+    rec["recordings"] = json!({
+        "pre": format!("/api/v1/measurements/{}/recordings/pre.wav", info.id),
+        "main": format!("/api/v1/measurements/{}/recordings/main.wav", info.id),
+    });
+    doc["measurement"] = rec;
+    doc
+}
+
+pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let (info, result, meta) = st
+        .store
+        .get_measurement(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", &id))?;
+    Ok(Json(document(&info, result, meta)))
+}
+
+/// `GET /api/v1/measurements/{id}/recordings/{pre|main}.wav`: float32 WAV,
+/// channels 0 displacement (m), 1 microphone (V), 2 drive (V) when present.
+pub async fn recording(
+    State(st): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let which = match file.as_str() {
+        "pre.wav" => "pre",
+        "main.wav" => "main",
+        _ => {
+            return Err(Problem::not_found(
+                "recording (use pre.wav or main.wav)",
+                &file,
+            ))
+        }
+    };
+    let wav = st
+        .store
+        .get_recording(&id, which)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", &id))?;
+    Ok(([(header::CONTENT_TYPE, "audio/wav")], wav).into_response())
+}
+
+/// Loads a stored measurement's recording set and its analysis options.
+async fn load_set(st: &AppState, id: &str) -> ApiResult<(RecordingSet, AnalyzeOptions)> {
+    let (info, _, meta) = st
+        .store
+        .get_measurement(id)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", id))?;
+    let pre = st.store.get_recording(id, "pre").await?;
+    let main = st.store.get_recording(id, "main").await?;
+    let (Some(pre), Some(main)) = (pre, main) else {
+        return Err(Problem::not_found("recordings of measurement", id));
+    };
+    let opts: AnalyzeOptions = info
+        .config
+        .get("analysis")
+        .and_then(|a| serde_json::from_value(a.clone()).ok())
+        .unwrap_or_default();
+    let meta_text = meta.to_string();
+    let set = tokio::task::spawn_blocking(move || {
+        RecordingSet::from_bytes(meta_text.as_bytes(), &pre, &main)
+    })
+    .await
+    .map_err(Problem::internal)?
+    .map_err(|e| Problem::internal(format!("stored recordings unreadable: {e}")))?;
+    Ok((set, opts))
+}
+
+fn numeric_failure(title: &'static str, e: impl std::fmt::Display) -> Problem {
+    Problem::new(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "analysis-failed",
+        title,
+        e.to_string(),
+    )
+}
+
+/// `POST /api/v1/measurements/{id}/fits` `{"effects": [...], "order": N, "method": "..."}`:
+/// fits the stored recordings again with the given effects; every fit is kept.
+pub async fn fit(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let obj = body
+        .as_object()
+        .ok_or_else(|| Problem::field("", "the body must be a JSON object"))?;
+    let mut errors = vec![];
+    for k in obj.keys() {
+        if !["effects", "order", "method"].contains(&k.as_str()) {
+            errors.push(FieldError {
+                field: k.clone(),
+                message: "unknown field".into(),
+            });
+        }
+    }
+    let mut effects = vec![];
+    match obj.get("effects") {
+        None | Some(Value::Null) => {}
+        Some(Value::Array(a)) => {
+            for (i, e) in a.iter().enumerate() {
+                match serde_json::from_value::<EffectId>(e.clone()) {
+                    Ok(x) => effects.push(x),
+                    Err(_) => errors.push(FieldError {
+                        field: format!("effects[{i}]"),
+                        message: format!(
+                            "unknown effect (effects: {})",
+                            EffectId::ALL.map(|e| e.as_str()).join(", ")
+                        ),
+                    }),
+                }
+            }
+        }
+        Some(_) => errors.push(FieldError {
+            field: "effects".into(),
+            message: "must be a list of effect ids".into(),
+        }),
+    }
+    let order = match obj.get("order") {
+        None | Some(Value::Null) => None,
+        Some(v) => match v.as_u64() {
+            Some(n) if (1..=crate::runner::job::MAX_ORDER as u64).contains(&n) => Some(n as usize),
+            _ => {
+                errors.push(FieldError {
+                    field: "order".into(),
+                    message: format!(
+                        "must be an integer from 1 to {}",
+                        crate::runner::job::MAX_ORDER
+                    ),
+                });
+                None
+            }
+        },
+    };
+    let method = match obj.get("method") {
+        None | Some(Value::Null) => None,
+        Some(v) => match serde_json::from_value::<Method>(v.clone()) {
+            Ok(m) => Some(m),
+            Err(_) => {
+                errors.push(FieldError {
+                    field: "method".into(),
+                    message: "must be \"two-signal\" or \"one-signal\"".into(),
+                });
+                None
+            }
+        },
+    };
+    if !errors.is_empty() {
+        return Err(Problem::validation(errors));
+    }
+    let (set, mut analyze) = load_set(&st, &id).await?;
+    if let Some(m) = method {
+        analyze.method = m;
+    }
+    if order.is_some() {
+        analyze.order = order;
+    }
+    let opts = DiagnoseOptions { analyze, effects };
+    let request = serde_json::to_value(&opts).map_err(Problem::internal)?;
+    let d = tokio::task::spawn_blocking(move || diagnose::diagnose(&set, &opts))
+        .await
+        .map_err(Problem::internal)?
+        .map_err(|e| numeric_failure("Fit failed", e))?;
+    let result = serde_json::to_value(&d.report).map_err(Problem::internal)?;
+    let fit = st
+        .store
+        .insert_fit(&new_id(), &id, &request, &result)
+        .await?;
+    let mut r = (StatusCode::CREATED, Json(&fit)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/measurements/{id}/fits")) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+pub async fn list_fits(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    if st.store.get_measurement(&id).await?.is_none() {
+        return Err(Problem::not_found("measurement", &id));
+    }
+    let items = st.store.list_fits(&id).await?;
+    Ok(Json(json!({"items": items})))
+}
+
+async fn diagnose_stored(
+    st: &AppState,
+    id: &str,
+) -> ApiResult<(RecordingSet, diagnose::Diagnosis)> {
+    let (set, analyze) = load_set(st, id).await?;
+    let opts = DiagnoseOptions {
+        analyze,
+        effects: vec![],
+    };
+    tokio::task::spawn_blocking(move || {
+        let d = diagnose::diagnose(&set, &opts);
+        d.map(|d| (set, d))
+    })
+    .await
+    .map_err(Problem::internal)?
+    .map_err(|e| numeric_failure("Diagnostics failed", e))
+}
+
+/// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the base model.
+pub async fn diagnostics(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let (_, d) = diagnose_stored(&st, &id).await?;
+    Ok(Json(json!({
+        "measurement_id": id,
+        "model": d.report.model,
+        "diagnostics": d.report.diagnostics,
+        "plots": diagnose::plot_names().iter()
+            .map(|n| format!("/api/v1/measurements/{id}/plots/{n}.svg")).collect::<Vec<_>>(),
+    })))
+}
+
+/// `GET /api/v1/measurements/{id}/plots/{name}.svg`.
+pub async fn plot(
+    State(st): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let name = file
+        .strip_suffix(".svg")
+        .filter(|n| diagnose::plot_names().contains(n))
+        .ok_or_else(|| {
+            Problem::not_found(
+                &format!(
+                    "plot (plots: {})",
+                    diagnose::plot_names()
+                        .iter()
+                        .map(|n| format!("{n}.svg"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+                &file,
+            )
+        })?
+        .to_string();
+    let (set, d) = diagnose_stored(&st, &id).await?;
+    let svg = tokio::task::spawn_blocking(move || diagnose::plot(&set, &d, &name))
+        .await
+        .map_err(Problem::internal)?
+        .ok_or_else(|| Problem::not_found("plot", &file))?;
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
+}
+
+fn multipart_problem(e: axum::extract::multipart::MultipartError, limit: usize) -> Problem {
+    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        Problem::too_large(limit)
+    } else {
+        Problem::bad_request(format!("multipart body unreadable: {}", e.body_text()))
+    }
+}
+
+/// `POST /api/v1/measurements` (multipart): fields `meta` (meta.json), `pre`
+/// and `main` (WAV), `serial` (or `"part_serial"` in meta), optional `kind`,
+/// `notes`, `method`, `order`. Analysed and stored like a bench measurement;
+/// 201 with the result document (an analysis that fails is stored with its
+/// `analysis_error`, the recordings are kept for a later fit).
+pub async fn import(
+    State(st): State<AppState>,
+    multipart: Result<Multipart, axum::extract::multipart::MultipartRejection>,
+) -> ApiResult<Response> {
+    let limit = st.cfg.max_upload_bytes;
+    let mut mp = multipart.map_err(|e| {
+        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            Problem::too_large(limit)
+        } else {
+            Problem::bad_request(e.body_text())
+        }
+    })?;
+    let mut fields: std::collections::HashMap<String, Vec<u8>> = Default::default();
+    let mut errors = vec![];
+    while let Some(f) = mp
+        .next_field()
+        .await
+        .map_err(|e| multipart_problem(e, limit))?
+    {
+        let name = f.name().unwrap_or("").to_string();
+        let data = f.bytes().await.map_err(|e| multipart_problem(e, limit))?;
+        if [
+            "meta", "pre", "main", "serial", "kind", "notes", "method", "order",
+        ]
+        .contains(&name.as_str())
+        {
+            fields.insert(name, data.to_vec());
+        } else {
+            errors.push(FieldError {
+                field: name,
+                message: "unknown field".into(),
+            });
+        }
+    }
+    let text = |k: &str| -> Option<String> {
+        fields
+            .get(k)
+            .map(|b| String::from_utf8_lossy(b).trim().to_string())
+    };
+    for k in ["meta", "pre", "main"] {
+        if !fields.contains_key(k) {
+            errors.push(FieldError {
+                field: k.into(),
+                message: "required".into(),
+            });
+        }
+    }
+    let meta_serial = fields
+        .get("meta")
+        .and_then(|m| serde_json::from_slice::<Value>(m).ok())
+        .and_then(|m| {
+            m.get("part_serial")
+                .and_then(|s| s.as_str())
+                .map(String::from)
+        });
+    let serial = text("serial").or(meta_serial);
+    match &serial {
+        None => errors.push(FieldError {
+            field: "serial".into(),
+            message: "required (the part's serial number)".into(),
+        }),
+        Some(s) if !valid_serial(s) => errors.push(FieldError {
+            field: "serial".into(),
+            message: "1-64 characters: letters, digits, '-', '_', '.'".into(),
+        }),
+        _ => {}
+    }
+    let mut opts = AnalyzeOptions {
+        method: st.cfg.defaults.method,
+        order: st.cfg.defaults.order,
+    };
+    if let Some(m) = text("method") {
+        match serde_json::from_value::<Method>(json!(m)) {
+            Ok(m) => opts.method = m,
+            Err(_) => errors.push(FieldError {
+                field: "method".into(),
+                message: "must be two-signal or one-signal".into(),
+            }),
+        }
+    }
+    if let Some(o) = text("order") {
+        match o.parse::<usize>() {
+            Ok(n) if (1..=crate::runner::job::MAX_ORDER).contains(&n) => opts.order = Some(n),
+            _ => errors.push(FieldError {
+                field: "order".into(),
+                message: format!(
+                    "must be an integer from 1 to {}",
+                    crate::runner::job::MAX_ORDER
+                ),
+            }),
+        }
+    }
+    if !errors.is_empty() {
+        return Err(Problem::validation(errors));
+    }
+    let serial = serial.unwrap_or_default();
+    let kind = text("kind").filter(|s| !s.is_empty());
+    let notes = text("notes").filter(|s| !s.is_empty());
+    let meta = fields.remove("meta").unwrap_or_default();
+    let pre = fields.remove("pre").unwrap_or_default();
+    let main = fields.remove("main").unwrap_or_default();
+    let opts2 = opts.clone();
+    // Read, re-encode in the standard layout (float32) and analyse, off the runtime.
+    let prepared = tokio::task::spawn_blocking(move || {
+        let set = RecordingSet::from_bytes(&meta, &pre, &main).map_err(|e| {
+            let msg = e.to_string();
+            let field = if msg.starts_with("pre") {
+                "pre"
+            } else if msg.starts_with("main") {
+                "main"
+            } else {
+                "meta"
+            };
+            FieldError {
+                field: field.into(),
+                message: msg,
+            }
+        })?;
+        let enc = |s| {
+            signals_to_wav_bytes(s).map_err(|e| FieldError {
+                field: "".into(),
+                message: e.to_string(),
+            })
+        };
+        let pre_wav = enc(&set.pre)?;
+        let main_wav = enc(&set.main)?;
+        let mut meta = Meta {
+            channel_scale: None,
+            ..Meta::standard(set.meta.moving_mass_kg, set.meta.sample_rate_hz)
+        };
+        meta.extra = set.meta.extra.clone();
+        meta.channels.drive = match (&set.pre.drive_v, &set.main.drive_v) {
+            (Some(_), Some(_)) => Some(2),
+            _ => None,
+        };
+        let analysis = identify::analyze(&set, &opts2);
+        Ok::<_, FieldError>((set, meta, pre_wav, main_wav, analysis))
+    })
+    .await
+    .map_err(Problem::internal)?;
+    let (set, meta, pre_wav, main_wav, analysis) =
+        prepared.map_err(|e| Problem::validation(vec![e]))?;
+    let drop_drive = meta.channels.drive.is_none();
+    // Without a drive channel in both files, store both without one (same layout).
+    let (pre_wav, main_wav) =
+        if drop_drive && (set.pre.drive_v.is_some() || set.main.drive_v.is_some()) {
+            let strip = |s: &crate::recording::Signals| {
+                let mut s = s.clone();
+                s.drive_v = None;
+                signals_to_wav_bytes(&s)
+            };
+            (
+                strip(&set.pre).map_err(Problem::internal)?,
+                strip(&set.main).map_err(Problem::internal)?,
+            )
+        } else {
+            (pre_wav, main_wav)
+        };
+    let (result, analysis_error) = match analysis {
+        Ok(r) => (
+            Some(serde_json::to_value(&r).map_err(Problem::internal)?),
+            None,
+        ),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    let id = new_id();
+    let rec = |kind, s: &crate::recording::Signals, wav| NewRecording {
+        kind,
+        sample_rate_hz: s.sample_rate_hz,
+        frames: s.len() as i64,
+        wav,
+    };
+    st.store
+        .insert_measurements(
+            (&serial, kind.as_deref(), notes.as_deref()),
+            vec![
+                rec("pre", &set.pre, pre_wav),
+                rec("main", &set.main, main_wav),
+            ],
+            vec![NewMeasurement {
+                id: id.clone(),
+                part_serial: serial.clone(),
+                job_id: None,
+                source: "import",
+                bench_id: None,
+                config: json!({"analysis": opts}),
+                meta: serde_json::to_value(&meta).map_err(Problem::internal)?,
+                result,
+                analysis_error,
+                target_xpeak_m: None,
+                repeat_index: None,
+                level_index: None,
+                pre: 0,
+                main: 1,
+            }],
+        )
+        .await?;
+    let (info, result, meta) = st
+        .store
+        .get_measurement(&id)
+        .await?
+        .ok_or_else(|| Problem::internal("imported measurement vanished"))?;
+    let _ = st
+        .runner
+        .events()
+        .publish(
+            "measurement.created",
+            None,
+            json!({"measurement_id": id, "part_serial": serial, "source": "import"}),
+        )
+        .await;
+    let mut r = (StatusCode::CREATED, Json(document(&info, result, meta))).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/measurements/{id}")) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}

@@ -1,0 +1,82 @@
+//! Operations: health, readiness (bench states), Prometheus metrics, configuration.
+
+use super::problem::{ApiResult, Problem};
+use super::AppState;
+use axum::extract::State;
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde_json::{json, Value};
+use std::fmt::Write;
+
+pub async fn healthz() -> Json<Value> {
+    Json(json!({"status": "ok", "version": crate::VERSION}))
+}
+
+/// Ready when the database answers and no bench has stopped.
+pub async fn readyz(State(st): State<AppState>) -> Response {
+    let db = st.store.ping().await;
+    let benches = st.runner.bench_statuses();
+    let shutting_down = *st.shutdown.borrow();
+    let ready = db.is_ok() && !shutting_down && benches.iter().all(|b| b.state != "stopped");
+    let body = json!({
+        "status": if ready { "ready" } else { "not_ready" },
+        "database": match &db { Ok(()) => "ok".to_string(), Err(e) => e.to_string() },
+        "benches": benches,
+    });
+    let code = if ready {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (code, Json(body)).into_response()
+}
+
+pub async fn benches(State(st): State<AppState>) -> Json<Value> {
+    Json(json!({"items": st.runner.bench_statuses()}))
+}
+
+pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
+    let mut out = String::new();
+    out.push_str("# HELP springbench_jobs Jobs by state.\n# TYPE springbench_jobs gauge\n");
+    let counts = st.store.job_counts().await?;
+    for s in crate::store::JobState::ALL {
+        let n = counts
+            .iter()
+            .find(|(k, _)| k == s.as_str())
+            .map(|(_, n)| *n)
+            .unwrap_or(0);
+        let _ = writeln!(out, "springbench_jobs{{state=\"{}\"}} {n}", s.as_str());
+    }
+    let (parts, meas) = st.store.counts().await?;
+    let _ = writeln!(
+        out,
+        "# HELP springbench_parts Parts known.\n# TYPE springbench_parts gauge\nspringbench_parts {parts}"
+    );
+    let _ = writeln!(
+        out,
+        "# HELP springbench_measurements Measurements stored.\n# TYPE springbench_measurements gauge\nspringbench_measurements {meas}"
+    );
+    out.push_str("# HELP springbench_bench_busy 1 while the bench runs a job.\n# TYPE springbench_bench_busy gauge\n");
+    for b in st.runner.bench_statuses() {
+        let _ = writeln!(
+            out,
+            "springbench_bench_busy{{bench=\"{}\"}} {}",
+            b.id,
+            u8::from(b.state == "running")
+        );
+    }
+    st.metrics.render(&mut out);
+    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response())
+}
+
+/// The configuration in effect, token secrets left out (admin only).
+pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
+    let mut v = serde_json::to_value(&*st.cfg).map_err(Problem::internal)?;
+    if let Some(tokens) = v.pointer_mut("/auth/tokens").and_then(|t| t.as_array_mut()) {
+        for t in tokens {
+            t["token"] = json!("<redacted>");
+        }
+    }
+    Ok(Json(v))
+}

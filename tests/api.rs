@@ -1,0 +1,633 @@
+//! The daemon over real HTTP and websocket: validation, problem documents,
+//! idempotency, auth, events, import, job failure. (The measurement itself,
+//! cancel while running and kill -9 are in tests/daemon.rs.)
+
+mod common;
+
+use common::{client, problem, terminal, wait_job, Daemon};
+use futures_util::StreamExt;
+use serde_json::{json, Value};
+use std::time::Duration;
+
+#[tokio::test]
+async fn health_ready_metrics_and_unknown_routes() {
+    let d = Daemon::start("");
+    let c = client();
+    let h: Value = c
+        .get(d.url("/healthz"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(h["status"], "ok");
+    let r = c.get(d.url("/readyz")).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let r: Value = r.json().await.unwrap();
+    assert_eq!(r["benches"][0]["id"], "virtual-1");
+    assert_eq!(r["benches"][0]["state"], "idle");
+    let m = c
+        .get(d.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("springbench_jobs{state=\"queued\"} 0"), "{m}");
+    assert!(
+        m.contains(
+            "springbench_http_requests_total{method=\"GET\",route=\"/healthz\",status=\"200\"} 1"
+        ),
+        "{m}"
+    );
+    problem(c.get(d.url("/api/v1/nope")).send().await.unwrap(), 404).await;
+    problem(c.delete(d.url("/api/v1/jobs")).send().await.unwrap(), 405).await;
+    let p = problem(
+        c.get(d.url("/api/v1/jobs/does-not-exist"))
+            .send()
+            .await
+            .unwrap(),
+        404,
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("does-not-exist"));
+    problem(
+        c.get(d.url("/api/v1/measurements/x")).send().await.unwrap(),
+        404,
+    )
+    .await;
+    problem(c.get(d.url("/api/v1/parts/x")).send().await.unwrap(), 404).await;
+    problem(
+        c.post(d.url("/api/v1/jobs/x/cancel")).send().await.unwrap(),
+        404,
+    )
+    .await;
+    problem(
+        c.get(d.url("/api/v1/jobs?state=finished"))
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    problem(
+        c.get(d.url("/api/v1/jobs?limit=0")).send().await.unwrap(),
+        422,
+    )
+    .await;
+    problem(
+        c.get(d.url("/api/v1/jobs?limit=abc")).send().await.unwrap(),
+        400,
+    )
+    .await;
+    // A plain GET on the websocket route is refused with a problem document.
+    let r = c.get(d.url("/api/v1/events")).send().await.unwrap();
+    assert!(r.status().is_client_error());
+    assert_eq!(r.headers()["content-type"], "application/problem+json");
+}
+
+#[tokio::test]
+async fn bad_job_requests_get_one_message_per_field() {
+    let d = Daemon::start("");
+    let c = client();
+    let post = |body: String| {
+        c.post(d.url("/api/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+    };
+    let p = problem(
+        post(
+            json!({"part": {"serial": "SN-1"}, "moving_mass_kg": 0.0, "levels_m": [0.004, 0.5],
+                     "method": "three-signal", "preset": "no-such-part", "wat": 1})
+            .to_string(),
+        )
+        .await
+        .unwrap(),
+        422,
+    )
+    .await;
+    let fields: Vec<&str> = p["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["field"].as_str().unwrap())
+        .collect();
+    for f in ["wat", "moving_mass_kg", "levels_m[1]", "method", "preset"] {
+        assert!(fields.contains(&f), "{f} not in {fields:?}");
+    }
+    for e in p["errors"].as_array().unwrap() {
+        assert!(!e["message"].as_str().unwrap().is_empty());
+    }
+    // NaN cannot be written in JSON; a string or a huge number is caught.
+    let p = problem(
+        post(r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": "NaN"}"#.into())
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["field"], "moving_mass_kg");
+    let p = problem(
+        post(r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": 1e400}"#.into())
+            .await
+            .unwrap(),
+        400,
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("JSON"));
+    // Beyond the bench's limits.
+    let p = problem(
+        post(
+            json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02,
+                     "limits": {"max_drive_v": 1000.0}})
+            .to_string(),
+        )
+        .await
+        .unwrap(),
+        422,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["field"], "limits.max_drive_v");
+    let p = problem(
+        post(
+            json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02, "target_xpeak_m": 0.05})
+                .to_string(),
+        )
+        .await
+        .unwrap(),
+        422,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["field"], "target_xpeak_m");
+    // Not JSON at all, missing part, oversize body.
+    problem(post("{not json".into()).await.unwrap(), 400).await;
+    let p = problem(post("{}".into()).await.unwrap(), 422).await;
+    assert_eq!(p["errors"][0]["field"], "part");
+    let big = format!(
+        r#"{{"part": {{"serial": "S", "notes": "{}"}}}}"#,
+        "x".repeat(1_100_000)
+    );
+    problem(post(big).await.unwrap(), 413).await;
+    // Nothing was stored.
+    let jobs: Value = c
+        .get(d.url("/api/v1/jobs"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(jobs["items"].as_array().unwrap().len(), 0);
+}
+
+#[tokio::test]
+async fn idempotent_resubmit_and_conflict() {
+    let d = Daemon::start("");
+    let c = client();
+    let body = json!({"part": {"serial": "SN-7"}, "moving_mass_kg": 0.02, "priority": 3});
+    let r1 = c
+        .post(d.url("/api/v1/jobs"))
+        .header("Idempotency-Key", "qc1-0001")
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r1.status().as_u16(), 202);
+    let loc = r1.headers()["location"].to_str().unwrap().to_string();
+    let j1: Value = r1.json().await.unwrap();
+    assert_eq!(loc, format!("/api/v1/jobs/{}", j1["id"].as_str().unwrap()));
+    assert_eq!(j1["state"], "queued");
+    assert_eq!(j1["priority"], 3);
+    // The same key and body: the same job, not a second one.
+    let r2 = c
+        .post(d.url("/api/v1/jobs"))
+        .header("Idempotency-Key", "qc1-0001")
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r2.status().as_u16(), 200);
+    assert_eq!(r2.headers()["idempotent-replayed"], "true");
+    let j2: Value = r2.json().await.unwrap();
+    assert_eq!(j2["id"], j1["id"]);
+    // The same key with another body: 409.
+    let p = problem(
+        c.post(d.url("/api/v1/jobs"))
+            .header("Idempotency-Key", "qc1-0001")
+            .json(&json!({"part": {"serial": "SN-8"}, "moving_mass_kg": 0.02}))
+            .send()
+            .await
+            .unwrap(),
+        409,
+    )
+    .await;
+    assert_eq!(p["job_id"], j1["id"]);
+    let jobs: Value = c
+        .get(d.url("/api/v1/jobs"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(jobs["items"].as_array().unwrap().len(), 1);
+    // The part exists now.
+    let part: Value = c
+        .get(d.url("/api/v1/parts/SN-7"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(part["serial"], "SN-7");
+}
+
+/// A job the bench cannot do (a drive limit far too low for the target)
+/// fails with a problem document; the events tell the whole story in order,
+/// and cancelling the finished job gives 409.
+#[tokio::test]
+async fn impossible_job_fails_with_a_problem_and_events() {
+    let d = Daemon::start("");
+    let c = client();
+    let (mut ws, _) = tokio_tungstenite::connect_async(d.ws_url("/api/v1/events?after=0"))
+        .await
+        .expect("websocket");
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .json(
+            &json!({"part": {"serial": "SN-9", "kind": "spider"}, "moving_mass_kg": 0.05,
+                      "limits": {"max_drive_v": 0.001}}),
+        )
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let j = wait_job(&c, &d, &id, Duration::from_secs(120), terminal).await;
+    assert_eq!(j["state"], "failed", "{j}");
+    let p = &j["problem"];
+    assert!(p["type"].as_str().unwrap().starts_with("/problems/"), "{j}");
+    assert!(!p["detail"].as_str().unwrap().is_empty());
+    assert!(j["finished_at"].is_string());
+    assert_eq!(j["measurement_ids"].as_array().unwrap().len(), 0);
+
+    // Events: queued, running, (progress...), failed, with increasing seq.
+    let mut states = vec![];
+    let mut last_seq = 0;
+    while states.last().map(String::as_str) != Some("failed") {
+        let m = tokio::time::timeout(Duration::from_secs(30), ws.next())
+            .await
+            .expect("an event within 30 s")
+            .unwrap()
+            .unwrap();
+        let e: Value = serde_json::from_str(m.to_text().unwrap()).unwrap();
+        if e["live"] == true {
+            continue;
+        }
+        let seq = e["seq"].as_i64().unwrap();
+        assert!(seq > last_seq, "seq {seq} after {last_seq}");
+        last_seq = seq;
+        assert_eq!(e["job_id"], id.as_str());
+        if e["type"] == "job.state" {
+            states.push(e["data"]["state"].as_str().unwrap().to_string());
+        }
+    }
+    assert_eq!(states, ["queued", "running", "failed"]);
+
+    // Resume after the first event: the replay starts right after it.
+    let (mut ws2, _) = tokio_tungstenite::connect_async(d.ws_url("/api/v1/events?after=1"))
+        .await
+        .unwrap();
+    let m = tokio::time::timeout(Duration::from_secs(10), ws2.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    let e: Value = serde_json::from_str(m.to_text().unwrap()).unwrap();
+    assert_eq!(e["seq"], 2);
+    assert_eq!(e["data"]["state"], "running");
+
+    let p = problem(
+        c.post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
+            .send()
+            .await
+            .unwrap(),
+        409,
+    )
+    .await;
+    assert_eq!(p["state"], "failed");
+    let m = c
+        .get(d.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("springbench_jobs{state=\"failed\"} 1"), "{m}");
+}
+
+const TOKENS: &str = r#"
+[[auth.tokens]]
+name = "mes"
+token = "viewer-token-0123456789"
+role = "viewer"
+[[auth.tokens]]
+name = "qc"
+token = "operator-token-0123456789"
+role = "operator"
+[[auth.tokens]]
+name = "lab"
+token = "admin-token-0123456789"
+role = "admin"
+"#;
+
+#[tokio::test]
+async fn bearer_tokens_and_roles() {
+    let d = Daemon::start(TOKENS);
+    let c = client();
+    let job = json!({"part": {"serial": "SN-A"}, "moving_mass_kg": 0.02});
+    // Open routes.
+    assert_eq!(
+        c.get(d.url("/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .status()
+            .as_u16(),
+        200
+    );
+    assert_eq!(
+        c.get(d.url("/readyz"))
+            .send()
+            .await
+            .unwrap()
+            .status()
+            .as_u16(),
+        200
+    );
+    // No token, unknown token: 401 with a challenge.
+    let r = c.get(d.url("/api/v1/jobs")).send().await.unwrap();
+    assert!(r.headers()["www-authenticate"]
+        .to_str()
+        .unwrap()
+        .starts_with("Bearer"));
+    problem(r, 401).await;
+    problem(
+        c.get(d.url("/api/v1/jobs"))
+            .bearer_auth("nope-nope-nope-nope")
+            .send()
+            .await
+            .unwrap(),
+        401,
+    )
+    .await;
+    // Viewer reads, may not submit or read the configuration.
+    let v = "viewer-token-0123456789";
+    assert_eq!(
+        c.get(d.url("/api/v1/jobs"))
+            .bearer_auth(v)
+            .send()
+            .await
+            .unwrap()
+            .status()
+            .as_u16(),
+        200
+    );
+    assert_eq!(
+        c.get(d.url("/metrics"))
+            .bearer_auth(v)
+            .send()
+            .await
+            .unwrap()
+            .status()
+            .as_u16(),
+        200
+    );
+    problem(
+        c.post(d.url("/api/v1/jobs"))
+            .bearer_auth(v)
+            .json(&job)
+            .send()
+            .await
+            .unwrap(),
+        403,
+    )
+    .await;
+    problem(
+        c.get(d.url("/api/v1/config"))
+            .bearer_auth(v)
+            .send()
+            .await
+            .unwrap(),
+        403,
+    )
+    .await;
+    // Operator submits and cancels.
+    let o = "operator-token-0123456789";
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .bearer_auth(o)
+        .json(&job)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    problem(
+        c.get(d.url("/api/v1/config"))
+            .bearer_auth(o)
+            .send()
+            .await
+            .unwrap(),
+        403,
+    )
+    .await;
+    // Admin reads the configuration, without the secrets.
+    let cfg = c
+        .get(d.url("/api/v1/config"))
+        .bearer_auth("admin-token-0123456789")
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        cfg.contains("virtual-1") && !cfg.contains("0123456789"),
+        "{cfg}"
+    );
+    // Websocket: token as a query parameter.
+    assert!(tokio_tungstenite::connect_async(d.ws_url("/api/v1/events"))
+        .await
+        .is_err());
+    let ok =
+        tokio_tungstenite::connect_async(d.ws_url(&format!("/api/v1/events?after=0&token={v}")))
+            .await;
+    assert!(ok.is_ok());
+}
+
+#[tokio::test]
+async fn import_stores_the_recordings_and_refuses_bad_uploads() {
+    let d = Daemon::start("max_upload_bytes = 20000000");
+    let c = client();
+    let dir = common::reference_dir("p1_spider");
+    let meta = std::fs::read(dir.join("meta.json")).unwrap();
+    let pre = std::fs::read(dir.join("pre.wav")).unwrap();
+    let main = std::fs::read(dir.join("main.wav")).unwrap();
+    let form = |meta: Vec<u8>, pre: Vec<u8>, main: Vec<u8>| {
+        reqwest::multipart::Form::new()
+            .part(
+                "meta",
+                reqwest::multipart::Part::bytes(meta).file_name("meta.json"),
+            )
+            .part(
+                "pre",
+                reqwest::multipart::Part::bytes(pre).file_name("pre.wav"),
+            )
+            .part(
+                "main",
+                reqwest::multipart::Part::bytes(main).file_name("main.wav"),
+            )
+            .text("serial", "REF-P1")
+            .text("kind", "spider")
+    };
+    let r = c
+        .post(d.url("/api/v1/measurements"))
+        .multipart(form(meta.clone(), pre.clone(), main.clone()))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let doc: Value = r.json().await.unwrap();
+    let id = doc["measurement"]["id"].as_str().unwrap().to_string();
+    assert_eq!(doc["measurement"]["source"], "import");
+    assert_eq!(doc["measurement"]["part_serial"], "REF-P1");
+    // The stored recording reads back with the same samples (float32 as sent).
+    let wav = c
+        .get(d.url(&format!("/api/v1/measurements/{id}/recordings/main.wav")))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
+    let set = springbench::recording::RecordingSet::read_dir(&dir).unwrap();
+    let meta_std = springbench::recording::Meta::standard(0.05, 48000.0);
+    let back =
+        springbench::recording::read_signals(std::io::Cursor::new(&wav[..]), &meta_std).unwrap();
+    assert_eq!(back.len(), set.main.len());
+    let max_err = back
+        .displacement_m
+        .iter()
+        .zip(&set.main.displacement_m)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(max_err <= 1e-9, "{max_err}");
+    problem(
+        c.get(d.url(&format!("/api/v1/measurements/{id}/recordings/other.wav")))
+            .send()
+            .await
+            .unwrap(),
+        404,
+    )
+    .await;
+    // Listed under the part.
+    let l: Value = c
+        .get(d.url("/api/v1/parts/REF-P1/measurements"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(l["items"][0]["id"], id.as_str());
+
+    // Broken uploads: a WAV that is not one, a missing field, too large.
+    let p = problem(
+        c.post(d.url("/api/v1/measurements"))
+            .multipart(form(meta.clone(), b"RIFF nonsense".to_vec(), main.clone()))
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["field"], "pre");
+    let p = problem(
+        c.post(d.url("/api/v1/measurements"))
+            .multipart(
+                reqwest::multipart::Form::new()
+                    .part("meta", reqwest::multipart::Part::bytes(meta.clone()))
+                    .text("serial", "X"),
+            )
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    let f: Vec<_> = p["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["field"].as_str().unwrap())
+        .collect();
+    assert_eq!(f, ["pre", "main"]);
+    let mut big = pre.clone();
+    big.extend_from_slice(&pre);
+    let r = c
+        .post(d.url("/api/v1/measurements"))
+        .multipart(form(meta.clone(), big, main.clone()))
+        .send()
+        .await;
+    // The server may answer 413 before the client finished sending.
+    if let Ok(r) = r {
+        problem(r, 413).await;
+    }
+    let l: Value = c
+        .get(d.url("/api/v1/measurements"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(l["items"].as_array().unwrap().len(), 1);
+
+    // Fits and diagnostics on the stored recordings: a bad request is refused
+    // before any work; a valid one either fits or says why it cannot.
+    let p = problem(
+        c.post(d.url(&format!("/api/v1/measurements/{id}/fits")))
+            .json(&json!({"effects": ["warp_drive"]}))
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["field"], "effects[0]");
+    problem(
+        c.post(d.url("/api/v1/measurements/nope/fits"))
+            .json(&json!({}))
+            .send()
+            .await
+            .unwrap(),
+        404,
+    )
+    .await;
+    problem(
+        c.get(d.url(&format!("/api/v1/measurements/{id}/plots/nonsense.svg")))
+            .send()
+            .await
+            .unwrap(),
+        404,
+    )
+    .await;
+}

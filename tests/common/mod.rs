@@ -1,0 +1,174 @@
+//! Test harness: the real `springbench` binary on an ephemeral port with a
+//! temporary data directory, driven over real HTTP and websocket.
+#![allow(dead_code)]
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub struct Daemon {
+    child: Child,
+    /// `http://127.0.0.1:PORT`
+    pub base: String,
+    pub dir: PathBuf,
+    _tmp: Option<tempfile::TempDir>,
+}
+
+impl Daemon {
+    /// Starts a daemon in a fresh temporary directory; `extra` is appended to its TOML config.
+    pub fn start(extra: &str) -> Daemon {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        let dir = tmp.path().to_path_buf();
+        let mut d = Daemon::start_in(&dir, extra);
+        d._tmp = Some(tmp);
+        d
+    }
+
+    /// Starts a daemon on `dir` (config and data inside it): used again after a kill.
+    pub fn start_in(dir: &Path, extra: &str) -> Daemon {
+        let cfg = dir.join("springbench.toml");
+        let text = format!(
+            "bind = \"127.0.0.1:0\"\ndata_dir = \"{}\"\n{extra}\n",
+            dir.join("data").display()
+        );
+        std::fs::write(&cfg, text).expect("write config");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_springbench"))
+            .arg("serve")
+            .arg("--config")
+            .arg(&cfg)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start springbench");
+        let out = child.stdout.take().unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(out).lines();
+            while let Some(Ok(l)) = lines.next() {
+                if let Some(a) = l.strip_prefix("listening on ") {
+                    let _ = tx.send(a.to_string());
+                }
+            }
+        });
+        let base = match rx.recv_timeout(Duration::from_secs(30)) {
+            Ok(b) => b,
+            Err(_) => {
+                let _ = child.kill();
+                panic!("the daemon did not print 'listening on' within 30 s");
+            }
+        };
+        Daemon {
+            child,
+            base,
+            dir: dir.to_path_buf(),
+            _tmp: None,
+        }
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    pub fn ws_url(&self, path: &str) -> String {
+        format!("{}{path}", self.base.replacen("http://", "ws://", 1))
+    }
+
+    /// SIGKILL: no chance to clean up.
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// SIGTERM, then waits for the process to exit (graceful shutdown).
+    pub fn terminate(&mut self) -> std::process::ExitStatus {
+        let _ = Command::new("kill")
+            .arg("-TERM")
+            .arg(self.child.id().to_string())
+            .status();
+        let t = Instant::now();
+        loop {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return s;
+            }
+            if t.elapsed() > Duration::from_secs(40) {
+                let _ = self.child.kill();
+                panic!("the daemon did not stop within 40 s of SIGTERM");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// Keeps the data directory when the daemon is dropped (for a restart).
+    pub fn take_dir(&mut self) -> Option<tempfile::TempDir> {
+        self._tmp.take()
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+pub fn client() -> reqwest::Client {
+    reqwest::Client::builder()
+        .timeout(Duration::from_secs(60))
+        .build()
+        .unwrap()
+}
+
+/// Polls a job until `done(state)` or the timeout; returns the last job document.
+pub async fn wait_job(
+    c: &reqwest::Client,
+    d: &Daemon,
+    id: &str,
+    timeout: Duration,
+    done: impl Fn(&str) -> bool,
+) -> Value {
+    let t = Instant::now();
+    loop {
+        let j: Value = c
+            .get(d.url(&format!("/api/v1/jobs/{id}")))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if done(j["state"].as_str().unwrap_or("")) || t.elapsed() > timeout {
+            return j;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+pub fn terminal(s: &str) -> bool {
+    !matches!(s, "queued" | "running")
+}
+
+/// Asserts a problem+json response with `status`; returns the document.
+pub async fn problem(r: reqwest::Response, status: u16) -> Value {
+    assert_eq!(r.status().as_u16(), status, "status");
+    let ct = r
+        .headers()
+        .get("content-type")
+        .map(|v| v.to_str().unwrap().to_string())
+        .unwrap_or_default();
+    assert_eq!(ct, "application/problem+json");
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(v["status"].as_u64(), Some(status as u64), "{v}");
+    assert!(v["type"].as_str().unwrap().starts_with("/problems/"), "{v}");
+    assert!(!v["title"].as_str().unwrap().is_empty(), "{v}");
+    assert!(!v["detail"].as_str().unwrap_or("").is_empty(), "{v}");
+    v
+}
+
+pub fn reference_dir(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/reference-recordings")
+        .join(name)
+}
