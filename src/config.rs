@@ -75,7 +75,7 @@ fn default_limits() -> Limits {
 }
 
 /// Preset mounted on the default virtual bench.
-pub const DEFAULT_PRESET: &str = "spider-4in";
+pub const DEFAULT_PRESET: &str = "spider_4in";
 
 /// Defaults applied to a job that leaves a field out.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -439,23 +439,8 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
 }
 
 fn check_part_spec(p: &PartSpec, errors: &mut Vec<FieldError>) {
-    let pos = |x: f64| x.is_finite() && x > 0.0;
-    if !pos(p.moving_mass_kg) {
-        errors.push(err("part_spec.moving_mass_kg", "must be > 0 kg"));
-    }
-    if p.k_coeffs_si.is_empty() || !p.k_coeffs_si.iter().all(|k| k.is_finite()) {
-        errors.push(err(
-            "part_spec.k_coeffs_si",
-            "must be a non-empty list of finite numbers",
-        ));
-    } else if p.k_coeffs_si[0] <= 0.0 {
-        errors.push(err("part_spec.k_coeffs_si[0]", "k0 must be > 0 N/m"));
-    }
-    if !(p.r_ns_per_m.is_finite() && p.r_ns_per_m >= 0.0) {
-        errors.push(err("part_spec.r_ns_per_m", "must be >= 0 N s/m"));
-    }
-    if !pos(p.ss_m2) {
-        errors.push(err("part_spec.ss_m2", "must be > 0 m^2"));
+    if let Err(e) = p.validate() {
+        errors.push(err("part_spec", e));
     }
 }
 

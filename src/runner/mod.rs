@@ -521,16 +521,20 @@ fn make_bench(
     limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
     match cfg.kind {
-        BenchKind::Virtual => virtual_bench(part, seed, limits),
+        BenchKind::Virtual => virtual_bench(&cfg.id, part, seed, limits),
     }
 }
 
 fn virtual_bench(
-    _part: PartSpec,
-    _seed: u64,
-    _limits: crate::bench::Limits,
+    id: &str,
+    part: PartSpec,
+    seed: u64,
+    limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
-    Err("the virtual bench is not available yet (physics::VirtualBench does not implement bench::Bench)".into())
+    part.validate()?;
+    let mut b = crate::physics::VirtualBench::new(part, seed).with_limits(limits);
+    b.id = id.to_string();
+    Ok(Box::new(b))
 }
 
 fn procedure_stop(e: ProcedureError) -> Stop {
