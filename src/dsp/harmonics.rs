@@ -55,22 +55,10 @@ impl PeriodHarmonics {
     }
 }
 
-/// Least-squares fit of dc + `n_harm` harmonics to `signal` over each period
-/// given by consecutive `marks` (fractional samples in the signal's own rate).
-pub fn harmonics_per_period(
-    signal: &[f64],
-    marks: &[f64],
-    sample_rate_hz: f64,
-    n_harm: usize,
-) -> Vec<PeriodHarmonics> {
-    let p = 1 + 2 * n_harm;
-    let mut out = Vec::with_capacity(marks.len().saturating_sub(1));
-    let mut g = DMatrix::<f64>::zeros(p, p);
-    let mut r = DVector::<f64>::zeros(p);
-    let mut basis = vec![0.0; p];
+/// Phase slope (rad/sample) at each mark: derivative of the parabola through
+/// three neighbouring marks (phase 2 pi per mark), one-sided at the ends.
+fn mark_slopes(marks: &[f64]) -> Vec<f64> {
     let two_pi = 2.0 * std::f64::consts::PI;
-    // Phase slope (rad/sample) at each mark: derivative of the parabola through
-    // three neighbouring marks (phase 2 pi per mark), one-sided at the ends.
     let slope = |k: usize| -> f64 {
         if marks.len() < 3 {
             return two_pi / (marks[1] - marks[0]);
@@ -97,9 +85,77 @@ pub fn harmonics_per_period(
         }
         d
     };
+    if marks.len() < 2 {
+        return vec![0.0; marks.len()];
+    }
+    (0..marks.len()).map(slope).collect()
+}
+
+/// Cubic Hermite phase inside the period [ta, tb]: 0 -> 2 pi, with the local
+/// frequency (slopes sa, sb) at both ends, so it follows the sweep.
+fn hermite_phase(ta: f64, tb: f64, sa: f64, sb: f64, t: f64) -> f64 {
+    let period = tb - ta;
+    let u = (t - ta) / period;
+    let (u2, u3) = (u * u, u * u * u);
+    (u3 - 2.0 * u2 + u) * period * sa
+        + (3.0 * u2 - 2.0 * u3) * 2.0 * std::f64::consts::PI
+        + (u3 - u2) * period * sb
+}
+
+/// `signal` with its fundamental (cos and sin of the period phase, fitted per
+/// period between consecutive `marks`) removed; samples outside the periods
+/// are left unchanged. What remains is dc, harmonics and noise: the part of a
+/// force balance that a purely sinusoidal drive force does not enter.
+pub fn remove_fundamental_per_period(signal: &[f64], marks: &[f64]) -> Vec<f64> {
+    let mut out = signal.to_vec();
+    let slopes = mark_slopes(marks);
     for k in 0..marks.len().saturating_sub(1) {
         let (ta, tb) = (marks[k], marks[k + 1]);
-        let (sa, sb) = (slope(k), slope(k + 1));
+        let i0 = ta.ceil().max(0.0) as usize;
+        let i1 = (tb.ceil().max(0.0) as usize).min(signal.len());
+        if i1 <= i0 + 4 {
+            continue;
+        }
+        let (mut gcc, mut gcs, mut gss, mut rc, mut rs) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (i, &y) in signal.iter().enumerate().take(i1).skip(i0) {
+            let (sn, cs) = hermite_phase(ta, tb, slopes[k], slopes[k + 1], i as f64).sin_cos();
+            gcc += cs * cs;
+            gcs += cs * sn;
+            gss += sn * sn;
+            rc += cs * y;
+            rs += sn * y;
+        }
+        let det = gcc * gss - gcs * gcs;
+        if det <= 0.0 {
+            continue;
+        }
+        let c = (gss * rc - gcs * rs) / det;
+        let d = (gcc * rs - gcs * rc) / det;
+        for (i, o) in out.iter_mut().enumerate().take(i1).skip(i0) {
+            let (sn, cs) = hermite_phase(ta, tb, slopes[k], slopes[k + 1], i as f64).sin_cos();
+            *o -= c * cs + d * sn;
+        }
+    }
+    out
+}
+
+/// Least-squares fit of dc + `n_harm` harmonics to `signal` over each period
+/// given by consecutive `marks` (fractional samples in the signal's own rate).
+pub fn harmonics_per_period(
+    signal: &[f64],
+    marks: &[f64],
+    sample_rate_hz: f64,
+    n_harm: usize,
+) -> Vec<PeriodHarmonics> {
+    let p = 1 + 2 * n_harm;
+    let mut out = Vec::with_capacity(marks.len().saturating_sub(1));
+    let mut g = DMatrix::<f64>::zeros(p, p);
+    let mut r = DVector::<f64>::zeros(p);
+    let mut basis = vec![0.0; p];
+    let slopes = mark_slopes(marks);
+    for k in 0..marks.len().saturating_sub(1) {
+        let (ta, tb) = (marks[k], marks[k + 1]);
+        let (sa, sb) = (slopes[k], slopes[k + 1]);
         let i0 = ta.ceil().max(0.0) as usize;
         let i1 = (tb.ceil() as usize).min(signal.len());
         if i1 <= i0 + p {
@@ -110,13 +166,7 @@ pub fn harmonics_per_period(
         r.fill(0.0);
         let (mut mx, mut mn) = (f64::NEG_INFINITY, f64::INFINITY);
         for (i, &s) in signal.iter().enumerate().take(i1).skip(i0) {
-            // Cubic Hermite phase: 0 -> 2 pi over the period, with the local
-            // frequency at both ends (follows the sweep inside the period).
-            let u = (i as f64 - ta) / period;
-            let (u2, u3) = (u * u, u * u * u);
-            let th = (u3 - 2.0 * u2 + u) * period * sa
-                + (3.0 * u2 - 2.0 * u3) * two_pi
-                + (u3 - u2) * period * sb;
+            let th = hermite_phase(ta, tb, sa, sb, i as f64);
             basis[0] = 1.0;
             for h in 1..=n_harm {
                 let (sn, cs) = (h as f64 * th).sin_cos();

@@ -18,10 +18,16 @@ pub struct TransferFunction {
 /// `band_hz` (H1 = sum Y X* / sum |X|^2 and the coherence over the band). For a
 /// deterministic sweep this has none of the bias that windowed segments
 /// (Welch) give near a sharp resonance; noise and distortion lower the coherence.
-/// Both spectra must have the same FFT size and rate.
-pub fn transfer_function(input: &Spectrum, output: &Spectrum, band_hz: f64) -> TransferFunction {
+/// Both spectra must have the same FFT size and rate. Bands up to `max_hz`.
+pub fn transfer_function(
+    input: &Spectrum,
+    output: &Spectrum,
+    band_hz: f64,
+    max_hz: f64,
+) -> TransferFunction {
     assert_eq!(input.n_fft, output.n_fft, "spectra of equal size");
-    let nb = input.bins.len().min(output.bins.len());
+    let kmax = (max_hz / input.df_hz()).ceil().max(1.0) as usize + 1;
+    let nb = input.bins.len().min(output.bins.len()).min(kmax);
     let per = ((band_hz / input.df_hz()).round() as usize).max(1);
     let mut tf = TransferFunction {
         freq_hz: Vec::with_capacity(nb / per + 1),
@@ -112,7 +118,7 @@ mod tests {
         let x = oscillator(&f, fs, m, r, k);
         let sf = Spectrum::new(&f, fs, 0);
         let sx = Spectrum::new(&x, fs, 0);
-        let tf = transfer_function(&sf, &sx, 0.1);
+        let tf = transfer_function(&sf, &sx, 0.1, 200.0);
         let mut checked = 0;
         for (i, &fr) in tf.freq_hz.iter().enumerate() {
             if !(10.0..=150.0).contains(&fr) {

@@ -121,20 +121,241 @@ pub enum AnalyzeError {
     Invalid(String),
 }
 
+mod prep;
+mod small;
+mod stiffness;
+
+pub use small::{COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
+pub use stiffness::{MAX_AUTO_ORDER, MAX_ORDER};
+
+/// Relative variation of the microphone's fundamental over the One Signal span
+/// above which the One Signal assumption (constant force at resonance) fails.
+pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
+
 /// Analyses a recording set.
-pub fn analyze(_set: &RecordingSet, _opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
-    Err(AnalyzeError::Invalid("analysis not implemented yet".into()))
+pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
+    let p = prep::prepare(set)?;
+    let mut warnings = Vec::new();
+
+    let small_signal = match small::fit(&set.pre, p.mass_kg) {
+        Ok(f) => {
+            warnings.extend(f.warnings);
+            Some(f.result)
+        }
+        Err(e) => return Err(e),
+    };
+
+    // Large signal at the resonance period.
+    let ri = p.res_index;
+    let fr = interp_freq(&p, p.res_pos);
+    let keff = (2.0 * std::f64::consts::PI * fr).powi(2) * p.mass_kg;
+    let (x_min, x_max) = extremes(&p.x[p.span.0..p.span.1]);
+    let large_signal = LargeSignal {
+        resonance_hz: fr,
+        keff_n_per_m: keff,
+        ceff_m_per_n: 1.0 / keff,
+        xpeak_m: x_max.max(-x_min),
+        x_min_m: x_min,
+        x_max_m: x_max,
+        dc_m: p.px[ri].dc,
+        moving_mass_kg: p.mass_kg,
+        harmonics_m: p.px[ri].harmonics.iter().map(|c| c.norm()).collect(),
+    };
+
+    let span = match opts.method {
+        Method::TwoSignal => p.span,
+        Method::OneSignal => {
+            let (_, variation) = one_signal_span(&p);
+            if variation > ONE_SIGNAL_MIC_VARIATION_LIMIT {
+                warnings.push(format!(
+                    "one-signal assumption fails: the microphone's fundamental varies by {:.0} % (> {:.0} %) around the resonance, so the driving force is not constant; use two-signal",
+                    100.0 * variation,
+                    100.0 * ONE_SIGNAL_MIC_VARIATION_LIMIT
+                ));
+            }
+            p.span
+        }
+    };
+    let kf = stiffness::fit(&p, opts.method, span, opts.order)?;
+    if opts.order.is_none() && kf.order == MAX_AUTO_ORDER {
+        warnings.push(format!(
+            "stiffness order reached the automatic limit {MAX_AUTO_ORDER}: the polynomial may not describe K(x) well"
+        ));
+    }
+    if let (Some(ss), Some((s, _))) = (&small_signal, kf.scale_n_per_v) {
+        if let Some(a) = ss.area_per_mic_unit_m2_per_v {
+            if ss.reliable && ((s - a) / a).abs() > 0.1 {
+                warnings.push(format!(
+                    "microphone scale differs between pre-measurement ({a:.4} N/V) and main sweep ({s:.4} N/V)"
+                ));
+            }
+        }
+    }
+    let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
+    let k0 = kf.k_of_x(0.0);
+    let xc = [xc_side(&kf, k0, xlo), xc_side(&kf, k0, xhi)];
+    let stiffness = Stiffness {
+        method: match opts.method {
+            Method::TwoSignal => "two-signal".into(),
+            Method::OneSignal => "one-signal".into(),
+        },
+        order: kf.order,
+        coefficients_n_per_mm: kf
+            .k
+            .iter()
+            .enumerate()
+            .map(|(i, k)| k * 1e-3f64.powi(i as i32 + 1))
+            .collect(),
+        coefficients: kf.k.clone(),
+        coefficients_se: kf.k_se.clone(),
+        valid_range_m: [xlo, xhi],
+        xc_m: xc,
+        r_ns_per_m: kf.r_ns_per_m,
+        force_per_mic_v_n_per_v: kf.scale_n_per_v.map(|s| s.0),
+    };
+
+    // Noise floor of the force balance: what the sensor noise puts into e.
+    let xs = &p.x[span.0..span.1];
+    let mean_kinc2 = xs
+        .iter()
+        .map(|&x| (kf.k_of_x(x) + x * kf.dk_dx(x)).powi(2))
+        .sum::<f64>()
+        / xs.len() as f64;
+    let s = kf.scale_n_per_v.map_or(0.0, |s| s.0);
+    let noise_n = ((p.mass_kg * p.noise_a_m_per_s2).powi(2)
+        + (s * p.noise_mic_v).powi(2)
+        + (kf.r_ns_per_m * p.noise_v_m_per_s).powi(2)
+        + mean_kinc2 * p.noise_x_m.powi(2))
+    .sqrt();
+    let residual_percent = kf.residual_percent();
+    let noise_floor_percent = 100.0 * noise_n / kf.rms_ma_n;
+    let model = Model {
+        effects: Default::default(),
+        residual_percent,
+        noise_floor_percent,
+        model_error_percent: (residual_percent.powi(2) - noise_floor_percent.powi(2))
+            .max(0.0)
+            .sqrt(),
+    };
+    Ok(Report {
+        small_signal,
+        large_signal,
+        stiffness,
+        model,
+        warnings,
+        diagnostics: None,
+    })
 }
 
 /// Prepares the force-balance data of the main sweep of `set` (band limiting,
 /// differentiation, alignment, analysed span). Shared by `analyze` and `diagnose`.
 pub fn force_balance_data(
-    _set: &RecordingSet,
-    _opts: &AnalyzeOptions,
+    set: &RecordingSet,
+    opts: &AnalyzeOptions,
 ) -> Result<ForceBalanceData, AnalyzeError> {
-    Err(AnalyzeError::Invalid(
-        "force balance not implemented yet".into(),
-    ))
+    let p = prep::prepare(set)?;
+    let (s0, s1) = match opts.method {
+        Method::TwoSignal => p.span,
+        Method::OneSignal => p.span,
+    };
+    Ok(ForceBalanceData {
+        sample_rate_hz: p.fs_hz,
+        t0_s: s0 as f64 / p.fs_hz,
+        mass_kg: p.mass_kg,
+        x_m: p.x[s0..s1].to_vec(),
+        v_m_per_s: p.v[s0..s1].to_vec(),
+        a_m_per_s2: p.a[s0..s1].to_vec(),
+        mic_v: p.mic[s0..s1].to_vec(),
+        laser_noise_m: p.noise_x_m,
+        mic_noise_v: p.noise_mic_v,
+    })
+}
+
+/// Frequency (Hz) at a fractional period index.
+fn interp_freq(p: &prep::Prepared, pos: f64) -> f64 {
+    let i = (pos.floor().max(0.0) as usize).min(p.px.len() - 1);
+    let j = (i + 1).min(p.px.len() - 1);
+    let t = pos - i as f64;
+    p.px[i].freq_hz * (1.0 - t) + p.px[j].freq_hz * t
+}
+
+/// Minimum and maximum of a sampled band-limited signal, refined by a parabola
+/// through the extreme sample and its neighbours.
+fn extremes(x: &[f64]) -> (f64, f64) {
+    let refine = |i: usize| -> f64 {
+        if i == 0 || i + 1 >= x.len() {
+            return x[i];
+        }
+        let (a, b, c) = (x[i - 1], x[i], x[i + 1]);
+        let den = a - 2.0 * b + c;
+        if den == 0.0 {
+            return b;
+        }
+        let off = (0.5 * (a - c) / den).clamp(-0.5, 0.5);
+        b - 0.25 * (a - c) * off
+    };
+    let (mut imin, mut imax) = (0, 0);
+    for (i, &v) in x.iter().enumerate() {
+        if v < x[imin] {
+            imin = i;
+        }
+        if v > x[imax] {
+            imax = i;
+        }
+    }
+    (refine(imin), refine(imax))
+}
+
+/// The periods around the resonance (from where the fundamental of x first
+/// reaches 70 % of its peak up to the resonance period) and the relative
+/// variation of the microphone's fundamental over them: One Signal needs a
+/// drive force that does not change over the resonance.
+fn one_signal_span(p: &prep::Prepared) -> ((usize, usize), f64) {
+    let ri = p.res_index;
+    let peak = p.px[ri].amplitude(1);
+    let mut lo = ri;
+    while lo > 0 && p.px[lo - 1].amplitude(1) >= 0.7 * peak {
+        lo -= 1;
+    }
+    let hi = (ri + 1).min(p.px.len() - 1);
+    let lo = lo.min(hi.saturating_sub(10));
+    let mics: Vec<f64> = p.pm[lo..=hi].iter().map(|q| q.amplitude(1)).collect();
+    let (mn, mx) = mics
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+    let mean = mics.iter().sum::<f64>() / mics.len() as f64;
+    let variation = if mean > 0.0 { (mx - mn) / mean } else { 0.0 };
+    let s0 = p.px[lo].start.ceil().max(0.0) as usize;
+    let s1 = (p.px[hi].end.floor() as usize).min(p.x.len());
+    ((s0, s1), variation)
+}
+
+/// Where C(x) = 1/K(x) first falls to 75 % of C(0) between 0 and `edge`.
+fn xc_side(kf: &stiffness::KFit, k0: f64, edge: f64) -> Option<f64> {
+    if k0.is_nan() || k0 <= 0.0 || edge == 0.0 {
+        return None;
+    }
+    let target = k0 / 0.75;
+    let steps = 2000;
+    let mut prev = 0.0;
+    for i in 1..=steps {
+        let x = edge * i as f64 / steps as f64;
+        if kf.k_of_x(x) >= target {
+            // Bisection between prev and x.
+            let (mut a, mut b) = (prev, x);
+            for _ in 0..60 {
+                let m = 0.5 * (a + b);
+                if kf.k_of_x(m) >= target {
+                    b = m;
+                } else {
+                    a = m;
+                }
+            }
+            return Some(0.5 * (a + b));
+        }
+        prev = x;
+    }
+    None
 }
 
 /// The large-signal force-balance data, prepared once by the identification

@@ -1,0 +1,209 @@
+//! Preparation of the main sweep: checks, band limiting, differentiation,
+//! decimation, per-period harmonics, resonance and the analysed span.
+
+use super::AnalyzeError;
+use crate::dsp::{self, LowPass, PeriodHarmonics, Spectrum};
+use crate::recording::{RecordingSet, Signals};
+use realfft::RealFftPlanner;
+
+/// Harmonics tracked per period (fundamental first).
+pub const N_HARM: usize = 5;
+
+/// The main sweep, prepared once.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    pub mass_kg: f64,
+    /// Rate of the decimated signals (Hz).
+    pub fs_hz: f64,
+    pub lowpass: LowPass,
+    /// Whole record, band-limited and decimated.
+    pub x: Vec<f64>,
+    pub v: Vec<f64>,
+    pub a: Vec<f64>,
+    pub mic: Vec<f64>,
+    /// Period marks (fractional decimated samples).
+    pub marks: Vec<f64>,
+    /// Per-period harmonics of x and mic (same periods).
+    pub px: Vec<PeriodHarmonics>,
+    pub pm: Vec<PeriodHarmonics>,
+    /// Index into px of the resonance and its sub-period position.
+    pub res_index: usize,
+    pub res_pos: f64,
+    /// Analysed span [start, end) in decimated samples.
+    pub span: (usize, usize),
+    /// Noise (standard deviations) that the band-limited signals carry,
+    /// from the white sensor noise estimated above the low-pass.
+    pub noise_x_m: f64,
+    pub noise_v_m_per_s: f64,
+    pub noise_a_m_per_s2: f64,
+    pub noise_mic_v: f64,
+}
+
+/// Common checks of one sweep: length, finiteness, clipping of the laser.
+pub fn check_signals(s: &Signals, what: &str, min_s: f64) -> Result<(), AnalyzeError> {
+    s.validate(what)
+        .map_err(|e| AnalyzeError::Invalid(e.to_string()))?;
+    if !(s.sample_rate_hz.is_finite() && s.sample_rate_hz > 0.0) {
+        return Err(AnalyzeError::Invalid(format!(
+            "{what}: invalid sample rate {}",
+            s.sample_rate_hz
+        )));
+    }
+    if s.duration_s() < min_s {
+        return Err(AnalyzeError::Invalid(format!(
+            "{what}: recording too short ({:.2} s, need at least {min_s} s)",
+            s.duration_s()
+        )));
+    }
+    let min_run = ((5e-4 * s.sample_rate_hz) as usize).max(8);
+    if let Some(run) = clipped_run(&s.displacement_m, min_run) {
+        return Err(AnalyzeError::Invalid(format!(
+            "{what}: the laser (displacement) is clipped: {run} consecutive samples stuck at its extreme value"
+        )));
+    }
+    let peak = s.displacement_m.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if peak == 0.0 {
+        return Err(AnalyzeError::Invalid(format!(
+            "{what}: the displacement channel is all zero"
+        )));
+    }
+    Ok(())
+}
+
+/// Longest run (at least `min_run`) of samples pinned at the signal's maximum
+/// or minimum: a sensor at the end of its range. A real peak (noisy or
+/// quantised) stays at its extreme value for a few samples at most.
+pub fn clipped_run(x: &[f64], min_run: usize) -> Option<usize> {
+    let (mn, mx) = x
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    let tol = 1e-9 * (mx - mn).abs().max(f64::MIN_POSITIVE);
+    let mut best = 0;
+    for ext in [mn, mx] {
+        let mut run = 0;
+        for &v in x {
+            if (v - ext).abs() <= tol {
+                run += 1;
+                best = best.max(run);
+            } else {
+                run = 0;
+            }
+        }
+    }
+    (best >= min_run).then_some(best)
+}
+
+/// Low-pass for a record at `fs`: the suspension signals lie below ~500 Hz.
+pub fn lowpass_for(fs: f64) -> LowPass {
+    let stop = 1200.0f64.min(0.4 * fs);
+    LowPass {
+        pass_hz: 2.0 * stop / 3.0,
+        stop_hz: stop,
+    }
+}
+
+/// Fractional-sample period marks (in decimated samples) from the drive when
+/// recorded, else from the band-limited displacement.
+fn marks(main: &Signals, x: &[f64], decim: usize) -> Vec<f64> {
+    if let Some(d) = &main.drive_v {
+        let peak = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if peak > 0.0 {
+            let m = dsp::period_marks(d, 0.05 * peak);
+            if m.len() > 10 {
+                return m.into_iter().map(|t| t / decim as f64).collect();
+            }
+        }
+    }
+    let mean = x.iter().sum::<f64>() / x.len().max(1) as f64;
+    let centred: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    let peak = centred.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    dsp::period_marks(&centred, 0.05 * peak)
+}
+
+pub fn prepare(set: &RecordingSet) -> Result<Prepared, AnalyzeError> {
+    let mass_kg = set.meta.moving_mass_kg;
+    if !(mass_kg.is_finite() && mass_kg > 0.0) {
+        return Err(AnalyzeError::Invalid(format!(
+            "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
+        )));
+    }
+    let main = &set.main;
+    check_signals(main, "main", 0.5)?;
+    let fs = main.sample_rate_hz;
+    let lowpass = lowpass_for(fs);
+    let mut planner = RealFftPlanner::<f64>::new();
+    let sx = Spectrum::with_planner(&main.displacement_m, fs, 64, &mut planner);
+    let sm = Spectrum::with_planner(&main.microphone_v, fs, 64, &mut planner);
+    let decim = sx.max_decimation(lowpass.stop_hz);
+    let x = sx.derivative(lowpass, 0, decim, &mut planner);
+    let v = sx.derivative(lowpass, 1, decim, &mut planner);
+    let a = sx.derivative(lowpass, 2, decim, &mut planner);
+    let mic = sm.derivative(lowpass, 0, decim, &mut planner);
+    let fs_d = fs / decim as f64;
+
+    let mk = marks(main, &x, decim);
+    let px = dsp::harmonics_per_period(&x, &mk, fs_d, N_HARM);
+    let pm = dsp::harmonics_per_period(&mic, &mk, fs_d, N_HARM);
+    if px.len() < 20 {
+        return Err(AnalyzeError::Invalid(format!(
+            "main: too few oscillation periods found ({}): not a sweep, or too short",
+            px.len()
+        )));
+    }
+    // Resonance: the maximum of the fundamental displacement amplitude along the sweep.
+    let amp: Vec<f64> = px.iter().map(|p| p.amplitude(1)).collect();
+    let (res_index, res_pos) = dsp::resonance_peak(&amp, 2, 0.1).ok_or_else(|| {
+        AnalyzeError::Invalid(
+            "main: no resonance inside the sweep (the displacement amplitude peaks at an end of the sweep)"
+                .into(),
+        )
+    })?;
+    // Analysed span: the periods whose fundamental exceeds 10 % of the peak.
+    let thr = 0.1 * amp[res_index];
+    let first = amp.iter().position(|&a| a >= thr).unwrap_or(0);
+    let last = amp.iter().rposition(|&a| a >= thr).unwrap_or(amp.len() - 1);
+    let s0 = px[first].start.ceil().max(0.0) as usize;
+    let s1 = (px[last].end.floor() as usize).min(x.len());
+
+    // Noise from the band above the low-pass (white noise assumed).
+    let nyq = 0.5 * fs;
+    let (lo, hi) = ((2.0 * lowpass.stop_hz).min(0.5 * nyq), 0.95 * nyq);
+    let laser_noise_m = sx.white_noise_std(lo, hi).unwrap_or(0.0);
+    let mic_noise_v = sm.white_noise_std(lo, hi).unwrap_or(0.0);
+    Ok(Prepared {
+        mass_kg,
+        fs_hz: fs_d,
+        lowpass,
+        noise_x_m: sx.filtered_noise_std(laser_noise_m, lowpass, 0),
+        noise_v_m_per_s: sx.filtered_noise_std(laser_noise_m, lowpass, 1),
+        noise_a_m_per_s2: sx.filtered_noise_std(laser_noise_m, lowpass, 2),
+        noise_mic_v: sm.filtered_noise_std(mic_noise_v, lowpass, 0),
+        x,
+        v,
+        a,
+        mic,
+        px,
+        pm,
+        marks: mk,
+        res_index,
+        res_pos,
+        span: (s0, s1),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clipping_is_found_noise_is_not() {
+        let mut x: Vec<f64> = (0..1000).map(|i| (i as f64 * 0.05).sin()).collect();
+        assert_eq!(clipped_run(&x, 8), None);
+        for v in x.iter_mut() {
+            *v = v.clamp(-0.9, 0.9);
+        }
+        assert!(clipped_run(&x, 8).unwrap() >= 8);
+    }
+}

@@ -1,0 +1,166 @@
+//! Nonlinear stiffness K(x) = sum k_i x^i from the force balance
+//! `m x'' = s mic - R x' - K(x) x` (Two Signal: s, R, k_i unknown) or
+//! `m x'' = -R' x' - K(x) x` around the resonance (One Signal).
+
+use super::prep::Prepared;
+use super::{AnalyzeError, Method};
+use crate::dsp;
+
+/// Highest order tried when the order is chosen from the data.
+pub const MAX_AUTO_ORDER: usize = 8;
+/// Highest order accepted from the user.
+pub const MAX_ORDER: usize = 12;
+
+#[derive(Debug, Clone)]
+pub struct KFit {
+    pub order: usize,
+    /// k_0..k_order (N/m^(i+1)) and their standard errors.
+    pub k: Vec<f64>,
+    pub k_se: Vec<f64>,
+    pub r_ns_per_m: f64,
+    /// Force per microphone volt (Two Signal) and its standard error.
+    pub scale_n_per_v: Option<(f64, f64)>,
+    /// Residual force (N) over the span, and RMS of m x''.
+    pub residual_n: Vec<f64>,
+    pub rms_ma_n: f64,
+    /// BIC per order tried (order, bic), when chosen from the data.
+    pub bic: Vec<(usize, f64)>,
+}
+
+impl KFit {
+    pub fn k_of_x(&self, x: f64) -> f64 {
+        self.k.iter().rev().fold(0.0, |acc, c| acc * x + c)
+    }
+    /// dK/dx.
+    pub fn dk_dx(&self, x: f64) -> f64 {
+        self.k
+            .iter()
+            .enumerate()
+            .skip(1)
+            .rev()
+            .fold(0.0, |acc, (i, c)| acc * x + i as f64 * c)
+    }
+    pub fn residual_percent(&self) -> f64 {
+        let n = self.residual_n.len().max(1) as f64;
+        let rms = (self.residual_n.iter().map(|e| e * e).sum::<f64>() / n).sqrt();
+        100.0 * rms / self.rms_ma_n
+    }
+}
+
+/// Target m x'' and the columns [mic (Two Signal)], x', x (x/xs)^i for i = 0..=max_order.
+/// One Signal: the fundamental is removed per period from everything (the drive
+/// force is taken as a pure, slowly varying sinusoid at the fundamental, so only
+/// dc and harmonics balance without it).
+fn design(
+    p: &Prepared,
+    method: Method,
+    span: (usize, usize),
+    max_order: usize,
+    xs: f64,
+) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let (s0, s1) = span;
+    let x = &p.x[s0..s1];
+    let mut y: Vec<f64> = p.a[s0..s1].iter().map(|a| p.mass_kg * a).collect();
+    let mut cols: Vec<Vec<f64>> = Vec::with_capacity(max_order + 3);
+    if method == Method::TwoSignal {
+        cols.push(p.mic[s0..s1].to_vec());
+    }
+    cols.push(p.v[s0..s1].to_vec());
+    let mut cur: Vec<f64> = x.to_vec();
+    for _ in 0..=max_order {
+        let next: Vec<f64> = cur.iter().zip(x).map(|(c, x)| c * x / xs).collect();
+        cols.push(std::mem::replace(&mut cur, next));
+    }
+    if method == Method::OneSignal {
+        let marks: Vec<f64> = p
+            .marks
+            .iter()
+            .map(|m| m - s0 as f64)
+            .filter(|m| *m >= -1.0 && *m <= (s1 - s0) as f64 + 1.0)
+            .collect();
+        y = dsp::harmonics::remove_fundamental_per_period(&y, &marks);
+        for c in cols.iter_mut() {
+            *c = dsp::harmonics::remove_fundamental_per_period(c, &marks);
+        }
+    }
+    (y, cols)
+}
+
+fn fit_order(
+    p: &Prepared,
+    method: Method,
+    span: (usize, usize),
+    order: usize,
+    xs: f64,
+    (y, cols): &(Vec<f64>, Vec<Vec<f64>>),
+) -> Result<KFit, AnalyzeError> {
+    let two = method == Method::TwoSignal;
+    let off = usize::from(two);
+    let refs: Vec<&[f64]> = cols[..off + 2 + order]
+        .iter()
+        .map(|c| c.as_slice())
+        .collect();
+    let r = dsp::lstsq(&refs, y)
+        .map_err(|e| AnalyzeError::Invalid(format!("stiffness fit failed: {e}")))?;
+    let k: Vec<f64> = (0..=order)
+        .map(|i| -r.coefficients[off + 1 + i] / xs.powi(i as i32))
+        .collect();
+    let k_se: Vec<f64> = (0..=order)
+        .map(|i| r.standard_errors[off + 1 + i] / xs.powi(i as i32))
+        .collect();
+    // Relative figures always against the full m x'' (not the projected one).
+    let rms_ma_n = p.mass_kg
+        * (p.a[span.0..span.1].iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt();
+    Ok(KFit {
+        order,
+        k,
+        k_se,
+        r_ns_per_m: -r.coefficients[off],
+        scale_n_per_v: two.then(|| (r.coefficients[0], r.standard_errors[0])),
+        residual_n: r.residual,
+        rms_ma_n,
+        bic: Vec::new(),
+    })
+}
+
+/// Fits K(x) over `span`; the order is `order` or chosen by the Bayesian
+/// information criterion on the effective number of independent samples
+/// (the band-limited noise is correlated over fs / (2 f_stop) samples).
+pub fn fit(
+    p: &Prepared,
+    method: Method,
+    span: (usize, usize),
+    order: Option<usize>,
+) -> Result<KFit, AnalyzeError> {
+    let xs = p.x[span.0..span.1]
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    if let Some(n) = order {
+        if n > MAX_ORDER {
+            return Err(AnalyzeError::Invalid(format!(
+                "--order {n} is too high (at most {MAX_ORDER})"
+            )));
+        }
+        let d = design(p, method, span, n, xs);
+        return fit_order(p, method, span, n, xs, &d);
+    }
+    let n = (span.1 - span.0) as f64;
+    let n_eff = (n * 2.0 * p.lowpass.stop_hz / p.fs_hz).min(n);
+    let mut best: Option<(f64, KFit)> = None;
+    let mut bic = Vec::new();
+    let d = design(p, method, span, MAX_AUTO_ORDER, xs);
+    for ord in 1..=MAX_AUTO_ORDER {
+        let f = fit_order(p, method, span, ord, xs, &d)?;
+        let rss: f64 = f.residual_n.iter().map(|e| e * e).sum();
+        let params = (ord + 1 + 1 + usize::from(method == Method::TwoSignal)) as f64;
+        let b = n_eff * (rss / n).max(f64::MIN_POSITIVE).ln() + params * n_eff.ln();
+        bic.push((ord, b));
+        if best.as_ref().is_none_or(|(bb, _)| b < *bb) {
+            best = Some((b, f));
+        }
+    }
+    let (_, mut f) = best.expect("at least one order");
+    f.bic = bic;
+    Ok(f)
+}
