@@ -1,10 +1,159 @@
 //! `springbench analyze DIR --diagnose`: model diagnostics on the command line
 //! (owned by the diagnostics work; called from `cli::analyze` when `--diagnose` is given).
 use super::analyze::AnalyzeArgs;
+use crate::diagnose::{diagnose, plot, plot_names, DiagnoseOptions, Diagnosis};
+use crate::effects::EffectId;
+use crate::identify::{AnalyzeOptions, Method};
 use crate::recording::RecordingSet;
+use std::fmt::Write;
+
+/// The diagnose options of the command-line arguments; one-line error.
+pub fn options(args: &AnalyzeArgs) -> Result<DiagnoseOptions, String> {
+    let method = match args.method.as_str() {
+        "two-signal" => Method::TwoSignal,
+        "one-signal" => Method::OneSignal,
+        m => {
+            return Err(format!(
+                "unknown method '{m}' (known: two-signal, one-signal)"
+            ))
+        }
+    };
+    let mut effects = Vec::new();
+    for e in args
+        .effects
+        .iter()
+        .map(|e| e.trim())
+        .filter(|e| !e.is_empty())
+    {
+        let id = EffectId::parse(e)?;
+        if !effects.contains(&id) {
+            effects.push(id);
+        }
+    }
+    if args.order == Some(0) {
+        return Err("--order must be at least 1".into());
+    }
+    Ok(DiagnoseOptions {
+        analyze: AnalyzeOptions {
+            method,
+            order: args.order,
+        },
+        effects,
+    })
+}
 
 /// Runs the diagnostics on `set` and prints them (table, or JSON with `--json`);
 /// writes the SVG plots when `--plots DIR` is given.
-pub fn run(_set: &RecordingSet, _args: &AnalyzeArgs) -> Result<(), String> {
-    Err("diagnostics: not implemented yet".into())
+pub fn run(set: &RecordingSet, args: &AnalyzeArgs) -> Result<(), String> {
+    let opts = options(args)?;
+    let diagnosis = diagnose(set, &opts).map_err(|e| e.to_string())?;
+    if let Some(dir) = &args.plots {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        for name in plot_names() {
+            if let Some(svg) = plot(set, &diagnosis, name) {
+                let path = dir.join(format!("{name}.svg"));
+                std::fs::write(&path, svg).map_err(|e| format!("{}: {e}", path.display()))?;
+            }
+        }
+    }
+    if args.json {
+        let text = serde_json::to_string_pretty(&diagnosis.report).map_err(|e| e.to_string())?;
+        println!("{text}");
+    } else {
+        print!("{}", table(&diagnosis));
+    }
+    Ok(())
+}
+
+/// The readable table of a diagnosis.
+pub fn table(diagnosis: &Diagnosis) -> String {
+    let r = &diagnosis.report;
+    let mut s = String::new();
+    let m = &r.model;
+    let effects: Vec<&str> = m.effects.ids().iter().map(|e| e.as_str()).collect();
+    let _ = writeln!(
+        s,
+        "model: {}",
+        if effects.is_empty() {
+            "base (K(x), R, force scale)".to_string()
+        } else {
+            format!("base + {}", effects.join(" + "))
+        }
+    );
+    let _ = writeln!(
+        s,
+        "  residual {:.3} %   noise floor {:.3} %   model error {:.3} %",
+        m.residual_percent, m.noise_floor_percent, m.model_error_percent
+    );
+    let Some(d) = &r.diagnostics else {
+        return s;
+    };
+    if let Some(p) = d["final_model"]["parameters"].as_object() {
+        for (id, params) in p {
+            let se = &d["final_model"]["parameters_se"][id];
+            let mut parts = Vec::new();
+            if let Some(obj) = params.as_object() {
+                for (k, v) in obj {
+                    let v = v.as_f64().unwrap_or(f64::NAN);
+                    match se[k].as_f64() {
+                        Some(e) => parts.push(format!("{k} = {v:.4e} +- {e:.1e}")),
+                        None => parts.push(format!("{k} = {v:.4e}")),
+                    }
+                }
+            }
+            let _ = writeln!(s, "  {id}: {}", parts.join(", "));
+        }
+    }
+    let _ = writeln!(s, "\ncandidates (held-out error reduction, best first):");
+    let _ = writeln!(
+        s,
+        "  {:<25} {:>10} {:>11} {:>10} {:>8}  parameters",
+        "effect", "reduction", "significant", "p", "VIF"
+    );
+    for c in d["candidates"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            s,
+            "  {:<25} {:>9.1}% {:>11} {:>10.1e} {:>8.1}  {}",
+            c["effect"].as_str().unwrap_or("?"),
+            c["error_reduction_percent"].as_f64().unwrap_or(f64::NAN),
+            if c["significant"].as_bool() == Some(true) {
+                "yes"
+            } else {
+                "no"
+            },
+            c["p_value"].as_f64().unwrap_or(f64::NAN),
+            c["variance_inflation"].as_f64().unwrap_or(f64::NAN),
+            c["parameters"]
+        );
+        if let Some(note) = c["note"].as_str() {
+            let _ = writeln!(s, "      {note}");
+        }
+    }
+    let _ = writeln!(s, "\nladder:");
+    let _ = writeln!(
+        s,
+        "  {:<50} {:>10} {:>13}",
+        "effects", "residual", "model error"
+    );
+    for st in d["ladder"].as_array().into_iter().flatten() {
+        let eff: Vec<&str> = st["effects"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|e| e.as_str()).collect())
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "  {:<50} {:>9.3}% {:>12.3}%",
+            if eff.is_empty() {
+                "base".to_string()
+            } else {
+                eff.join(", ")
+            },
+            st["cv_residual_percent"].as_f64().unwrap_or(f64::NAN),
+            st["model_error_percent"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    for w in &r.warnings {
+        let _ = writeln!(s, "warning: {w}");
+    }
+    s
 }

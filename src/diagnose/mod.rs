@@ -4,13 +4,15 @@
 //! `DiagnoseOptions`, `Diagnosis`, `diagnose`, `plot_names`, `plot`.
 
 pub mod engine;
+pub mod prepare;
 pub mod regress;
 pub mod spectrum;
 pub mod stats;
+pub mod svg;
 pub mod synth;
 
 use crate::effects::EffectId;
-use crate::identify::{AnalyzeOptions, Report};
+use crate::identify::{AnalyzeOptions, ForceBalanceData, Report};
 use crate::recording::RecordingSet;
 use serde::{Deserialize, Serialize};
 
@@ -37,19 +39,65 @@ pub enum DiagnoseError {
     Analyze(#[from] crate::identify::AnalyzeError),
 }
 
-/// Runs the diagnostics on a recording set.
-pub fn diagnose(_set: &RecordingSet, _opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
-    Err(DiagnoseError::Invalid(
-        "diagnostics not implemented yet".into(),
-    ))
+/// Runs the diagnostics on a recording set: the identification's report
+/// with `model` refitted (base model plus the effects the ladder adds, or
+/// the forced ones) and `diagnostics` filled.
+pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
+    let mut warnings = Vec::new();
+    // While the identification core is not implemented (it says so), the
+    // diagnostics stand on their own; any other error is the user's data.
+    let stub = |e: &crate::identify::AnalyzeError| e.to_string().contains("not implemented");
+    let mut report = match crate::identify::analyze(set, &opts.analyze) {
+        Ok(r) => r,
+        Err(e) if stub(&e) => Report::default(),
+        Err(e) => return Err(e.into()),
+    };
+    let data = match crate::identify::force_balance_data(set, &opts.analyze) {
+        Ok(d) => d,
+        Err(e) if stub(&e) => {
+            warnings.push(
+                "diagnostics prepared the force balance themselves (identification core unavailable)"
+                    .to_string(),
+            );
+            prepare::force_balance_from_set(set).map_err(DiagnoseError::Invalid)?
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let engine_opts = engine::EngineOptions {
+        order: opts.analyze.order,
+        forced: opts.effects.clone(),
+        ..Default::default()
+    };
+    let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
+    report.model = result.report_model();
+    report.diagnostics = Some(result.diagnostics_json(&data));
+    for step in result.ladder.iter().skip(1) {
+        if let Some(added) = &step.added {
+            warnings.push(format!(
+                "the base model misses {added}: the diagnostics added it (model error {:.3} % after it)",
+                step.model_error_percent
+            ));
+        }
+    }
+    report.warnings.extend(warnings);
+    Ok(Diagnosis { report })
+}
+
+/// The engine on force-balance data (no recording set needed).
+pub fn diagnose_data(
+    data: &ForceBalanceData,
+    opts: &engine::EngineOptions,
+) -> Result<engine::EngineResult, String> {
+    engine::run(data, opts)
 }
 
 /// Names of the SVG plots (`{name}.svg`).
 pub fn plot_names() -> &'static [&'static str] {
-    &[]
+    svg::PLOT_NAMES
 }
 
-/// Renders one SVG plot of a diagnosis; None for an unknown name.
-pub fn plot(_set: &RecordingSet, _diagnosis: &Diagnosis, _name: &str) -> Option<String> {
-    None
+/// Renders one SVG plot of a diagnosis; None for an unknown name or a
+/// diagnosis without diagnostics.
+pub fn plot(_set: &RecordingSet, diagnosis: &Diagnosis, name: &str) -> Option<String> {
+    svg::render(diagnosis.report.diagnostics.as_ref()?, name)
 }
