@@ -4,7 +4,6 @@
 //! `DiagnoseOptions`, `Diagnosis`, `diagnose`, `plot_names`, `plot`.
 
 pub mod engine;
-pub mod prepare;
 pub mod regress;
 pub mod spectrum;
 pub mod stats;
@@ -44,25 +43,8 @@ pub enum DiagnoseError {
 /// the forced ones) and `diagnostics` filled.
 pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     let mut warnings = Vec::new();
-    // While the identification core is not implemented (it says so), the
-    // diagnostics stand on their own; any other error is the user's data.
-    let stub = |e: &crate::identify::AnalyzeError| e.to_string().contains("not implemented");
-    let mut report = match crate::identify::analyze(set, &opts.analyze) {
-        Ok(r) => r,
-        Err(e) if stub(&e) => Report::default(),
-        Err(e) => return Err(e.into()),
-    };
-    let data = match crate::identify::force_balance_data(set, &opts.analyze) {
-        Ok(d) => d,
-        Err(e) if stub(&e) => {
-            warnings.push(
-                "diagnostics prepared the force balance themselves (identification core unavailable)"
-                    .to_string(),
-            );
-            prepare::force_balance_from_set(set).map_err(DiagnoseError::Invalid)?
-        }
-        Err(e) => return Err(e.into()),
-    };
+    let mut report = crate::identify::analyze(set, &opts.analyze)?;
+    let data = crate::identify::force_balance_data(set, &opts.analyze)?;
     let engine_opts = engine::EngineOptions {
         order: opts.analyze.order,
         forced: opts.effects.clone(),
