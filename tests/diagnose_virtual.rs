@@ -165,14 +165,16 @@ fn no_hidden_effect_no_false_discovery() {
 
 #[test]
 fn two_hidden_effects_ladder_adds_both() {
-    let mut effects = Effects::default();
-    effects.coulomb_friction = Some(CoulombFriction {
-        force_n: 0.15,
-        v_eps_m_per_s: 2e-3,
-    });
-    effects.stiffness_drift = Some(StiffnessDrift {
-        dk0_dt_n_per_m_s: 15.0,
-    });
+    let effects = Effects {
+        coulomb_friction: Some(CoulombFriction {
+            force_n: 0.15,
+            v_eps_m_per_s: 2e-3,
+        }),
+        stiffness_drift: Some(StiffnessDrift {
+            dk0_dt_n_per_m_s: 15.0,
+        }),
+        ..Default::default()
+    };
     let d = run(&part_with(effects), 9);
     eprintln!("{}", springbench::cli::diagnose::table(&d));
     let got = d.report.model.effects.ids();
