@@ -1,5 +1,7 @@
 //! `springbench analyze DIR`: offline analysis of a recording set
 //! (owned by the identification work; `--diagnose` hands over to [`super::diagnose`]).
+use crate::identify::{analyze, AnalyzeOptions, Method, Report};
+use crate::recording::RecordingSet;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug, Default, Clone)]
@@ -26,6 +28,170 @@ pub struct AnalyzeArgs {
     pub plots: Option<PathBuf>,
 }
 
-pub fn run(_args: AnalyzeArgs) -> Result<(), String> {
-    Err("analyze: not implemented yet".into())
+/// Parses `--method`.
+pub fn parse_method(s: &str) -> Result<Method, String> {
+    match s {
+        "two-signal" => Ok(Method::TwoSignal),
+        "one-signal" => Ok(Method::OneSignal),
+        other => Err(format!(
+            "unknown --method '{other}' (known: two-signal, one-signal)"
+        )),
+    }
+}
+
+pub fn run(args: AnalyzeArgs) -> Result<(), String> {
+    let method = parse_method(&args.method)?;
+    let set = RecordingSet::read_dir(&args.dir).map_err(|e| e.to_string())?;
+    if args.diagnose {
+        return super::diagnose::run(&set, &args);
+    }
+    let opts = AnalyzeOptions {
+        method,
+        order: args.order,
+    };
+    let report = analyze(&set, &opts).map_err(|e| e.to_string())?;
+    if args.json {
+        let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+        println!("{text}");
+    } else {
+        print!("{}", table(&report));
+    }
+    Ok(())
+}
+
+/// The readable table: SI and the conventional units of the field.
+pub fn table(r: &Report) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let mm = |m: f64| m * 1e3;
+    if let Some(s) = &r.small_signal {
+        let _ = writeln!(
+            o,
+            "Small signal (pre-measurement){}",
+            if s.reliable { "" } else { "  ** UNRELIABLE **" }
+        );
+        let _ = writeln!(
+            o,
+            "  f0      {:>10.3} Hz         ± {:.3}",
+            s.f0_hz, s.f0_se_hz
+        );
+        let _ = writeln!(
+            o,
+            "  k0      {:>10.1} N/m        ± {:.1}   ({:.4} N/mm)",
+            s.k0_n_per_m,
+            s.k0_se_n_per_m,
+            s.k0_n_per_m * 1e-3
+        );
+        let _ = writeln!(
+            o,
+            "  R       {:>10.4} N s/m      ± {:.4}",
+            s.r_ns_per_m, s.r_se_ns_per_m
+        );
+        let _ = writeln!(o, "  Q       {:>10.3}            ± {:.3}", s.q, s.q_se);
+        if let Some(a) = s.area_per_mic_unit_m2_per_v {
+            let _ = writeln!(o, "  Ss/mic  {a:>10.5} N/V (m^2 Pa/V)");
+        }
+        let _ = writeln!(o, "  misfit  {:>10.2} %", s.misfit_percent);
+    }
+    let l = &r.large_signal;
+    let _ = writeln!(
+        o,
+        "Large signal (main sweep), m = {:.4} kg",
+        l.moving_mass_kg
+    );
+    let _ = writeln!(o, "  fR      {:>10.3} Hz", l.resonance_hz);
+    let _ = writeln!(
+        o,
+        "  Keff    {:>10.1} N/m   ({:.4} N/mm) @ Xpeak = {:.3} mm",
+        l.keff_n_per_m,
+        l.keff_n_per_m * 1e-3,
+        mm(l.xpeak_m)
+    );
+    let _ = writeln!(
+        o,
+        "  Ceff    {:>10.4e} m/N ({:.4} mm/N)",
+        l.ceff_m_per_n,
+        l.ceff_m_per_n * 1e3
+    );
+    let _ = writeln!(
+        o,
+        "  x range {:>10.3} .. {:.3} mm, dc at resonance {:.3} mm",
+        mm(l.x_min_m),
+        mm(l.x_max_m),
+        mm(l.dc_m)
+    );
+    let h: Vec<String> = l
+        .harmonics_m
+        .iter()
+        .map(|a| format!("{:.4}", mm(*a)))
+        .collect();
+    let _ = writeln!(o, "  harmonics of x at resonance (mm): {}", h.join(" "));
+    let k = &r.stiffness;
+    let _ = writeln!(
+        o,
+        "Stiffness K(x) = sum k_i x^i ({}, order {}), valid for x in [{:.3}, {:.3}] mm",
+        k.method,
+        k.order,
+        mm(k.valid_range_m[0]),
+        mm(k.valid_range_m[1])
+    );
+    for i in 0..k.coefficients.len() {
+        let _ = writeln!(
+            o,
+            "  k{i:<2} {:>14.6e} N/m^{:<2} ± {:.2e}   = {:>12.6e} N/mm^{}",
+            k.coefficients[i],
+            i + 1,
+            k.coefficients_se.get(i).copied().unwrap_or(f64::NAN),
+            k.coefficients_n_per_mm.get(i).copied().unwrap_or(f64::NAN),
+            i + 1
+        );
+    }
+    let _ = writeln!(o, "  R  {:>10.4} N s/m", k.r_ns_per_m);
+    if let Some(s) = k.force_per_mic_v_n_per_v {
+        let _ = writeln!(o, "  force per mic volt {s:.5} N/V");
+    }
+    let xc = |v: Option<f64>| v.map_or("not reached".to_string(), |x| format!("{:.3} mm", mm(x)));
+    let _ = writeln!(
+        o,
+        "  XC (C = 75 % of C(0)): {} / {}",
+        xc(k.xc_m[0]),
+        xc(k.xc_m[1])
+    );
+    let _ = writeln!(
+        o,
+        "  {:>9} {:>10} {:>11} {:>10} {:>12}",
+        "x [mm]", "K [N/mm]", "C [mm/N]", "F [N]", "dF/dx [N/mm]"
+    );
+    let n = 8;
+    for i in 0..=n {
+        let x =
+            k.valid_range_m[0] + (k.valid_range_m[1] - k.valid_range_m[0]) * i as f64 / n as f64;
+        let kx: f64 = k.coefficients.iter().rev().fold(0.0, |a, c| a * x + c);
+        // dF/dx = d(K(x) x)/dx = sum (i+1) k_i x^i
+        let inc: f64 = k
+            .coefficients
+            .iter()
+            .enumerate()
+            .rev()
+            .fold(0.0, |a, (i, c)| a * x + (i + 1) as f64 * c);
+        let _ = writeln!(
+            o,
+            "  {:>9.3} {:>10.4} {:>11.4} {:>10.4} {:>12.4}",
+            mm(x),
+            kx * 1e-3,
+            1e3 / kx,
+            kx * x,
+            inc * 1e-3
+        );
+    }
+    let m = &r.model;
+    let _ = writeln!(
+        o,
+        "Model: residual {:.3} %, noise floor {:.3} %, model error {:.3} %",
+        m.residual_percent, m.noise_floor_percent, m.model_error_percent
+    );
+    for w in &r.warnings {
+        let _ = writeln!(o, "WARNING: {w}");
+    }
+    o
 }

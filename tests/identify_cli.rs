@@ -1,0 +1,157 @@
+//! `springbench analyze`: output on a good set, one-line errors (exit != 0, no
+//! panic) on bad input.
+
+use springbench::recording::RecordingSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn p1() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/reference-recordings/p1_spider")
+}
+
+fn analyze(dir: &Path, extra: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_springbench"))
+        .arg("analyze")
+        .arg(dir)
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Writes a modified copy of p1 and expects one error line containing `needle`.
+fn expect_error(modify: impl FnOnce(&mut RecordingSet, &Path), needle: &str) {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut set = RecordingSet::read_dir(p1()).unwrap();
+    modify(&mut set, tmp.path());
+    if !tmp.path().join("meta.json").exists() {
+        set.write_dir(tmp.path()).unwrap();
+    }
+    let (code, stdout, stderr) = analyze(tmp.path(), &[]);
+    assert_ne!(code, 0, "{needle}: {stdout}");
+    assert_ne!(code, 101, "{needle}: panicked: {stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{needle}: {stderr}");
+    assert!(stderr.contains(needle), "expected '{needle}' in: {stderr}");
+}
+
+#[test]
+fn json_and_table_on_a_good_set() {
+    let (code, stdout, stderr) = analyze(&p1(), &["--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let k0 = v["stiffness"]["coefficients"][0].as_f64().unwrap();
+    assert!((k0 / 2400.0 - 1.0).abs() < 0.005, "{k0}");
+    assert_eq!(v["stiffness"]["method"], "two-signal");
+    for f in ["f0_hz", "k0_n_per_m", "r_ns_per_m", "q"] {
+        assert!(v["small_signal"][f].is_f64(), "{f}");
+    }
+    for f in [
+        "resonance_hz",
+        "keff_n_per_m",
+        "xpeak_m",
+        "x_min_m",
+        "x_max_m",
+        "dc_m",
+    ] {
+        assert!(v["large_signal"][f].is_f64(), "{f}");
+    }
+    assert!(v["model"]["residual_percent"].is_f64());
+    assert!(v["warnings"].as_array().unwrap().is_empty());
+
+    let (code, stdout, _) = analyze(&p1(), &["--method", "one-signal", "--order", "4"]);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("Keff") && stdout.contains("N/mm"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("one-signal, order 4"), "{stdout}");
+}
+
+#[test]
+fn bad_arguments() {
+    let (code, _, stderr) = analyze(&p1(), &["--method", "three-signal"]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("unknown --method"), "{stderr}");
+    let (code, _, stderr) = analyze(&p1(), &["--order", "40"]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("--order 40"), "{stderr}");
+}
+
+#[test]
+fn missing_file() {
+    expect_error(
+        |set, dir| {
+            set.write_dir(dir).unwrap();
+            std::fs::remove_file(dir.join("pre.wav")).unwrap();
+        },
+        "pre.wav",
+    );
+}
+
+#[test]
+fn missing_channel() {
+    expect_error(
+        |set, dir| {
+            set.write_dir(dir).unwrap();
+            let meta = r#"{"moving_mass_kg":0.05,"sample_rate_hz":48000,"channels":{"displacement":0,"microphone":3}}"#;
+            std::fs::write(dir.join("meta.json"), meta).unwrap();
+        },
+        "channel 3",
+    );
+}
+
+#[test]
+fn nan_sample() {
+    expect_error(
+        |set, _| set.main.microphone_v[1000] = f64::NAN,
+        "non-finite",
+    );
+}
+
+#[test]
+fn mass_not_positive() {
+    expect_error(|set, _| set.meta.moving_mass_kg = 0.0, "moving_mass_kg");
+}
+
+#[test]
+fn too_short() {
+    expect_error(
+        |set, _| {
+            let n = 12_000;
+            set.main.displacement_m.truncate(n);
+            set.main.microphone_v.truncate(n);
+            set.main.drive_v.as_mut().unwrap().truncate(n);
+        },
+        "too short",
+    );
+}
+
+#[test]
+fn clipped_laser() {
+    expect_error(
+        |set, _| {
+            for x in set.main.displacement_m.iter_mut() {
+                *x = x.clamp(-6e-3, 6e-3);
+            }
+        },
+        "clipped",
+    );
+}
+
+#[test]
+fn no_resonance_inside_the_sweep() {
+    // The first 4 s of the sweep only: the amplitude is still rising at the end.
+    expect_error(
+        |set, _| {
+            let n = 4 * 48_000;
+            set.main.displacement_m.truncate(n);
+            set.main.microphone_v.truncate(n);
+            set.main.drive_v.as_mut().unwrap().truncate(n);
+        },
+        "no resonance",
+    );
+}
