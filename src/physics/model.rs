@@ -205,7 +205,10 @@ pub mod idx {
 #[derive(Debug, Clone)]
 pub struct Model {
     pub m: f64,
-    pub k: Vec<f64>,
+    /// k_0..k_11, zero-padded (a fixed array keeps the inner loop short).
+    pub k: [f64; 12],
+    /// Highest non-zero power + 1.
+    k_len: usize,
     pub r: f64,
     pub ss: f64,
     pub fx: Effects,
@@ -214,6 +217,12 @@ pub struct Model {
     /// gamma p0 / V0
     kbox: f64,
     inv_tau_leak: f64,
+    inv_m: f64,
+    inv_mmd: f64,
+    inv_re: f64,
+    inv_le: f64,
+    /// Any force effect present (skip their evaluation otherwise).
+    any_force_effect: bool,
 }
 
 /// Instantaneous powers (W) and stored energies (J) for the energy balance.
@@ -230,9 +239,20 @@ pub struct Energy {
 impl Model {
     pub fn new(part: &super::PartSpec, bench: &BenchParams) -> Model {
         let bx = bench.box_;
+        let mut k = [0.0; 12];
+        let k_len = part.k_coeffs_si.len().min(12);
+        k[..k_len].copy_from_slice(&part.k_coeffs_si[..k_len]);
+        let fx = part.effects;
+        let any_force_effect = fx.coulomb_friction.is_some()
+            || fx.quadratic_damping.is_some()
+            || fx.damping_vs_displacement.is_some()
+            || fx.creep.is_some()
+            || fx.stiffness_drift.is_some();
+        let ex = bench.exciter;
         Model {
             m: part.moving_mass_kg,
-            k: part.k_coeffs_si.clone(),
+            k,
+            k_len,
             r: part.r_ns_per_m,
             ss: part.ss_m2,
             fx: part.effects,
@@ -244,6 +264,11 @@ impl Model {
             } else {
                 0.0
             },
+            inv_m: 1.0 / part.moving_mass_kg,
+            inv_mmd: 1.0 / ex.mmd_kg,
+            inv_re: 1.0 / ex.re_ohm,
+            inv_le: if ex.le_h > 0.0 { 1.0 / ex.le_h } else { 0.0 },
+            any_force_effect,
         }
     }
 
@@ -251,7 +276,7 @@ impl Model {
     #[inline]
     pub fn stiffness(&self, x: f64) -> f64 {
         let mut acc = 0.0;
-        for &c in self.k.iter().rev() {
+        for &c in self.k[..self.k_len].iter().rev() {
             acc = acc * x + c;
         }
         acc
@@ -285,12 +310,12 @@ impl Model {
         if self.ex.le_h > 0.0 {
             s[idx::I]
         } else {
-            (u - self.ex.bl_tm * s[idx::VD]) / self.ex.re_ohm
+            (u - self.ex.bl_tm * s[idx::VD]) * self.inv_re
         }
     }
 
     /// Time derivative of the state at time `t` with drive `u`.
-    #[inline]
+    #[inline(always)]
     pub fn deriv(&self, t: f64, s: &[f64; NSTATE], u: f64) -> [f64; NSTATE] {
         let (x, v, xd, vd, p, xr) = (
             s[idx::X],
@@ -303,14 +328,18 @@ impl Model {
         let ex = &self.ex;
         let i = self.current(s, u);
         let di = if ex.le_h > 0.0 {
-            (u - ex.re_ohm * i - ex.bl_tm * vd) / ex.le_h
+            (u - ex.re_ohm * i - ex.bl_tm * vd) * self.inv_le
         } else {
             0.0
         };
-        let fe = self.effect_force(t, x, v, xr);
-        let a = (self.ss * p - self.r * v - self.stiffness(x) * x - fe) / self.m;
-        let ad =
-            (ex.bl_tm * i - ex.rmd_ns_per_m * vd - ex.kmd_n_per_m * xd - ex.sd_m2 * p) / ex.mmd_kg;
+        let fe = if self.any_force_effect {
+            self.effect_force(t, x, v, xr)
+        } else {
+            0.0
+        };
+        let a = (self.ss * p - self.r * v - self.stiffness(x) * x - fe) * self.inv_m;
+        let ad = (ex.bl_tm * i - ex.rmd_ns_per_m * vd - ex.kmd_n_per_m * xd - ex.sd_m2 * p)
+            * self.inv_mmd;
         let dvol = -ex.sd_m2 * vd + self.ss * v;
         let dp = if self.bx.adiabatic {
             let vol = self.bx.volume_m3 - ex.sd_m2 * xd + self.ss * x;
@@ -339,7 +368,7 @@ impl Model {
         let i = self.current(s, u);
         // Spring energy of the part: integral of K(x) x dx = sum k_j x^(j+2)/(j+2).
         let mut spring = 0.0;
-        for (j, &c) in self.k.iter().enumerate() {
+        for (j, &c) in self.k[..self.k_len].iter().enumerate() {
             spring += c * x.powi(j as i32 + 2) / (j as f64 + 2.0);
         }
         let mut stored = 0.5 * self.m * v * v
@@ -409,6 +438,19 @@ impl Integrator {
     /// Advances one sample period; the drive goes linearly from `u0` to `u1`.
     #[inline]
     pub fn step(&mut self, u0: f64, u1: f64) {
+        if self.substeps == 1 {
+            rk4(
+                &self.model,
+                self.t,
+                self.dt_sample,
+                &mut self.state,
+                u0,
+                0.5 * (u0 + u1),
+                u1,
+            );
+            self.t += self.dt_sample;
+            return;
+        }
         let n = self.substeps;
         let h = self.dt_sample / n as f64;
         let t0 = self.t;
@@ -426,7 +468,7 @@ impl Integrator {
     }
 }
 
-#[inline]
+#[inline(always)]
 fn rk4(m: &Model, t: f64, h: f64, s: &mut [f64; NSTATE], ua: f64, ub: f64, uc: f64) {
     let add = |s: &[f64; NSTATE], k: &[f64; NSTATE], f: f64| {
         let mut o = *s;

@@ -65,7 +65,11 @@ impl VirtualBench {
 
 /// Value of `hist` at fractional index `pos` (zero before the start).
 #[inline]
-fn delayed(hist: &[f64], pos: f64) -> f64 {
+fn delayed(hist: &[f64], k: usize, delay_samples: f64) -> f64 {
+    if delay_samples == 0.0 {
+        return hist[k];
+    }
+    let pos = k as f64 - delay_samples;
     if pos < 0.0 {
         return 0.0;
     }
@@ -178,7 +182,7 @@ impl Bench for VirtualBench {
             x_true.push(sim.state[idx::X]);
             p_true.push(sim.state[idx::P]);
             // Laser.
-            let xm = delayed(&x_true, k as f64 - laser_delay_samples);
+            let xm = delayed(&x_true, k, laser_delay_samples);
             if xm.abs() > b.laser.range_m && abort.is_none() {
                 abort = Some((k, BenchError::LaserOutOfRange { t_s: k as f64 / fs }));
             }
@@ -188,7 +192,7 @@ impl Bench for VirtualBench {
             }
             xs.push(xo.clamp(-b.laser.range_m, b.laser.range_m));
             // Microphone.
-            let pm = delayed(&p_true, k as f64 - mic_delay_samples)
+            let pm = delayed(&p_true, k, mic_delay_samples)
                 + b.microphone.noise_pa * rng.sample::<f64, _>(StandardNormal);
             mics.push(clip(b.microphone.gain_v_per_pa * pm));
             drv.push(clip(u));
