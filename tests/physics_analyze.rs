@@ -1,6 +1,6 @@
 //! Issue 3 acceptance: `analyze` on `simulate` output of every preset
 //! recovers K(x) within 0.5 % RMS over the measured range (no effects,
-//! default noise). Needs the identification core (issue 2).
+//! default noise), with the identification core of issue 2.
 //!
 //! More seeds for the docs: `SPRINGBENCH_SEEDS=5 cargo test --release --test physics_analyze -- --include-ignored --nocapture`.
 
@@ -21,7 +21,6 @@ fn k_rms_error(fit: &[f64], truth: &[f64], range: [f64; 2]) -> f64 {
 }
 
 #[test]
-#[ignore = "needs identify::analyze (issue 2, core) on main"]
 fn analyze_recovers_k_of_x_of_every_preset() {
     let seeds: u64 = std::env::var("SPRINGBENCH_SEEDS")
         .ok()
