@@ -64,7 +64,11 @@ fn procedure_on_every_preset() {
             eprintln!("   {l}");
         }
         let n = &o.narrow[0];
-        let pre_x = o.pre.displacement_m.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+        let pre_x = o
+            .pre
+            .displacement_m
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()));
         eprintln!(
             "| {name} | {:.2} | {:.2} | {:.1}-{:.1} | {:.2} | {:.2} | {:.2} | {:.1} |",
             o.f0_hz,
@@ -77,20 +81,40 @@ fn procedure_on_every_preset() {
             o.bench_time_s
         );
         // Small-signal resonance within 5 % of sqrt(k0/m) (the pre level of ~1 mm already bends K).
-        assert!((o.f0_hz / part.f0_hz() - 1.0).abs() < 0.05, "{name}: f0 {}", o.f0_hz);
+        assert!(
+            (o.f0_hz / part.f0_hz() - 1.0).abs() < 0.05,
+            "{name}: f0 {}",
+            o.f0_hz
+        );
         // Pre level about 1 mm at resonance.
         assert!((0.5e-3..2.0e-3).contains(&pre_x), "{name}: pre x {pre_x}");
         // Narrow sweep: >= 1/3 octave below to ~1/3 octave above the resonance it found.
-        assert!((n.resonance_hz / n.f_start_hz).log2() >= 1.0 / 3.0, "{name}: start");
+        assert!(
+            (n.resonance_hz / n.f_start_hz).log2() >= 1.0 / 3.0,
+            "{name}: start"
+        );
         assert!((n.f_end_hz / n.resonance_hz).log2() >= 0.25, "{name}: end");
         // Xpeak near the 8 mm target, never beyond the limits.
-        assert!((n.xpeak_m / 8e-3 - 1.0).abs() < 0.15, "{name}: Xpeak {}", n.xpeak_m);
+        assert!(
+            (n.xpeak_m / 8e-3 - 1.0).abs() < 0.15,
+            "{name}: Xpeak {}",
+            n.xpeak_m
+        );
         assert!(w.max_x <= limits.max_displacement_m, "{name}: {}", w.max_x);
         assert!(w.max_drive <= limits.max_drive_v, "{name}: {}", w.max_drive);
-        assert!(o.bench_time_s <= 40.0, "{name}: bench time {}", o.bench_time_s);
+        assert!(
+            o.bench_time_s <= 40.0,
+            "{name}: bench time {}",
+            o.bench_time_s
+        );
         assert_eq!(
             w.steps,
-            vec![Step::PreMeasurement, Step::ResonanceSearch, Step::NarrowSweep, Step::Fit]
+            vec![
+                Step::PreMeasurement,
+                Step::ResonanceSearch,
+                Step::NarrowSweep,
+                Step::Fit
+            ]
         );
         assert!(w.progress_monotone && w.last_progress == 1.0);
     }
@@ -109,7 +133,11 @@ fn drive_limit_is_never_exceeded() {
     let o = run(&mut vb, &cfg_for(&part), &mut w).unwrap();
     assert!(w.max_drive <= 20.0 + 1e-9, "{}", w.max_drive);
     assert!(o.narrow[0].xpeak_m < 6e-3, "{}", o.narrow[0].xpeak_m);
-    assert!(o.log.iter().any(|l| l.contains("drive limit")), "{:?}", o.log);
+    assert!(
+        o.log.iter().any(|l| l.contains("drive limit")),
+        "{:?}",
+        o.log
+    );
     // A target beyond the displacement limit is refused before anything is played.
     let tight = Limits {
         max_displacement_m: 0.005,

@@ -196,3 +196,89 @@ fn p1_main_difference_by_model_variant() {
         eprintln!("p1 main, second {s}: {:.4} % RMS", aside * 100.0);
     }
 }
+
+/// Alternative formulations of the leaky adiabatic box, integrated by a
+/// small stand-alone RK4 (same step), to explain the remaining difference on
+/// p1's main sweep: 0 = pressure relaxation `p' = -gamma pabs V'/V - p/tau`
+/// (the first version of the virtual bench), 1 = leak as a volume `q' = p CAB/tau`, `pabs = p0 (V0/(V+q))^gamma`,
+/// 2 = air mass `M' = -rho p/RAL`, `pabs = p0 (M/M0 V0/V)^gamma` (the virtual bench now).
+fn alt_box(c: &Case, drive: &[f64], variant: u32) -> Vec<f64> {
+    let b = &c.bench;
+    let e = &b.exciter;
+    let (v0, g, p0, tau) = (
+        b.box_.volume_m3,
+        b.box_.gamma,
+        b.box_.p0_pa,
+        b.box_.leak_tau_s,
+    );
+    let cab = v0 / (g * p0);
+    let part = &c.part;
+    let k = |x: f64| part.k_coeffs_si.iter().rev().fold(0.0, |a, &ci| a * x + ci);
+    // state: x, v, xd, vd, w (p for 0, q for 1, M/M0 for 2)
+    let pressure = |s: &[f64; 5]| -> f64 {
+        let vol = v0 - e.sd_m2 * s[2] + part.ss_m2 * s[0];
+        match variant {
+            0 => s[4],
+            1 => p0 * (v0 / (vol + s[4])).powf(g) - p0,
+            _ => p0 * (s[4] * v0 / vol).powf(g) - p0,
+        }
+    };
+    let f = |s: &[f64; 5], u: f64| -> [f64; 5] {
+        let p = pressure(s);
+        let i = (u - e.bl_tm * s[3]) / e.re_ohm;
+        let a = (part.ss_m2 * p - part.r_ns_per_m * s[1] - k(s[0]) * s[0]) / part.moving_mass_kg;
+        let ad =
+            (e.bl_tm * i - e.rmd_ns_per_m * s[3] - e.kmd_n_per_m * s[2] - e.sd_m2 * p) / e.mmd_kg;
+        let vol = v0 - e.sd_m2 * s[2] + part.ss_m2 * s[0];
+        let dvol = -e.sd_m2 * s[3] + part.ss_m2 * s[1];
+        let dw = match variant {
+            0 => -g * (p0 + p) * dvol / vol - p / tau,
+            1 => p * cab / tau,
+            _ => -(s[4] * v0 / vol) * p * cab / tau / v0,
+        };
+        [s[1], a, s[3], ad, dw]
+    };
+    let h = 1.0 / c.set.meta.sample_rate_hz;
+    let mut s = [0.0, 0.0, 0.0, 0.0, if variant == 2 { 1.0 } else { 0.0 }];
+    let mut xs = Vec::with_capacity(drive.len());
+    for kk in 0..drive.len() {
+        xs.push(s[0]);
+        let u0 = drive[kk];
+        let u1 = drive.get(kk + 1).copied().unwrap_or(0.0);
+        let um = 0.5 * (u0 + u1);
+        let add = |s: &[f64; 5], d: &[f64; 5], w: f64| {
+            let mut o = *s;
+            for j in 0..5 {
+                o[j] += w * d[j];
+            }
+            o
+        };
+        let k1 = f(&s, u0);
+        let k2 = f(&add(&s, &k1, 0.5 * h), um);
+        let k3 = f(&add(&s, &k2, 0.5 * h), um);
+        let k4 = f(&add(&s, &k3, h), u1);
+        for j in 0..5 {
+            s[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+        }
+    }
+    xs
+}
+
+#[test]
+#[ignore = "investigation for the docs, prints figures"]
+fn p1_main_difference_by_leak_formulation() {
+    let c = load("p1_spider");
+    let fs = c.set.meta.sample_rate_hz;
+    for (name, spec, rec) in [("pre", c.pre, &c.set.pre), ("main", c.main, &c.set.main)] {
+        let drive = spec.samples(fs);
+        for (variant, what) in [
+            (0, "pressure relaxation (first version)"),
+            (1, "leak as volume"),
+            (2, "air mass (the virtual bench)"),
+        ] {
+            let x = alt_box(&c, &drive, variant);
+            let (_, aside) = rel_rms_noise_aside(&x, &rec.displacement_m, c.bench.laser.noise_m);
+            eprintln!("p1 {name}, {what}: {:.4} % RMS", aside * 100.0);
+        }
+    }
+}

@@ -9,9 +9,11 @@
 //! - exciter: `Le i' = u - Re i - Bl vd`, `Mmd vd' = Bl i - Rmd vd - Kmd xd - Sd p`
 //!   (positive current pushes the cone into the box; the box pressure pushes it out)
 //! - part: `m v' = Ss p - R v - K(x) x - F_effects`
-//! - box volume `V = V0 - Sd xd + Ss x`; adiabatic air spring with leak:
-//!   `p' = -gamma (p0 + p) V'/V - p/tau_leak` (linear box: `-gamma p0 V'/V0 - p/tau_leak`),
-//!   `tau_leak = RAL CAB`.
+//! - box volume `V = V0 - Sd xd + Ss x`; adiabatic air spring
+//!   `p0 + p = p0 (mu V0/V)^gamma` whose air mass `mu` (relative) leaks out
+//!   through RAL: `mu'/mu = -p CAB/(tau_leak V)`, `tau_leak = RAL CAB`, so
+//!   `p' = -gamma (p0 + p)/V (V' + p CAB/tau_leak)`; linear box:
+//!   `p' = -gamma p0 V'/V0 - p/tau_leak`.
 //!
 //! The drive is given per sample; between samples it is interpolated linearly.
 
@@ -342,11 +344,16 @@ impl Model {
             * self.inv_mmd;
         let dvol = -ex.sd_m2 * vd + self.ss * v;
         let dp = if self.bx.adiabatic {
+            // pabs = p0 (mu V0/V)^gamma with mu the air mass relative to the
+            // start; the leak carries air of the box's density out at p/RAL:
+            // mu'/mu = -p CAB / (tau V).
             let vol = self.bx.volume_m3 - ex.sd_m2 * xd + self.ss * x;
-            -self.bx.gamma * (self.bx.p0_pa + p) * dvol / vol
+            -self.bx.gamma * (self.bx.p0_pa + p) / vol
+                * (dvol
+                    + p * self.inv_tau_leak * self.bx.volume_m3 / (self.bx.gamma * self.bx.p0_pa))
         } else {
-            -self.kbox * dvol
-        } - p * self.inv_tau_leak;
+            -self.kbox * dvol - p * self.inv_tau_leak
+        };
         let dxr = match &self.fx.creep {
             Some(c) => (x - xr) / c.tau_s,
             None => 0.0,
