@@ -300,9 +300,38 @@ impl Runner {
             Some(d) => (Some(d.bench_time_s), d.log, d.recordings, d.measurements),
             None => (None, vec![], vec![], vec![]),
         };
-        self.store
+        if let Err(e) = self
+            .store
             .finish_job(&job.id, state, prob.as_ref(), bench_time, &log, recs, meas)
-            .await?;
+            .await
+        {
+            // The results could not be written: do not leave the job running.
+            tracing::error!(job = %job.id, "storing the results failed: {e}");
+            let p = problem(
+                "storage",
+                "Results not stored",
+                &format!("writing the results failed: {e}"),
+            );
+            self.store
+                .finish_job(
+                    &job.id,
+                    JobState::Failed,
+                    Some(&p),
+                    bench_time,
+                    &log,
+                    vec![],
+                    vec![],
+                )
+                .await?;
+            self.events
+                .publish(
+                    "job.state",
+                    Some(&job.id),
+                    json!({"state": "failed", "problem": p}),
+                )
+                .await?;
+            return Ok(());
+        }
         let measurement_ids = self
             .store
             .get_job(&job.id)
