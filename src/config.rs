@@ -70,7 +70,7 @@ fn default_preset() -> String {
 fn default_limits() -> Limits {
     Limits {
         max_displacement_m: 0.015,
-        max_drive_v: 20.0,
+        max_drive_v: 100.0,
     }
 }
 

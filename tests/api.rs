@@ -642,7 +642,7 @@ async fn oversize_upload_is_413() {
 /// Issue 5 over the API: fits of stored recordings are kept, diagnostics and
 /// SVG plots are served (p2_spider_friction has a hidden Coulomb friction).
 #[tokio::test]
-#[ignore = "needs the identification core (identify::force_balance_data) on main"]
+#[ignore = "needs diagnose::diagnose on main (it still answers 'not implemented')"]
 async fn fits_diagnostics_and_plots_of_an_imported_set() {
     let d = Daemon::start("");
     let c = client();

@@ -137,7 +137,6 @@ async fn job_reports_progress_live_samples_and_stores_the_recordings() {
 /// Issue 4 acceptance: a job on the virtual bench recovers the mounted
 /// part's K(x) within 0.5 % RMS over the measured range.
 #[tokio::test]
-#[ignore = "needs the identification core (identify::analyze) on main"]
 async fn virtual_job_recovers_the_mounted_parts_stiffness() {
     let d = Daemon::start("");
     let c = client();
