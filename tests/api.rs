@@ -642,7 +642,6 @@ async fn oversize_upload_is_413() {
 /// Issue 5 over the API: fits of stored recordings are kept, diagnostics and
 /// SVG plots are served (p2_spider_friction has a hidden Coulomb friction).
 #[tokio::test]
-#[ignore = "needs diagnose::diagnose on main (it still answers 'not implemented')"]
 async fn fits_diagnostics_and_plots_of_an_imported_set() {
     let d = Daemon::start("");
     let c = client();
@@ -687,24 +686,32 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
     assert_eq!(svg.headers()["content-type"], "image/svg+xml");
     assert!(svg.text().await.unwrap().contains("<svg"));
 
-    // Two fits, both kept; the one with friction explains more.
-    let mut errs = vec![];
-    for effects in [json!([]), json!(["coulomb_friction"])] {
+    // The base model (first ladder step) misses the friction.
+    let base_error = diag["diagnostics"]["ladder"][0]["model_error_percent"]
+        .as_f64()
+        .unwrap();
+    // Two fits, both kept; with friction forced in, the model carries its
+    // force and explains more than the base model.
+    let mut fits_made = vec![];
+    for (effects, order) in [
+        (json!(["coulomb_friction"]), json!(null)),
+        (json!(["coulomb_friction"]), json!(5)),
+    ] {
         let r = c
             .post(d.url(&format!("/api/v1/measurements/{id}/fits")))
-            .json(&json!({"effects": effects}))
+            .json(&json!({"effects": effects, "order": order}))
             .send()
             .await
             .unwrap();
         assert_eq!(r.status().as_u16(), 201);
         let f: Value = r.json().await.unwrap();
-        errs.push(
-            f["result"]["model"]["model_error_percent"]
-                .as_f64()
-                .unwrap(),
-        );
+        let model = &f["result"]["model"];
+        assert!(model["effects"]["coulomb_friction"].is_object(), "{model}");
+        let e = model["model_error_percent"].as_f64().unwrap();
+        assert!(e < base_error, "fit {e} % vs base {base_error} %");
+        assert_eq!(f["request"]["effects"], effects);
+        fits_made.push(f["id"].as_str().unwrap().to_string());
     }
-    assert!(errs[1] < errs[0], "{errs:?}");
     let fits: Value = c
         .get(d.url(&format!("/api/v1/measurements/{id}/fits")))
         .send()
@@ -713,5 +720,11 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
         .json()
         .await
         .unwrap();
-    assert_eq!(fits["items"].as_array().unwrap().len(), 2);
+    let ids: Vec<_> = fits["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["id"].as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(ids, fits_made);
 }
