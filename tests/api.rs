@@ -728,3 +728,37 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
         .collect();
     assert_eq!(ids, fits_made);
 }
+
+#[test]
+fn bad_configuration_is_one_line_and_a_non_zero_exit() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("bad.toml");
+    for (text, want) in [
+        ("bnid = \"x\"", "bnid"),
+        (
+            "[[benches]]\nid = \"b\"\npreset = \"no_such_part\"",
+            "no_such_part",
+        ),
+        ("bind = \"nonsense\"", "bind address"),
+    ] {
+        std::fs::write(&cfg, text).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_springbench"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .arg("--data-dir")
+            .arg(dir.path().join("data"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(err.contains(want), "{err}");
+        assert!(!err.contains("panicked"));
+    }
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_springbench"))
+        .args(["serve", "--config", "/nonexistent/springbench.toml"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/springbench.toml"));
+}

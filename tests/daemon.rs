@@ -303,3 +303,84 @@ async fn sigterm_mid_job_ramps_down_and_marks_the_job_interrupted() {
     drop(d2);
     drop(tmp);
 }
+
+/// Level series and repeats give one measurement each; a job may mount a
+/// preset or a part of its own; a higher priority overtakes the queue.
+#[tokio::test]
+async fn level_series_repeats_mounted_parts_and_priority() {
+    let d = Daemon::start("");
+    let c = client();
+    let series = submit(
+        &c,
+        &d,
+        json!({"part": {"serial": "SN-LS"}, "levels_m": [0.004, 0.008], "repeats": 2}),
+    )
+    .await;
+    // Queued behind it: a part of its own (priority 0), then a preset (priority 5).
+    let own = json!({"name": "soft-linear", "moving_mass_kg": 0.03,
+                     "k_coeffs_si": [1500.0, 0.0, 2.0e7], "r_ns_per_m": 1.0, "ss_m2": 0.0025});
+    let low = submit(
+        &c,
+        &d,
+        json!({"part": {"serial": "SN-OWN"}, "part_spec": own}),
+    )
+    .await;
+    let high = submit(
+        &c,
+        &d,
+        json!({"part": {"serial": "SN-CONE"}, "preset": "cone_6in", "priority": 5,
+               "target_xpeak_m": 0.005}),
+    )
+    .await;
+    let mut done = vec![];
+    for id in [&series, &low, &high] {
+        let j = wait_job(&c, &d, id, Duration::from_secs(300), terminal).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        done.push(j);
+    }
+    // The higher priority started first, although submitted later.
+    let started = |j: &Value| j["started_at"].as_str().unwrap().to_string();
+    assert!(
+        started(&done[2]) < started(&done[1]),
+        "priority not honoured"
+    );
+
+    // 2 levels x 2 repeats.
+    let ms = get(&c, &d, &format!("/api/v1/measurements?job={series}")).await;
+    let items = ms["items"].as_array().unwrap();
+    assert_eq!(items.len(), 4);
+    let mut seen = vec![];
+    for m in items {
+        let target = m["target_xpeak_m"].as_f64().unwrap();
+        let xpeak = m["summary"]["xpeak_m"].as_f64().unwrap();
+        assert!(
+            (xpeak - target).abs() < 0.25 * target,
+            "xpeak {xpeak} for target {target}"
+        );
+        seen.push((
+            m["repeat_index"].as_i64().unwrap(),
+            m["level_index"].as_i64().unwrap(),
+        ));
+    }
+    seen.sort();
+    assert_eq!(seen, [(0, 0), (0, 1), (1, 0), (1, 1)]);
+    // Keff(Xpeak): the hardening spider is stiffer at 8 mm than at 4 mm.
+    let keff = |level: i64| {
+        items.iter().find(|m| m["level_index"] == level).unwrap()["summary"]["keff_n_per_m"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!(keff(1) > keff(0), "{} vs {}", keff(1), keff(0));
+
+    // The job's own part: its k0 and mass come back.
+    let mid = done[1]["measurement_ids"][0].as_str().unwrap();
+    let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+    let k0 = m["stiffness"]["coefficients"][0].as_f64().unwrap();
+    assert!((k0 - 1500.0).abs() < 0.01 * 1500.0, "k0 {k0}");
+    assert_eq!(m["large_signal"]["moving_mass_kg"], 0.03);
+    // The preset's mass was taken as the moving mass.
+    let mid = done[2]["measurement_ids"][0].as_str().unwrap();
+    let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+    assert_eq!(m["large_signal"]["moving_mass_kg"], 0.012);
+    assert_eq!(done[2]["request"]["moving_mass_kg"], 0.012);
+}

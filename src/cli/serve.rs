@@ -182,3 +182,40 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
     tracing::info!("stopped");
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn without_tokens_only_loopback_is_bound() {
+        let mut cfg = Config {
+            bind: "0.0.0.0:8750".into(),
+            ..Config::default()
+        };
+        let (a, note) = bind_address(&cfg).unwrap();
+        assert_eq!(a.to_string(), "127.0.0.1:8750");
+        assert!(note.unwrap().contains("refusing"));
+        cfg.auth.tokens.push(crate::config::Token {
+            name: "t".into(),
+            token: "0123456789abcdef".into(),
+            role: crate::config::Role::Viewer,
+        });
+        let (a, note) = bind_address(&cfg).unwrap();
+        assert_eq!(a.to_string(), "0.0.0.0:8750");
+        assert!(note.is_none());
+        cfg.bind = "localhost:x".into();
+        assert!(bind_address(&cfg).unwrap_err().contains("bind address"));
+    }
+
+    #[test]
+    fn the_default_configuration_mounts_an_existing_preset() {
+        let cfg = load_config(&ServeArgs::default()).unwrap();
+        assert!(crate::physics::preset(&cfg.benches[0].preset).is_ok());
+        let bad = ServeArgs {
+            bind: Some("127.0.0.1:0".into()),
+            ..ServeArgs::default()
+        };
+        assert_eq!(load_config(&bad).unwrap().bind, "127.0.0.1:0");
+    }
+}
