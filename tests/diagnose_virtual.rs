@@ -185,3 +185,81 @@ fn two_hidden_effects_ladder_adds_both() {
     let diag = d.report.diagnostics.unwrap();
     assert!(diag["ladder"].as_array().unwrap().len() >= 3);
 }
+
+/// Detection against effect size at the default noise: for each effect, a
+/// ladder of sizes (factors of 2 down from a clearly visible one), three
+/// seeds each; prints the smallest size found in all seeds. For the docs
+/// (docs/diagnostics.md): `cargo test --release --test diagnose_virtual -- --ignored --nocapture detection`.
+#[test]
+#[ignore = "documentation run: ~2 minutes in release"]
+fn detection_against_effect_size() {
+    let part0 = part_with(Effects::default());
+    let sizes: [(EffectId, &str, f64); 6] = [
+        (EffectId::CoulombFriction, "force_n", 0.2),
+        (EffectId::QuadraticDamping, "coeff_ns2_per_m2", 1.0),
+        (EffectId::DampingVsDisplacement, "r2_ns_per_m3", 3e4),
+        (EffectId::Creep, "k_n_per_m", 400.0),
+        (EffectId::StiffnessDrift, "dk0_dt_n_per_m_s", 16.0),
+        (EffectId::ChannelDelay, "delay_s", 5e-4),
+    ];
+    for (id, param, top) in sizes {
+        let mut smallest = None;
+        for step in 0..9 {
+            let size = top / 2f64.powi(step);
+            let mut found = 0;
+            let mut errs = Vec::new();
+            for seed in 0..3u64 {
+                let mut e = Effects::default();
+                match id {
+                    EffectId::CoulombFriction => {
+                        e.coulomb_friction = Some(CoulombFriction {
+                            force_n: size,
+                            v_eps_m_per_s: 2e-3,
+                        })
+                    }
+                    EffectId::QuadraticDamping => {
+                        e.quadratic_damping = Some(QuadraticDamping {
+                            coeff_ns2_per_m2: size,
+                        })
+                    }
+                    EffectId::DampingVsDisplacement => {
+                        e.damping_vs_displacement = Some(DampingVsDisplacement {
+                            r1_ns_per_m2: 0.0,
+                            r2_ns_per_m3: size,
+                        })
+                    }
+                    EffectId::Creep => {
+                        e.creep = Some(Creep {
+                            k_n_per_m: size,
+                            tau_s: 0.01,
+                        })
+                    }
+                    EffectId::StiffnessDrift => {
+                        e.stiffness_drift = Some(StiffnessDrift {
+                            dk0_dt_n_per_m_s: size,
+                        })
+                    }
+                    EffectId::ChannelDelay => {
+                        e.channel_delay = Some(ChannelDelay { delay_s: size })
+                    }
+                }
+                let mut part = part0.clone();
+                part.effects = e;
+                let d = run(&part, 300 + seed);
+                let diag = d.report.diagnostics.unwrap();
+                let c = &diag["candidates"][0];
+                if c["effect"] == id.as_str() && c["significant"] == true {
+                    found += 1;
+                    errs.push(100.0 * (c["parameters"][param].as_f64().unwrap() / size - 1.0));
+                }
+            }
+            eprintln!("{id} {param} = {size:.3e}: found {found}/3, parameter errors {errs:.1?} %");
+            if found == 3 {
+                smallest = Some(size);
+            } else {
+                break;
+            }
+        }
+        eprintln!("SMALLEST {id}: {param} = {smallest:?}");
+    }
+}

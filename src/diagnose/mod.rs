@@ -52,7 +52,11 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     };
     let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
     report.model = result.report_model();
-    report.diagnostics = Some(result.diagnostics_json(&data));
+    let mut diagnostics = result.diagnostics_json(&data);
+    if let Some(ss) = small_signal_comparison(set, &report) {
+        diagnostics["comparison"]["small_signal"] = ss;
+    }
+    report.diagnostics = Some(diagnostics);
     for step in result.ladder.iter().skip(1) {
         if let Some(added) = &step.added {
             warnings.push(format!(
@@ -63,6 +67,44 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     }
     report.warnings.extend(warnings);
     Ok(Diagnosis { report })
+}
+
+/// The small-signal transfer function `Hx = X / Mic` of the pre-measurement
+/// against the identification's linear-resonator fit
+/// `(Ss/g) / (k0 - w^2 m + j w R)`, magnitude (m/V). None without a fit.
+fn small_signal_comparison(set: &RecordingSet, report: &Report) -> Option<serde_json::Value> {
+    let ss = report.small_signal.as_ref()?;
+    let area = ss.area_per_mic_unit_m2_per_v?;
+    let pre = &set.pre;
+    if pre.len() < 1024 || pre.validate("pre").is_err() {
+        return None;
+    }
+    let fs = pre.sample_rate_hz;
+    let mut planner = realfft::RealFftPlanner::<f64>::new();
+    let sx = crate::dsp::Spectrum::with_planner(&pre.displacement_m, fs, 0, &mut planner);
+    let sm = crate::dsp::Spectrum::with_planner(&pre.microphone_v, fs, 0, &mut planner);
+    let tf = crate::dsp::transfer_function(&sm, &sx, 0.5, 110.0);
+    let m = set.meta.moving_mass_kg;
+    let (mut f, mut meas, mut fit, mut coh) = (vec![], vec![], vec![], vec![]);
+    for (i, &fr) in tf.freq_hz.iter().enumerate() {
+        if !(3.0..=110.0).contains(&fr) {
+            continue;
+        }
+        let w = 2.0 * std::f64::consts::PI * fr;
+        let den = crate::dsp::Complex64::new(ss.k0_n_per_m - w * w * m, w * ss.r_ns_per_m);
+        f.push(fr);
+        meas.push(tf.h[i].norm());
+        fit.push(area.abs() / den.norm());
+        coh.push(tf.coherence[i]);
+    }
+    Some(serde_json::json!({
+        "freq_hz": f,
+        "measured_abs_m_per_v": meas,
+        "fit_abs_m_per_v": fit,
+        "coherence": coh,
+        "reliable": ss.reliable,
+        "misfit_percent": ss.misfit_percent,
+    }))
 }
 
 /// The engine on force-balance data (no recording set needed).

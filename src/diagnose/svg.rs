@@ -12,6 +12,7 @@ pub const PLOT_NAMES: &[&str] = &[
     "residual_vs_v",
     "residual_spectrum",
     "ladder",
+    "small_signal",
 ];
 
 const W: f64 = 720.0;
@@ -485,6 +486,24 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
             ))
         }
         "ladder" => Some(ladder_chart(d)),
+        "small_signal" => {
+            let ss = c.get("small_signal")?;
+            let f = nums(&ss["freq_hz"]);
+            Some(line_chart(
+                &Chart {
+                    title: "Small signal: |X/Mic| of the pre-measurement against the resonator fit",
+                    xlabel: "frequency (Hz)",
+                    ylabel: "|Hx| (m/V)",
+                    log_x: true,
+                    log_y: true,
+                    bands: vec![],
+                },
+                &[
+                    series("measured", &f, &nums(&ss["measured_abs_m_per_v"]), false),
+                    series("linear fit", &f, &nums(&ss["fit_abs_m_per_v"]), true),
+                ],
+            ))
+        }
         _ => None,
     }
 }
