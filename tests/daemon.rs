@@ -383,4 +383,22 @@ async fn level_series_repeats_mounted_parts_and_priority() {
     let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
     assert_eq!(m["large_signal"]["moving_mass_kg"], 0.012);
     assert_eq!(done[2]["request"]["moving_mass_kg"], 0.012);
+
+    // Pagination: newest first, two per page, the cursor leads to the rest.
+    let p1 = get(&c, &d, "/api/v1/jobs?limit=2").await;
+    let ids = |p: &Value| -> Vec<String> {
+        p["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(ids(&p1), [high.clone(), low.clone()]);
+    let cursor = p1["next_cursor"].as_str().unwrap();
+    let p2 = get(&c, &d, &format!("/api/v1/jobs?limit=2&cursor={cursor}")).await;
+    assert_eq!(ids(&p2), [series.clone()]);
+    assert!(p2["next_cursor"].is_null());
+    let by_part = get(&c, &d, "/api/v1/jobs?part=SN-OWN&state=succeeded").await;
+    assert_eq!(ids(&by_part), [low.clone()]);
 }

@@ -86,6 +86,18 @@ impl Runner {
                 .await?;
             tracing::warn!(job = %id, "job was running when the daemon stopped: marked interrupted");
         }
+        let known: Vec<String> = cfg.benches.iter().map(|b| b.id.clone()).collect();
+        for id in store.fail_queued_on_unknown_benches(&known).await? {
+            let problem = store.get_job(&id).await?.and_then(|j| j.problem);
+            events
+                .publish(
+                    "job.state",
+                    Some(&id),
+                    json!({"state": "failed", "problem": problem}),
+                )
+                .await?;
+            tracing::warn!(job = %id, "queued job of a bench no longer configured: failed");
+        }
         let slots = cfg
             .benches
             .iter()

@@ -282,6 +282,42 @@ impl Store {
         Ok(rows.iter().map(|r| r.get::<String, _>(0)).collect())
     }
 
+    /// At start: queued jobs of benches that are no longer configured would
+    /// wait forever; they fail with a problem naming the bench. Returns their ids.
+    pub async fn fail_queued_on_unknown_benches(
+        &self,
+        known: &[String],
+    ) -> StoreResult<Vec<String>> {
+        let rows = sqlx::query("SELECT DISTINCT bench_id FROM jobs WHERE state = 'queued'")
+            .fetch_all(&self.pool)
+            .await?;
+        let mut ids = vec![];
+        for r in rows {
+            let bench: String = r.get(0);
+            if known.contains(&bench) {
+                continue;
+            }
+            let problem = serde_json::json!({
+                "type": "/problems/unknown-bench",
+                "title": "Bench no longer configured",
+                "status": 500,
+                "detail": format!("bench '{bench}' is not in the configuration any more; submit the job again"),
+            })
+            .to_string();
+            let done = sqlx::query(
+                "UPDATE jobs SET state = 'failed', finished_at = ?, problem_json = ? \
+                 WHERE state = 'queued' AND bench_id = ? RETURNING id",
+            )
+            .bind(now())
+            .bind(problem)
+            .bind(bench)
+            .fetch_all(&self.pool)
+            .await?;
+            ids.extend(done.iter().map(|r| r.get::<String, _>(0)));
+        }
+        Ok(ids)
+    }
+
     // ---- parts ----
 
     /// Creates the part if new; updates kind/notes when given.
@@ -1033,6 +1069,33 @@ mod tests {
             .await
             .unwrap()
             .is_empty());
+    }
+
+    #[tokio::test]
+    async fn queued_jobs_of_removed_benches_fail() {
+        let s = Store::memory().await.unwrap();
+        let req = json!({});
+        for (id, bench) in [("a", "b1"), ("b", "gone"), ("c", "gone")] {
+            s.insert_job(id, bench, ("P", None, None), 0, &req, id, None)
+                .await
+                .unwrap();
+        }
+        let mut ids = s
+            .fail_queued_on_unknown_benches(&["b1".to_string()])
+            .await
+            .unwrap();
+        ids.sort();
+        assert_eq!(ids, ["b", "c"]);
+        let b = s.get_job("b").await.unwrap().unwrap();
+        assert_eq!(b.state, JobState::Failed);
+        assert!(b.problem.unwrap()["detail"]
+            .as_str()
+            .unwrap()
+            .contains("gone"));
+        assert_eq!(
+            s.get_job("a").await.unwrap().unwrap().state,
+            JobState::Queued
+        );
     }
 
     #[tokio::test]
