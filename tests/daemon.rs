@@ -394,11 +394,11 @@ async fn level_series_repeats_mounted_parts_and_priority() {
             .map(|j| j["id"].as_str().unwrap().to_string())
             .collect()
     };
-    assert_eq!(ids(&p1), [high.clone(), low.clone()]);
+    assert_eq!(ids(&p1), vec![high.as_str(), low.as_str()]);
     let cursor = p1["next_cursor"].as_str().unwrap();
     let p2 = get(&c, &d, &format!("/api/v1/jobs?limit=2&cursor={cursor}")).await;
-    assert_eq!(ids(&p2), [series.clone()]);
+    assert_eq!(ids(&p2), vec![series.as_str()]);
     assert!(p2["next_cursor"].is_null());
     let by_part = get(&c, &d, "/api/v1/jobs?part=SN-OWN&state=succeeded").await;
-    assert_eq!(ids(&by_part), [low.clone()]);
+    assert_eq!(ids(&by_part), vec![low.as_str()]);
 }
