@@ -169,8 +169,8 @@ async fn virtual_job_recovers_the_mounted_parts_stiffness() {
 async fn cancel_queued_and_running_jobs() {
     let d = Daemon::start("");
     let c = client();
-    // A long job (three repeats) and one queued behind it.
-    let a = submit(&c, &d, json!({"part": {"serial": "SN-C1"}, "repeats": 3})).await;
+    // A long job (ten repeats) and one queued behind it.
+    let a = submit(&c, &d, json!({"part": {"serial": "SN-C1"}, "repeats": 10})).await;
     let b = submit(&c, &d, json!({"part": {"serial": "SN-C2"}})).await;
     let r = c
         .post(d.url(&format!("/api/v1/jobs/{b}/cancel")))

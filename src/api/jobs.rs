@@ -147,6 +147,13 @@ pub async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> ApiRe
             ),
         )
         .with_extra(json!({"state": j.state.as_str()}))),
+        CancelOutcome::Finishing(j) => Err(Problem::new(
+            StatusCode::CONFLICT,
+            "job-finishing",
+            "Job finishing",
+            format!("job '{}' has finished measuring and its results are being stored; it cannot be cancelled", j.id),
+        )
+        .with_extra(json!({"state": j.state.as_str()}))),
         CancelOutcome::NotFound => Err(Problem::not_found("job", &id)),
     }
 }

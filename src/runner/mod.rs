@@ -24,11 +24,16 @@ pub use job::{FieldError, JobSpec};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, Notify};
 use tokio::task::JoinHandle;
+
+/// Cancel flag of a running job: running, cancel requested, results being committed.
+const RUN: u8 = 0;
+const CANCEL: u8 = 1;
+const COMMIT: u8 = 2;
 
 /// What a bench is doing (for `/readyz`).
 #[derive(Debug, Clone, Serialize)]
@@ -56,6 +61,8 @@ pub enum CancelOutcome {
     Requested(Job),
     /// The job had already finished.
     Finished(Job),
+    /// The job's results are being stored: too late to cancel.
+    Finishing(Job),
     NotFound,
 }
 
@@ -64,7 +71,7 @@ pub struct Runner {
     events: EventBus,
     slots: HashMap<String, Arc<Slot>>,
     /// Cancel flags of the running jobs, by job id.
-    running: Mutex<HashMap<String, Arc<AtomicBool>>>,
+    running: Mutex<HashMap<String, Arc<AtomicU8>>>,
     shutdown: Arc<AtomicBool>,
 }
 
@@ -182,8 +189,12 @@ impl Runner {
         };
         if let Some(flag) = flag {
             if !job.state.is_terminal() {
-                flag.store(true, Ordering::SeqCst);
-                return Ok(CancelOutcome::Requested(job));
+                return Ok(
+                    match flag.compare_exchange(RUN, CANCEL, Ordering::SeqCst, Ordering::SeqCst) {
+                        Ok(_) | Err(CANCEL) => CancelOutcome::Requested(job),
+                        Err(_) => CancelOutcome::Finishing(job),
+                    },
+                );
             }
         }
         Ok(CancelOutcome::Finished(job))
@@ -215,7 +226,7 @@ impl Runner {
     }
 
     async fn run_one(&self, slot: &Slot, job: Job) -> StoreResult<()> {
-        let flag = Arc::new(AtomicBool::new(false));
+        let flag = Arc::new(AtomicU8::new(RUN));
         self.running
             .lock()
             .unwrap()
@@ -238,7 +249,7 @@ impl Runner {
         &self,
         slot: &Slot,
         job: &Job,
-        cancel: Arc<AtomicBool>,
+        cancel: Arc<AtomicU8>,
     ) -> StoreResult<()> {
         if !self.store.start_job(&job.id).await? {
             return Ok(()); // cancelled meanwhile
@@ -294,7 +305,11 @@ impl Runner {
             }
         };
 
+        // From here on a cancel is too late (409); one that came during the
+        // fit still wins, so a 202 always ends as `cancelled`.
+        let cancelled_late = cancel.swap(COMMIT, Ordering::SeqCst) == CANCEL;
         let (state, prob, done) = match outcome {
+            Ok(_) if cancelled_late => (JobState::Cancelled, None, None),
             Ok(done) => (JobState::Succeeded, None, Some(done)),
             Err(Stop::Aborted) if self.shutdown.load(Ordering::SeqCst) => (
                 JobState::Interrupted,
@@ -436,7 +451,7 @@ const CHUNK: usize = 100;
 
 struct JobObserver {
     tx: mpsc::UnboundedSender<Msg>,
-    cancel: Arc<AtomicBool>,
+    cancel: Arc<AtomicU8>,
     shutdown: Arc<AtomicBool>,
     repeats: u32,
     repeat: u32,
@@ -454,7 +469,7 @@ struct JobObserver {
 impl JobObserver {
     fn new(
         tx: mpsc::UnboundedSender<Msg>,
-        cancel: Arc<AtomicBool>,
+        cancel: Arc<AtomicU8>,
         shutdown: Arc<AtomicBool>,
         repeats: u32,
     ) -> JobObserver {
@@ -550,7 +565,7 @@ impl Observer for JobObserver {
     }
 
     fn cancelled(&self) -> bool {
-        self.cancel.load(Ordering::Relaxed) || self.shutdown.load(Ordering::Relaxed)
+        self.cancel.load(Ordering::Relaxed) == CANCEL || self.shutdown.load(Ordering::Relaxed)
     }
 }
 
