@@ -228,7 +228,7 @@ async fn kill_9_mid_job_then_restart_gives_interrupted_and_keeps_earlier_results
         .await
         .unwrap();
 
-    let second = submit(&c, &d, json!({"part": {"serial": "SN-K9"}, "repeats": 3})).await;
+    let second = submit(&c, &d, json!({"part": {"serial": "SN-K9"}, "repeats": 10})).await;
     let j2 = wait_job(&c, &d, &second, Duration::from_secs(60), |s| s != "queued").await;
     assert_eq!(j2["state"], "running");
     d.kill9();
@@ -282,7 +282,7 @@ async fn sigterm_mid_job_ramps_down_and_marks_the_job_interrupted() {
     let mut d = Daemon::start("");
     let tmp = d.take_dir().unwrap();
     let c = client();
-    let id = submit(&c, &d, json!({"part": {"serial": "SN-T"}, "repeats": 3})).await;
+    let id = submit(&c, &d, json!({"part": {"serial": "SN-T"}, "repeats": 10})).await;
     let j = wait_job(&c, &d, &id, Duration::from_secs(60), |s| s != "queued").await;
     assert_eq!(j["state"], "running");
     let t = Instant::now();
