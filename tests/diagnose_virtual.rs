@@ -51,7 +51,7 @@ fn random_effect(id: EffectId, rng: &mut impl Rng, e: &mut Effects) -> (&'static
             let k = rng.random_range(200.0..600.0);
             e.creep = Some(Creep {
                 k_n_per_m: k,
-                tau_s: rng.random_range(0.003..0.03),
+                tau_s: rng.random_range(0.003..0.1),
             });
             ("k_n_per_m", k)
         }

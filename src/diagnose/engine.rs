@@ -36,6 +36,9 @@ pub struct EngineOptions {
     pub vif_limit: f64,
     /// Most effects the ladder adds.
     pub max_steps: usize,
+    /// Practical relevance: a significant candidate must remove at least this
+    /// share of the held-out model error (%).
+    pub min_reduction_percent: f64,
     /// Highest K(x) power the order selection and `stiffness_order` may reach.
     pub max_order: usize,
 }
@@ -50,6 +53,7 @@ impl Default for EngineOptions {
             alpha: 0.01,
             vif_limit: 200.0,
             max_steps: 6,
+            min_reduction_percent: 5.0,
             max_order: 10,
         }
     }
@@ -785,6 +789,7 @@ fn rank(
     p: &Prepared,
     built: &Built,
     opts: &EngineOptions,
+    noise_percent: f64,
 ) -> Vec<(Term, Evaluated, CandidateResult)> {
     let mut terms: Vec<Term> = EffectId::ALL
         .into_iter()
@@ -863,19 +868,36 @@ fn rank(
                 (serde_json::json!({ "order": power }), serde_json::json!({}))
             }
         };
-        let significant = ev.p_value < alpha && cv < base_cv && identifiable;
-        let note = (!identifiable).then(|| {
-            format!(
+        // Practical relevance: the share of the structured (held-out) error it removes.
+        let me_base = model_error(pct(p, base_cv), noise_percent);
+        let me_cand = model_error(pct(p, cv), noise_percent);
+        let reduction = if me_base > 0.0 {
+            100.0 * (1.0 - me_cand / me_base)
+        } else {
+            0.0
+        };
+        let significant =
+            ev.p_value < alpha && cv < base_cv && reduction >= opts.min_reduction_percent;
+        let note = match (identifiable, significant) {
+            (true, _) => None,
+            (false, false) => Some(format!(
                 "cannot tell from this data: {} is collinear with {} (variance inflation {:.0}); to separate them: {}",
                 term.name(),
                 with,
                 vif,
                 term.separating_experiment()
-            )
-        });
+            )),
+            (false, true) => Some(format!(
+                "{} is strongly collinear with {} (variance inflation {:.0}); this data still separates it, confirm with {}",
+                term.name(),
+                with,
+                vif,
+                term.separating_experiment()
+            )),
+        };
         let res = CandidateResult {
             effect: term.name().into(),
-            error_reduction_percent: 0.0,
+            error_reduction_percent: reduction,
             residual_reduction_percent: 100.0 * (1.0 - (cv / base_cv).sqrt()),
             significant,
             p_value: ev.p_value,
@@ -980,8 +1002,15 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     }];
     let mut candidates: Option<Vec<CandidateResult>> = None;
     let mut ladder_names: Vec<String> = ladder[0].effects.clone();
+    let mut noise_percent = f64::INFINITY;
     for _ in 0..opts.max_steps {
-        let ranked = rank(&p, &built, opts);
+        // Noise floor of this step's residual (never rising along the ladder:
+        // a big missing effect can only lift the estimate).
+        let fit = built.gram.fit();
+        let (res, _) = residual(&p, &built, &fit.beta);
+        let sp = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
+        noise_percent = noise_percent.min(100.0 * sp.noise_variance.sqrt() / p.rms_y);
+        let ranked = rank(&p, &built, opts, noise_percent);
         let best = ranked
             .iter()
             .filter(|r| r.2.significant)
@@ -1016,6 +1045,8 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     for step in &mut ladder {
         step.model_error_percent = model_error(step.cv_residual_percent, noise_floor_percent);
     }
+    // Reported reductions use the final model's noise floor (the cleanest
+    // residual); the decisions above used each step's own estimate.
     let base_me = model_error(base.cv_residual_percent, noise_floor_percent);
     let mut candidates = candidates.unwrap_or_default();
     for c in &mut candidates {
@@ -1085,7 +1116,8 @@ impl EngineResult {
             "method": {
                 "cross_validation": "blocked, 5 contiguous folds of 8 time blocks each",
                 "test": "Wald test with batch-means (40 contiguous blocks) covariance, Bonferroni over candidates; hyper-parameter searches count 5 times",
-                "identifiability": "variance inflation of the candidate's regressors against the model's; above 200 the candidate is not identifiable",
+                "identifiability": "variance inflation of the candidate's regressors against the model's; above 200 and not significant: cannot tell from this data",
+                "relevance": "a significant candidate removes at least 5 % of the held-out model error (noise floor of the step's residual)",
                 "model_error": "sqrt(residual^2 - noise_floor^2), residual on held-out blocks for candidates and ladder",
             },
             "comparison": comparison(self, d),
