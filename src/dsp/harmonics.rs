@@ -102,41 +102,71 @@ fn hermite_phase(ta: f64, tb: f64, sa: f64, sb: f64, t: f64) -> f64 {
         + (u3 - u2) * period * sb
 }
 
-/// `signal` with its fundamental (cos and sin of the period phase, fitted per
-/// period between consecutive `marks`) removed; samples outside the periods
-/// are left unchanged. What remains is dc, harmonics and noise: the part of a
-/// force balance that a purely sinusoidal drive force does not enter.
-pub fn remove_fundamental_per_period(signal: &[f64], marks: &[f64]) -> Vec<f64> {
-    let mut out = signal.to_vec();
-    let slopes = mark_slopes(marks);
-    for k in 0..marks.len().saturating_sub(1) {
-        let (ta, tb) = (marks[k], marks[k + 1]);
-        let i0 = ta.ceil().max(0.0) as usize;
-        let i1 = (tb.ceil().max(0.0) as usize).min(signal.len());
-        if i1 <= i0 + 4 {
-            continue;
+/// Removes the fundamental (cos and sin of the period phase, fitted per period
+/// between consecutive marks) from signals of one record. Samples outside the
+/// periods are left unchanged. What remains is dc, harmonics and noise: the
+/// part of a force balance that a purely sinusoidal drive force does not enter.
+/// The phase is computed once and reused for every signal.
+#[derive(Debug, Clone)]
+pub struct FundamentalRemover {
+    /// (first sample, end sample, inverse 2x2 Gram [a, b, c] of [cos, sin]) per period.
+    periods: Vec<(usize, usize, [f64; 3])>,
+    cos: Vec<f64>,
+    sin: Vec<f64>,
+}
+
+impl FundamentalRemover {
+    pub fn new(len: usize, marks: &[f64]) -> FundamentalRemover {
+        let slopes = mark_slopes(marks);
+        let (mut cos, mut sin) = (vec![0.0; len], vec![0.0; len]);
+        let mut periods = Vec::with_capacity(marks.len());
+        for k in 0..marks.len().saturating_sub(1) {
+            let (ta, tb) = (marks[k], marks[k + 1]);
+            let i0 = ta.ceil().max(0.0) as usize;
+            let i1 = (tb.ceil().max(0.0) as usize).min(len);
+            if i1 <= i0 + 4 {
+                continue;
+            }
+            let (mut gcc, mut gcs, mut gss) = (0.0, 0.0, 0.0);
+            for i in i0..i1 {
+                let (sn, cs) = hermite_phase(ta, tb, slopes[k], slopes[k + 1], i as f64).sin_cos();
+                cos[i] = cs;
+                sin[i] = sn;
+                gcc += cs * cs;
+                gcs += cs * sn;
+                gss += sn * sn;
+            }
+            let det = gcc * gss - gcs * gcs;
+            if det > 0.0 {
+                periods.push((i0, i1, [gss / det, -gcs / det, gcc / det]));
+            }
         }
-        let (mut gcc, mut gcs, mut gss, mut rc, mut rs) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for (i, &y) in signal.iter().enumerate().take(i1).skip(i0) {
-            let (sn, cs) = hermite_phase(ta, tb, slopes[k], slopes[k + 1], i as f64).sin_cos();
-            gcc += cs * cs;
-            gcs += cs * sn;
-            gss += sn * sn;
-            rc += cs * y;
-            rs += sn * y;
-        }
-        let det = gcc * gss - gcs * gcs;
-        if det <= 0.0 {
-            continue;
-        }
-        let c = (gss * rc - gcs * rs) / det;
-        let d = (gcc * rs - gcs * rc) / det;
-        for (i, o) in out.iter_mut().enumerate().take(i1).skip(i0) {
-            let (sn, cs) = hermite_phase(ta, tb, slopes[k], slopes[k + 1], i as f64).sin_cos();
-            *o -= c * cs + d * sn;
-        }
+        FundamentalRemover { periods, cos, sin }
     }
-    out
+
+    pub fn apply(&self, signal: &[f64]) -> Vec<f64> {
+        let mut out = signal.to_vec();
+        for &(i0, i1, [a, b, c]) in &self.periods {
+            let i1 = i1.min(signal.len());
+            if i1 <= i0 {
+                continue;
+            }
+            let (cs, sn) = (&self.cos[i0..i1], &self.sin[i0..i1]);
+            let y = &signal[i0..i1];
+            let rc = super::lstsq::dot(cs, y);
+            let rs = super::lstsq::dot(sn, y);
+            let (pc, ps) = (a * rc + b * rs, b * rc + c * rs);
+            for ((o, cv), sv) in out[i0..i1].iter_mut().zip(cs).zip(sn) {
+                *o -= pc * cv + ps * sv;
+            }
+        }
+        out
+    }
+}
+
+/// `signal` with its fundamental removed per period (see [`FundamentalRemover`]).
+pub fn remove_fundamental_per_period(signal: &[f64], marks: &[f64]) -> Vec<f64> {
+    FundamentalRemover::new(signal.len(), marks).apply(signal)
 }
 
 /// Least-squares fit of dc + `n_harm` harmonics to `signal` over each period
@@ -168,10 +198,13 @@ pub fn harmonics_per_period(
         for (i, &s) in signal.iter().enumerate().take(i1).skip(i0) {
             let th = hermite_phase(ta, tb, sa, sb, i as f64);
             basis[0] = 1.0;
+            // cos/sin of h theta by the angle-addition recurrence.
+            let (s1, c1) = th.sin_cos();
+            let (mut sh, mut ch) = (s1, c1);
             for h in 1..=n_harm {
-                let (sn, cs) = (h as f64 * th).sin_cos();
-                basis[2 * h - 1] = cs;
-                basis[2 * h] = sn;
+                basis[2 * h - 1] = ch;
+                basis[2 * h] = sh;
+                (sh, ch) = (sh * c1 + ch * s1, ch * c1 - sh * s1);
             }
             for a in 0..p {
                 r[a] += basis[a] * s;

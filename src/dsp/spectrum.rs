@@ -60,12 +60,14 @@ impl Spectrum {
         buf.extend_from_slice(signal);
         let pad = n_fft - len;
         if pad > 0 && len > 0 {
-            // Half-cosine blend from the last sample to the first.
+            // Half-cosine blend from the last sample to the first (cos by
+            // rotation: this pad can be 10^5 samples long).
             let (a, b) = (signal[len - 1], signal[0]);
-            for k in 0..pad {
-                let u = (k + 1) as f64 / (pad + 1) as f64;
-                let w = 0.5 * (1.0 - (std::f64::consts::PI * u).cos());
-                buf.push(a + (b - a) * w);
+            let (sd, cd) = (std::f64::consts::PI / (pad + 1) as f64).sin_cos();
+            let (mut sn, mut cs) = (sd, cd);
+            for _ in 0..pad {
+                buf.push(a + (b - a) * 0.5 * (1.0 - cs));
+                (sn, cs) = (sn * cd + cs * sd, cs * cd - sn * sd);
             }
         } else {
             buf.resize(n_fft, 0.0);
@@ -160,7 +162,13 @@ impl Spectrum {
         }
         // Median of |X|^2 (robust to stray tones); for complex Gaussian bins
         // the median of |X|^2 is ln 2 times the mean. E|X|^2 = len sigma^2.
-        let mut p: Vec<f64> = self.bins[k0..=k1].iter().map(|c| c.norm_sqr()).collect();
+        // At most ~32k bins (a stride through the band) are plenty for a median.
+        let stride = ((k1 - k0 + 1) / 32_768).max(1);
+        let mut p: Vec<f64> = self.bins[k0..=k1]
+            .iter()
+            .step_by(stride)
+            .map(|c| c.norm_sqr())
+            .collect();
         let mid = p.len() / 2;
         let (_, med, _) = p.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
         let mean = *med / std::f64::consts::LN_2;

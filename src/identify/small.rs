@@ -31,20 +31,23 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     let sm = Spectrum::with_planner(&pre.microphone_v, fs, 64, &mut planner);
     let fmax = lp.pass_hz.min(0.45 * fs);
     let tf = dsp::transfer_function(&sm, &sx, sx.df_hz(), fmax);
-    // Where the stimulus has energy: the drive when recorded, else the microphone.
-    let exc_power: Vec<f64> = match &pre.drive_v {
-        Some(d) => {
-            let sd = Spectrum::with_planner(d, fs, 64, &mut planner);
-            sd.bins[1..=tf.freq_hz.len()]
-                .iter()
-                .map(|c| c.norm_sqr())
-                .collect()
+    // Where the stimulus has energy: the frequency range of the drive's periods
+    // when the drive is recorded, else where the microphone has power.
+    let drive_band = pre.drive_v.as_ref().and_then(|d| {
+        let peak = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let marks = dsp::period_marks(d, 0.05 * peak);
+        let f = marks.windows(2).map(|w| fs / (w[1] - w[0]));
+        let (lo, hi) = f.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+        (marks.len() > 10 && hi > lo).then_some((lo, hi))
+    });
+    let excited: Vec<bool> = match drive_band {
+        Some((lo, hi)) => tf.freq_hz.iter().map(|f| *f >= lo && *f <= hi).collect(),
+        None => {
+            let smooth = smooth_mean(&tf.input_power, (1.0 / sx.df_hz()).round() as usize);
+            let pmax = smooth.iter().cloned().fold(0.0, f64::max);
+            smooth.iter().map(|&p| p > 1e-2 * pmax).collect()
         }
-        None => tf.input_power.clone(),
     };
-    let smooth = smooth_mean(&exc_power, (1.0 / sx.df_hz()).round() as usize);
-    let pmax = smooth.iter().cloned().fold(0.0, f64::max);
-    let excited: Vec<bool> = smooth.iter().map(|&p| p > 1e-2 * pmax).collect();
     // Coarse resonance: peak of |H| (1 Hz smoothed) over the excited band.
     let hs: Vec<f64> = tf.h.iter().map(|h| h.norm()).collect();
     let hs = smooth_mean(&hs, (1.0 / sx.df_hz()).round() as usize);

@@ -23,6 +23,8 @@ pub struct KFit {
     /// Residual force (N) over the span, and RMS of m x''.
     pub residual_n: Vec<f64>,
     pub rms_ma_n: f64,
+    /// RMS of the fitted target (m x'', without its fundamental for One Signal).
+    pub rms_target_n: f64,
     /// BIC per order tried (order, bic), when chosen from the data.
     pub bic: Vec<(usize, f64)>,
 }
@@ -78,9 +80,10 @@ fn design(
             .map(|m| m - s0 as f64)
             .filter(|m| *m >= -1.0 && *m <= (s1 - s0) as f64 + 1.0)
             .collect();
-        y = dsp::harmonics::remove_fundamental_per_period(&y, &marks);
+        let rm = dsp::harmonics::FundamentalRemover::new(s1 - s0, &marks);
+        y = rm.apply(&y);
         for c in cols.iter_mut() {
-            *c = dsp::harmonics::remove_fundamental_per_period(c, &marks);
+            *c = rm.apply(c);
         }
     }
     (y, cols)
@@ -119,6 +122,7 @@ fn fit_order(
         scale_n_per_v: two.then(|| (r.coefficients[0], r.standard_errors[0])),
         residual_n: r.residual,
         rms_ma_n,
+        rms_target_n: (y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt(),
         bic: Vec::new(),
     })
 }
@@ -152,7 +156,10 @@ pub fn fit(
     let d = design(p, method, span, MAX_AUTO_ORDER, xs);
     for ord in 1..=MAX_AUTO_ORDER {
         let f = fit_order(p, method, span, ord, xs, &d)?;
-        let rss: f64 = f.residual_n.iter().map(|e| e * e).sum();
+        // Residuals below 1e-5 of the target are numerical (float32 recordings,
+        // band limiting), not structure that more terms should chase.
+        let rss: f64 =
+            f.residual_n.iter().map(|e| e * e).sum::<f64>() + n * (1e-5 * f.rms_target_n).powi(2);
         let params = (ord + 1 + 1 + usize::from(method == Method::TwoSignal)) as f64;
         let b = n_eff * (rss / n).max(f64::MIN_POSITIVE).ln() + params * n_eff.ln();
         bic.push((ord, b));
