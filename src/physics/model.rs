@@ -223,6 +223,8 @@ pub struct Model {
     inv_mmd: f64,
     inv_re: f64,
     inv_le: f64,
+    /// CAB / tau_leak = V0 / (gamma p0 tau_leak) (m^3 / (Pa s)).
+    leak_cab_per_tau: f64,
     /// Any force effect present (skip their evaluation otherwise).
     any_force_effect: bool,
 }
@@ -266,6 +268,11 @@ impl Model {
             } else {
                 0.0
             },
+            leak_cab_per_tau: if bx.leak_tau_s.is_finite() {
+                bx.volume_m3 / (bx.gamma * bx.p0_pa * bx.leak_tau_s)
+            } else {
+                0.0
+            },
             inv_m: 1.0 / part.moving_mass_kg,
             inv_mmd: 1.0 / ex.mmd_kg,
             inv_re: 1.0 / ex.re_ohm,
@@ -277,6 +284,17 @@ impl Model {
     /// K(x) (N/m).
     #[inline]
     pub fn stiffness(&self, x: f64) -> f64 {
+        if self.k_len <= 8 {
+            // Estrin's scheme on the zero-padded coefficients: a dependency
+            // chain of 3 multiply-adds instead of 8 (this sits on the RK4
+            // critical path four times per sample).
+            let k = &self.k;
+            let x2 = x * x;
+            let x4 = x2 * x2;
+            let b0 = (k[0] + k[1] * x) + (k[2] + k[3] * x) * x2;
+            let b1 = (k[4] + k[5] * x) + (k[6] + k[7] * x) * x2;
+            return b0 + b1 * x4;
+        }
         let mut acc = 0.0;
         for &c in self.k[..self.k_len].iter().rev() {
             acc = acc * x + c;
@@ -348,9 +366,7 @@ impl Model {
             // start; the leak carries air of the box's density out at p/RAL:
             // mu'/mu = -p CAB / (tau V).
             let vol = self.bx.volume_m3 - ex.sd_m2 * xd + self.ss * x;
-            -self.bx.gamma * (self.bx.p0_pa + p) / vol
-                * (dvol
-                    + p * self.inv_tau_leak * self.bx.volume_m3 / (self.bx.gamma * self.bx.p0_pa))
+            -self.bx.gamma * (self.bx.p0_pa + p) / vol * (dvol + p * self.leak_cab_per_tau)
         } else {
             -self.kbox * dvol - p * self.inv_tau_leak
         };
