@@ -178,7 +178,7 @@ fn noise_free_polynomial_spring_is_recovered_exactly() {
 }
 
 #[test]
-#[ignore = "One Signal on noise-free data: 0.56 % RMS with drive marks, 0.08 % without; conditioning of the harmonic-balance fit under investigation"]
+#[ignore = "One Signal on noise-free data is 0.56 % RMS off with drive marks (0.08 % without): a systematic error of the harmonic-balance formulation, not conditioning (QR gives the same); not yet explained"]
 fn one_signal_is_exact_when_the_force_has_no_harmonics() {
     let opts = AnalyzeOptions {
         method: Method::OneSignal,

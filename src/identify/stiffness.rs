@@ -96,20 +96,25 @@ fn fit_order(
     order: usize,
     xs: f64,
     (y, cols): &(Vec<f64>, Vec<Vec<f64>>),
+    nl: &dsp::lstsq::NestedLstsq,
 ) -> Result<KFit, AnalyzeError> {
     let two = method == Method::TwoSignal;
     let off = usize::from(two);
-    let refs: Vec<&[f64]> = cols[..off + 2 + order]
-        .iter()
-        .map(|c| c.as_slice())
-        .collect();
-    let r = dsp::lstsq(&refs, y)
+    let np = off + 2 + order;
+    let (coef, se) = nl
+        .solve(np)
         .map_err(|e| AnalyzeError::Invalid(format!("stiffness fit failed: {e}")))?;
+    let mut residual = y.clone();
+    for (c, col) in coef.iter().zip(&cols[..np]) {
+        for (r, a) in residual.iter_mut().zip(col) {
+            *r -= c * a;
+        }
+    }
     let k: Vec<f64> = (0..=order)
-        .map(|i| -r.coefficients[off + 1 + i] / xs.powi(i as i32))
+        .map(|i| -coef[off + 1 + i] / xs.powi(i as i32))
         .collect();
     let k_se: Vec<f64> = (0..=order)
-        .map(|i| r.standard_errors[off + 1 + i] / xs.powi(i as i32))
+        .map(|i| se[off + 1 + i] / xs.powi(i as i32))
         .collect();
     // Relative figures always against the full m x'' (not the projected one).
     let rms_ma_n = p.mass_kg
@@ -118,13 +123,19 @@ fn fit_order(
         order,
         k,
         k_se,
-        r_ns_per_m: -r.coefficients[off],
-        scale_n_per_v: two.then(|| (r.coefficients[0], r.standard_errors[0])),
-        residual_n: r.residual,
+        r_ns_per_m: -coef[off],
+        scale_n_per_v: two.then(|| (coef[0], se[0])),
+        residual_n: residual,
         rms_ma_n,
         rms_target_n: (y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64).sqrt(),
         bic: Vec::new(),
     })
+}
+
+fn nested(d: &(Vec<f64>, Vec<Vec<f64>>)) -> Result<dsp::lstsq::NestedLstsq, AnalyzeError> {
+    let refs: Vec<&[f64]> = d.1.iter().map(|c| c.as_slice()).collect();
+    dsp::lstsq::NestedLstsq::new(&refs, &d.0)
+        .map_err(|e| AnalyzeError::Invalid(format!("stiffness fit failed: {e}")))
 }
 
 /// Fits K(x) over `span`; the order is `order` or chosen by the Bayesian
@@ -147,15 +158,17 @@ pub fn fit(
             )));
         }
         let d = design(p, method, span, n, xs);
-        return fit_order(p, method, span, n, xs, &d);
+        let nl = nested(&d)?;
+        return fit_order(p, method, span, n, xs, &d, &nl);
     }
     let n = (span.1 - span.0) as f64;
     let n_eff = (n * 2.0 * p.lowpass.stop_hz / p.fs_hz).min(n);
     let mut best: Option<(f64, KFit)> = None;
     let mut bic = Vec::new();
     let d = design(p, method, span, MAX_AUTO_ORDER, xs);
+    let nl = nested(&d)?;
     for ord in 1..=MAX_AUTO_ORDER {
-        let f = fit_order(p, method, span, ord, xs, &d)?;
+        let f = fit_order(p, method, span, ord, xs, &d, &nl)?;
         // Residuals below 1e-5 of the target are numerical (float32 recordings,
         // band limiting), not structure that more terms should chase.
         let rss: f64 =
