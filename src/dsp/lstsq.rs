@@ -280,10 +280,8 @@ mod tests {
         }
         let full = lstsq(&refs[..4], &y).unwrap();
         let (c, _) = nl.solve(4).unwrap();
-        for j in 0..4 {
-            assert!(
-                (c[j] - full.coefficients[j]).abs() <= 1e-7 * full.coefficients[j].abs().max(1.0)
-            );
+        for (a, b) in c.iter().zip(&full.coefficients) {
+            assert!((a - b).abs() <= 1e-7 * b.abs().max(1.0));
         }
     }
 
