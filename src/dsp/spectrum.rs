@@ -8,6 +8,22 @@
 
 use realfft::num_complex::Complex64;
 use realfft::RealFftPlanner;
+use std::cell::RefCell;
+
+thread_local! {
+    /// FFT plans of this thread: planning a 2^20 FFT (twiddles) costs about as
+    /// much as running it, and `analyze` is called repeatedly on records of the
+    /// same sizes (daemon, benchmark).
+    static PLANNER: RefCell<RealFftPlanner<f64>> = RefCell::new(RealFftPlanner::new());
+    /// Reused scratch and input buffers of the FFTs (multi-megabyte buffers
+    /// allocated afresh cost page faults on every call).
+    static SCRATCH: RefCell<(Vec<f64>, Vec<Complex64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// Runs `f` with this thread's cached FFT planner (plans are kept between calls).
+pub fn with_thread_planner<R>(f: impl FnOnce(&mut RealFftPlanner<f64>) -> R) -> R {
+    PLANNER.with(|p| f(&mut p.borrow_mut()))
+}
 
 /// Smooth low-pass: 1 up to `pass_hz`, raised-cosine to 0 at `stop_hz`, 0 above.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,26 +72,30 @@ impl Spectrum {
     ) -> Spectrum {
         let len = signal.len();
         let n_fft = (len + min_pad).max(2).next_power_of_two();
-        let mut buf = Vec::with_capacity(n_fft);
-        buf.extend_from_slice(signal);
-        let pad = n_fft - len;
-        if pad > 0 && len > 0 {
-            // Half-cosine blend from the last sample to the first (cos by
-            // rotation: this pad can be 10^5 samples long).
-            let (a, b) = (signal[len - 1], signal[0]);
-            let (sd, cd) = (std::f64::consts::PI / (pad + 1) as f64).sin_cos();
-            let (mut sn, mut cs) = (sd, cd);
-            for _ in 0..pad {
-                buf.push(a + (b - a) * 0.5 * (1.0 - cs));
-                (sn, cs) = (sn * cd + cs * sd, cs * cd - sn * sd);
-            }
-        } else {
-            buf.resize(n_fft, 0.0);
-        }
         let fft = planner.plan_fft_forward(n_fft);
         let mut bins = fft.make_output_vec();
-        fft.process(&mut buf, &mut bins)
-            .expect("buffer sizes come from the plan");
+        SCRATCH.with(|sc| {
+            let (buf, scratch) = &mut *sc.borrow_mut();
+            buf.clear();
+            buf.extend_from_slice(signal);
+            let pad = n_fft - len;
+            if pad > 0 && len > 0 {
+                // Half-cosine blend from the last sample to the first (cos by
+                // rotation: this pad can be 10^5 samples long).
+                let (a, b) = (signal[len - 1], signal[0]);
+                let (sd, cd) = (std::f64::consts::PI / (pad + 1) as f64).sin_cos();
+                let (mut sn, mut cs) = (sd, cd);
+                for _ in 0..pad {
+                    buf.push(a + (b - a) * 0.5 * (1.0 - cs));
+                    (sn, cs) = (sn * cd + cs * sd, cs * cd - sn * sd);
+                }
+            } else {
+                buf.resize(n_fft, 0.0);
+            }
+            scratch.resize(fft.get_scratch_len(), Complex64::new(0.0, 0.0));
+            fft.process_with_scratch(buf, &mut bins, scratch)
+                .expect("buffer sizes come from the plan");
+        });
         Spectrum {
             sample_rate_hz,
             len,
@@ -145,8 +165,12 @@ impl Spectrum {
         spec[0].im = 0.0;
         spec[m / 2] = Complex64::new(0.0, 0.0);
         let mut out = inv.make_output_vec();
-        inv.process(&mut spec, &mut out)
-            .expect("buffer sizes come from the plan");
+        SCRATCH.with(|sc| {
+            let scratch = &mut sc.borrow_mut().1;
+            scratch.resize(inv.get_scratch_len(), Complex64::new(0.0, 0.0));
+            inv.process_with_scratch(&mut spec, &mut out, scratch)
+                .expect("buffer sizes come from the plan");
+        });
         out.truncate(self.len.div_ceil(decim));
         out
     }

@@ -4,7 +4,6 @@
 use super::AnalyzeError;
 use crate::dsp::{self, LowPass, PeriodHarmonics, Spectrum};
 use crate::recording::{RecordingSet, Signals};
-use realfft::RealFftPlanner;
 
 /// Harmonics tracked per period (fundamental first).
 pub const N_HARM: usize = 5;
@@ -133,14 +132,16 @@ pub fn prepare(set: &RecordingSet) -> Result<Prepared, AnalyzeError> {
     check_signals(main, "main", 0.5)?;
     let fs = main.sample_rate_hz;
     let lowpass = lowpass_for(fs);
-    let mut planner = RealFftPlanner::<f64>::new();
-    let sx = Spectrum::with_planner(&main.displacement_m, fs, 64, &mut planner);
-    let sm = Spectrum::with_planner(&main.microphone_v, fs, 64, &mut planner);
-    let decim = sx.max_decimation(lowpass.stop_hz);
-    let x = sx.derivative(lowpass, 0, decim, &mut planner);
-    let v = sx.derivative(lowpass, 1, decim, &mut planner);
-    let a = sx.derivative(lowpass, 2, decim, &mut planner);
-    let mic = sm.derivative(lowpass, 0, decim, &mut planner);
+    let (sx, sm, decim, x, v, a, mic) = dsp::spectrum::with_thread_planner(|planner| {
+        let sx = Spectrum::with_planner(&main.displacement_m, fs, 64, planner);
+        let sm = Spectrum::with_planner(&main.microphone_v, fs, 64, planner);
+        let decim = sx.max_decimation(lowpass.stop_hz);
+        let x = sx.derivative(lowpass, 0, decim, planner);
+        let v = sx.derivative(lowpass, 1, decim, planner);
+        let a = sx.derivative(lowpass, 2, decim, planner);
+        let mic = sm.derivative(lowpass, 0, decim, planner);
+        (sx, sm, decim, x, v, a, mic)
+    });
     let fs_d = fs / decim as f64;
 
     let mk = marks(main, &x, decim);

@@ -7,7 +7,6 @@ use super::prep::{check_signals, lowpass_for};
 use super::{AnalyzeError, SmallSignal};
 use crate::dsp::{self, Complex64, Spectrum};
 use crate::recording::Signals;
-use realfft::RealFftPlanner;
 use std::f64::consts::PI;
 
 /// Misfit (%) above which the pre-measurement is not taken as a linear resonator.
@@ -26,9 +25,12 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check_signals(pre, "pre", 1.0)?;
     let fs = pre.sample_rate_hz;
     let lp = lowpass_for(fs);
-    let mut planner = RealFftPlanner::<f64>::new();
-    let sx = Spectrum::with_planner(&pre.displacement_m, fs, 64, &mut planner);
-    let sm = Spectrum::with_planner(&pre.microphone_v, fs, 64, &mut planner);
+    let (sx, sm) = dsp::spectrum::with_thread_planner(|planner| {
+        (
+            Spectrum::with_planner(&pre.displacement_m, fs, 64, planner),
+            Spectrum::with_planner(&pre.microphone_v, fs, 64, planner),
+        )
+    });
     let fmax = lp.pass_hz.min(0.45 * fs);
     let tf = dsp::transfer_function(&sm, &sx, sx.df_hz(), fmax);
     // Where the stimulus has energy: the frequency range of the drive's periods
