@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{client, problem, terminal, wait_job, Daemon};
+use common::{client, get_bytes, get_text, problem, terminal, wait_job, Daemon};
 use futures_util::StreamExt;
 use serde_json::{json, Value};
 use std::time::Duration;
@@ -27,14 +27,7 @@ async fn health_ready_metrics_and_unknown_routes() {
     let r: Value = r.json().await.unwrap();
     assert_eq!(r["benches"][0]["id"], "virtual-1");
     assert_eq!(r["benches"][0]["state"], "idle");
-    let m = c
-        .get(d.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = get_text(&c, &d, "/metrics").await;
     assert!(m.contains("springbench_jobs{state=\"queued\"} 0"), "{m}");
     assert!(
         m.contains(
@@ -323,14 +316,7 @@ async fn impossible_job_fails_with_a_problem_and_events() {
     )
     .await;
     assert_eq!(p["state"], "failed");
-    let m = c
-        .get(d.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = get_text(&c, &d, "/metrics").await;
     assert!(m.contains("springbench_jobs{state=\"failed\"} 1"), "{m}");
 }
 
@@ -510,14 +496,12 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
     assert_eq!(doc["measurement"]["source"], "import");
     assert_eq!(doc["measurement"]["part_serial"], "REF-P1");
     // The stored recording reads back with the same samples (float32 as sent).
-    let wav = c
-        .get(d.url(&format!("/api/v1/measurements/{id}/recordings/main.wav")))
-        .send()
-        .await
-        .unwrap()
-        .bytes()
-        .await
-        .unwrap();
+    let wav = get_bytes(
+        &c,
+        &d,
+        &format!("/api/v1/measurements/{id}/recordings/main.wav"),
+    )
+    .await;
     let set = springbench::recording::RecordingSet::read_dir(&dir).unwrap();
     let meta_std = springbench::recording::Meta::standard(0.05, 48000.0);
     let back =

@@ -4,30 +4,10 @@
 
 mod common;
 
-use common::{client, problem, terminal, wait_job, Daemon};
+use common::{client, get, get_bytes, problem, submit, terminal, wait_job, Daemon};
 use futures_util::StreamExt;
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
-
-async fn submit(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
-    let r = c
-        .post(d.url("/api/v1/jobs"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 202);
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
-async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
-    let r = c.get(d.url(path)).send().await.unwrap();
-    assert_eq!(r.status().as_u16(), 200, "{path}");
-    r.json().await.unwrap()
-}
 
 /// RMS of K_fit(x) - K_true(x) over the valid range, relative to RMS K_true (%).
 fn k_rms_error_percent(fit: &[f64], truth: &[f64], range: [f64; 2]) -> f64 {
@@ -114,14 +94,12 @@ async fn job_reports_progress_live_samples_and_stores_the_recordings() {
     assert_eq!(m["measurement"]["target_xpeak_m"], 0.008);
     // Raw recordings are kept: the main sweep reads back as float32 WAV.
     for (file, min_s) in [("pre.wav", 5.0), ("main.wav", 3.0)] {
-        let wav = c
-            .get(d.url(&format!("/api/v1/measurements/{mid}/recordings/{file}")))
-            .send()
-            .await
-            .unwrap()
-            .bytes()
-            .await
-            .unwrap();
+        let wav = get_bytes(
+            &c,
+            &d,
+            &format!("/api/v1/measurements/{mid}/recordings/{file}"),
+        )
+        .await;
         let meta = springbench::recording::Meta::standard(0.05, 48000.0);
         let s =
             springbench::recording::read_signals(std::io::Cursor::new(&wav[..]), &meta).unwrap();
@@ -219,14 +197,12 @@ async fn kill_9_mid_job_then_restart_gives_interrupted_and_keeps_earlier_results
     assert_eq!(j1["state"], "succeeded", "{j1}");
     let mid = j1["measurement_ids"][0].as_str().unwrap().to_string();
     let before = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
-    let wav_before = c
-        .get(d.url(&format!("/api/v1/measurements/{mid}/recordings/main.wav")))
-        .send()
-        .await
-        .unwrap()
-        .bytes()
-        .await
-        .unwrap();
+    let wav_before = get_bytes(
+        &c,
+        &d,
+        &format!("/api/v1/measurements/{mid}/recordings/main.wav"),
+    )
+    .await;
 
     let second = submit(&c, &d, json!({"part": {"serial": "SN-K9"}, "repeats": 10})).await;
     let j2 = wait_job(&c, &d, &second, Duration::from_secs(60), |s| s != "queued").await;

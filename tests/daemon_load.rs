@@ -26,17 +26,12 @@ async fn two_hundred_clients_poll_while_jobs_run() {
     let c = common::client();
     // One finished measurement so the listing has rows.
     let submit = |c: reqwest::Client, d: Arc<Daemon>, repeats: u32| async move {
-        let r = c
-            .post(d.url("/api/v1/jobs"))
-            .json(&json!({"part": {"serial": "SN-LOAD"}, "repeats": repeats}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 202);
-        r.json::<Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_string()
+        common::submit(
+            &c,
+            &d,
+            json!({"part": {"serial": "SN-LOAD"}, "repeats": repeats}),
+        )
+        .await
     };
     let first = submit(c.clone(), d.clone(), 1).await;
     let j = wait_job(&c, &d, &first, Duration::from_secs(120), terminal).await;

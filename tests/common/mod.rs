@@ -172,3 +172,48 @@ pub fn reference_dir(name: &str) -> PathBuf {
         .join("../shared/data/reference-recordings")
         .join(name)
 }
+
+/// Submits a job and returns its id (asserts 202 Accepted).
+pub async fn submit(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+/// GET a JSON document (asserts 200).
+pub async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
+    let r = c.get(d.url(path)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200, "{path}");
+    r.json().await.unwrap()
+}
+
+/// GET the raw body (WAV, SVG).
+pub async fn get_bytes(c: &reqwest::Client, d: &Daemon, path: &str) -> Vec<u8> {
+    c.get(d.url(path))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap()
+        .to_vec()
+}
+
+/// GET the body as text (Prometheus metrics).
+pub async fn get_text(c: &reqwest::Client, d: &Daemon, path: &str) -> String {
+    c.get(d.url(path))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap()
+}
