@@ -43,8 +43,7 @@ pub enum DiagnoseError {
 /// the forced ones) and `diagnostics` filled.
 pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     let mut warnings = Vec::new();
-    let mut report = crate::identify::analyze(set, &opts.analyze)?;
-    let data = crate::identify::force_balance_data(set, &opts.analyze)?;
+    let (mut report, data) = crate::identify::analyze_with_force_balance(set, &opts.analyze)?;
     let engine_opts = engine::EngineOptions {
         order: opts.analyze.order,
         forced: opts.effects.clone(),

@@ -135,6 +135,25 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
     let p = prep::prepare(set)?;
+    analyze_prepared(set, &p, opts)
+}
+
+/// [`analyze`] and [`force_balance_data`] from one preparation of the main
+/// sweep (the diagnostics need both; preparing twice doubled their cost).
+pub fn analyze_with_force_balance(
+    set: &RecordingSet,
+    opts: &AnalyzeOptions,
+) -> Result<(Report, ForceBalanceData), AnalyzeError> {
+    let p = prep::prepare(set)?;
+    let report = analyze_prepared(set, &p, opts)?;
+    Ok((report, force_balance_of(&p)))
+}
+
+fn analyze_prepared(
+    set: &RecordingSet,
+    p: &prep::Prepared,
+    opts: &AnalyzeOptions,
+) -> Result<Report, AnalyzeError> {
     let mut warnings = Vec::new();
 
     let small_signal = match small::fit(&set.pre, p.mass_kg) {
@@ -147,7 +166,7 @@ pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, Anal
 
     // Large signal at the resonance period.
     let ri = p.res_index;
-    let fr = interp_freq(&p, p.res_pos);
+    let fr = interp_freq(p, p.res_pos);
     let keff = (2.0 * std::f64::consts::PI * fr).powi(2) * p.mass_kg;
     let (x_min, x_max) = extremes(&p.x[p.span.0..p.span.1]);
     let large_signal = LargeSignal {
@@ -165,7 +184,7 @@ pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, Anal
     let span = match opts.method {
         Method::TwoSignal => p.span,
         Method::OneSignal => {
-            let (_, variation) = one_signal_span(&p);
+            let (_, variation) = one_signal_span(p);
             if variation > ONE_SIGNAL_MIC_VARIATION_LIMIT {
                 warnings.push(format!(
                     "one-signal assumption fails: the microphone's fundamental varies by {:.0} % (> {:.0} %) around the resonance, so the driving force is not constant; use two-signal",
@@ -176,7 +195,7 @@ pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, Anal
             p.span
         }
     };
-    let kf = stiffness::fit(&p, opts.method, span, opts.order)?;
+    let kf = stiffness::fit(p, opts.method, span, opts.order)?;
     if opts.order.is_none() && kf.order == MAX_AUTO_ORDER {
         warnings.push(format!(
             "stiffness order reached the automatic limit {MAX_AUTO_ORDER}: the polynomial may not describe K(x) well"
@@ -251,14 +270,16 @@ pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, Anal
 /// differentiation, alignment, analysed span). Shared by `analyze` and `diagnose`.
 pub fn force_balance_data(
     set: &RecordingSet,
-    opts: &AnalyzeOptions,
+    _opts: &AnalyzeOptions,
 ) -> Result<ForceBalanceData, AnalyzeError> {
     let p = prep::prepare(set)?;
-    let (s0, s1) = match opts.method {
-        Method::TwoSignal => p.span,
-        Method::OneSignal => p.span,
-    };
-    Ok(ForceBalanceData {
+    Ok(force_balance_of(&p))
+}
+
+/// The analysed span of a prepared main sweep (the same for both methods).
+fn force_balance_of(p: &prep::Prepared) -> ForceBalanceData {
+    let (s0, s1) = p.span;
+    ForceBalanceData {
         sample_rate_hz: p.fs_hz,
         t0_s: s0 as f64 / p.fs_hz,
         mass_kg: p.mass_kg,
@@ -268,7 +289,7 @@ pub fn force_balance_data(
         mic_v: p.mic[s0..s1].to_vec(),
         laser_noise_m: p.noise_x_m,
         mic_noise_v: p.noise_mic_v,
-    })
+    }
 }
 
 /// Frequency (Hz) at a fractional period index.
