@@ -126,7 +126,9 @@ async fn virtual_job_recovers_the_mounted_parts_stiffness() {
     let mid = j["measurement_ids"][0].as_str().unwrap();
     let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
     assert!(m["measurement"]["analysis_error"].is_null(), "{m}");
-    let fit: Vec<f64> = serde_json::from_value(m["stiffness"]["coefficients"].clone()).unwrap();
+    let fit: Vec<f64> =
+        serde_json::from_value(m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone())
+            .unwrap();
     let range: [f64; 2] = serde_json::from_value(m["stiffness"]["valid_range_m"].clone()).unwrap();
     let truth = springbench::physics::preset(springbench::config::DEFAULT_PRESET)
         .unwrap()
@@ -351,7 +353,9 @@ async fn level_series_repeats_mounted_parts_and_priority() {
     // The job's own part: its k0 and mass come back.
     let mid = done[1]["measurement_ids"][0].as_str().unwrap();
     let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
-    let k0 = m["stiffness"]["coefficients"][0].as_f64().unwrap();
+    let k0 = m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"][0]
+        .as_f64()
+        .unwrap();
     assert!((k0 - 1500.0).abs() < 0.01 * 1500.0, "k0 {k0}");
     assert_eq!(m["large_signal"]["moving_mass_kg"], 0.03);
     // The preset's mass was taken as the moving mass.

@@ -16,7 +16,7 @@ fn run(case: &str) -> Option<springbench::diagnose::Diagnosis> {
             .report
             .small_signal
             .as_ref()
-            .is_some_and(|s| s.area_per_mic_unit_m2_per_v.is_some());
+            .is_some_and(|s| s.force_per_mic_v_n_per_v.is_some());
         if *name == "small_signal" && !has_fit {
             continue;
         }

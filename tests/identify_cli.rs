@@ -43,7 +43,9 @@ fn json_and_table_on_a_good_set() {
     let (code, stdout, stderr) = analyze(&p1(), &["--json"]);
     assert_eq!(code, 0, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
-    let k0 = v["stiffness"]["coefficients"][0].as_f64().unwrap();
+    let k0 = v["stiffness"]["coefficients_n_per_m_pow_i_plus_1"][0]
+        .as_f64()
+        .unwrap();
     assert!((k0 / 2400.0 - 1.0).abs() < 0.005, "{k0}");
     assert_eq!(v["stiffness"]["method"], "two-signal");
     for f in ["f0_hz", "k0_n_per_m", "r_ns_per_m", "q"] {

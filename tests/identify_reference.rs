@@ -45,7 +45,7 @@ fn k_errors(r: &Report, t: &Truth) -> (f64, f64) {
     for i in 0..=n {
         let x = lo + (hi - lo) * i as f64 / n as f64;
         let kt = poly(&t.k, x);
-        let e = (poly(&r.stiffness.coefficients, x) - kt) / kt;
+        let e = (poly(&r.stiffness.coefficients_n_per_m_pow_i_plus_1, x) - kt) / kt;
         s2 += e * e;
         mx = mx.max(e.abs());
     }
@@ -118,7 +118,7 @@ fn check_clean_part(case: &str) {
     let a = area_truth(case);
     let s = r.stiffness.force_per_mic_v_n_per_v.unwrap();
     assert!((s / a - 1.0).abs() < 0.01, "{case}: main scale {s} vs {a}");
-    let sa = ss.area_per_mic_unit_m2_per_v.unwrap();
+    let sa = ss.force_per_mic_v_n_per_v.unwrap();
     assert!((sa / a - 1.0).abs() < 0.02, "{case}: pre scale {sa} vs {a}");
     // The residual is sensor noise: noise floor explains it.
     assert!(r.model.model_error_percent < 0.5 * r.model.residual_percent.max(0.1));

@@ -118,9 +118,16 @@ fn k_errors(coef: &[f64], range: [f64; 2]) -> (f64, f64) {
 fn noise_free_polynomial_spring_is_recovered_exactly() {
     let s = set(None, true);
     let r = analyze(&s, &AnalyzeOptions::default()).unwrap();
-    let (rms, mx) = k_errors(&r.stiffness.coefficients, r.stiffness.valid_range_m);
+    let (rms, mx) = k_errors(
+        &r.stiffness.coefficients_n_per_m_pow_i_plus_1,
+        r.stiffness.valid_range_m,
+    );
     assert!(rms < 0.01 && mx < 0.02, "two signal: {rms} % / {mx} %");
-    assert_eq!(r.stiffness.order, 4, "{:?}", r.stiffness.coefficients);
+    assert_eq!(
+        r.stiffness.order, 4,
+        "{:?}",
+        r.stiffness.coefficients_n_per_m_pow_i_plus_1
+    );
     let sc = r.stiffness.force_per_mic_v_n_per_v.unwrap();
     assert!((sc / SCALE - 1.0).abs() < 1e-4, "{sc}");
     assert!(
@@ -153,7 +160,7 @@ fn noise_free_polynomial_spring_is_recovered_exactly() {
     let f0 = (K[0] / M).sqrt() / (2.0 * PI);
     assert!((ss.f0_hz / f0 - 1.0).abs() < 5e-4);
     assert!((ss.q / ((K[0] * M).sqrt() / R) - 1.0).abs() < 5e-3);
-    assert!((ss.area_per_mic_unit_m2_per_v.unwrap() / SCALE - 1.0).abs() < 1e-3);
+    assert!((ss.force_per_mic_v_n_per_v.unwrap() / SCALE - 1.0).abs() < 1e-3);
 
     // Keff = wR^2 m is the stiffness at the resonance: compare with the force
     // balance at the fundamental there, K_eff = Keff(Xpeak) from K(x) by
@@ -188,10 +195,13 @@ fn one_signal_is_exact_when_the_force_has_no_harmonics() {
         // Without the drive channel the periods are found on the displacement.
         let s = set(None, drive);
         let r = analyze(&s, &opts).unwrap();
-        let (rms, mx) = k_errors(&r.stiffness.coefficients, r.stiffness.valid_range_m);
+        let (rms, mx) = k_errors(
+            &r.stiffness.coefficients_n_per_m_pow_i_plus_1,
+            r.stiffness.valid_range_m,
+        );
         eprintln!(
             "drive {drive}: one signal: {rms} % / {mx} % {:?} {:?}",
-            r.stiffness.coefficients, r.stiffness.valid_range_m
+            r.stiffness.coefficients_n_per_m_pow_i_plus_1, r.stiffness.valid_range_m
         );
         assert!(
             rms < 0.05 && mx < 0.1,
@@ -206,7 +216,10 @@ fn sensor_noise_sets_the_floor() {
     // 1 um laser noise, mic noise 2 % of the pre-sweep force.
     let s = set(Some((11, 1e-6, 5e-4)), true);
     let r = analyze(&s, &AnalyzeOptions::default()).unwrap();
-    let (rms, mx) = k_errors(&r.stiffness.coefficients, r.stiffness.valid_range_m);
+    let (rms, mx) = k_errors(
+        &r.stiffness.coefficients_n_per_m_pow_i_plus_1,
+        r.stiffness.valid_range_m,
+    );
     assert!(rms < 0.1 && mx < 0.3, "{rms} % / {mx} %");
     // The residual is explained by the estimated noise within 10 %.
     let m = &r.model;

@@ -39,7 +39,11 @@ fn analyze_recovers_k_of_x_of_every_preset() {
                 .fold(0.0f64, |a, x| a.max(x.abs()));
             // The range must be the measured one (not a sliver of it).
             assert!(range[1] - range[0] > xmax, "{name}: range {range:?}");
-            let e = k_rms_error(&r.stiffness.coefficients, &part.k_coeffs_si, range);
+            let e = k_rms_error(
+                &r.stiffness.coefficients_n_per_m_pow_i_plus_1,
+                &part.k_coeffs_si,
+                range,
+            );
             eprintln!(
                 "{name} seed {seed}: K(x) {:.3} % RMS over [{:.2}, {:.2}] mm (order {}, method {})",
                 e * 100.0,

@@ -88,7 +88,7 @@ pub fn table(r: &Report) -> String {
             s.r_ns_per_m, s.r_se_ns_per_m
         );
         let _ = writeln!(o, "  Q       {:>10.3}            ± {:.3}", s.q, s.q_se);
-        if let Some(a) = s.area_per_mic_unit_m2_per_v {
+        if let Some(a) = s.force_per_mic_v_n_per_v {
             let _ = writeln!(o, "  Ss/mic  {a:>10.5} N/V (m^2 Pa/V)");
         }
         let _ = writeln!(o, "  misfit  {:>10.2} %", s.misfit_percent);
@@ -135,14 +135,20 @@ pub fn table(r: &Report) -> String {
         mm(k.valid_range_m[0]),
         mm(k.valid_range_m[1])
     );
-    for i in 0..k.coefficients.len() {
+    for i in 0..k.coefficients_n_per_m_pow_i_plus_1.len() {
         let _ = writeln!(
             o,
             "  k{i:<2} {:>14.6e} N/m^{:<2} ± {:.2e}   = {:>12.6e} N/mm^{}",
-            k.coefficients[i],
+            k.coefficients_n_per_m_pow_i_plus_1[i],
             i + 1,
-            k.coefficients_se.get(i).copied().unwrap_or(f64::NAN),
-            k.coefficients_n_per_mm.get(i).copied().unwrap_or(f64::NAN),
+            k.coefficients_se_n_per_m_pow_i_plus_1
+                .get(i)
+                .copied()
+                .unwrap_or(f64::NAN),
+            k.coefficients_n_per_mm_pow_i_plus_1
+                .get(i)
+                .copied()
+                .unwrap_or(f64::NAN),
             i + 1
         );
     }
@@ -166,10 +172,14 @@ pub fn table(r: &Report) -> String {
     for i in 0..=n {
         let x =
             k.valid_range_m[0] + (k.valid_range_m[1] - k.valid_range_m[0]) * i as f64 / n as f64;
-        let kx: f64 = k.coefficients.iter().rev().fold(0.0, |a, c| a * x + c);
+        let kx: f64 = k
+            .coefficients_n_per_m_pow_i_plus_1
+            .iter()
+            .rev()
+            .fold(0.0, |a, c| a * x + c);
         // dF/dx = d(K(x) x)/dx = sum (i+1) k_i x^i
         let inc: f64 = k
-            .coefficients
+            .coefficients_n_per_m_pow_i_plus_1
             .iter()
             .enumerate()
             .rev()

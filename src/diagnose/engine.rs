@@ -111,7 +111,7 @@ pub struct FittedModel {
     /// Standard errors of the effect parameters (same names), block-robust.
     pub effects_se: serde_json::Value,
     /// K(x) = sum k_i x^i (N/m, x in m) of this model.
-    pub stiffness_coefficients: Vec<f64>,
+    pub stiffness_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
     pub r_ns_per_m: f64,
     pub force_per_mic_n_per_v: f64,
     pub residual_percent: f64,
@@ -763,7 +763,7 @@ fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<
         effect_ids: built.spec.effects.iter().map(|e| e.0).collect(),
         effects,
         effects_se: serde_json::Value::Object(se_map),
-        stiffness_coefficients: k,
+        stiffness_coefficients_n_per_m_pow_i_plus_1: k,
         r_ns_per_m: r,
         force_per_mic_n_per_v: s,
         residual_percent: pct(p, fit.sse),
@@ -1098,7 +1098,7 @@ impl EngineResult {
                 "parameters": m.effects,
                 "parameters_se": m.effects_se,
                 "order": m.order,
-                "stiffness_coefficients": m.stiffness_coefficients,
+                "stiffness_coefficients_n_per_m_pow_i_plus_1": m.stiffness_coefficients_n_per_m_pow_i_plus_1,
                 "r_ns_per_m": m.r_ns_per_m,
                 "force_per_mic_n_per_v": m.force_per_mic_n_per_v,
                 "residual_percent": m.residual_percent,

@@ -73,7 +73,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
 /// `(Ss/g) / (k0 - w^2 m + j w R)`, magnitude (m/V). None without a fit.
 fn small_signal_comparison(set: &RecordingSet, report: &Report) -> Option<serde_json::Value> {
     let ss = report.small_signal.as_ref()?;
-    let area = ss.area_per_mic_unit_m2_per_v?;
+    let area = ss.force_per_mic_v_n_per_v?;
     let pre = &set.pre;
     if pre.len() < 1024 || pre.validate("pre").is_err() {
         return None;

@@ -24,7 +24,8 @@ pub struct AnalyzeOptions {
 }
 
 /// The result document (same JSON as `springbench analyze --json` and the API).
-/// Field names are fixed by issues 2 and 5; more fields may be added (never renamed).
+/// Field names are fixed by issues 2 and 5, with the unit in every name since
+/// issue 12 (old names are read as aliases); more fields may be added.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Report {
     /// Small-signal fit of the pre-measurement; None when the set has no usable pre sweep.
@@ -51,9 +52,9 @@ pub struct SmallSignal {
     pub k0_se_n_per_m: f64,
     pub r_se_ns_per_m: f64,
     pub q_se: f64,
-    /// Effective area per microphone unit: Sd / mic sensitivity (m^2 per V); None without a mic model.
-    #[serde(default)]
-    pub area_per_mic_unit_m2_per_v: Option<f64>,
+    /// Force per microphone volt A = Sd / mic sensitivity (N/V, i.e. m^2 Pa/V); None without a mic model.
+    #[serde(default, alias = "area_per_mic_unit_m2_per_v")]
+    pub force_per_mic_v_n_per_v: Option<f64>,
     /// Misfit of the linear resonator model against the measured transfer function (%).
     pub misfit_percent: f64,
     /// False when the pre-measurement is not the linear resonator it should be.
@@ -83,11 +84,14 @@ pub struct Stiffness {
     pub method: String,
     pub order: usize,
     /// k_0..k_order in N/m^(i+1).
-    pub coefficients: Vec<f64>,
-    pub coefficients_se: Vec<f64>,
+    #[serde(alias = "coefficients")]
+    pub coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Standard errors of k_0..k_order in N/m^(i+1).
+    #[serde(alias = "coefficients_se")]
+    pub coefficients_se_n_per_m_pow_i_plus_1: Vec<f64>,
     /// Same coefficients in N/mm^(i+1) (x in mm, K in N/mm).
-    #[serde(default)]
-    pub coefficients_n_per_mm: Vec<f64>,
+    #[serde(default, alias = "coefficients_n_per_mm")]
+    pub coefficients_n_per_mm_pow_i_plus_1: Vec<f64>,
     /// The measured range; K(x) is not valid outside it.
     pub valid_range_m: [f64; 2],
     /// x where C(x) first falls to 75 % of C(0), per side; None when not reached inside the range.
@@ -202,7 +206,7 @@ fn analyze_prepared(
         ));
     }
     if let (Some(ss), Some((s, _))) = (&small_signal, kf.scale_n_per_v) {
-        if let Some(a) = ss.area_per_mic_unit_m2_per_v {
+        if let Some(a) = ss.force_per_mic_v_n_per_v {
             if ss.reliable && ((s - a) / a).abs() > 0.1 {
                 warnings.push(format!(
                     "microphone scale differs between pre-measurement ({a:.4} N/V) and main sweep ({s:.4} N/V)"
@@ -219,14 +223,14 @@ fn analyze_prepared(
             Method::OneSignal => "one-signal".into(),
         },
         order: kf.order,
-        coefficients_n_per_mm: kf
+        coefficients_n_per_mm_pow_i_plus_1: kf
             .k
             .iter()
             .enumerate()
             .map(|(i, k)| k * 1e-3f64.powi(i as i32 + 1))
             .collect(),
-        coefficients: kf.k.clone(),
-        coefficients_se: kf.k_se.clone(),
+        coefficients_n_per_m_pow_i_plus_1: kf.k.clone(),
+        coefficients_se_n_per_m_pow_i_plus_1: kf.k_se.clone(),
         valid_range_m: [xlo, xhi],
         xc_m: xc,
         r_ns_per_m: kf.r_ns_per_m,

@@ -164,7 +164,7 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
         k0_se_n_per_m: sk,
         r_se_ns_per_m: sr,
         q_se: q.abs() * ((0.5 * rel_k).powi(2) + (sr / rr).powi(2)).sqrt(),
-        area_per_mic_unit_m2_per_v: Some(aa),
+        force_per_mic_v_n_per_v: Some(aa),
         misfit_percent,
         reliable,
     };
