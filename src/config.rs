@@ -113,6 +113,8 @@ pub struct Config {
     pub auth: Auth,
     pub benches: Vec<BenchConfig>,
     pub defaults: JobDefaults,
+    /// Browser safety and resource bounds of the HTTP server (`[http]`).
+    pub http: HttpConfig,
 }
 
 impl Default for Config {
@@ -131,6 +133,7 @@ impl Default for Config {
                 limits: default_limits(),
             }],
             defaults: JobDefaults::default(),
+            http: HttpConfig::default(),
         }
     }
 }
@@ -190,6 +193,12 @@ impl Config {
         }
         let mut secrets = std::collections::HashSet::new();
         for t in &self.auth.tokens {
+            if is_published_example_token(&t.token) {
+                return Err(format!(
+                    "auth token '{}': this secret is the published example; set your own (e.g. `openssl rand -hex 24`)",
+                    t.name
+                ));
+            }
             if t.token.len() < 16 {
                 return Err(format!(
                     "auth token '{}': the secret must have at least 16 characters",
@@ -210,12 +219,84 @@ impl Config {
         if self.max_upload_bytes == 0 || self.max_json_bytes == 0 {
             return Err("max_upload_bytes and max_json_bytes must be > 0".into());
         }
+        self.http.validate()?;
         Ok(())
     }
 
     /// True when no tokens are configured: the daemon then binds to loopback only.
     pub fn open_access(&self) -> bool {
         self.auth.tokens.is_empty()
+    }
+}
+
+/// Token secrets shown in published examples (`deploy/springbench.toml` of
+/// earlier versions, the docs): the daemon refuses to start with them.
+pub fn is_published_example_token(secret: &str) -> bool {
+    secret.to_ascii_lowercase().contains("change-me")
+}
+
+/// `[http]`: browser safety (Host and Origin checks) and resource bounds.
+/// See docs/http-hardening.md.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HttpConfig {
+    /// Host names (without port) accepted in the `Host` header besides IP
+    /// literals and `localhost` (DNS-rebinding protection), e.g. `["bench-7.lab"]`.
+    pub allowed_hosts: Vec<String>,
+    /// Origins (`scheme://host[:port]`) accepted in an `Origin` header besides
+    /// the daemon's own (the origin named by the request's `Host`).
+    pub allowed_origins: Vec<String>,
+    /// A client must send its request headers within this time (s).
+    pub header_read_timeout_s: f64,
+    /// Longest pause between two pieces of a request body (s).
+    pub body_read_timeout_s: f64,
+    /// Open connections at most; further ones wait in the kernel's backlog.
+    pub max_connections: usize,
+    /// Expensive requests (diagnostics, plots, fits, imports) computed at once;
+    /// further ones wait their turn.
+    pub max_expensive: usize,
+}
+
+impl Default for HttpConfig {
+    fn default() -> Self {
+        HttpConfig {
+            allowed_hosts: vec![],
+            allowed_origins: vec![],
+            header_read_timeout_s: 10.0,
+            body_read_timeout_s: 30.0,
+            max_connections: 4096,
+            max_expensive: 2,
+        }
+    }
+}
+
+impl HttpConfig {
+    fn validate(&self) -> Result<(), String> {
+        for (name, v) in [
+            ("http.header_read_timeout_s", self.header_read_timeout_s),
+            ("http.body_read_timeout_s", self.body_read_timeout_s),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 3600.0) {
+                return Err(format!("{name} must be in (0, 3600] s, got {v}"));
+            }
+        }
+        if self.max_connections < 16 {
+            return Err(format!(
+                "http.max_connections must be at least 16, got {}",
+                self.max_connections
+            ));
+        }
+        if self.max_expensive == 0 {
+            return Err("http.max_expensive must be at least 1".into());
+        }
+        for o in &self.allowed_origins {
+            if !(o.starts_with("http://") || o.starts_with("https://")) || o.ends_with('/') {
+                return Err(format!(
+                    "http.allowed_origins: '{o}' is not an origin (scheme://host[:port], no path)"
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -232,7 +313,10 @@ mod tests {
         let text = include_str!("../deploy/springbench.toml");
         let cfg = Config::parse(text).expect("deploy/springbench.toml is valid");
         assert_eq!(cfg.benches.len(), 1);
-        assert_eq!(cfg.auth.tokens.len(), 3);
+        // Safe as installed: no tokens, so open access on loopback only.
+        assert!(cfg.auth.tokens.is_empty());
+        assert_eq!(cfg.bind, "127.0.0.1:8750");
+        assert_eq!(cfg.http, HttpConfig::default());
         assert_eq!(cfg.benches[0].limits.max_displacement_m, 0.015);
     }
 
@@ -262,6 +346,17 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("boss") || e.contains("role"), "{e}");
+    }
+
+    #[test]
+    fn the_published_example_tokens_are_refused() {
+        let e = Config::parse(
+            "[[auth.tokens]]\nname = \"mes\"\ntoken = \"change-me-viewer-0001\"\nrole = \"viewer\"",
+        )
+        .unwrap_err();
+        assert!(e.contains("published example"), "{e}");
+        let e = Config::parse("[http]\nallowed_origins = [\"mes.lab\"]").unwrap_err();
+        assert!(e.contains("allowed_origins"), "{e}");
     }
 
     #[test]

@@ -36,7 +36,15 @@ async fn health_ready_metrics_and_unknown_routes() {
         "{m}"
     );
     problem(c.get(d.url("/api/v1/nope")).send().await.unwrap(), 404).await;
-    problem(c.delete(d.url("/api/v1/jobs")).send().await.unwrap(), 405).await;
+    problem(
+        c.delete(d.url("/api/v1/jobs"))
+            .header("content-type", "application/json")
+            .send()
+            .await
+            .unwrap(),
+        405,
+    )
+    .await;
     let p = problem(
         c.get(d.url("/api/v1/jobs/does-not-exist"))
             .send()
@@ -53,7 +61,11 @@ async fn health_ready_metrics_and_unknown_routes() {
     .await;
     problem(c.get(d.url("/api/v1/parts/x")).send().await.unwrap(), 404).await;
     problem(
-        c.post(d.url("/api/v1/jobs/x/cancel")).send().await.unwrap(),
+        c.post(d.url("/api/v1/jobs/x/cancel"))
+            .header("content-type", "application/json")
+            .send()
+            .await
+            .unwrap(),
         404,
     )
     .await;
@@ -309,6 +321,7 @@ async fn impossible_job_fails_with_a_problem_and_events() {
 
     let p = problem(
         c.post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
+            .header("content-type", "application/json")
             .send()
             .await
             .unwrap(),
@@ -486,6 +499,7 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
     };
     let r = c
         .post(d.url("/api/v1/measurements"))
+        .bearer_auth("any-value-in-open-access")
         .multipart(form(meta.clone(), pre.clone(), main.clone()))
         .send()
         .await
@@ -536,6 +550,7 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
     // Broken uploads: a WAV that is not one, a missing field, too large.
     let p = problem(
         c.post(d.url("/api/v1/measurements"))
+            .bearer_auth("any-value-in-open-access")
             .multipart(form(meta.clone(), b"RIFF nonsense".to_vec(), main.clone()))
             .send()
             .await
@@ -546,6 +561,7 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
     assert_eq!(p["errors"][0]["field"], "pre");
     let p = problem(
         c.post(d.url("/api/v1/measurements"))
+            .bearer_auth("any-value-in-open-access")
             .multipart(
                 reqwest::multipart::Form::new()
                     .part("meta", reqwest::multipart::Part::bytes(meta.clone()))
@@ -615,6 +631,7 @@ async fn oversize_upload_is_413() {
         .text("serial", "X");
     let r = client()
         .post(d.url("/api/v1/measurements"))
+        .bearer_auth("any-value-in-open-access")
         .multipart(form)
         .send()
         .await
@@ -638,6 +655,7 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
         .text("serial", "REF-P2");
     let r = c
         .post(d.url("/api/v1/measurements"))
+        .bearer_auth("any-value-in-open-access")
         .multipart(form)
         .send()
         .await

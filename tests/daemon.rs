@@ -154,6 +154,7 @@ async fn cancel_queued_and_running_jobs() {
     let b = submit(&c, &d, json!({"part": {"serial": "SN-C2"}})).await;
     let r = c
         .post(d.url(&format!("/api/v1/jobs/{b}/cancel")))
+        .header("content-type", "application/json")
         .send()
         .await
         .unwrap();
@@ -163,6 +164,7 @@ async fn cancel_queued_and_running_jobs() {
     assert_eq!(ja["state"], "running", "{ja}");
     let r = c
         .post(d.url(&format!("/api/v1/jobs/{a}/cancel")))
+        .header("content-type", "application/json")
         .send()
         .await
         .unwrap();
@@ -175,6 +177,7 @@ async fn cancel_queued_and_running_jobs() {
     for id in [&a, &b] {
         problem(
             c.post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
+                .header("content-type", "application/json")
                 .send()
                 .await
                 .unwrap(),

@@ -43,9 +43,10 @@ fn token_from(req: &Request) -> Option<String> {
     }
     if req.uri().path() == "/api/v1/events" {
         let q = req.uri().query()?;
-        for pair in q.split('&') {
-            if let Some(t) = pair.strip_prefix("token=") {
-                return Some(t.to_string());
+        // percent-decoded, as a browser's URLSearchParams encodes it
+        for (k, v) in form_urlencoded::parse(q.as_bytes()) {
+            if k == "token" {
+                return Some(v.into_owned());
             }
         }
     }

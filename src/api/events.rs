@@ -25,12 +25,22 @@ pub async fn events(
     ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> ApiResult<Response> {
     let ws = ws.map_err(|e| {
-        Problem::new(
-            e.status(),
+        // RFC 6455 / 9110: a plain request to a websocket-only resource is 426.
+        let mut p = Problem::new(
+            axum::http::StatusCode::UPGRADE_REQUIRED,
             "websocket-required",
             "Websocket upgrade required",
             format!("{} (connect with a websocket client)", e.body_text()),
-        )
+        );
+        p.headers.push((
+            axum::http::header::UPGRADE,
+            axum::http::HeaderValue::from_static("websocket"),
+        ));
+        p.headers.push((
+            axum::http::header::CONNECTION,
+            axum::http::HeaderValue::from_static("upgrade"),
+        ));
+        p
     })?;
     if let Some(a) = q.after {
         if a < 0 {

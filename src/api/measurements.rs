@@ -387,7 +387,7 @@ pub async fn import(
         }),
         Some(s) if !valid_serial(s) => errors.push(FieldError {
             field: "serial".into(),
-            message: "1-64 characters: letters, digits, '-', '_', '.'".into(),
+            message: crate::runner::job::SERIAL_RULE.into(),
         }),
         _ => {}
     }

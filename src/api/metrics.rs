@@ -89,9 +89,21 @@ impl Metrics {
     }
 }
 
+/// The method label: one of the standard methods, else "other" (labels come
+/// only from a fixed set, so bogus methods cannot grow the tables).
+pub fn method_label(m: &axum::http::Method) -> &'static str {
+    const KNOWN: [&str; 7] = ["GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"];
+    KNOWN
+        .iter()
+        .find(|k| **k == m.as_str())
+        .copied()
+        .unwrap_or("other")
+}
+
 pub async fn track(State(st): State<AppState>, req: Request, next: Next) -> Response {
     let t = Instant::now();
-    let method = req.method().as_str().to_string();
+    let method = method_label(req.method());
+    // The matched route template (a fixed set), never the raw path.
     let route = req
         .extensions()
         .get::<MatchedPath>()
@@ -99,7 +111,7 @@ pub async fn track(State(st): State<AppState>, req: Request, next: Next) -> Resp
         .unwrap_or_else(|| "unmatched".into());
     let resp = next.run(req).await;
     st.metrics.record(
-        &method,
+        method,
         &route,
         resp.status().as_u16(),
         t.elapsed().as_secs_f64(),

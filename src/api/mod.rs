@@ -6,11 +6,13 @@
 
 pub mod auth;
 pub mod events;
+pub mod guard;
 pub mod jobs;
 pub mod measurements;
 pub mod metrics;
 pub mod ops;
 pub mod problem;
+pub mod server;
 
 use crate::config::Config;
 use crate::runner::Runner;
@@ -46,10 +48,21 @@ impl Reg {
     }
 }
 
+fn limited(
+    h: MethodRouter<AppState>,
+    l: &tower::limit::GlobalConcurrencyLimitLayer,
+) -> MethodRouter<AppState> {
+    h.layer(l.clone())
+}
+
 /// The router (without state) and the (method, path) pairs it serves.
 pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static str)>) {
     let json_limit = DefaultBodyLimit::max(cfg.max_json_bytes);
     let upload_limit = DefaultBodyLimit::max(cfg.max_upload_bytes);
+    // Expensive work (diagnostics, plots, fits, imports) shares one queue.
+    let expensive = tower::limit::GlobalConcurrencyLimitLayer::with_semaphore(Arc::new(
+        tokio::sync::Semaphore::new(cfg.http.max_expensive),
+    ));
     let r = Reg {
         router: Router::new(),
         list: vec![],
@@ -74,7 +87,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "post",
         "/api/v1/measurements",
-        post(measurements::import).layer(upload_limit),
+        limited(post(measurements::import).layer(upload_limit), &expensive),
     )
     .add(
         "get",
@@ -89,7 +102,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "post",
         "/api/v1/measurements/{id}/fits",
-        post(measurements::fit).layer(json_limit),
+        limited(post(measurements::fit).layer(json_limit), &expensive),
     )
     .add(
         "get",
@@ -99,12 +112,12 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/measurements/{id}/diagnostics",
-        get(measurements::diagnostics),
+        limited(get(measurements::diagnostics), &expensive),
     )
     .add(
         "get",
         "/api/v1/measurements/{id}/plots/{file}",
-        get(measurements::plot),
+        limited(get(measurements::plot), &expensive),
     )
     .add("get", "/api/v1/events", get(events::events));
     (r.router, r.list)
@@ -113,6 +126,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
 /// The complete application: routes, auth, metrics, problem+json fallbacks.
 pub fn app(state: AppState) -> Router {
     let (router, _) = routes(&state.cfg);
+    let body_timeout = std::time::Duration::from_secs_f64(state.cfg.http.body_read_timeout_s);
     router
         .fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
@@ -120,6 +134,14 @@ pub fn app(state: AppState) -> Router {
             state.clone(),
             auth::require_role,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            guard::browser_safety,
+        ))
+        .layer(tower_http::timeout::RequestBodyTimeoutLayer::new(
+            body_timeout,
+        ))
+        .layer(axum::middleware::from_fn(guard::problem_everywhere))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             metrics::track,

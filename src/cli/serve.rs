@@ -148,13 +148,17 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         metrics: Default::default(),
         shutdown: stop_rx.clone(),
     };
+    let http = state.cfg.http.clone();
+    let (max_conn, fd_note) = api::server::fit_connection_limit(http.max_connections);
     let app = api::app(state);
-    let mut server_stop = stop_rx.clone();
-    let server = axum::serve(listener, app).with_graceful_shutdown(async move {
-        let _ = server_stop.wait_for(|v| *v).await;
+    let server_stop = stop_rx.clone();
+    let server = tokio::spawn(async move {
+        api::server::serve(listener, app, &http, max_conn, server_stop).await
     });
-    let server = tokio::spawn(async move { server.await });
     if let Some(n) = note {
+        eprintln!("springbench: {n}");
+    }
+    if let Some(n) = fd_note {
         eprintln!("springbench: {n}");
     }
     println!("listening on http://{local}");

@@ -81,14 +81,19 @@ const FIELDS: &[&str] = &[
     "limits",
 ];
 
-/// A valid part serial: 1-64 characters of letters, digits, `-`, `_`, `.`
-/// (it appears in URLs, `/api/v1/parts/{serial}`).
+/// A valid part serial: 1-64 characters of letters, digits, `-`, `_`, `.`,
+/// starting with a letter or digit (it appears in URLs,
+/// `/api/v1/parts/{serial}`, where `.` and `..` would be path segments).
 pub fn valid_serial(s: &str) -> bool {
-    !s.is_empty()
-        && s.len() <= 64
+    s.len() <= 64
+        && s.starts_with(|c: char| c.is_ascii_alphanumeric())
         && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
+
+/// The rule of [`valid_serial`] in words (problem documents, CLI).
+pub const SERIAL_RULE: &str =
+    "1-64 characters: letters, digits, '-', '_', '.', starting with a letter or digit";
 
 fn number(v: &Value, field: &str, errors: &mut Vec<FieldError>) -> Option<f64> {
     match v.as_f64() {
@@ -153,10 +158,7 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
                 }
                 Some(Value::String(s)) if valid_serial(s) => Some(s.clone()),
                 Some(_) => {
-                    errors.push(err(
-                        "part.serial",
-                        "1-64 characters: letters, digits, '-', '_', '.'",
-                    ));
+                    errors.push(err("part.serial", SERIAL_RULE));
                     None
                 }
             };

@@ -68,6 +68,16 @@ impl Daemon {
         }
     }
 
+    /// The daemon's process id (memory figures from /proc/PID/status).
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// `127.0.0.1:PORT`, for raw TCP clients.
+    pub fn addr(&self) -> String {
+        self.base.trim_start_matches("http://").to_string()
+    }
+
     pub fn url(&self, path: &str) -> String {
         format!("{}{path}", self.base)
     }
@@ -216,4 +226,60 @@ pub async fn get_text(c: &reqwest::Client, d: &Daemon, path: &str) -> String {
         .text()
         .await
         .unwrap()
+}
+
+/// Resident memory of a process (VmRSS from /proc/PID/status), kB.
+pub fn rss_kb(pid: u32) -> u64 {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("/proc status");
+    s.lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("VmRSS")
+}
+
+/// One raw HTTP/1.1 exchange on a fresh connection: `request` is sent as
+/// is; returns (status, headers as text, body).
+pub fn raw(addr: &str, request: &[u8]) -> (u16, String, Vec<u8>) {
+    use std::io::Write;
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    s.write_all(request).expect("send");
+    let mut r = BufReader::new(s);
+    read_response(&mut r).expect("a response")
+}
+
+/// Reads one HTTP/1.1 response with a Content-Length (or until close).
+pub fn read_response(r: &mut impl BufRead) -> Option<(u16, String, Vec<u8>)> {
+    let mut status_line = String::new();
+    if r.read_line(&mut status_line).ok()? == 0 {
+        return None;
+    }
+    let status: u16 = status_line.split_whitespace().nth(1)?.parse().ok()?;
+    let mut headers = String::new();
+    let mut len: Option<usize> = None;
+    loop {
+        let mut l = String::new();
+        r.read_line(&mut l).ok()?;
+        if l == "\r\n" || l.is_empty() {
+            break;
+        }
+        if let Some((k, v)) = l.split_once(':') {
+            if k.eq_ignore_ascii_case("content-length") {
+                len = v.trim().parse().ok();
+            }
+        }
+        headers.push_str(&l);
+    }
+    let mut body = vec![];
+    match len {
+        Some(n) => {
+            body.resize(n, 0);
+            std::io::Read::read_exact(r, &mut body).ok()?;
+        }
+        None => {
+            let _ = std::io::Read::read_to_end(r, &mut body);
+        }
+    }
+    Some((status, headers, body))
 }
