@@ -115,6 +115,9 @@ pub struct Config {
     pub defaults: JobDefaults,
     /// Browser safety and resource bounds of the HTTP server (`[http]`).
     pub http: HttpConfig,
+    /// Free space the data directory must keep: below it `/readyz` is not
+    /// ready and jobs and imports are refused (503) instead of failing later.
+    pub min_free_bytes: u64,
 }
 
 impl Default for Config {
@@ -134,6 +137,7 @@ impl Default for Config {
             }],
             defaults: JobDefaults::default(),
             http: HttpConfig::default(),
+            min_free_bytes: 64 * 1024 * 1024,
         }
     }
 }

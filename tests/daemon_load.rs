@@ -1,7 +1,10 @@
 //! Bounded load test: 200 concurrent clients poll a job and list
-//! measurements while jobs run on the virtual bench. Zero errors asserted;
-//! latency percentiles are printed (docs/performance.md has the figures).
-//! SPRINGBENCH_LOAD_SECS (default 5) and SPRINGBENCH_LOAD_CLIENTS (default 200).
+//! measurements, and 10 more read the diagnostics and a plot of a
+//! measurement, while jobs run on the virtual bench. Zero errors asserted;
+//! latency percentiles and the daemon's peak VmRSS are printed
+//! (docs/performance.md has the figures of a 30 s run).
+//! SPRINGBENCH_LOAD_SECS (default 5), SPRINGBENCH_LOAD_CLIENTS (default 200),
+//! SPRINGBENCH_LOAD_DIAG_CLIENTS (default 10).
 
 mod common;
 
@@ -22,6 +25,7 @@ fn env_or(name: &str, default: u64) -> u64 {
 async fn two_hundred_clients_poll_while_jobs_run() {
     let secs = env_or("SPRINGBENCH_LOAD_SECS", 5);
     let clients = env_or("SPRINGBENCH_LOAD_CLIENTS", 200) as usize;
+    let diag_clients = env_or("SPRINGBENCH_LOAD_DIAG_CLIENTS", 10) as usize;
     let d = Arc::new(Daemon::start(""));
     let c = common::client();
     // One finished measurement so the listing has rows.
@@ -36,6 +40,19 @@ async fn two_hundred_clients_poll_while_jobs_run() {
     let first = submit(c.clone(), d.clone(), 1).await;
     let j = wait_job(&c, &d, &first, Duration::from_secs(120), terminal).await;
     assert_eq!(j["state"], "succeeded");
+    let meas = j["measurement_ids"][0].as_str().unwrap().to_string();
+    let rss_start = common::rss_kb(d.pid());
+    let rss_peak = Arc::new(std::sync::atomic::AtomicU64::new(rss_start));
+    let sampler = {
+        let (peak, pid) = (rss_peak.clone(), d.pid());
+        std::thread::spawn(move || {
+            let end = Instant::now() + Duration::from_secs(secs + 5);
+            while Instant::now() < end {
+                peak.fetch_max(common::rss_kb(pid), Ordering::Relaxed);
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
 
     // Keep the bench busy for the whole test.
     let stop = Arc::new(AtomicBool::new(false));
@@ -56,9 +73,10 @@ async fn two_hundred_clients_poll_while_jobs_run() {
     };
     let deadline = Instant::now() + Duration::from_secs(secs);
     let mut tasks = vec![];
-    for k in 0..clients {
+    for k in 0..clients + diag_clients {
         let d = d.clone();
         let first = first.clone();
+        let meas = meas.clone();
         tasks.push(tokio::spawn(async move {
             let c = reqwest::Client::builder()
                 .timeout(Duration::from_secs(30))
@@ -68,7 +86,15 @@ async fn two_hundred_clients_poll_while_jobs_run() {
             let mut errors = vec![];
             let mut i = k;
             while Instant::now() < deadline {
-                let url = if i % 2 == 0 {
+                let url = if k >= clients {
+                    if i % 2 == 0 {
+                        d.url(&format!("/api/v1/measurements/{meas}/diagnostics"))
+                    } else {
+                        d.url(&format!(
+                            "/api/v1/measurements/{meas}/plots/residual_spectrum.svg"
+                        ))
+                    }
+                } else if i % 2 == 0 {
                     d.url(&format!("/api/v1/jobs/{first}"))
                 } else {
                     d.url("/api/v1/measurements?limit=20")
@@ -107,10 +133,12 @@ async fn two_hundred_clients_poll_while_jobs_run() {
     stop.store(true, Ordering::Relaxed);
     let fed = feeder.await.unwrap();
 
+    sampler.join().unwrap();
+    let peak = rss_peak.load(Ordering::Relaxed);
     lat.sort_by(|a, b| a.partial_cmp(b).unwrap());
     let q = |p: f64| lat[((lat.len() - 1) as f64 * p).round() as usize] * 1e3;
     println!(
-        "load: {clients} clients, {secs} s, {} requests ({:.0}/s), errors {}, latency ms p50 {:.1} p90 {:.1} p99 {:.1} max {:.1}; jobs started during the load {}",
+        "load: {clients} clients + {diag_clients} on diagnostics, {secs} s, {} requests ({:.0}/s), errors {}, latency ms p50 {:.1} p90 {:.1} p99 {:.1} max {:.1}; jobs started during the load {}; daemon VmRSS {rss_start} kB at start, peak {peak} kB",
         lat.len(),
         lat.len() as f64 / secs as f64,
         errors.len(),

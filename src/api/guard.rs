@@ -162,7 +162,17 @@ pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next
     next.run(req).await
 }
 
-/// Turns every error response that is not yet a problem document into one
+/// The body stopped arriving for longer than `http.body_read_timeout_s`.
+pub fn body_timeout(detail: String) -> Problem {
+    Problem::new(
+        StatusCode::REQUEST_TIMEOUT,
+        "timeout",
+        "Request body timed out",
+        detail,
+    )
+}
+
+/// Turns every error response that is not JSON into a problem document
 /// (axum's own rejections are text/plain), keeping status and headers.
 pub async fn problem_everywhere(req: Request, next: Next) -> Response {
     let resp = next.run(req).await;
@@ -170,11 +180,12 @@ pub async fn problem_everywhere(req: Request, next: Next) -> Response {
     if !(status.is_client_error() || status.is_server_error()) {
         return resp;
     }
-    let is_problem = resp
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .is_some_and(|v| v.as_bytes().starts_with(b"application/problem+json"));
-    if is_problem {
+    // problem documents, and JSON bodies a handler chose (the /readyz report)
+    let is_json = resp.headers().get(header::CONTENT_TYPE).is_some_and(|v| {
+        v.as_bytes().starts_with(b"application/problem+json")
+            || v.as_bytes().starts_with(b"application/json")
+    });
+    if is_json {
         return resp;
     }
     let (parts, body) = resp.into_parts();

@@ -43,6 +43,8 @@ pub async fn submit(
         },
     };
     let spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
+    // Refused (503) rather than acknowledged when its results could not be kept.
+    st.store.check_space(st.cfg.min_free_bytes)?;
     // serde_json maps are sorted: the text is canonical for equal bodies.
     let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;

@@ -248,7 +248,7 @@ pub async fn list_fits(
     Ok(Json(json!({"items": items})))
 }
 
-async fn diagnose_stored(
+pub(super) async fn diagnose_stored(
     st: &AppState,
     id: &str,
 ) -> ApiResult<(RecordingSet, diagnose::Diagnosis)> {
@@ -266,28 +266,21 @@ async fn diagnose_stored(
     .map_err(|e| numeric_failure("Diagnostics failed", e))
 }
 
-/// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the base model.
+/// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the
+/// base model (computed once, then served from the store: [`super::derived`]).
 pub async fn diagnostics(
     State(st): State<AppState>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
-    let (_, d) = diagnose_stored(&st, &id).await?;
-    Ok(Json(json!({
-        "measurement_id": id,
-        "model": d.report.model,
-        "diagnostics": d.report.diagnostics,
-        "plots": diagnose::plot_names().iter()
-            .map(|n| format!("/api/v1/measurements/{id}/plots/{n}.svg")).collect::<Vec<_>>(),
-    })))
+) -> ApiResult<Response> {
+    super::derived::answer(&st, &id, super::derived::DIAGNOSTICS).await
 }
 
-/// `GET /api/v1/measurements/{id}/plots/{name}.svg`.
+/// `GET /api/v1/measurements/{id}/plots/{name}.svg` (stored like the diagnostics).
 pub async fn plot(
     State(st): State<AppState>,
     Path((id, file)): Path<(String, String)>,
 ) -> ApiResult<Response> {
-    let name = file
-        .strip_suffix(".svg")
+    file.strip_suffix(".svg")
         .filter(|n| diagnose::plot_names().contains(n))
         .ok_or_else(|| {
             Problem::not_found(
@@ -301,14 +294,8 @@ pub async fn plot(
                 ),
                 &file,
             )
-        })?
-        .to_string();
-    let (set, d) = diagnose_stored(&st, &id).await?;
-    let svg = tokio::task::spawn_blocking(move || diagnose::plot(&set, &d, &name))
-        .await
-        .map_err(Problem::internal)?
-        .ok_or_else(|| Problem::not_found("plot", &file))?;
-    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
+        })?;
+    super::derived::answer(&st, &id, &file).await
 }
 
 fn multipart_problem(e: axum::extract::multipart::MultipartError, limit: usize) -> Problem {
@@ -329,6 +316,7 @@ pub async fn import(
     multipart: Result<Multipart, axum::extract::multipart::MultipartRejection>,
 ) -> ApiResult<Response> {
     let limit = st.cfg.max_upload_bytes;
+    st.store.check_space(st.cfg.min_free_bytes)?;
     let mut mp = multipart.map_err(|e| {
         if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
             Problem::too_large(limit)
@@ -431,14 +419,21 @@ pub async fn import(
         let set = RecordingSet::from_bytes(&meta, &pre, &main).map_err(|e| {
             let msg = e.to_string();
             let field = if msg.starts_with("pre") {
-                "pre"
+                "pre".to_string()
             } else if msg.starts_with("main") {
-                "main"
+                "main".to_string()
+            } else if let Some(key) = ["moving_mass_kg", "sample_rate_hz", "channel_scale."]
+                .iter()
+                .find(|k| msg.starts_with(**k))
+            {
+                // the meta.json key, e.g. meta.channel_scale.displacement
+                let k = msg.split_whitespace().next().unwrap_or(key);
+                format!("meta.{k}")
             } else {
-                "meta"
+                "meta".to_string()
             };
             FieldError {
-                field: field.into(),
+                field,
                 message: msg,
             }
         })?;

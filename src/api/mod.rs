@@ -5,6 +5,7 @@
 //! Errors are RFC 9457 problem documents ([`problem::Problem`]).
 
 pub mod auth;
+pub mod derived;
 pub mod events;
 pub mod guard;
 pub mod jobs;
@@ -59,10 +60,10 @@ fn limited(
 pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static str)>) {
     let json_limit = DefaultBodyLimit::max(cfg.max_json_bytes);
     let upload_limit = DefaultBodyLimit::max(cfg.max_upload_bytes);
-    // Expensive work (diagnostics, plots, fits, imports) shares one queue.
-    let expensive = tower::limit::GlobalConcurrencyLimitLayer::with_semaphore(Arc::new(
-        tokio::sync::Semaphore::new(cfg.http.max_expensive),
-    ));
+    // Expensive work (fits, imports, first diagnoses: api::derived) shares one queue.
+    let expensive = tower::limit::GlobalConcurrencyLimitLayer::with_semaphore(
+        derived::expensive_slots(cfg.http.max_expensive),
+    );
     let r = Reg {
         router: Router::new(),
         list: vec![],
@@ -112,12 +113,12 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/measurements/{id}/diagnostics",
-        limited(get(measurements::diagnostics), &expensive),
+        get(measurements::diagnostics),
     )
     .add(
         "get",
         "/api/v1/measurements/{id}/plots/{file}",
-        limited(get(measurements::plot), &expensive),
+        get(measurements::plot),
     )
     .add("get", "/api/v1/events", get(events::events));
     (r.router, r.list)
@@ -178,6 +179,8 @@ impl<S: Send + Sync> FromRequest<S> for JsonBody {
             .map_err(|e| {
                 if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
                     Problem::new(e.status(), "too-large", "Request too large", e.body_text())
+                } else if e.body_text().contains("timeout") {
+                    guard::body_timeout(e.body_text())
                 } else {
                     Problem::bad_request(e.body_text())
                 }

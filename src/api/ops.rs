@@ -15,7 +15,14 @@ pub async fn healthz() -> Json<Value> {
 
 /// Ready when the database answers and no bench has stopped.
 pub async fn readyz(State(st): State<AppState>) -> Response {
-    let db = st.store.ping().await;
+    // A committed write: a full disk or a lost database file is not ready.
+    let db = match st.store.ping().await {
+        Ok(()) => match st.store.check_space(st.cfg.min_free_bytes) {
+            Ok(()) => st.store.probe_write().await,
+            Err(e) => Err(e),
+        },
+        Err(e) => Err(e),
+    };
     let benches = st.runner.bench_statuses();
     let shutting_down = *st.shutdown.borrow();
     let ready = db.is_ok() && !shutting_down && benches.iter().all(|b| b.state != "stopped");

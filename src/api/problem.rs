@@ -124,6 +124,19 @@ impl Problem {
 
 impl From<crate::store::StoreError> for Problem {
     fn from(e: crate::store::StoreError) -> Problem {
+        if e.is_unavailable() {
+            // Not acknowledged, nothing half-stored: the client may retry.
+            tracing::error!("storage unavailable: {e}");
+            let mut p = Problem::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "storage-unavailable",
+                "Storage unavailable",
+                format!("the request was not stored: {e} (see /readyz; retry later)"),
+            );
+            p.headers
+                .push((header::RETRY_AFTER, HeaderValue::from_static("5")));
+            return p;
+        }
         Problem::internal(e)
     }
 }

@@ -93,9 +93,10 @@ impl Meta {
 
     /// Checks the physical plausibility of the fields; one-line error.
     pub fn validate(&self) -> Result<(), RecordingError> {
-        if !self.moving_mass_kg.is_finite() || self.moving_mass_kg <= 0.0 {
+        // Bounds that keep every derived value finite (1e-300 kg overflowed).
+        if !(self.moving_mass_kg.is_finite() && (1e-4..=10.0).contains(&self.moving_mass_kg)) {
             return Err(RecordingError::Invalid(format!(
-                "moving_mass_kg must be a positive number of kilograms, got {}",
+                "moving_mass_kg must be in [0.0001, 10] kg, got {}",
                 self.moving_mass_kg
             )));
         }
@@ -112,9 +113,11 @@ impl Meta {
                 ("drive", s.drive),
             ] {
                 if let Some(v) = v {
-                    if !v.is_finite() || v == 0.0 {
+                    // |scale| in [1e-9, 1e6] units per full scale: a float32
+                    // sample times the scale stays finite (1e300 overflowed).
+                    if !(v.is_finite() && (1e-9..=1e6).contains(&v.abs())) {
                         return Err(RecordingError::Invalid(format!(
-                            "channel_scale.{name} must be a finite non-zero number, got {v}"
+                            "channel_scale.{name} must be a number with magnitude in [1e-9, 1e6], got {v}"
                         )));
                     }
                 }

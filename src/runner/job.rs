@@ -12,6 +12,9 @@ use serde_json::Value;
 /// Largest number of levels of a level series, and of repeats.
 pub const MAX_LEVELS: usize = 16;
 pub const MAX_REPEATS: u32 = 10;
+/// Lightest moving mass accepted (kg): 0.1 g. Lighter values are typos, and
+/// the fit divides by the mass (1e-300 kg overflowed into stored infinities).
+pub const MIN_MOVING_MASS_KG: f64 = 1e-4;
 /// Highest K(x) order a job may ask for.
 pub const MAX_ORDER: usize = 12;
 
@@ -407,11 +410,11 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
             }
         }
         Some(v) => match number(v, "moving_mass_kg", &mut errors) {
-            Some(m) if m > 0.0 && m <= 10.0 => Some(m),
+            Some(m) if (MIN_MOVING_MASS_KG..=10.0).contains(&m) => Some(m),
             Some(m) => {
                 errors.push(err(
                     "moving_mass_kg",
-                    format!("must be in (0, 10] kg, got {m}"),
+                    format!("must be in [{MIN_MOVING_MASS_KG}, 10] kg, got {m}"),
                 ));
                 None
             }

@@ -6,6 +6,10 @@
 //! entirely there or not at all. Queries are runtime-checked (`sqlx::query`),
 //! the schema lives in `migrations/`.
 
+mod derived;
+pub mod health;
+pub use derived::Derived;
+
 use serde::Serialize;
 use serde_json::Value;
 use sqlx::sqlite::{
@@ -222,6 +226,8 @@ pub enum Inserted {
 #[derive(Clone)]
 pub struct Store {
     pool: SqlitePool,
+    /// The data directory (None in memory): free-space checks (health.rs).
+    dir: Option<std::sync::Arc<std::path::PathBuf>>,
 }
 
 impl Store {
@@ -230,14 +236,48 @@ impl Store {
         std::fs::create_dir_all(data_dir).map_err(|e| {
             StoreError::Corrupt(format!("data directory {}: {e}", data_dir.display()))
         })?;
+        let path = data_dir.join("springbench.db");
         let opts = SqliteConnectOptions::new()
-            .filename(data_dir.join("springbench.db"))
-            .create_if_missing(true)
+            .filename(&path)
+            .create_if_missing(false)
             .journal_mode(SqliteJournalMode::Wal)
             .synchronous(SqliteSynchronous::Full)
             .foreign_keys(true)
             .busy_timeout(Duration::from_secs(10));
-        Store::with_options(opts, 8).await
+        // Created here only: the pool never creates a file by itself, so a
+        // lost database is not silently replaced by an empty one (health.rs).
+        if !path.exists() {
+            use sqlx::{ConnectOptions, Connection};
+            opts.clone()
+                .create_if_missing(true)
+                .connect()
+                .await?
+                .close()
+                .await?;
+        }
+        let guard = health::FileGuard::new(&path)
+            .map_err(|e| StoreError::Corrupt(format!("database file {}: {e}", path.display())))?;
+        let (g1, g2) = (guard.clone(), guard.clone());
+        let pool = SqlitePoolOptions::new()
+            .max_connections(8)
+            .min_connections(1)
+            .acquire_timeout(Duration::from_secs(5))
+            .after_connect(move |_, _| {
+                let g = g1.clone();
+                Box::pin(async move { g.connect_check() })
+            })
+            .before_acquire(move |_, meta| {
+                let g = g2.clone();
+                Box::pin(async move { g.usable(meta.age) })
+            })
+            .connect_with(opts.clone())
+            .await?;
+        sqlx::migrate!("./migrations").run(&pool).await?;
+        health::spawn_watchdog(guard, opts);
+        Ok(Store {
+            pool,
+            dir: Some(std::sync::Arc::new(data_dir.to_path_buf())),
+        })
     }
 
     /// An in-memory database (tests).
@@ -253,7 +293,7 @@ impl Store {
             .connect_with(opts)
             .await?;
         sqlx::migrate!("./migrations").run(&pool).await?;
-        Ok(Store { pool })
+        Ok(Store { pool, dir: None })
     }
 
     pub async fn ping(&self) -> StoreResult<()> {
