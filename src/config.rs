@@ -41,6 +41,11 @@ pub struct Auth {
 pub enum BenchKind {
     /// The physics simulation ([`crate::physics::VirtualBench`]).
     Virtual,
+    /// A real bench: audio devices through cpal, a laser (feature `hardware`).
+    Hardware,
+    /// The hardware code path against the bench emulator (physics behind the
+    /// device interfaces; feature `hardware`).
+    Emulated,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -59,6 +64,49 @@ pub struct BenchConfig {
     /// Hard limits; a job may ask for tighter ones, never for wider ones.
     #[serde(default = "default_limits")]
     pub limits: Limits,
+    /// Hardware and emulated benches: devices, channels, calibration, laser.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hardware: Option<crate::bench::settings::HardwareConfig>,
+    /// Emulated bench: latency, noise, injected faults.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub emulator: Option<crate::bench::settings::EmulatorConfig>,
+}
+
+impl BenchConfig {
+    /// The `hardware` / `emulator` tables fit the kind, and the build can run it.
+    fn validate_devices(&self) -> Result<(), String> {
+        let id = &self.id;
+        match (self.kind, &self.hardware) {
+            (BenchKind::Virtual, Some(_)) => {
+                return Err(format!(
+                    "bench '{id}': a [benches.hardware] table needs kind = \"hardware\" or \"emulated\""
+                ))
+            }
+            (BenchKind::Hardware | BenchKind::Emulated, None) => {
+                return Err(format!(
+                    "bench '{id}': kind = \"hardware\"/\"emulated\" needs a [benches.hardware] table (devices, calibration)"
+                ))
+            }
+            (_, Some(h)) => h.validate(id)?,
+            _ => {}
+        }
+        match (self.kind, &self.emulator) {
+            (BenchKind::Emulated, Some(e)) => e.validate(id)?,
+            (BenchKind::Emulated, None) => {}
+            (_, Some(_)) => {
+                return Err(format!(
+                    "bench '{id}': a [benches.emulator] table needs kind = \"emulated\""
+                ))
+            }
+            _ => {}
+        }
+        if self.kind != BenchKind::Virtual && !cfg!(feature = "hardware") {
+            return Err(format!(
+                "bench '{id}': this springbench was built without the `hardware` feature (cargo build --features hardware)"
+            ));
+        }
+        Ok(())
+    }
 }
 
 fn default_kind() -> BenchKind {
@@ -134,6 +182,8 @@ impl Default for Config {
                 preset: default_preset(),
                 seed: 1,
                 limits: default_limits(),
+                hardware: None,
+                emulator: None,
             }],
             defaults: JobDefaults::default(),
             http: HttpConfig::default(),
@@ -194,6 +244,7 @@ impl Config {
                     b.id, l.max_drive_v
                 ));
             }
+            b.validate_devices()?;
         }
         let mut secrets = std::collections::HashSet::new();
         for t in &self.auth.tokens {
@@ -322,6 +373,41 @@ mod tests {
         assert_eq!(cfg.bind, "127.0.0.1:8750");
         assert_eq!(cfg.http, HttpConfig::default());
         assert_eq!(cfg.benches[0].limits.max_displacement_m, 0.015);
+    }
+
+    #[test]
+    fn example_emulated_bench_config_parses_with_the_feature() {
+        let text = include_str!("../deploy/emulated-bench.toml");
+        let r = Config::parse(text);
+        if cfg!(feature = "hardware") {
+            let cfg = r.expect("deploy/emulated-bench.toml is valid");
+            assert_eq!(cfg.benches[0].kind, BenchKind::Emulated);
+            let hw = cfg.benches[0].hardware.as_ref().unwrap();
+            assert_eq!(hw.calibration.amplifier_gain, 100.0);
+        } else {
+            let e = r.unwrap_err();
+            assert!(e.contains("`hardware` feature"), "{e}");
+        }
+    }
+
+    #[test]
+    fn hardware_tables_must_fit_the_kind() {
+        let e = Config::parse("[[benches]]\nid = \"a\"\nkind = \"emulated\"").unwrap_err();
+        assert!(e.contains("[benches.hardware]"), "{e}");
+        let text = include_str!("../deploy/emulated-bench.toml")
+            .replace("ramp_down_s = 0.01", "ramp_down_s = 0.2");
+        let e = Config::parse(&text).unwrap_err();
+        assert!(
+            e.contains("ramp_down_s") || e.contains("`hardware` feature"),
+            "{e}"
+        );
+        let text =
+            include_str!("../deploy/emulated-bench.toml").replace("laser = 2 }", "laser = 1 }");
+        let e = Config::parse(&text).unwrap_err();
+        assert!(
+            e.contains("both 1") || e.contains("`hardware` feature"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -21,6 +21,8 @@ enum Command {
     Analyze(cli::analyze::AnalyzeArgs),
     /// Run the standard procedure on the virtual bench and write a recording set.
     Simulate(cli::simulate::SimulateArgs),
+    /// List audio devices (channels, rates) and serial ports (feature `hardware`).
+    Devices(cli::devices::DevicesArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -30,6 +32,7 @@ fn main() -> std::process::ExitCode {
         Some(Command::Serve(a)) => cli::serve::run(a),
         Some(Command::Analyze(a)) => cli::analyze::run(a),
         Some(Command::Simulate(a)) => cli::simulate::run(a),
+        Some(Command::Devices(a)) => cli::devices::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

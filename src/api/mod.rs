@@ -6,6 +6,7 @@
 
 pub mod auth;
 pub mod derived;
+pub mod benches;
 pub mod events;
 pub mod guard;
 pub mod jobs;
@@ -73,6 +74,21 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add("get", "/metrics", get(ops::metrics))
     .add("get", "/api/v1/config", get(ops::config))
     .add("get", "/api/v1/benches", get(ops::benches))
+    .add(
+        "post",
+        "/api/v1/benches/{id}/self-check",
+        post(benches::self_check),
+    )
+    .add(
+        "get",
+        "/api/v1/benches/{id}/calibrations",
+        get(benches::calibrations),
+    )
+    .add(
+        "get",
+        "/api/v1/calibrations/{id}",
+        get(benches::calibration),
+    )
     .add("post", "/api/v1/jobs", post(jobs::submit).layer(json_limit))
     .add("get", "/api/v1/jobs", get(jobs::list))
     .add("get", "/api/v1/jobs/{id}", get(jobs::get_one))

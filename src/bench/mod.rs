@@ -9,6 +9,12 @@
 
 use crate::recording::Signals;
 
+#[cfg(feature = "hardware")]
+pub mod emulator;
+#[cfg(feature = "hardware")]
+pub mod hardware;
+pub mod settings;
+
 /// Hard limits of a bench; a procedure never exceeds them.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Limits {
@@ -44,6 +50,10 @@ pub enum BenchError {
     LaserOutOfRange { t_s: f64 },
     #[error("device error: {0}")]
     Device(String),
+    /// A hardware bench stopped for safety (limit, device error, laser fault):
+    /// the drive was ramped to zero; the bench is faulted until a self-check passes.
+    #[error("bench fault: {0}")]
+    Fault(String),
 }
 
 /// A measurement bench: exciter output, microphone and laser input.
@@ -63,4 +73,9 @@ pub trait Bench: Send {
     ) -> Result<Signals, BenchError>;
     /// Short human-readable description (preset, part, device names).
     fn describe(&self) -> String;
+    /// What each sweep so far measured about the bench itself (hardware:
+    /// latency, loopback, alignment), oldest first, each with its `frames`.
+    fn run_records(&self) -> Vec<serde_json::Value> {
+        Vec::new()
+    }
 }

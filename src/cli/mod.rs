@@ -1,6 +1,7 @@
 //! Command-line front ends. Each subcommand returns `Result<(), String>`;
 //! `main` prints the error as one line on stderr and exits non-zero.
 pub mod analyze;
+pub mod devices;
 pub mod diagnose;
 pub mod serve;
 pub mod simulate;

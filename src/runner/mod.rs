@@ -10,6 +10,7 @@
 //! its drive down), then marked `interrupted`.
 
 pub mod events;
+pub mod hardware;
 pub mod job;
 
 use crate::bench::Bench;
@@ -40,11 +41,14 @@ const COMMIT: u8 = 2;
 pub struct BenchStatus {
     pub id: String,
     pub kind: BenchKind,
-    /// "idle", "running" or "stopped".
+    /// "idle", "running", "faulted" (hardware: until a self-check passes) or "stopped".
     pub state: &'static str,
     pub job_id: Option<String>,
     /// The preset mounted when a job names none.
     pub preset: String,
+    /// What faulted the bench, and when (state `faulted`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fault: Option<hardware::FaultInfo>,
 }
 
 struct Slot {
@@ -105,7 +109,7 @@ impl Runner {
                 .await?;
             tracing::warn!(job = %id, "queued job of a bench no longer configured: failed");
         }
-        let slots = cfg
+        let slots: HashMap<String, Arc<Slot>> = cfg
             .benches
             .iter()
             .map(|b| {
@@ -120,11 +124,24 @@ impl Runner {
                             state: "idle",
                             job_id: None,
                             preset: b.preset.clone(),
+                            fault: None,
                         }),
                     }),
                 )
             })
             .collect();
+        for f in store.open_bench_faults().await? {
+            if let Some(slot) = slots.get(&f.bench_id) {
+                let slot: &Arc<Slot> = slot;
+                let mut st = slot.status.lock().unwrap();
+                st.state = "faulted";
+                st.fault = Some(hardware::FaultInfo {
+                    detail: f.detail,
+                    job_id: f.job_id,
+                    since: f.created_at,
+                });
+            }
+        }
         let runner = Arc::new(Runner {
             store,
             events,
@@ -237,6 +254,8 @@ impl Runner {
             let mut st = slot.status.lock().unwrap();
             st.state = if self.shutdown.load(Ordering::SeqCst) {
                 "stopped"
+            } else if st.fault.is_some() {
+                "faulted"
             } else {
                 "idle"
             };
@@ -264,8 +283,16 @@ impl Runner {
             .await?;
         tracing::info!(job = %job.id, bench = %slot.cfg.id, part = %job.part_serial, "job started");
 
-        let spec: Result<JobSpec, _> = serde_json::from_value(job.request.clone());
         let started = Instant::now();
+        if hardware::is_self_check(job) {
+            return self.run_self_check(slot, job, started).await;
+        }
+        let spec: Result<JobSpec, _> = serde_json::from_value(job.request.clone());
+        // A hardware bench: faulted benches refuse, every measurement needs a calibration record.
+        let calibration = match self.hardware_preflight(slot, job, &spec).await? {
+            Ok(c) => c,
+            Err(p) => return self.finish_failed(job, p).await,
+        };
         let outcome = match spec {
             Err(e) => Err(Stop::Failed(problem(
                 "job-unreadable",
@@ -278,9 +305,19 @@ impl Runner {
                 let bench_cfg = slot.cfg.clone();
                 let seed = bench_cfg.seed.wrapping_add(job.seq as u64);
                 let job_id = job.id.clone();
+                let job_seq = job.seq;
+                let cal = calibration.clone();
                 let mut handle = tokio::task::spawn_blocking(move || {
                     let mut obs = obs;
-                    execute(&job_id, &spec, &bench_cfg, seed, &mut obs)
+                    execute(
+                        &job_id,
+                        job_seq,
+                        &spec,
+                        &bench_cfg,
+                        seed,
+                        cal.as_ref(),
+                        &mut obs,
+                    )
                 });
                 let res = loop {
                     tokio::select! {
@@ -323,6 +360,9 @@ impl Runner {
             Err(Stop::Aborted) => (JobState::Cancelled, None, None),
             Err(Stop::Failed(p)) => (JobState::Failed, Some(p), None),
         };
+        if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
+            self.fault_bench(slot, &job.id, p).await?;
+        }
         let (bench_time, log, recs, meas) = match done {
             Some(d) => (Some(d.bench_time_s), d.log, d.recordings, d.measurements),
             None => (None, vec![], vec![], vec![]),
@@ -358,6 +398,11 @@ impl Runner {
                 )
                 .await?;
             return Ok(());
+        }
+        if let (Some(c), JobState::Succeeded) = (&calibration, state) {
+            self.store
+                .set_measurement_calibration(&job.id, &c.id)
+                .await?;
         }
         let measurement_ids = self
             .store
@@ -574,10 +619,14 @@ fn make_bench(
     cfg: &BenchConfig,
     part: PartSpec,
     seed: u64,
+    job_seq: i64,
     limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
     match cfg.kind {
         BenchKind::Virtual => virtual_bench(&cfg.id, part, seed, limits),
+        BenchKind::Hardware | BenchKind::Emulated => {
+            hardware::open_bench(cfg, part, seed, job_seq, limits)
+        }
     }
 }
 
@@ -603,6 +652,11 @@ fn procedure_stop(e: ProcedureError) -> Stop {
             "Procedure configuration refused",
             &m,
         )),
+        ProcedureError::Bench(crate::bench::BenchError::Fault(m)) => Stop::Failed(problem(
+            hardware::BENCH_FAULT,
+            "Bench fault: the drive was ramped to zero",
+            &m,
+        )),
         ProcedureError::Bench(e) => Stop::Failed(problem("bench", "Bench failed", &e.to_string())),
         ProcedureError::Failed(m) => Stop::Failed(problem("procedure", "Procedure failed", &m)),
     }
@@ -611,14 +665,16 @@ fn procedure_stop(e: ProcedureError) -> Stop {
 /// Runs a job on its own blocking thread: procedure per repeat, then the fit per narrow sweep.
 fn execute(
     job_id: &str,
+    job_seq: i64,
     spec: &JobSpec,
     bench_cfg: &BenchConfig,
     seed: u64,
+    calibration: Option<&crate::store::hardware::CalibrationRecord>,
     obs: &mut JobObserver,
 ) -> Result<Done, Stop> {
     let part = job::mounted_part(spec, bench_cfg)
         .map_err(|e| Stop::Failed(problem("part", "Part not available", &e)))?;
-    let mut bench = make_bench(bench_cfg, part, seed, spec.limits)
+    let mut bench = make_bench(bench_cfg, part, seed, job_seq, spec.limits)
         .map_err(|e| Stop::Failed(problem("bench", "Bench not available", &e)))?;
     obs.set_sample_rate(bench.sample_rate_hz());
     let pcfg = ProcedureConfig {
@@ -640,6 +696,7 @@ fn execute(
     };
     for r in 0..spec.repeats {
         obs.repeat = r;
+        let runs_before = bench.run_records().len();
         let outcome = procedure::run(bench.as_mut(), &pcfg, obs).map_err(procedure_stop)?;
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -681,6 +738,15 @@ fn execute(
             let mut cfg_m = config.clone();
             cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
                                            "f_end_hz": sweep.f_end_hz});
+            if let Some(c) = calibration {
+                cfg_m["hardware"] = hardware::measurement_record(
+                    c,
+                    &bench.run_records()[runs_before..],
+                    outcome.pre.len(),
+                    sweep.signals.len(),
+                    li,
+                );
+            }
             done.measurements.push(NewMeasurement {
                 id: new_id(),
                 part_serial: spec.part.serial.clone(),

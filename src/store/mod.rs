@@ -9,6 +9,7 @@
 mod derived;
 pub mod health;
 pub use derived::Derived;
+pub mod hardware;
 
 use serde::Serialize;
 use serde_json::Value;

@@ -1,0 +1,88 @@
+//! Hardware benches: self-check jobs and calibration records.
+
+use super::problem::{ApiResult, Problem};
+use super::AppState;
+use crate::config::BenchKind;
+use crate::runner::{hardware, new_id};
+use crate::store::Inserted;
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde_json::{json, Value};
+use sha2::{Digest, Sha256};
+
+/// `POST /api/v1/benches/{id}/self-check`: queue a self-check job (202 + Location).
+pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    let Some(b) = st.cfg.benches.iter().find(|b| b.id == id) else {
+        return Err(Problem::not_found("bench", &id));
+    };
+    if b.kind == BenchKind::Virtual {
+        return Err(Problem::new(
+            StatusCode::CONFLICT,
+            "self-check-unsupported",
+            "Self-check needs a hardware bench",
+            format!("bench '{id}' is virtual: it has no devices to check"),
+        ));
+    }
+    let request = hardware::self_check_request(&id);
+    let sha: String = Sha256::digest(request.to_string().as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    let job_id = new_id();
+    let serial = hardware::self_check_serial(&id);
+    let inserted = st
+        .store
+        .insert_job(
+            &job_id,
+            &id,
+            (&serial, Some("bench-self-check"), None),
+            // Before queued measurements of the bench.
+            1000,
+            &request,
+            &sha,
+            None,
+        )
+        .await?;
+    let j = match inserted {
+        Inserted::New(j) | Inserted::Replayed(j) | Inserted::Conflict(j) => j,
+    };
+    st.runner
+        .events()
+        .publish(
+            "job.state",
+            Some(&j.id),
+            json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id, "type": "self_check"}),
+        )
+        .await?;
+    st.runner.wake(&j.bench_id);
+    let mut r = (StatusCode::ACCEPTED, Json(&j)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/jobs/{}", j.id)) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+/// `GET /api/v1/benches/{id}/calibrations`: the bench's self-checks, newest first.
+pub async fn calibrations(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    if !st.cfg.benches.iter().any(|b| b.id == id) {
+        return Err(Problem::not_found("bench", &id));
+    }
+    let items = st.store.list_calibrations(&id).await?;
+    Ok(Json(json!({ "items": items })))
+}
+
+/// `GET /api/v1/calibrations/{id}`: one calibration record.
+pub async fn calibration(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    match st.store.get_calibration(&id).await? {
+        Some(c) => Ok(Json(serde_json::to_value(c).map_err(Problem::internal)?)),
+        None => Err(Problem::not_found("calibration record", &id)),
+    }
+}

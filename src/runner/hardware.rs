@@ -1,0 +1,347 @@
+//! The runner's part for hardware (and emulated) benches: faulted state,
+//! self-check jobs and calibration records, and what each measurement stores
+//! about the bench it was made on (calibration record, sensors, latency,
+//! alignment).
+
+use super::{problem, Runner, Slot};
+use crate::bench::Bench;
+use crate::config::{BenchConfig, BenchKind};
+use crate::physics::PartSpec;
+use crate::store::hardware::CalibrationRecord;
+use crate::store::{Job, JobState, StoreResult};
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::time::Instant;
+
+/// Problem type of a job stopped by a bench fault.
+pub const BENCH_FAULT: &str = "bench-fault";
+
+/// Why a bench is faulted.
+#[derive(Debug, Clone, Serialize)]
+pub struct FaultInfo {
+    pub detail: String,
+    pub job_id: Option<String>,
+    pub since: String,
+}
+
+pub fn is_self_check(job: &Job) -> bool {
+    job.request.get("type").and_then(Value::as_str) == Some("self_check")
+}
+
+pub fn is_bench_fault(p: &Value) -> bool {
+    p.get("type").and_then(Value::as_str) == Some(&format!("/problems/{BENCH_FAULT}"))
+}
+
+/// The job request of a self-check.
+pub fn self_check_request(bench_id: &str) -> Value {
+    json!({"type": "self_check", "bench": bench_id})
+}
+
+/// Part serial under which a bench's self-check jobs are stored.
+pub fn self_check_serial(bench_id: &str) -> String {
+    format!("selfcheck.{bench_id}")
+}
+
+#[cfg(feature = "hardware")]
+pub fn open_bench(
+    cfg: &BenchConfig,
+    part: PartSpec,
+    seed: u64,
+    job_seq: i64,
+    limits: crate::bench::Limits,
+) -> Result<Box<dyn Bench>, String> {
+    Ok(Box::new(crate::bench::hardware::open(
+        cfg, part, seed, job_seq, limits,
+    )?))
+}
+
+#[cfg(not(feature = "hardware"))]
+pub fn open_bench(
+    cfg: &BenchConfig,
+    _part: PartSpec,
+    _seed: u64,
+    _job_seq: i64,
+    _limits: crate::bench::Limits,
+) -> Result<Box<dyn Bench>, String> {
+    Err(format!(
+        "bench '{}' needs the `hardware` feature, which this build lacks",
+        cfg.id
+    ))
+}
+
+/// Sensor identities as configured (stored with every calibration record).
+fn sensors(cfg: &BenchConfig) -> Value {
+    match &cfg.hardware {
+        Some(h) => json!({
+            "laser": h.laser,
+            "microphone": {"sensitivity_v_per_pa": h.calibration.mic_sensitivity_v_per_pa,
+                           "calibrated_on": h.calibration.mic_calibrated_on},
+            "input_device": h.input_device, "output_device": h.output_device,
+        }),
+        None => Value::Null,
+    }
+}
+
+fn calibration_json(cfg: &BenchConfig) -> Value {
+    cfg.hardware
+        .as_ref()
+        .map(|h| serde_json::to_value(&h.calibration).unwrap_or_default())
+        .unwrap_or_default()
+}
+
+/// Runs a self-check on its own blocking thread; Ok(result JSON, passed).
+#[cfg(feature = "hardware")]
+fn self_check_blocking(cfg: &BenchConfig, seq: i64) -> Result<(Value, bool), String> {
+    let part = crate::physics::preset(&cfg.preset)?;
+    let seed = cfg.seed.wrapping_add(seq as u64);
+    let mut b = crate::bench::hardware::open(cfg, part, seed, seq, cfg.limits)?;
+    match b.self_check() {
+        Ok(sc) => Ok((serde_json::to_value(&sc).unwrap_or_default(), sc.passed)),
+        Err(e) => Ok((json!({"passed": false, "failures": [e.to_string()]}), false)),
+    }
+}
+
+#[cfg(not(feature = "hardware"))]
+fn self_check_blocking(cfg: &BenchConfig, _seq: i64) -> Result<(Value, bool), String> {
+    Err(format!(
+        "bench '{}' needs the `hardware` feature, which this build lacks",
+        cfg.id
+    ))
+}
+
+/// What a measurement stores about the hardware it was made with. `runs` are
+/// the sweeps of this repetition; the pre-measurement is the last sweep of
+/// its length, the narrow sweep of level `li` the `li`-th of its length.
+pub fn measurement_record(
+    cal: &CalibrationRecord,
+    runs: &[Value],
+    pre_frames: usize,
+    main_frames: usize,
+    li: usize,
+) -> Value {
+    let frames = |r: &&Value| r.get("frames").and_then(Value::as_u64).map(|f| f as usize);
+    let pre = runs
+        .iter()
+        .rev()
+        .find(|r| frames(r) == Some(pre_frames))
+        .cloned();
+    let main = runs
+        .iter()
+        .filter(|r| frames(r) == Some(main_frames))
+        .nth(li)
+        .or_else(|| runs.iter().rev().find(|r| frames(r) == Some(main_frames)))
+        .cloned();
+    let latency_s = main.as_ref().and_then(|m| m.get("latency_s")).cloned();
+    let alignment = main
+        .as_ref()
+        .and_then(|m| m.get("alignment"))
+        .cloned()
+        .unwrap_or_else(|| {
+            // Analog laser: displacement, microphone and loopback on one converter clock.
+            json!({"method": "same converter", "offset_s": 0.0, "clock_ppm": 0.0, "residual_s": 0.0})
+        });
+    json!({
+        "calibration_id": cal.id,
+        "calibration": cal.calibration,
+        "sensors": cal.sensors,
+        "latency_s": latency_s,
+        "alignment": alignment,
+        "main_sweep": main,
+        "pre_sweep": pre,
+    })
+}
+
+impl Runner {
+    pub(super) async fn finish_failed(&self, job: &Job, p: Value) -> StoreResult<()> {
+        self.store
+            .finish_job(
+                &job.id,
+                JobState::Failed,
+                Some(&p),
+                None,
+                &[],
+                vec![],
+                vec![],
+            )
+            .await?;
+        self.events
+            .publish(
+                "job.state",
+                Some(&job.id),
+                json!({"state": "failed", "problem": p}),
+            )
+            .await?;
+        Ok(())
+    }
+
+    /// Marks the bench faulted (stored: it stays faulted across restarts).
+    pub(super) async fn fault_bench(
+        &self,
+        slot: &Slot,
+        job_id: &str,
+        p: &Value,
+    ) -> StoreResult<()> {
+        let detail = p
+            .get("detail")
+            .and_then(Value::as_str)
+            .unwrap_or("bench fault")
+            .to_string();
+        self.store
+            .insert_bench_fault(&slot.cfg.id, Some(job_id), &detail)
+            .await?;
+        let info = FaultInfo {
+            detail: detail.clone(),
+            job_id: Some(job_id.to_string()),
+            since: crate::store::now(),
+        };
+        {
+            let mut st = slot.status.lock().unwrap();
+            st.state = "faulted";
+            st.fault = Some(info);
+        }
+        tracing::error!(bench = %slot.cfg.id, job = %job_id, "bench faulted: {detail}");
+        self.events
+            .publish(
+                "bench.faulted",
+                Some(job_id),
+                json!({"bench_id": slot.cfg.id, "detail": detail}),
+            )
+            .await?;
+        Ok(())
+    }
+
+    /// Runs the self-check and stores its calibration record; a pass clears the fault.
+    async fn self_check(
+        &self,
+        slot: &Slot,
+        job: &Job,
+    ) -> StoreResult<Result<CalibrationRecord, Value>> {
+        let cfg = slot.cfg.clone();
+        let seq = job.seq;
+        let res = tokio::task::spawn_blocking(move || self_check_blocking(&cfg, seq)).await;
+        let (result, passed) = match res {
+            Ok(Ok(r)) => r,
+            Ok(Err(e)) => (json!({"passed": false, "failures": [e]}), false),
+            Err(e) => (
+                json!({"passed": false, "failures": [format!("self-check crashed: {e}")]}),
+                false,
+            ),
+        };
+        let rec = CalibrationRecord {
+            id: super::new_id(),
+            bench_id: slot.cfg.id.clone(),
+            job_id: Some(job.id.clone()),
+            passed,
+            calibration: calibration_json(&slot.cfg),
+            sensors: sensors(&slot.cfg),
+            result,
+            created_at: crate::store::now(),
+        };
+        self.store.insert_calibration(&rec).await?;
+        if passed {
+            let mut st = slot.status.lock().unwrap();
+            st.fault = None;
+            if st.state == "faulted" {
+                st.state = "running";
+            }
+            return Ok(Ok(rec));
+        }
+        let failures: Vec<String> = rec.result["failures"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|v| v.as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let p = problem(
+            BENCH_FAULT,
+            "Bench self-check failed",
+            &format!(
+                "self-check of bench '{}' failed (calibration record {}): {}",
+                slot.cfg.id,
+                rec.id,
+                failures.join("; ")
+            ),
+        );
+        self.fault_bench(slot, &job.id, &p).await?;
+        Ok(Err(p))
+    }
+
+    /// A self-check job: run, store the record, finish the job.
+    pub(super) async fn run_self_check(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        started: Instant,
+    ) -> StoreResult<()> {
+        if slot.cfg.kind == BenchKind::Virtual {
+            let p = problem(
+                "self-check-unsupported",
+                "Self-check needs a hardware bench",
+                &format!("bench '{}' is virtual", slot.cfg.id),
+            );
+            return self.finish_failed(job, p).await;
+        }
+        match self.self_check(slot, job).await? {
+            Ok(rec) => {
+                let log = vec![format!(
+                    "self-check passed: calibration record {} (latency {} s)",
+                    rec.id, rec.result["latency_s"]
+                )];
+                self.store
+                    .finish_job(
+                        &job.id,
+                        JobState::Succeeded,
+                        None,
+                        None,
+                        &log,
+                        vec![],
+                        vec![],
+                    )
+                    .await?;
+                tracing::info!(job = %job.id, bench = %slot.cfg.id, wall_s = started.elapsed().as_secs_f64(), "self-check passed");
+                self.events
+                    .publish(
+                        "job.state",
+                        Some(&job.id),
+                        json!({"state": "succeeded", "calibration_id": rec.id}),
+                    )
+                    .await?;
+                Ok(())
+            }
+            Err(p) => self.finish_failed(job, p).await,
+        }
+    }
+
+    /// Before a measurement on a hardware bench: a faulted bench refuses; the
+    /// calibration record in effect (a self-check is run first when the newest
+    /// passing one was made with another calibration, or there is none).
+    pub(super) async fn hardware_preflight<T>(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        _spec: &T,
+    ) -> StoreResult<Result<Option<CalibrationRecord>, Value>> {
+        if slot.cfg.kind == BenchKind::Virtual {
+            return Ok(Ok(None));
+        }
+        let fault = slot.status.lock().unwrap().fault.clone();
+        if let Some(f) = fault {
+            return Ok(Err(problem(
+                BENCH_FAULT,
+                "Bench is faulted",
+                &format!(
+                    "bench '{}' is faulted since {} ({}); run a self-check: POST /api/v1/benches/{}/self-check",
+                    slot.cfg.id, f.since, f.detail, slot.cfg.id
+                ),
+            )));
+        }
+        if let Some(c) = self.store.latest_calibration(&slot.cfg.id).await? {
+            if c.calibration == calibration_json(&slot.cfg) && c.sensors == sensors(&slot.cfg) {
+                return Ok(Ok(Some(c)));
+            }
+        }
+        Ok(self.self_check(slot, job).await?.map(Some))
+    }
+}
