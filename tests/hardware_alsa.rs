@@ -1,6 +1,6 @@
-//! The cpal code itself, against ALSA `file` PCMs wrapped in `plug` (no sound
-//! card needed): opening devices by name, f32 <-> S16_LE / S32_LE conversion
-//! by the plug, fixed buffers, the loopback latency and channel map through
+//! The cpal code itself, against ALSA `file` PCMs (no sound card needed):
+//! opening devices by name, the output's f32 -> S16_LE conversion by a
+//! `plug` wrapper, fixed buffers, the loopback latency and channel map through
 //! the real streams, the drive limit in the output file, and the error paths
 //! (unknown device, a fault in the captured data).
 #![cfg(feature = "hardware")]
@@ -35,10 +35,8 @@ pcm.bench_out {{
     slave {{ pcm "bench_out_file" format S16_LE channels 2 rate 48000 }}
     hint {{ show on description "springbench test output (file)" }}
 }}
-pcm.bench_in_file {{ type file slave.pcm "null" file "/dev/null" infile "{d}/in.raw" format "raw" }}
 pcm.bench_in {{
-    type plug
-    slave {{ pcm "bench_in_file" format S32_LE channels 4 rate 48000 }}
+    type file slave.pcm "null" file "/dev/null" infile "{d}/in.raw" format "raw"
     hint {{ show on description "springbench test input (file)" }}
 }}
 "#,
@@ -100,14 +98,16 @@ fn drive() -> Vec<f64> {
         .collect()
 }
 
-/// The prepared capture (S32_LE, 4 channels): microphone a 1 kHz tone of
+/// The prepared capture (f32 little-endian, 4 channels: cpal picks f32 on the
+/// file PCM; a `plug` in front of a capturing `file` PCM drops a period now
+/// and then, so the input is not wrapped): microphone a 1 kHz tone of
 /// 0.5 V, the loopback the clamped drive `DELAY` samples late, the laser
 /// `laser_v(k)`, channel 3 silent. Long enough that capture never runs dry.
 fn write_capture(dir: &Path, drive_v: &[f64], limit_v: f64, laser_v: impl Fn(usize) -> f64) {
     let c = hw().calibration;
     let n = drive_v.len() + 20 * 48000;
     let mut bytes = Vec::with_capacity(n * 16);
-    let q = |v: f64| ((v / c.adc_full_scale_v).clamp(-1.0, 1.0) * 2147483647.0).round() as i32;
+    let q = |v: f64| (v / c.adc_full_scale_v).clamp(-1.0, 1.0) as f32;
     for k in 0..n {
         let mic = 0.5 * (2.0 * std::f64::consts::PI * 1000.0 * k as f64 / FS).sin();
         let u = if k >= DELAY && k - DELAY < drive_v.len() {

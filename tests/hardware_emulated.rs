@@ -71,6 +71,7 @@ trace_dir = "{}"
 async fn self_check(c: &reqwest::Client, d: &Daemon) -> Value {
     let r = c
         .post(d.url("/api/v1/benches/emu-1/self-check"))
+        .json(&json!({}))
         .send()
         .await
         .unwrap();
@@ -111,7 +112,9 @@ async fn analog_laser_job_recovers_k_and_reports_latency_and_calibration() {
     assert_eq!(j["state"], "succeeded", "{j}");
     let mid = j["measurement_ids"][0].as_str().unwrap();
     let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
-    let fit: Vec<f64> = serde_json::from_value(m["stiffness"]["coefficients"].clone()).unwrap();
+    let fit: Vec<f64> =
+        serde_json::from_value(m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone())
+            .unwrap();
     let range: [f64; 2] = serde_json::from_value(m["stiffness"]["valid_range_m"].clone()).unwrap();
     let truth = springbench::physics::preset("spider_4in")
         .unwrap()
