@@ -5,8 +5,8 @@
 //! Errors are RFC 9457 problem documents ([`problem::Problem`]).
 
 pub mod auth;
-pub mod derived;
 pub mod benches;
+pub mod derived;
 pub mod events;
 pub mod guard;
 pub mod jobs;
