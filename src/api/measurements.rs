@@ -159,9 +159,14 @@ pub async fn fit(
         }
     }
     let mut effects = vec![];
+    // An explicit list fits exactly that model; "auto" (or no list) lets the
+    // diagnostics' ladder choose.
+    let mut exact = false;
     match obj.get("effects") {
         None | Some(Value::Null) => {}
+        Some(Value::String(a)) if a == "auto" => {}
         Some(Value::Array(a)) => {
+            exact = true;
             for (i, e) in a.iter().enumerate() {
                 match serde_json::from_value::<EffectId>(e.clone()) {
                     Ok(x) => effects.push(x),
@@ -177,7 +182,7 @@ pub async fn fit(
         }
         Some(_) => errors.push(FieldError {
             field: "effects".into(),
-            message: "must be a list of effect ids".into(),
+            message: "must be a list of effect ids or \"auto\"".into(),
         }),
     }
     let order = match obj.get("order") {
@@ -219,7 +224,11 @@ pub async fn fit(
     if order.is_some() {
         analyze.order = order;
     }
-    let opts = DiagnoseOptions { analyze, effects };
+    let opts = DiagnoseOptions {
+        analyze,
+        effects,
+        exact,
+    };
     let request = serde_json::to_value(&opts).map_err(Problem::internal)?;
     let d = tokio::task::spawn_blocking(move || diagnose::diagnose(&set, &opts))
         .await
@@ -256,6 +265,7 @@ pub(super) async fn diagnose_stored(
     let opts = DiagnoseOptions {
         analyze,
         effects: vec![],
+        exact: false,
     };
     tokio::task::spawn_blocking(move || {
         let d = diagnose::diagnose(&set, &opts);

@@ -19,12 +19,16 @@ pub fn options(args: &AnalyzeArgs) -> Result<DiagnoseOptions, String> {
         }
     };
     let mut effects = Vec::new();
-    for e in args
+    // `--effects a,b` fits exactly that model; `--effects auto` (or none)
+    // lets the ladder choose.
+    let names: Vec<&str> = args
         .effects
         .iter()
         .map(|e| e.trim())
         .filter(|e| !e.is_empty())
-    {
+        .collect();
+    let auto = names.is_empty() || names == ["auto"];
+    for e in names.into_iter().filter(|e| *e != "auto") {
         let id = EffectId::parse(e)?;
         if !effects.contains(&id) {
             effects.push(id);
@@ -39,6 +43,7 @@ pub fn options(args: &AnalyzeArgs) -> Result<DiagnoseOptions, String> {
             order: args.order,
         },
         effects,
+        exact: !auto,
     })
 }
 

@@ -26,6 +26,9 @@ pub struct EngineOptions {
     pub order: Option<usize>,
     /// Effects forced into the model from the start.
     pub forced: Vec<EffectId>,
+    /// Let the forward-selection ladder add effects to `forced` ("auto");
+    /// false fits exactly `forced` and only reports what the ladder would add.
+    pub ladder: bool,
     /// Number of contiguous time blocks (batch-means covariance).
     pub blocks: usize,
     /// Number of contiguous cross-validation folds (runs of blocks).
@@ -48,6 +51,7 @@ impl Default for EngineOptions {
         EngineOptions {
             order: None,
             forced: Vec::new(),
+            ladder: true,
             blocks: 40,
             folds: 5,
             alpha: 0.01,
@@ -110,9 +114,19 @@ pub struct FittedModel {
     pub effects: Effects,
     /// Standard errors of the effect parameters (same names), block-robust.
     pub effects_se: serde_json::Value,
-    /// K(x) = sum k_i x^i (N/m, x in m) of this model.
+    /// K(x) = sum k_i x^i (N/m, x in m) of this model; with stiffness
+    /// drift in the model, K(x) at the start of the recording (`reference_time_s`).
     pub stiffness_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Block-robust standard errors of the coefficients (same units).
+    #[serde(default)]
+    pub stiffness_coefficients_se_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Time (s from the start of the recording) K(x) refers to; None when
+    /// nothing in the model changes K over time.
+    #[serde(default)]
+    pub reference_time_s: Option<f64>,
     pub r_ns_per_m: f64,
+    #[serde(default)]
+    pub r_se_ns_per_m: f64,
     pub force_per_mic_n_per_v: f64,
     pub residual_percent: f64,
     /// Residual of blocked cross-validation (held-out data).
@@ -721,12 +735,10 @@ fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<
     let cov = built.gram.block_covariance(&fit.beta);
     let mut effects = Effects::default();
     let mut se_map = serde_json::Map::new();
-    let mut k_leg = Vec::new();
     let (mut r, mut s) = (0.0, 0.0);
     for (i, role) in built.roles.iter().enumerate() {
         match *role {
             Role::Mic => s = fit.beta[i],
-            Role::K(_) => k_leg.push(-fit.beta[i]),
             Role::R => r = -fit.beta[i],
             _ => {}
         }
@@ -747,24 +759,52 @@ fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<
             se_map.insert(e.as_str().into(), effect_se(e, &se));
         }
     }
-    // K(x) = sum_i b_i P_i(u), u = x / xs  ->  monomial coefficients in x.
+    // K(x) = sum_i b_i P_i(u), u = x / xs  ->  monomial coefficients in x,
+    // as one linear map T of the fitted coefficients (so the standard errors
+    // follow from the block covariance: diag(T C T^T)).
     let mono = legendre_monomials(built.spec.order);
-    let mut k = vec![0.0; built.spec.order + 1];
-    for (i, b) in k_leg.iter().enumerate() {
-        for (j, c) in mono[i].iter().enumerate() {
-            k[j] += b * c;
+    let np = fit.beta.len();
+    let mut t_map = nalgebra::DMatrix::<f64>::zeros(built.spec.order + 1, np);
+    for (col, role) in built.roles.iter().enumerate() {
+        if let Role::K(i) = *role {
+            for (j, c) in mono[i].iter().enumerate() {
+                t_map[(j, col)] -= c / p.x_scale.powi(j as i32);
+            }
         }
     }
-    for (j, kj) in k.iter_mut().enumerate() {
-        *kj /= p.x_scale.powi(j as i32);
+    // Stiffness drift: the column x (t - t_mid) moves K(0) linearly in time;
+    // K(x) is stated at the start of the recording (t = 0).
+    let mut reference_time_s = None;
+    if let Some(col) = built
+        .roles
+        .iter()
+        .position(|r| *r == Role::Eff(EffectId::StiffnessDrift, 0))
+    {
+        let t_mid_abs = p.d.t0_s + (p.y.len() as f64 - 1.0) / 2.0 / p.fs();
+        // K0(t) = K0_mid + slope (t - t_mid_abs), slope = -beta_d.
+        t_map[(0, col)] += t_mid_abs;
+        reference_time_s = Some(0.0);
     }
+    let k: Vec<f64> = (&t_map * &fit.beta).iter().copied().collect();
+    let k_cov = &t_map * &cov * t_map.transpose();
+    let k_se: Vec<f64> = (0..k.len())
+        .map(|j| k_cov[(j, j)].max(0.0).sqrt())
+        .collect();
+    let r_se = built
+        .roles
+        .iter()
+        .position(|r| *r == Role::R)
+        .map_or(0.0, |i| cov[(i, i)].max(0.0).sqrt());
     let model = FittedModel {
         order: built.spec.order,
         effect_ids: built.spec.effects.iter().map(|e| e.0).collect(),
         effects,
         effects_se: serde_json::Value::Object(se_map),
         stiffness_coefficients_n_per_m_pow_i_plus_1: k,
+        stiffness_coefficients_se_n_per_m_pow_i_plus_1: k_se,
+        reference_time_s,
         r_ns_per_m: r,
+        r_se_ns_per_m: r_se,
         force_per_mic_n_per_v: s,
         residual_percent: pct(p, fit.sse),
         cv_residual_percent: pct(p, built.gram.cv_sse(folds)),
@@ -1019,6 +1059,10 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         if candidates.is_none() {
             candidates = Some(ranked.iter().map(|r| r.2.clone()).collect());
         }
+        if !opts.ladder {
+            // An explicit model: the candidates are reported, never added.
+            break;
+        }
         let Some((term, hyper, pv)) = best else { break };
         let mut spec = built.spec.clone();
         match term {
@@ -1042,8 +1086,11 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     let (res, modelled) = residual(&p, &built, &beta);
     let spectrum = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
     let noise_floor_percent = 100.0 * spectrum.noise_variance.sqrt() / p.rms_y;
+    // Every model-error figure of the document is one formula: the in-sample
+    // residual against the final model's noise floor (held-out figures are
+    // reported as such: cv_residual_percent, error_reduction_percent).
     for step in &mut ladder {
-        step.model_error_percent = model_error(step.cv_residual_percent, noise_floor_percent);
+        step.model_error_percent = model_error(step.residual_percent, noise_floor_percent);
     }
     // Reported reductions use the final model's noise floor (the cleanest
     // residual); the decisions above used each step's own estimate.

@@ -4,6 +4,7 @@
 //! `DiagnoseOptions`, `Diagnosis`, `diagnose`, `plot_names`, `plot`.
 
 pub mod engine;
+pub mod headline;
 pub mod regress;
 pub mod spectrum;
 pub mod stats;
@@ -18,9 +19,13 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct DiagnoseOptions {
     pub analyze: AnalyzeOptions,
-    /// Effects forced into the model (`--effects a,b`, or the body of a fit request).
+    /// Effects in the model (`--effects a,b`, or the body of a fit request).
     #[serde(default)]
     pub effects: Vec<EffectId>,
+    /// True: fit exactly `effects` (the ladder's suggestions are reported,
+    /// not added). False ("auto"): the ladder adds what the data demand.
+    #[serde(default)]
+    pub exact: bool,
 }
 
 /// The diagnosis: the analysis report with `model` refitted with the chosen
@@ -47,11 +52,58 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     let engine_opts = engine::EngineOptions {
         order: opts.analyze.order,
         forced: opts.effects.clone(),
+        ladder: !opts.exact,
         ..Default::default()
     };
     let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
     report.model = result.report_model();
+    // One model, one set of numbers: the headline K(x) and R are the chosen
+    // model's (the engine's force balance is the Two Signal one).
+    if opts.analyze.method == crate::identify::Method::TwoSignal {
+        report.stiffness = headline::stiffness(&report.stiffness, &result);
+    } else if !result.model.effect_ids.is_empty() {
+        warnings.push(
+            "the effects were fitted with the two-signal force balance; K(x) above is the one-signal fit without them"
+                .into(),
+        );
+    }
     let mut diagnostics = result.diagnostics_json(&data);
+    // The small-signal model: the same engine on the pre-measurement (creep,
+    // friction and delay show below resonance), k0, f0 and Q from its choice.
+    if let Some(plain) = report.small_signal.clone() {
+        // The part is the same in both sweeps: the effects of the main
+        // model are in the small-signal model from the start (a log sweep
+        // alone confounds time and frequency: drift and creep look alike
+        // there), the ladder may add more.
+        let mut pre_opts = engine_opts.clone();
+        for e in result.model.effect_ids.iter() {
+            if !pre_opts.forced.contains(e) {
+                pre_opts.forced.push(*e);
+            }
+        }
+        match crate::identify::pre_force_balance_data(set)
+            .map_err(|e| e.to_string())
+            .and_then(|d| engine::run(&d, &pre_opts))
+        {
+            Ok(pre) => {
+                let ss = headline::small_signal(&plain, &pre, set.meta.moving_mass_kg);
+                if !ss.effects.is_empty() {
+                    let ids: Vec<&str> = ss.effects.ids().iter().map(|e| e.as_str()).collect();
+                    warnings.push(format!(
+                        "small-signal values from the model with {} (the linear resonator's fit is in small_signal.base: k0 {:.1} N/m there, {:.1} N/m here)",
+                        ids.join(" + "),
+                        plain.k0_n_per_m,
+                        ss.k0_n_per_m
+                    ));
+                }
+                report.small_signal = Some(ss);
+                diagnostics["small_signal_model"] = headline::small_signal_json(&pre);
+            }
+            Err(e) => warnings.push(format!(
+                "small-signal model with effects not fitted ({e}); small-signal values are the linear resonator's"
+            )),
+        }
+    }
     if let Some(ss) = small_signal_comparison(set, &report) {
         diagnostics["comparison"]["small_signal"] = ss;
     }

@@ -59,6 +59,18 @@ pub struct SmallSignal {
     pub misfit_percent: f64,
     /// False when the pre-measurement is not the linear resonator it should be.
     pub reliable: bool,
+    /// Effects in the small-signal model the values above come from (empty:
+    /// the linear resonator). Filled by the diagnostics.
+    #[serde(default, skip_serializing_if = "crate::effects::Effects::is_empty")]
+    pub effects: crate::effects::Effects,
+    /// Time (s from the start of the pre-measurement) k0 refers to, when the
+    /// model lets the stiffness change over time (stiffness drift).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_time_s: Option<f64>,
+    /// The linear resonator's values when the model above has effects
+    /// (what a plain analysis reports), for comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<Box<SmallSignal>>,
 }
 
 /// Large-signal results from the main (narrow) sweep (SI).
@@ -103,6 +115,30 @@ pub struct Stiffness {
     /// Force per microphone volt of the Two Signal method (N/V); None for One Signal.
     #[serde(default)]
     pub force_per_mic_v_n_per_v: Option<f64>,
+    /// Standard error of `r_ns_per_m` (N s/m); 0 when not estimated.
+    #[serde(default)]
+    pub r_se_ns_per_m: f64,
+    /// Time (s from the start of the main recording) K(x) refers to, when
+    /// the model lets the stiffness change over time (stiffness drift).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_time_s: Option<f64>,
+    /// The base model's K(x) and R when the model the values above come
+    /// from has effects (chosen by the diagnostics or asked for).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<Box<Stiffness>>,
+    /// Change from the base model to this one: K at both ends of the range,
+    /// K(0) and R (%).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub change_from_base: Option<StiffnessChange>,
+}
+
+/// How much the headline K(x) and R differ from the base model's (%).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StiffnessChange {
+    /// 100 (K(x)/K_base(x) - 1) at the lower and upper end of the valid range.
+    pub k_at_range_ends_percent: [f64; 2],
+    pub k0_percent: f64,
+    pub r_percent: f64,
 }
 
 /// How well the force-balance model explains the measurement (issue 5 names).
@@ -235,6 +271,7 @@ fn analyze_prepared(
         xc_m: xc,
         r_ns_per_m: kf.r_ns_per_m,
         force_per_mic_v_n_per_v: kf.scale_n_per_v.map(|s| s.0),
+        ..Default::default()
     };
 
     // Noise floor of the force balance: what the sensor noise puts into e.
@@ -277,6 +314,14 @@ pub fn force_balance_data(
     _opts: &AnalyzeOptions,
 ) -> Result<ForceBalanceData, AnalyzeError> {
     let p = prep::prepare(set)?;
+    Ok(force_balance_of(&p))
+}
+
+/// The force-balance data of the pre-measurement, prepared like the main
+/// sweep (its span: where the displacement's fundamental exceeds 10 % of its
+/// peak). The diagnostics fit the small-signal model with effects on it.
+pub fn pre_force_balance_data(set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
+    let p = prep::prepare_sweep(&set.pre, set.meta.moving_mass_kg, "pre")?;
     Ok(force_balance_of(&p))
 }
 

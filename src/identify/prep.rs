@@ -122,14 +122,19 @@ fn marks(main: &Signals, x: &[f64], decim: usize) -> Vec<f64> {
 }
 
 pub fn prepare(set: &RecordingSet) -> Result<Prepared, AnalyzeError> {
-    let mass_kg = set.meta.moving_mass_kg;
+    prepare_sweep(&set.main, set.meta.moving_mass_kg, "main")
+}
+
+/// [`prepare`] for any sweep of the set (`what` names it in errors): the
+/// diagnostics prepare the pre-measurement the same way for the force
+/// balance of the small-signal model.
+pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepared, AnalyzeError> {
     if !(mass_kg.is_finite() && mass_kg > 0.0) {
         return Err(AnalyzeError::Invalid(format!(
             "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
         )));
     }
-    let main = &set.main;
-    check_signals(main, "main", 0.5)?;
+    check_signals(main, what, 0.5)?;
     let fs = main.sample_rate_hz;
     let lowpass = lowpass_for(fs);
     let (sx, sm, decim, x, v, a, mic) = dsp::spectrum::with_thread_planner(|planner| {
@@ -149,17 +154,16 @@ pub fn prepare(set: &RecordingSet) -> Result<Prepared, AnalyzeError> {
     let pm = dsp::harmonics_per_period(&mic, &mk, fs_d, N_HARM);
     if px.len() < 20 {
         return Err(AnalyzeError::Invalid(format!(
-            "main: too few oscillation periods found ({}): not a sweep, or too short",
+            "{what}: too few oscillation periods found ({}): not a sweep, or too short",
             px.len()
         )));
     }
     // Resonance: the maximum of the fundamental displacement amplitude along the sweep.
     let amp: Vec<f64> = px.iter().map(|p| p.amplitude(1)).collect();
     let (res_index, res_pos) = dsp::resonance_peak(&amp, 2, 0.1).ok_or_else(|| {
-        AnalyzeError::Invalid(
-            "main: no resonance inside the sweep (the displacement amplitude peaks at an end of the sweep)"
-                .into(),
-        )
+        AnalyzeError::Invalid(format!(
+            "{what}: no resonance inside the sweep (the displacement amplitude peaks at an end of the sweep)"
+        ))
     })?;
     // Analysed span: the periods whose fundamental exceeds 10 % of the peak.
     let thr = 0.1 * amp[res_index];

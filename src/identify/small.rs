@@ -167,6 +167,7 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
         force_per_mic_v_n_per_v: Some(aa),
         misfit_percent,
         reliable,
+        ..Default::default()
     };
     Ok(SmallFit { result, warnings })
 }

@@ -1,0 +1,158 @@
+//! One model, one set of numbers (issue 12): the headline K(x), R, k0, f0
+//! and Q of a diagnosed report come from the model the diagnostics chose (or
+//! were asked for); the base model's values stay beside them with the change
+//! at the ends of the measured range. Pure.
+
+use super::engine::{EngineResult, FittedModel};
+use crate::identify::{SmallSignal, Stiffness, StiffnessChange};
+
+fn k_of(k: &[f64], x: f64) -> f64 {
+    k.iter().rev().fold(0.0, |acc, c| acc * x + c)
+}
+
+/// Where C(x) = 1/K(x) first falls to 75 % of C(0) between 0 and `edge`
+/// (K reaches K(0)/0.75); None when not reached inside the range.
+fn xc_side(k: &[f64], edge: f64) -> Option<f64> {
+    let k0 = k_of(k, 0.0);
+    if !(k0 > 0.0) || edge == 0.0 {
+        return None;
+    }
+    let target = k0 / 0.75;
+    let steps = 2000;
+    let mut prev = 0.0;
+    for i in 1..=steps {
+        let x = edge * i as f64 / steps as f64;
+        if k_of(k, x) >= target {
+            let (mut a, mut b) = (prev, x);
+            for _ in 0..60 {
+                let m = 0.5 * (a + b);
+                if k_of(k, m) >= target {
+                    b = m;
+                } else {
+                    a = m;
+                }
+            }
+            return Some(0.5 * (a + b));
+        }
+        prev = x;
+    }
+    None
+}
+
+/// `template` (the plain analysis's stiffness: method, valid range) with the
+/// K(x) and R of `m`.
+fn stiffness_of(template: &Stiffness, m: &FittedModel) -> Stiffness {
+    let k = &m.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let [xlo, xhi] = template.valid_range_m;
+    Stiffness {
+        order: m.order,
+        coefficients_n_per_mm_pow_i_plus_1: k
+            .iter()
+            .enumerate()
+            .map(|(i, c)| c * 1e-3f64.powi(i as i32 + 1))
+            .collect(),
+        coefficients_n_per_m_pow_i_plus_1: k.clone(),
+        coefficients_se_n_per_m_pow_i_plus_1: m.stiffness_coefficients_se_n_per_m_pow_i_plus_1.clone(),
+        xc_m: [xc_side(k, xlo), xc_side(k, xhi)],
+        r_ns_per_m: m.r_ns_per_m,
+        r_se_ns_per_m: m.r_se_ns_per_m,
+        force_per_mic_v_n_per_v: Some(m.force_per_mic_n_per_v),
+        reference_time_s: m.reference_time_s,
+        base: None,
+        change_from_base: None,
+        ..template.clone()
+    }
+}
+
+fn pct(a: f64, b: f64) -> f64 {
+    if b != 0.0 {
+        100.0 * (a / b - 1.0)
+    } else {
+        f64::NAN
+    }
+}
+
+/// The headline stiffness of a diagnosed report: the chosen model's K(x) and
+/// R; with effects in it, the base model's beside and the change.
+pub fn stiffness(plain: &Stiffness, r: &EngineResult) -> Stiffness {
+    let mut s = stiffness_of(plain, &r.model);
+    if !r.model.effect_ids.is_empty() {
+        let b = stiffness_of(plain, &r.base);
+        let [xlo, xhi] = plain.valid_range_m;
+        let (k, kb) = (
+            &s.coefficients_n_per_m_pow_i_plus_1,
+            &b.coefficients_n_per_m_pow_i_plus_1,
+        );
+        s.change_from_base = Some(StiffnessChange {
+            k_at_range_ends_percent: [
+                pct(k_of(k, xlo), k_of(kb, xlo)),
+                pct(k_of(k, xhi), k_of(kb, xhi)),
+            ],
+            k0_percent: pct(k_of(k, 0.0), k_of(kb, 0.0)),
+            r_percent: pct(s.r_ns_per_m, b.r_ns_per_m),
+        });
+        s.base = Some(Box::new(b));
+    }
+    s
+}
+
+/// The headline small-signal values: from the small-signal model with
+/// effects when the diagnostics chose (or were asked for) any, with the
+/// linear resonator's fit beside; else the linear resonator's fit.
+pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> SmallSignal {
+    let m = &pre.model;
+    if m.effect_ids.is_empty() {
+        return plain.clone();
+    }
+    let k0 = m.stiffness_coefficients_n_per_m_pow_i_plus_1[0];
+    let k0_se = m.stiffness_coefficients_se_n_per_m_pow_i_plus_1.first().copied().unwrap_or(0.0);
+    let r = m.r_ns_per_m;
+    let w0 = (k0.max(0.0) / mass_kg).sqrt();
+    let f0 = w0 / (2.0 * std::f64::consts::PI);
+    let q = if r > 0.0 {
+        (k0.max(0.0) * mass_kg).sqrt() / r
+    } else {
+        f64::INFINITY
+    };
+    let rel_k = if k0 > 0.0 { k0_se / k0 } else { f64::NAN };
+    let rel_r = if r > 0.0 {
+        m.r_se_ns_per_m / r
+    } else {
+        f64::NAN
+    };
+    // Reliable: a physical resonator whose k0 and R the data determine
+    // (relative standard errors below 5 %, the block-robust ones).
+    let reliable = k0 > 0.0 && r > 0.0 && rel_k < 0.05 && rel_r < 0.05;
+    let mut base = plain.clone();
+    base.base = None;
+    SmallSignal {
+        f0_hz: f0,
+        k0_n_per_m: k0,
+        r_ns_per_m: r,
+        q,
+        f0_se_hz: 0.5 * f0 * rel_k,
+        k0_se_n_per_m: k0_se,
+        r_se_ns_per_m: m.r_se_ns_per_m,
+        q_se: q.abs() * ((0.5 * rel_k).powi(2) + rel_r.powi(2)).sqrt(),
+        force_per_mic_v_n_per_v: Some(m.force_per_mic_n_per_v),
+        misfit_percent: plain.misfit_percent,
+        reliable,
+        effects: m.effects,
+        reference_time_s: m.reference_time_s,
+        base: Some(Box::new(base)),
+    }
+}
+
+/// The small-signal model's diagnostics (no plot data): what was tested on
+/// the pre-measurement and what was chosen.
+pub fn small_signal_json(pre: &EngineResult) -> serde_json::Value {
+    serde_json::json!({
+        "candidates": pre.candidates,
+        "ladder": pre.ladder,
+        "base_model": pre.base,
+        "final_model": pre.model,
+        "noise_floor_percent": pre.noise_floor_percent,
+        "model_error_percent": pre.model_error_percent,
+        "base_model_error_percent": pre.base_model_error_percent,
+    })
+}
