@@ -104,9 +104,19 @@ pub fn errors(part: &PartSpec, r: &Report) -> Errors {
     let k0_true = k_true(part, 0.0, 0.0);
     let ss = r.small_signal.as_ref().expect("small-signal fit");
     Errors {
-        k_rms_percent: k_rms(part, &s.coefficients_n_per_m_pow_i_plus_1, s.valid_range_m, t),
+        k_rms_percent: k_rms(
+            part,
+            &s.coefficients_n_per_m_pow_i_plus_1,
+            s.valid_range_m,
+            t,
+        ),
         base_k_rms_percent: base.as_ref().map_or(f64::NAN, |b| {
-            k_rms(part, &b.coefficients_n_per_m_pow_i_plus_1, s.valid_range_m, 0.0)
+            k_rms(
+                part,
+                &b.coefficients_n_per_m_pow_i_plus_1,
+                s.valid_range_m,
+                0.0,
+            )
         }),
         k0_percent: 100.0 * (ss.k0_n_per_m / k0_true - 1.0),
         r_percent: 100.0 * (s.r_ns_per_m / part.r_ns_per_m - 1.0),

@@ -52,7 +52,9 @@ fn stiffness_of(template: &Stiffness, m: &FittedModel) -> Stiffness {
             .map(|(i, c)| c * 1e-3f64.powi(i as i32 + 1))
             .collect(),
         coefficients_n_per_m_pow_i_plus_1: k.clone(),
-        coefficients_se_n_per_m_pow_i_plus_1: m.stiffness_coefficients_se_n_per_m_pow_i_plus_1.clone(),
+        coefficients_se_n_per_m_pow_i_plus_1: m
+            .stiffness_coefficients_se_n_per_m_pow_i_plus_1
+            .clone(),
         xc_m: [xc_side(k, xlo), xc_side(k, xhi)],
         r_ns_per_m: m.r_ns_per_m,
         r_se_ns_per_m: m.r_se_ns_per_m,
@@ -105,7 +107,11 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
         return plain.clone();
     }
     let k0 = m.stiffness_coefficients_n_per_m_pow_i_plus_1[0];
-    let k0_se = m.stiffness_coefficients_se_n_per_m_pow_i_plus_1.first().copied().unwrap_or(0.0);
+    let k0_se = m
+        .stiffness_coefficients_se_n_per_m_pow_i_plus_1
+        .first()
+        .copied()
+        .unwrap_or(0.0);
     let r = m.r_ns_per_m;
     let w0 = (k0.max(0.0) / mass_kg).sqrt();
     let f0 = w0 / (2.0 * std::f64::consts::PI);
