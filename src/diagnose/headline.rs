@@ -14,7 +14,7 @@ fn k_of(k: &[f64], x: f64) -> f64 {
 /// (K reaches K(0)/0.75); None when not reached inside the range.
 fn xc_side(k: &[f64], edge: f64) -> Option<f64> {
     let k0 = k_of(k, 0.0);
-    if !(k0 > 0.0) || edge == 0.0 {
+    if k0.is_nan() || k0 <= 0.0 || edge == 0.0 {
         return None;
     }
     let target = k0 / 0.75;
