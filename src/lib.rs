@@ -4,7 +4,7 @@
 //! - numeric core, pure and synchronous, no I/O: [`dsp`], [`identify`], [`physics`], [`effects`], [`diagnose`]
 //! - recordings on disk: [`recording`] (WAV + meta.json)
 //! - measurement: [`bench`] (device seam: virtual or hardware), [`procedure`] (steps as data)
-//! - daemon shell (async): [`config`], [`store`], [`runner`], [`api`]
+//! - daemon shell (async): [`config`], [`store`], [`runner`], [`api`], [`ui`] (web pages compiled in)
 //! - command line: [`cli`]
 
 pub mod api;
@@ -20,6 +20,7 @@ pub mod procedure;
 pub mod recording;
 pub mod runner;
 pub mod store;
+pub mod ui;
 
 /// Software version recorded with every measurement.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");

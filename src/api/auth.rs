@@ -1,6 +1,7 @@
 //! Bearer tokens with roles. Reads need `viewer`, submitting, cancelling,
 //! importing and fitting need `operator`, the configuration needs `admin`.
-//! `/healthz` and `/readyz` are open. Without configured tokens everything is
+//! `/healthz`, `/readyz`, `/api/v1/session` (who am I) and the UI's pages
+//! (`/`, `/ui/...`) are open. Without configured tokens everything is
 //! open (the daemon then listens on loopback only). Websocket clients that
 //! cannot set headers may pass `?token=`.
 
@@ -14,7 +15,11 @@ use axum::response::{IntoResponse, Response};
 
 /// The role a request needs; None for open routes.
 pub fn required_role(method: &Method, path: &str) -> Option<Role> {
-    if path == "/healthz" || path == "/readyz" {
+    if path == "/healthz"
+        || path == "/readyz"
+        || path == "/api/v1/session"
+        || crate::ui::is_public(path)
+    {
         return None;
     }
     if path == "/api/v1/config" {
@@ -30,6 +35,22 @@ pub fn required_role(method: &Method, path: &str) -> Option<Role> {
 fn same(a: &[u8], b: &[u8]) -> bool {
     // constant time for equal lengths
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// The configured token named by a request's `Authorization: Bearer` header.
+pub fn bearer_token<'a>(
+    cfg: &'a crate::config::Config,
+    headers: &axum::http::HeaderMap,
+) -> Option<&'a crate::config::Token> {
+    let s = headers.get(header::AUTHORIZATION)?.to_str().ok()?;
+    let (scheme, tok) = s.split_once(' ')?;
+    if !scheme.eq_ignore_ascii_case("bearer") {
+        return None;
+    }
+    cfg.auth
+        .tokens
+        .iter()
+        .find(|t| same(t.token.as_bytes(), tok.trim().as_bytes()))
 }
 
 fn token_from(req: &Request) -> Option<String> {

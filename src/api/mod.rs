@@ -15,6 +15,7 @@ pub mod metrics;
 pub mod ops;
 pub mod problem;
 pub mod server;
+pub mod session;
 
 use crate::config::Config;
 use crate::runner::Runner;
@@ -89,6 +90,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/calibrations/{id}",
         get(benches::calibration),
     )
+    .add("get", "/api/v1/session", get(session::session))
     .add("post", "/api/v1/jobs", post(jobs::submit).layer(json_limit))
     .add("get", "/api/v1/jobs", get(jobs::list))
     .add("get", "/api/v1/jobs/{id}", get(jobs::get_one))
@@ -145,6 +147,7 @@ pub fn app(state: AppState) -> Router {
     let (router, _) = routes(&state.cfg);
     let body_timeout = std::time::Duration::from_secs_f64(state.cfg.http.body_read_timeout_s);
     router
+        .merge(crate::ui::router())
         .fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(axum::middleware::from_fn_with_state(

@@ -1280,9 +1280,24 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
         })
     };
     let vs_v = |res: &[f64]| mean_by_bins(v, res, |_| true, vlo, vhi, nb);
+    // Samples per bin: a bin mean of white noise of RMS sigma scatters by sigma / sqrt(count).
+    let counts = |key: &[f64], mask: &dyn Fn(usize) -> bool, lo: f64, hi: f64| -> Vec<f64> {
+        let w = (hi - lo) / nb as f64;
+        let mut c = vec![0.0; nb];
+        for (i, &k) in key.iter().enumerate() {
+            if mask(i) && w > 0.0 {
+                c[(((k - lo) / w) as usize).min(nb - 1)] += 1.0;
+            }
+        }
+        c
+    };
+    let noise_rms_n = r.spectrum.noise_variance.max(0.0).sqrt();
+    // The base model's residual spectrum on the same bins as the final one.
+    let base_sp = super::spectrum::residual_spectrum(&r.base_residual_n, fs, 0.5);
     // Spectrum on about 300 log-spaced points.
     let sp = &r.spectrum;
-    let (mut f_out, mut p_out, mut n_out) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut f_out, mut p_out, mut n_out, mut b_out) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     if sp.freq_hz.len() > 2 {
         let f1 = sp.freq_hz[1];
         let f2 = *sp.freq_hz.last().expect("non-empty");
@@ -1299,6 +1314,11 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
                 f_out.push(sp.freq_hz[start..k].iter().sum::<f64>() / m);
                 p_out.push(sp.psd[start..k].iter().sum::<f64>() / m);
                 n_out.push(sp.noise_psd[start..k].iter().sum::<f64>() / m);
+                b_out.push(if base_sp.psd.len() == sp.psd.len() {
+                    base_sp.psd[start..k].iter().sum::<f64>() / m
+                } else {
+                    f64::NAN
+                });
             }
         }
     }
@@ -1309,9 +1329,14 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
     json!({
         "detail": detail,
         "envelope": {"t_s": env_t, "measured_rms_n": env_m, "residual_rms_n": env_r, "base_residual_rms_n": env_b},
-        "residual_vs_x": {"x_m": centres(xlo, xhi), "final": vs_x(&r.residual_n), "base": vs_x(&r.base_residual_n)},
-        "residual_vs_v": {"v_m_per_s": centres(vlo, vhi), "final_n": vs_v(&r.residual_n), "base_n": vs_v(&r.base_residual_n)},
-        "spectrum": {"freq_hz": f_out, "psd_n2_per_hz": p_out, "noise_psd_n2_per_hz": n_out, "harmonic_bands_hz": bands},
+        "noise_rms_n": noise_rms_n,
+        "residual_vs_x": {"x_m": centres(xlo, xhi), "final": vs_x(&r.residual_n), "base": vs_x(&r.base_residual_n),
+            "positive_v_count": counts(&d.x_m, &|i| v[i] > 0.0, xlo, xhi),
+            "negative_v_count": counts(&d.x_m, &|i| v[i] <= 0.0, xlo, xhi)},
+        "residual_vs_v": {"v_m_per_s": centres(vlo, vhi), "final_n": vs_v(&r.residual_n), "base_n": vs_v(&r.base_residual_n),
+            "count": counts(v, &|_| true, vlo, vhi)},
+        "spectrum": {"freq_hz": f_out, "psd_n2_per_hz": p_out, "base_psd_n2_per_hz": b_out.into_iter().map(|v| v.is_finite().then_some(v)).collect::<Vec<_>>(),
+            "noise_psd_n2_per_hz": n_out, "harmonic_bands_hz": bands},
     })
 }
 

@@ -1,0 +1,23 @@
+//! `GET /api/v1/session`: who the caller is (token name and role), so a
+//! client such as the web UI can show only the controls its role allows and
+//! ask for a token only when one is needed. Open (no token needed): it tells
+//! nothing but whether the token sent is known and its role.
+
+use super::AppState;
+use axum::extract::State;
+use axum::http::HeaderMap;
+use axum::Json;
+use serde_json::{json, Value};
+
+pub async fn session(State(st): State<AppState>, headers: HeaderMap) -> Json<Value> {
+    if st.cfg.open_access() {
+        // No tokens configured: everything is open (loopback only).
+        return Json(json!({"name": null, "role": "admin", "auth_required": false}));
+    }
+    let t = super::auth::bearer_token(&st.cfg, &headers);
+    Json(json!({
+        "name": t.map(|t| t.name.clone()),
+        "role": t.map(|t| t.role),
+        "auth_required": true,
+    }))
+}
