@@ -47,8 +47,8 @@ export async function render(main, ctx) {
       required: true,
       autocomplete: 'off',
       spellcheck: 'false',
-      pattern: '[A-Za-z0-9._\\-]{1,64}',
-      title: '1-64 characters: letters, digits, - _ .',
+      pattern: '[A-Za-z0-9][A-Za-z0-9._\\-]{0,63}',
+      title: '1-64 characters: letters, digits, - _ . (starting with a letter or digit)',
       placeholder: 'scan or type',
     });
     const kind = h(
