@@ -24,6 +24,9 @@ use std::collections::VecDeque;
 pub const SLIP_M: f64 = 0.03;
 pub const SLIP_TIME_S: f64 = 0.02;
 
+/// Receives the true displacement (m) at every DAC sample.
+pub type DisplacementTap = Box<dyn FnMut(&[f64]) + Send>;
+
 /// A physics-backed audio device.
 pub struct EmulatedAudio {
     fs: f64,
@@ -44,7 +47,7 @@ pub struct EmulatedAudio {
     sweep: u32,
     run: Option<Run>,
     /// Receives the true displacement (m) at every DAC sample (serial laser emulators).
-    tap: Option<Box<dyn FnMut(&[f64]) + Send>>,
+    tap: Option<DisplacementTap>,
 }
 
 /// State of one started stream pair.
@@ -105,7 +108,7 @@ impl EmulatedAudio {
     }
 
     /// Hands the true displacement at every DAC sample to `tap` (e.g. a serial laser emulator).
-    pub fn set_displacement_tap(&mut self, tap: Box<dyn FnMut(&[f64]) + Send>) {
+    pub fn set_displacement_tap(&mut self, tap: DisplacementTap) {
         self.tap = Some(tap);
     }
 

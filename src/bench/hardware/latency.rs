@@ -23,7 +23,12 @@ pub fn estimate_latency(
     max_lag: usize,
 ) -> Option<LatencyEstimate> {
     let e_ref: f64 = reference.iter().map(|v| v * v).sum();
-    if reference.is_empty() || captured.is_empty() || !(e_ref > 0.0) || !e_ref.is_finite() {
+    if reference.is_empty()
+        || captured.is_empty()
+        || e_ref.is_nan()
+        || e_ref <= 0.0
+        || !e_ref.is_finite()
+    {
         return None;
     }
     let n = (reference.len() + captured.len()).next_power_of_two();
@@ -69,7 +74,7 @@ pub fn estimate_latency(
     }
     let peak = best_v * scale;
     let e_cap = window_energy(best);
-    if !(peak > 0.0) || !(e_cap > 0.0) {
+    if peak.is_nan() || peak <= 0.0 || e_cap.is_nan() || e_cap <= 0.0 {
         return None;
     }
     let mut frac = 0.0;
