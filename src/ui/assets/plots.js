@@ -25,6 +25,8 @@ export function ticks125(lo, hi) {
 }
 
 function tickLabel(v) {
+  // uPlot passes null for ticks it leaves unlabelled (too close together).
+  if (v === null || v === undefined || !Number.isFinite(v)) return '';
   if (v === 0) return '0';
   const a = Math.abs(v);
   if (a >= 1e4 || a < 1e-3) {
