@@ -9,10 +9,12 @@
 
 use crate::recording::Signals;
 
+pub mod align;
 #[cfg(feature = "hardware")]
 pub mod emulator;
 #[cfg(feature = "hardware")]
 pub mod hardware;
+pub mod laser;
 pub mod settings;
 
 /// Hard limits of a bench; a procedure never exceeds them.
