@@ -192,7 +192,7 @@ fn a_job_is_aligned_to_the_truth_and_k_of_x_survives() {
     let (mut se, mut st) = (0.0, 0.0);
     for i in 0..=400 {
         let x = range[0] + (range[1] - range[0]) * i as f64 / 400.0;
-        se += (k(&r.stiffness.coefficients, x) - k(truth, x)).powi(2);
+        se += (k(&r.stiffness.coefficients_n_per_m_pow_i_plus_1, x) - k(truth, x)).powi(2);
         st += k(truth, x).powi(2);
     }
     let e = (se / st).sqrt();

@@ -209,7 +209,7 @@ impl LaserEmulator {
             .build()?;
         // SerialStream::pair registers with the reactor: build it inside a runtime,
         // then keep plain duplicates of the descriptors.
-        let (master, path) = rt.block_on(async {
+        let (master, slave, path) = rt.block_on(async {
             let (m, s) = tokio_serial::SerialStream::pair().map_err(std::io::Error::other)?;
             use tokio_serial::SerialPort;
             let path = s
@@ -217,7 +217,11 @@ impl LaserEmulator {
                 .ok_or_else(|| std::io::Error::other("pty without a name"))?;
             // SAFETY: the descriptor is open for the duration of this borrow.
             let fd = unsafe { BorrowedFd::borrow_raw(m.as_raw_fd()) }.try_clone_to_owned()?;
-            Ok::<_, std::io::Error>((File::from(fd), path))
+            // Our own slave descriptor keeps the pty up until the reader opens
+            // it by path (with no slave open, the master reads EIO).
+            // SAFETY: as above.
+            let sfd = unsafe { BorrowedFd::borrow_raw(s.as_raw_fd()) }.try_clone_to_owned()?;
+            Ok::<_, std::io::Error>((File::from(fd), sfd, path))
         })?;
         drop(rt);
         let faults = Arc::new(Faults::default());
@@ -226,7 +230,10 @@ impl LaserEmulator {
         let (f2, s2, c2) = (faults.clone(), sent.clone(), closed_at.clone());
         let thread = std::thread::Builder::new()
             .name("laser-emulator".into())
-            .spawn(move || run(cfg, feed, master, f2, s2, c2))?;
+            .spawn(move || {
+                run(cfg, feed, master, f2, s2, c2);
+                drop(slave);
+            })?;
         Ok(LaserEmulator {
             path,
             faults,
