@@ -442,7 +442,7 @@ impl JobAligner {
                 self.ties.len(),
                 self.cfg.min_windows
             ))
-        } else if !(rms <= self.cfg.max_residual_s) {
+        } else if rms.is_nan() || rms > self.cfg.max_residual_s {
             Some(format!(
                 "residual misalignment {:.1} us above the bound {:.1} us",
                 rms * 1e6,
@@ -873,7 +873,7 @@ impl Dense {
 
 fn coverage_fraction(d: &Dense, map: Map, t0: f64, t1: f64) -> f64 {
     let (a, b) = (map.n_of(t0), map.n_of(t1));
-    if !(b > a) {
+    if b.is_nan() || a.is_nan() || b <= a {
         return 0.0;
     }
     let lo = a.max(d.n_first());
