@@ -5,10 +5,9 @@
 //! on the audio clock of the simulated microphone. Faults are made for real:
 //! garbage bytes on the line, a closed pty, an out-of-range flag, silence.
 //!
-//! `cargo test --features serial-laser-untested --test hardware_laser -- --nocapture`
-//! (NOT YET COMPILED OR RUN: written at the end of the session, see docs/hardware.md)
+//! `cargo test --features hardware --test hardware_laser -- --nocapture`
 //! prints the measured figures (alignment, fault latencies) for docs/hardware.md.
-#![cfg(feature = "serial-laser-untested")]
+#![cfg(feature = "hardware")]
 
 use springbench::bench::align::{AlignConfig, AudioCapture, JobAligner, LaserTrack};
 use springbench::bench::laser::emulator::{

@@ -23,11 +23,9 @@ pub mod ascii_lines;
 pub mod keyence;
 pub mod optoncdt;
 
-// Written but not yet compiled or run before the session ended: behind their
-// own feature so `--features hardware` (CI) stays green. See docs/hardware.md.
-#[cfg(feature = "serial-laser-untested")]
+#[cfg(feature = "hardware")]
 pub mod emulator;
-#[cfg(feature = "serial-laser-untested")]
+#[cfg(feature = "hardware")]
 pub mod serial;
 
 use serde::{Deserialize, Serialize};
