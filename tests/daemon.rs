@@ -385,3 +385,47 @@ async fn level_series_repeats_mounted_parts_and_priority() {
     let by_part = get(&c, &d, "/api/v1/jobs?part=SN-OWN&state=succeeded").await;
     assert_eq!(ids(&by_part), vec![low.as_str()]);
 }
+
+/// Issue 12: a job whose target level is not reached within the limits (the
+/// mounted spider needs about 50 V for 8 mm; 20 V allowed) succeeds, and the
+/// job and its result document carry a warning with both figures.
+#[tokio::test]
+async fn target_not_reached_is_a_warning_in_the_job_and_the_result() {
+    let d = Daemon::start("");
+    let c = client();
+    let id = submit(
+        &c,
+        &d,
+        json!({"part": {"serial": "SN-LIM"}, "target_xpeak_m": 0.008,
+               "limits": {"max_drive_v": 20.0}}),
+    )
+    .await;
+    let j = wait_job(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let warnings: Vec<String> = serde_json::from_value(j["warnings"].clone()).unwrap();
+    assert_eq!(warnings.len(), 1, "{j}");
+    let w = &warnings[0];
+    assert!(
+        w.starts_with("target Xpeak 8.000 mm not reached within the limits: reached "),
+        "{w}"
+    );
+    assert!(w.contains("drive is at its limit of 20 V"), "{w}");
+    // The reached figure is the sweep's own largest |x|, below the target.
+    let reached_mm: f64 = w
+        .split("reached ")
+        .nth(2)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert!(reached_mm > 1.0 && reached_mm < 8.0 * 0.92, "{w}");
+    let mid = j["measurement_ids"][0].as_str().unwrap();
+    let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+    let rw: Vec<String> = serde_json::from_value(m["warnings"].clone()).unwrap();
+    assert!(rw.contains(w), "{rw:?}");
+    // The measured Xpeak at resonance agrees with the figure of the warning.
+    let xpeak_mm = m["large_signal"]["xpeak_m"].as_f64().unwrap() * 1e3;
+    assert!(
+        (xpeak_mm / reached_mm - 1.0).abs() < 0.1,
+        "{xpeak_mm} vs {reached_mm}"
+    );
+}

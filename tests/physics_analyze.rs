@@ -4,8 +4,9 @@
 //!
 //! More seeds for the docs: `SPRINGBENCH_SEEDS=5 cargo test --release --test physics_analyze -- --include-ignored --nocapture`.
 
-use springbench::identify::{analyze, AnalyzeOptions};
-use springbench::physics::{preset, preset_names, simulate_recording_set};
+use springbench::identify::{analyze, AnalyzeOptions, Report};
+use springbench::physics::{preset, preset_names, simulate_recording_set, PartSpec};
+use std::f64::consts::PI;
 
 /// RMS of K_fit - K_true relative to RMS of K_true on a grid over `range`.
 fn k_rms_error(fit: &[f64], truth: &[f64], range: [f64; 2]) -> f64 {
@@ -18,6 +19,61 @@ fn k_rms_error(fit: &[f64], truth: &[f64], range: [f64; 2]) -> f64 {
         st += k(truth, x).powi(2);
     }
     (se / st).sqrt()
+}
+
+/// The part's own effective stiffness at the measured amplitude: the first
+/// Fourier coefficient of the true restoring force K(x) x over one cycle of
+/// x = c + X cos(theta) spanning the excursion at resonance, divided by X
+/// (midpoint rule on 4096 points, exact for these polynomials).
+fn keff_describing_function(k: &[f64], x_min: f64, x_max: f64) -> f64 {
+    let (c, a) = (0.5 * (x_max + x_min), 0.5 * (x_max - x_min));
+    let n = 4096;
+    let mut first = 0.0;
+    for j in 0..n {
+        let th = 2.0 * PI * (j as f64 + 0.5) / n as f64;
+        let x = c + a * th.cos();
+        let kx: f64 = k
+            .iter()
+            .enumerate()
+            .map(|(i, ki)| ki * x.powi(i as i32))
+            .sum();
+        first += kx * x * th.cos() * 2.0 / n as f64;
+    }
+    first / a
+}
+
+/// Issue 12: Keff within 1.5 % of the describing function of the true K(x)
+/// over the excursion at resonance, and fR the frequency where a steady
+/// drive of that amplitude makes x lag the force by 90 degrees,
+/// sqrt(Keff_true / m) / 2 pi.
+fn check_large_signal(name: &str, part: &PartSpec, r: &Report) {
+    let l = &r.large_signal;
+    let truth = keff_describing_function(
+        &part.k_coeffs_si,
+        l.x_min_at_resonance_m,
+        l.x_max_at_resonance_m,
+    );
+    let fr_truth = (truth / part.moving_mass_kg).sqrt() / (2.0 * PI);
+    let dk = l.keff_n_per_m / truth - 1.0;
+    let df = l.resonance_hz / fr_truth - 1.0;
+    eprintln!(
+        "{name}: fR {:.3} Hz (truth {fr_truth:.3}, {:+.2} %), Keff {:.1} N/m (truth {truth:.1}, {:+.2} %) @ Xpeak {:.2} mm; displacement peak {:.3} Hz; {:?}",
+        l.resonance_hz,
+        100.0 * df,
+        l.keff_n_per_m,
+        100.0 * dk,
+        l.xpeak_m * 1e3,
+        l.displacement_peak_hz,
+        l.displacement_peak_note
+    );
+    assert!(dk.abs() < 0.015, "{name}: Keff off by {:.2} %", 100.0 * dk);
+    assert!(df.abs() < 0.0075, "{name}: fR off by {:.2} %", 100.0 * df);
+    // The excursion Keff refers to is a large-signal one (not a sliver).
+    assert!(l.xpeak_m > 0.5 * (l.x_max_m - l.x_min_m) * 0.8, "{name}");
+    // Where the displacement peak is elsewhere, the result says why.
+    if (l.displacement_peak_hz / l.resonance_hz - 1.0).abs() > 0.005 {
+        assert!(l.displacement_peak_note.is_some(), "{name}");
+    }
 }
 
 #[test]
@@ -57,6 +113,28 @@ fn analyze_recovers_k_of_x_of_every_preset() {
                 "{name} seed {seed}: K(x) off by {:.3} % RMS",
                 e * 100.0
             );
+            check_large_signal(name, &part, &r);
         }
     }
+}
+
+/// A spider with Q = 4 (more damping than any preset): its displacement
+/// peaks about 1.6 % below fR (2 % low in Keff before issue 12).
+#[test]
+fn large_signal_of_a_low_q_spider() {
+    let mut part = preset("spider_4in").unwrap();
+    part.r_ns_per_m = (part.k_coeffs_si[0] * part.moving_mass_kg).sqrt() / 4.0;
+    let set = simulate_recording_set(&part, 2).unwrap();
+    let r = analyze(&set, &AnalyzeOptions::default()).unwrap();
+    check_large_signal("spider_4in Q 4", &part, &r);
+    let l = &r.large_signal;
+    assert!(l.displacement_peak_hz < l.resonance_hz);
+    assert!(
+        l.displacement_peak_note
+            .as_deref()
+            .unwrap()
+            .contains("damped"),
+        "{:?}",
+        l.displacement_peak_note
+    );
 }

@@ -78,3 +78,43 @@ fn simulate_bad_input_is_one_line_and_nonzero() {
         assert!(e.contains(want), "{want}: {e}");
     }
 }
+
+/// Issue 12: the target not reached within the limits is printed with both figures.
+#[test]
+fn simulate_prints_a_target_not_reached() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = bin()
+        .args([
+            "simulate",
+            "--part",
+            "spider_4in",
+            "--max-drive-v",
+            "20",
+            "--out",
+        ])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let line = err
+        .lines()
+        .find(|l| {
+            l.starts_with("WARNING: target Xpeak 8.000 mm not reached within the limits: reached ")
+        })
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(line.contains("drive is at its limit of 20 V"), "{line}");
+    let bad = bin()
+        .args([
+            "simulate",
+            "--part",
+            "spider_4in",
+            "--max-drive-v=-1",
+            "--out",
+        ])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert_eq!(String::from_utf8_lossy(&bad.stderr).lines().count(), 1);
+}

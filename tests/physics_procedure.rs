@@ -100,6 +100,8 @@ fn procedure_on_every_preset() {
             "{name}: Xpeak {}",
             n.xpeak_m
         );
+        // Reached (within the search tolerance): no warning.
+        assert_eq!(n.warning, None, "{name}");
         assert!(w.max_x <= limits.max_displacement_m, "{name}: {}", w.max_x);
         assert!(w.max_drive <= limits.max_drive_v, "{name}: {}", w.max_drive);
         assert!(
@@ -133,6 +135,17 @@ fn drive_limit_is_never_exceeded() {
     let o = run(&mut vb, &cfg_for(&part), &mut w).unwrap();
     assert!(w.max_drive <= 20.0 + 1e-9, "{}", w.max_drive);
     assert!(o.narrow[0].xpeak_m < 6e-3, "{}", o.narrow[0].xpeak_m);
+    // Issue 12: the target not reached is a warning with both figures and the limit.
+    let want = format!(
+        "target Xpeak 8.000 mm not reached within the limits: reached {:.3} mm",
+        o.narrow[0].xpeak_m * 1e3
+    );
+    let warning = o.narrow[0].warning.as_deref().unwrap_or("");
+    assert!(warning.starts_with(&want), "{warning}");
+    assert!(
+        warning.contains("drive is at its limit of 20 V"),
+        "{warning}"
+    );
     assert!(
         o.log.iter().any(|l| l.contains("drive limit")),
         "{:?}",

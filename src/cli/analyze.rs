@@ -99,7 +99,11 @@ pub fn table(r: &Report) -> String {
         "Large signal (main sweep), m = {:.4} kg",
         l.moving_mass_kg
     );
-    let _ = writeln!(o, "  fR      {:>10.3} Hz", l.resonance_hz);
+    let _ = writeln!(
+        o,
+        "  fR      {:>10.3} Hz   (x lags the force by 90 degrees)",
+        l.resonance_hz
+    );
     let _ = writeln!(
         o,
         "  Keff    {:>10.1} N/m   ({:.4} N/mm) @ Xpeak = {:.3} mm",
@@ -112,6 +116,21 @@ pub fn table(r: &Report) -> String {
         "  Ceff    {:>10.4e} m/N ({:.4} mm/N)",
         l.ceff_m_per_n,
         l.ceff_m_per_n * 1e3
+    );
+    let _ = writeln!(
+        o,
+        "  x at resonance {:.3} .. {:.3} mm; Keff of the fitted K(x) there {:.1} N/m",
+        mm(l.x_min_at_resonance_m),
+        mm(l.x_max_at_resonance_m),
+        l.keff_from_k_of_x_n_per_m
+    );
+    let _ = writeln!(
+        o,
+        "  displacement peak {:.3} Hz{}",
+        l.displacement_peak_hz,
+        l.displacement_peak_note
+            .as_ref()
+            .map_or(String::new(), |n| format!("\n    ({n})"))
     );
     let _ = writeln!(
         o,

@@ -19,6 +19,9 @@ pub struct SimulateArgs {
     /// Target peak displacement of the narrow sweep (m).
     #[arg(long)]
     pub xpeak_m: Option<f64>,
+    /// Largest drive amplitude the virtual bench allows (V peak); its default otherwise.
+    #[arg(long)]
+    pub max_drive_v: Option<f64>,
 }
 
 /// A preset by name, else a part TOML file by path; one-line error.
@@ -48,6 +51,16 @@ pub fn run(args: SimulateArgs) -> Result<(), String> {
         }
         opts.procedure.levels_m = vec![x];
     }
+    if let Some(v) = args.max_drive_v {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!(
+                "--max-drive-v must be a positive number of volts, got {v}"
+            ));
+        }
+        let mut limits = physics::VirtualBench::new(part.clone(), args.seed).limits;
+        limits.max_drive_v = v;
+        opts.limits = Some(limits);
+    }
     let sim = physics::simulate(&part, args.seed, &opts)?;
     sim.set.write_dir(&args.out).map_err(|e| e.to_string())?;
     let tp = args.out.join("truth.json");
@@ -62,5 +75,8 @@ pub fn run(args: SimulateArgs) -> Result<(), String> {
         part.name,
         args.seed
     );
+    for w in sim.outcome.narrow.iter().filter_map(|n| n.warning.as_ref()) {
+        eprintln!("WARNING: {w}");
+    }
     Ok(())
 }

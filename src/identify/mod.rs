@@ -76,17 +76,40 @@ pub struct SmallSignal {
 /// Large-signal results from the main (narrow) sweep (SI).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct LargeSignal {
+    /// fR: where the fundamental of x lags the driving force (Ss p, the
+    /// microphone) by 90 degrees; the displacement peak when the phase never
+    /// crosses (with a warning).
     pub resonance_hz: f64,
+    /// Keff(Xpeak) = (2 pi fR)^2 m.
     pub keff_n_per_m: f64,
     pub ceff_m_per_n: f64,
+    /// Largest |x| of the resonance period: the amplitude Keff belongs to.
     pub xpeak_m: f64,
+    /// Smallest and largest x of the whole analysed sweep.
     pub x_min_m: f64,
     pub x_max_m: f64,
+    /// Mean x of the resonance period.
     pub dc_m: f64,
     pub moving_mass_kg: f64,
     /// Harmonic amplitudes of x at resonance, fundamental first (m).
     #[serde(default)]
     pub harmonics_m: Vec<f64>,
+    /// Smallest and largest x of the resonance period (the excursion of Keff).
+    #[serde(default)]
+    pub x_min_at_resonance_m: f64,
+    #[serde(default)]
+    pub x_max_at_resonance_m: f64,
+    /// Cross-check of Keff: the first-harmonic describing function of the
+    /// fitted restoring force K(x) x over the excursion at resonance.
+    #[serde(default)]
+    pub keff_from_k_of_x_n_per_m: f64,
+    /// Frequency of the largest fundamental displacement of the sweep (Hz).
+    #[serde(default)]
+    pub displacement_peak_hz: f64,
+    /// Why the displacement peak is not fR, when they differ by more than
+    /// 0.5 % (box air spring, damping).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub displacement_peak_note: Option<String>,
 }
 
 /// Nonlinear stiffness K(x) = sum k_i x^i (x in m, K in N/m).
@@ -161,6 +184,7 @@ pub enum AnalyzeError {
     Invalid(String),
 }
 
+pub mod large;
 mod prep;
 mod small;
 mod stiffness;
@@ -204,23 +228,6 @@ fn analyze_prepared(
         Err(e) => return Err(e),
     };
 
-    // Large signal at the resonance period.
-    let ri = p.res_index;
-    let fr = interp_freq(p, p.res_pos);
-    let keff = (2.0 * std::f64::consts::PI * fr).powi(2) * p.mass_kg;
-    let (x_min, x_max) = extremes(&p.x[p.span.0..p.span.1]);
-    let large_signal = LargeSignal {
-        resonance_hz: fr,
-        keff_n_per_m: keff,
-        ceff_m_per_n: 1.0 / keff,
-        xpeak_m: x_max.max(-x_min),
-        x_min_m: x_min,
-        x_max_m: x_max,
-        dc_m: p.px[ri].dc,
-        moving_mass_kg: p.mass_kg,
-        harmonics_m: p.px[ri].harmonics.iter().map(|c| c.norm()).collect(),
-    };
-
     let span = match opts.method {
         Method::TwoSignal => p.span,
         Method::OneSignal => {
@@ -250,6 +257,7 @@ fn analyze_prepared(
             }
         }
     }
+    let large_signal = large_signal(p, &kf, &mut warnings)?;
     let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
     let k0 = kf.k_of_x(0.0);
     let xc = [xc_side(&kf, k0, xlo), xc_side(&kf, k0, xhi)];
@@ -341,12 +349,87 @@ fn force_balance_of(p: &prep::Prepared) -> ForceBalanceData {
     }
 }
 
-/// Frequency (Hz) at a fractional period index.
-fn interp_freq(p: &prep::Prepared, pos: f64) -> f64 {
-    let i = (pos.floor().max(0.0) as usize).min(p.px.len() - 1);
-    let j = (i + 1).min(p.px.len() - 1);
-    let t = pos - i as f64;
-    p.px[i].freq_hz * (1.0 - t) + p.px[j].freq_hz * t
+/// Relative difference between Keff from the phase and from the fitted K(x)
+/// above which the result says that an assumption of the force balance fails.
+pub const KEFF_CROSS_CHECK_LIMIT: f64 = 0.03;
+
+/// fR, Keff(Xpeak) and the excursion at resonance (see [`large`]).
+fn large_signal(
+    p: &prep::Prepared,
+    kf: &stiffness::KFit,
+    warnings: &mut Vec<String>,
+) -> Result<LargeSignal, AnalyzeError> {
+    let m = p.mass_kg;
+    let w2m = |f: f64| (2.0 * std::f64::consts::PI * f).powi(2) * m;
+    let peak_hz = large::freq_at(p, p.res_pos);
+    let (ri, fr) = match large::find(p) {
+        Some(r) => (r.index, r.fr_hz),
+        None if p.disp_peak_inside => {
+            warnings.push(format!(
+                "the displacement never lags the driving force (microphone) by 90 degrees inside the sweep: fR = {peak_hz:.2} Hz is the displacement peak, which lies below the resonance of a damped part and is moved by the box's air spring"
+            ));
+            (p.res_index, peak_hz)
+        }
+        None => {
+            return Err(AnalyzeError::Invalid(
+                "main: no resonance inside the sweep (the displacement neither peaks nor lags the driving force by 90 degrees inside it)"
+                    .into(),
+            ))
+        }
+    };
+    let n = p.px.len();
+    if ri < 2 || ri + 2 >= n {
+        warnings.push(format!(
+            "the resonance ({fr:.2} Hz) lies at an end of the sweep: sweep from further below to further above it"
+        ));
+    }
+    let period = &p.px[ri];
+    let (xlo, xhi) = (period.min, period.max);
+    let keff = w2m(fr);
+    let keff_kx = large::describing_function_keff(&kf.k, xlo, xhi);
+    if keff_kx.is_finite() && ((keff / keff_kx) - 1.0).abs() > KEFF_CROSS_CHECK_LIMIT {
+        warnings.push(format!(
+            "Keff from the resonance ({keff:.1} N/m) and from the fitted K(x) over the same excursion ({keff_kx:.1} N/m) differ by {:.1} % (> {:.0} %): the fitted K(x) or the force balance is off (an effect outside the model, see --diagnose; a delayed microphone; or a failed One Signal assumption)",
+            100.0 * (keff / keff_kx - 1.0),
+            100.0 * KEFF_CROSS_CHECK_LIMIT
+        ));
+    }
+    let note = ((peak_hz / fr - 1.0).abs() > 0.005).then(|| {
+        let mic = |i: usize| p.pm[i].amplitude(1);
+        let change = mic(p.res_index) / mic(ri) - 1.0;
+        let q = (keff * m).sqrt() / kf.r_ns_per_m;
+        if change.abs() > 0.05 {
+            format!(
+                "the displacement peaks at {peak_hz:.2} Hz, not at fR {fr:.2} Hz: the driving force (box pressure) there is {:.0} % {} than at fR, because the box's air spring takes part (large effective area); fR is where x lags the force by 90 degrees",
+                100.0 * change.abs(),
+                if change < 0.0 { "lower" } else { "higher" }
+            )
+        } else {
+            let ideal = (1.0 - 0.5 / (q * q)).max(0.0).sqrt();
+            format!(
+                "the displacement peaks at {peak_hz:.2} Hz, {:.1} % {} fR {fr:.2} Hz: a damped resonator (Q = {q:.1}) driven by a constant force peaks at {ideal:.3} fR; fR is where x lags the force by 90 degrees",
+                100.0 * (peak_hz / fr - 1.0).abs(),
+                if peak_hz < fr { "below" } else { "above" }
+            )
+        }
+    });
+    let (x_min, x_max) = extremes(&p.x[p.span.0..p.span.1]);
+    Ok(LargeSignal {
+        resonance_hz: fr,
+        keff_n_per_m: keff,
+        ceff_m_per_n: 1.0 / keff,
+        xpeak_m: xhi.max(-xlo),
+        x_min_m: x_min,
+        x_max_m: x_max,
+        dc_m: period.dc,
+        moving_mass_kg: m,
+        harmonics_m: period.harmonics.iter().map(|c| c.norm()).collect(),
+        x_min_at_resonance_m: xlo,
+        x_max_at_resonance_m: xhi,
+        keff_from_k_of_x_n_per_m: keff_kx,
+        displacement_peak_hz: peak_hz,
+        displacement_peak_note: note,
+    })
 }
 
 /// Minimum and maximum of a sampled band-limited signal, refined by a parabola

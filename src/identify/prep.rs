@@ -25,9 +25,12 @@ pub struct Prepared {
     /// Per-period harmonics of x and mic (same periods).
     pub px: Vec<PeriodHarmonics>,
     pub pm: Vec<PeriodHarmonics>,
-    /// Index into px of the resonance and its sub-period position.
+    /// Index into px of the largest fundamental displacement and its
+    /// sub-period position (the displacement peak, not necessarily fR).
     pub res_index: usize,
     pub res_pos: f64,
+    /// False when the displacement amplitude does not peak inside the sweep.
+    pub disp_peak_inside: bool,
     /// Analysed span [start, end) in decimated samples.
     pub span: (usize, usize),
     /// Noise (standard deviations) that the band-limited signals carry,
@@ -160,11 +163,18 @@ pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepare
     }
     // Resonance: the maximum of the fundamental displacement amplitude along the sweep.
     let amp: Vec<f64> = px.iter().map(|p| p.amplitude(1)).collect();
-    let (res_index, res_pos) = dsp::resonance_peak(&amp, 2, 0.1).ok_or_else(|| {
-        AnalyzeError::Invalid(format!(
-            "{what}: no resonance inside the sweep (the displacement amplitude peaks at an end of the sweep)"
-        ))
-    })?;
+    // A displacement that does not peak inside the sweep is no error yet: on
+    // large cones the resonance shows in the phase of X/F, not in |X| (the
+    // analysis decides, see `large::find`).
+    let peak = dsp::resonance_peak(&amp, 2, 0.1);
+    let (res_index, res_pos) = peak.unwrap_or_else(|| {
+        let i = amp
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map_or(0, |(i, _)| i);
+        (i, i as f64)
+    });
     // Analysed span: the periods whose fundamental exceeds 10 % of the peak.
     let thr = 0.1 * amp[res_index];
     let first = amp.iter().position(|&a| a >= thr).unwrap_or(0);
@@ -194,6 +204,7 @@ pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepare
         marks: mk,
         res_index,
         res_pos,
+        disp_peak_inside: peak.is_some(),
         span: (s0, s1),
     })
 }

@@ -173,6 +173,8 @@ pub fn simulate_recording_set(
 pub struct SimulateOptions {
     pub bench: BenchParams,
     pub procedure: crate::procedure::ProcedureConfig,
+    /// Limits of the virtual bench; None: its defaults.
+    pub limits: Option<crate::bench::Limits>,
 }
 
 /// Result of [`simulate`].
@@ -191,6 +193,9 @@ pub fn simulate(part: &PartSpec, seed: u64, opts: &SimulateOptions) -> Result<Si
     part.validate()?;
     opts.bench.validate()?;
     let mut vb = VirtualBench::new(part.clone(), seed).with_bench(opts.bench);
+    if let Some(l) = opts.limits {
+        vb = vb.with_limits(l);
+    }
     let mut cfg = opts.procedure.clone();
     cfg.moving_mass_kg = part.moving_mass_kg;
     struct Quiet;

@@ -84,6 +84,9 @@ pub struct NarrowSweep {
     /// Largest |x| of the sweep (m).
     pub xpeak_m: f64,
     pub signals: Signals,
+    /// Set when the target was not reached within the limits: both figures
+    /// and which limit held the level down (one line, for the result and the job).
+    pub warning: Option<String>,
 }
 
 /// Receives progress while the procedure runs. Default methods ignore everything.

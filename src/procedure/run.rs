@@ -197,6 +197,33 @@ fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
     })
 }
 
+/// The warning of a narrow sweep whose Xpeak stayed more than the search
+/// tolerance below its target; None when the target was reached.
+fn target_warning(
+    target_m: f64,
+    reached_m: f64,
+    drive_v: f64,
+    max_drive_v: f64,
+    lowered_for_displacement: bool,
+) -> Option<String> {
+    if reached_m >= (1.0 - SEARCH_TOL) * target_m {
+        return None;
+    }
+    let why = if drive_v >= max_drive_v * (1.0 - 1e-9) {
+        format!("the drive is at its limit of {max_drive_v} V")
+    } else if lowered_for_displacement {
+        "the drive was lowered after the sweep hit the displacement limit".to_string()
+    } else {
+        format!("the resonance search ended at {drive_v:.3} V")
+    };
+    Some(format!(
+        "target Xpeak {:.3} mm not reached within the limits: reached {:.3} mm ({:.0} % of the target; {why})",
+        target_m * 1e3,
+        reached_m * 1e3,
+        100.0 * reached_m / target_m
+    ))
+}
+
 fn validate(cfg: &ProcedureConfig, limits: &Limits) -> Result<(), ProcedureError> {
     let bad = |m: String| Err(ProcedureError::Invalid(m));
     if !(cfg.moving_mass_kg.is_finite() && cfg.moving_mass_kg > 0.0) {
@@ -397,6 +424,7 @@ pub fn run(
         }
         // Narrow sweep; if it hits the limit, lower the drive and redo.
         let mut done = None;
+        let mut lowered = false;
         for _ in 0..3 {
             let spec = SweepSpec::new(
                 f_r * 2f64.powf(-NARROW_BELOW_OCT),
@@ -406,6 +434,7 @@ pub fn run(
             );
             let played = cx.play(Step::NarrowSweep, &spec, false)?;
             if let Stop::Limit = played.stop {
+                lowered = true;
                 v *= 0.8;
                 cx.log.push(format!(
                     "narrow sweep hit the displacement limit: redo at {v:.3} V"
@@ -422,7 +451,12 @@ pub fn run(
                 level * 1e3,
                 info.resonance_hz
             ));
+            let warning = target_warning(level, info.xpeak_m, v, vmax, lowered);
+            if let Some(w) = &warning {
+                cx.log.push(w.clone());
+            }
             done = Some(NarrowSweep {
+                warning,
                 target_xpeak_m: level,
                 drive_v: v,
                 f_start_hz: spec.f_start_hz,

@@ -363,13 +363,28 @@ impl Runner {
         if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
             self.fault_bench(slot, &job.id, p).await?;
         }
-        let (bench_time, log, recs, meas) = match done {
-            Some(d) => (Some(d.bench_time_s), d.log, d.recordings, d.measurements),
-            None => (None, vec![], vec![], vec![]),
+        let (bench_time, log, warnings, recs, meas) = match done {
+            Some(d) => (
+                Some(d.bench_time_s),
+                d.log,
+                d.warnings,
+                d.recordings,
+                d.measurements,
+            ),
+            None => (None, vec![], vec![], vec![], vec![]),
         };
         if let Err(e) = self
             .store
-            .finish_job(&job.id, state, prob.as_ref(), bench_time, &log, recs, meas)
+            .finish_job(
+                &job.id,
+                state,
+                prob.as_ref(),
+                bench_time,
+                &log,
+                &warnings,
+                recs,
+                meas,
+            )
             .await
         {
             // The results could not be written: do not leave the job running.
@@ -386,6 +401,7 @@ impl Runner {
                     Some(&p),
                     bench_time,
                     &log,
+                    &warnings,
                     vec![],
                     vec![],
                 )
@@ -416,7 +432,7 @@ impl Runner {
                 "job.state",
                 Some(&job.id),
                 json!({"state": state.as_str(), "problem": prob, "bench_time_s": bench_time,
-                       "measurement_ids": measurement_ids}),
+                       "measurement_ids": measurement_ids, "warnings": warnings}),
             )
             .await?;
         Ok(())
@@ -477,6 +493,7 @@ enum Stop {
 struct Done {
     bench_time_s: f64,
     log: Vec<String>,
+    warnings: Vec<String>,
     recordings: Vec<NewRecording>,
     measurements: Vec<NewMeasurement>,
 }
@@ -691,6 +708,7 @@ fn execute(
     let mut done = Done {
         bench_time_s: 0.0,
         log: vec![],
+        warnings: vec![],
         recordings: vec![],
         measurements: vec![],
     };
@@ -722,8 +740,18 @@ fn execute(
                 pre: outcome.pre.clone(),
                 main: sweep.signals.clone(),
             };
+            if let Some(w) = &sweep.warning {
+                done.warnings.push(if spec.repeats > 1 {
+                    format!("repeat {}: {w}", r + 1)
+                } else {
+                    w.clone()
+                });
+            }
             let (result, analysis_error) = match identify::analyze(&set, &opts) {
-                Ok(rep) => (serde_json::to_value(&rep).ok(), None),
+                Ok(mut rep) => {
+                    rep.warnings.extend(sweep.warning.iter().cloned());
+                    (serde_json::to_value(&rep).ok(), None)
+                }
                 Err(e) => {
                     done.log.push(format!(
                         "analysis of level {} ({} m) failed: {e}",

@@ -25,7 +25,7 @@ use std::time::Duration;
 macro_rules! job_select {
     () => {
         "SELECT j.seq, j.id, j.bench_id, j.part_serial, j.priority, j.state, j.step, j.progress, j.eta_s, \
-     j.request_json, j.request_sha256, j.problem_json, j.bench_time_s, j.log_json, j.created_at, j.started_at, j.finished_at, \
+     j.request_json, j.request_sha256, j.problem_json, j.bench_time_s, j.log_json, j.warnings_json, j.created_at, j.started_at, j.finished_at, \
      (SELECT json_group_array(m.id) FROM (SELECT id FROM measurements WHERE job_id = j.id ORDER BY seq) m) AS measurement_ids \
      FROM jobs j"
     };
@@ -129,6 +129,9 @@ pub struct Job {
     pub bench_time_s: Option<f64>,
     /// Decisions the procedure took (levels, resonances found).
     pub log: Vec<String>,
+    /// What the user must know about the execution, one line each (e.g. a
+    /// target Xpeak not reached within the limits, with both figures).
+    pub warnings: Vec<String>,
     pub measurement_ids: Vec<String>,
     pub created_at: String,
     pub started_at: Option<String>,
@@ -585,6 +588,7 @@ impl Store {
         problem: Option<&Value>,
         bench_time_s: Option<f64>,
         log: &[String],
+        warnings: &[String],
         recordings: Vec<NewRecording>,
         measurements: Vec<NewMeasurement>,
     ) -> StoreResult<()> {
@@ -597,7 +601,7 @@ impl Store {
             -1.0
         };
         sqlx::query(
-            "UPDATE jobs SET state = ?, finished_at = ?, problem_json = ?, bench_time_s = ?, log_json = ?, eta_s = NULL, \
+            "UPDATE jobs SET state = ?, finished_at = ?, problem_json = ?, bench_time_s = ?, log_json = ?, warnings_json = ?, eta_s = NULL, \
              progress = CASE WHEN ? >= 0 THEN ? ELSE progress END WHERE id = ?",
         )
         .bind(state.as_str())
@@ -605,6 +609,7 @@ impl Store {
         .bind(problem.map(|p| p.to_string()))
         .bind(bench_time_s)
         .bind(serde_json::to_string(log).unwrap_or_else(|_| "[]".into()))
+        .bind(serde_json::to_string(warnings).unwrap_or_else(|_| "[]".into()))
         .bind(progress_done)
         .bind(progress_done)
         .bind(id.to_string())
@@ -913,6 +918,10 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
         .get::<Option<String>, _>("log_json")
         .map(|s| serde_json::from_str::<Vec<String>>(&s).unwrap_or_default())
         .unwrap_or_default();
+    let warnings = r
+        .get::<Option<String>, _>("warnings_json")
+        .map(|s| serde_json::from_str::<Vec<String>>(&s).unwrap_or_default())
+        .unwrap_or_default();
     let ids: Vec<String> = serde_json::from_str(&r.get::<String, _>("measurement_ids"))
         .map_err(|e| StoreError::Corrupt(e.to_string()))?;
     Ok(Job {
@@ -934,6 +943,7 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
             .transpose()?,
         bench_time_s: r.get("bench_time_s"),
         log,
+        warnings,
         measurement_ids: ids,
         created_at: r.get("created_at"),
         started_at: r.get("started_at"),
@@ -1039,6 +1049,7 @@ mod tests {
             None,
             Some(31.5),
             &["ok".into()],
+            &["target Xpeak 8.000 mm not reached".into()],
             vec![rec("pre"), rec("main")],
             vec![m],
         )
@@ -1048,6 +1059,10 @@ mod tests {
         assert_eq!(j.state, JobState::Succeeded);
         assert_eq!(j.measurement_ids, vec!["m1".to_string()]);
         assert_eq!(j.bench_time_s, Some(31.5));
+        assert_eq!(
+            j.warnings,
+            vec!["target Xpeak 8.000 mm not reached".to_string()]
+        );
         assert_eq!(j.progress, 1.0);
         let (info, result, _) = s.get_measurement("m1").await.unwrap().unwrap();
         assert_eq!(info.summary["keff_n_per_m"], json!(1234.5));
