@@ -157,3 +157,48 @@ fn no_resonance_inside_the_sweep() {
         "no resonance",
     );
 }
+
+/// Issue 12: flags that would do nothing and unknown effects are refused with
+/// one line and exit 2, before the set is read.
+#[test]
+fn flags_that_do_nothing_and_unknown_effects_are_refused() {
+    let cases: [(&[&str], &str); 4] = [
+        (
+            &["--effects", "creep"],
+            "--effects only acts with --diagnose",
+        ),
+        (
+            &["--plots", "/tmp/never-written"],
+            "--plots only acts with --diagnose",
+        ),
+        (
+            &["--diagnose", "--effects", "creep,wobble"],
+            "unknown effect 'wobble'",
+        ),
+        (&["--effects", "wobble"], "unknown effect 'wobble'"),
+    ];
+    for (args, needle) in cases {
+        let (code, stdout, stderr) = analyze(&p1(), args);
+        assert_eq!(code, 2, "{args:?}: {stdout}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+    }
+    assert!(!Path::new("/tmp/never-written").exists());
+}
+
+/// `--diagnose` keeps the tables of the plain analysis (small signal, Keff, K(x)).
+#[test]
+fn diagnose_keeps_the_main_tables() {
+    let (code, stdout, stderr) = analyze(&p1(), &["--diagnose"]);
+    assert_eq!(code, 0, "{stderr}");
+    for needle in [
+        "Small signal (pre-measurement)",
+        "  Keff ",
+        "Stiffness K(x) = sum k_i x^i",
+        "  k0 ",
+        "candidates (held-out error reduction",
+        "ladder:",
+    ] {
+        assert!(stdout.contains(needle), "'{needle}' missing in:\n{stdout}");
+    }
+}

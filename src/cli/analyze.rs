@@ -39,8 +39,32 @@ pub fn parse_method(s: &str) -> Result<Method, String> {
     }
 }
 
+/// Flags that would do nothing, and unknown effect names, are refused
+/// before anything is read (one line, exit 2).
+pub fn check_flags(args: &AnalyzeArgs) -> Result<(), String> {
+    for e in args
+        .effects
+        .iter()
+        .map(|e| e.trim())
+        .filter(|e| !e.is_empty())
+    {
+        crate::effects::EffectId::parse(e).map_err(|m| format!("--effects: {m}"))?;
+    }
+    if !args.diagnose && !args.effects.is_empty() {
+        return Err("--effects only acts with --diagnose (it names effects forced into the diagnosed model); add --diagnose or drop --effects".into());
+    }
+    if !args.diagnose && args.plots.is_some() {
+        return Err("--plots only acts with --diagnose (the plots are the diagnostics'); add --diagnose or drop --plots".into());
+    }
+    if args.order == Some(0) {
+        return Err("--order must be at least 1".into());
+    }
+    Ok(())
+}
+
 pub fn run(args: AnalyzeArgs) -> Result<(), String> {
     let method = parse_method(&args.method)?;
+    check_flags(&args)?;
     let set = RecordingSet::read_dir(&args.dir).map_err(|e| e.to_string())?;
     if args.diagnose {
         return super::diagnose::run(&set, &args);

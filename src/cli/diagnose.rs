@@ -65,7 +65,10 @@ pub fn run(set: &RecordingSet, args: &AnalyzeArgs) -> Result<(), String> {
         let text = serde_json::to_string_pretty(&diagnosis.report).map_err(|e| e.to_string())?;
         println!("{text}");
     } else {
-        print!("{}", table(&diagnosis));
+        // The main tables of the analysis first (small signal, Keff, K(x)),
+        // then the diagnostics.
+        print!("{}", super::analyze::table(&diagnosis.report));
+        print!("\nDiagnostics\n{}", table(&diagnosis));
     }
     Ok(())
 }
@@ -157,8 +160,6 @@ pub fn table(diagnosis: &Diagnosis) -> String {
             st["model_error_percent"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    for w in &r.warnings {
-        let _ = writeln!(s, "warning: {w}");
-    }
+    // The warnings are printed with the analysis tables (cli::analyze::table).
     s
 }

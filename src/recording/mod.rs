@@ -203,12 +203,19 @@ impl RecordingSet {
                 path: p.display().to_string(),
                 source,
             })?;
-            Ok::<_, RecordingError>((p, std::io::BufReader::new(f)))
+            let mut buf = Vec::new();
+            std::io::BufReader::new(f)
+                .read_to_end(&mut buf)
+                .map_err(|source| RecordingError::Io {
+                    path: p.display().to_string(),
+                    source,
+                })?;
+            Ok::<_, RecordingError>((p, buf))
         };
         let (pp, pre) = open("pre.wav")?;
-        let pre = read_signals(pre, &meta).map_err(|e| e.with_path(&pp))?;
+        let pre = read_signals_bytes(&pre, &meta).map_err(|e| e.with_path(&pp))?;
         let (mp, main) = open("main.wav")?;
-        let main = read_signals(main, &meta).map_err(|e| e.with_path(&mp))?;
+        let main = read_signals_bytes(&main, &meta).map_err(|e| e.with_path(&mp))?;
         Ok(RecordingSet { meta, pre, main })
     }
 
@@ -226,10 +233,9 @@ impl RecordingSet {
             path: "meta".into(),
             reason,
         })?;
-        let pre = read_signals(std::io::Cursor::new(pre_wav), &meta)
-            .map_err(|e| e.with_path(Path::new("pre")))?;
-        let main = read_signals(std::io::Cursor::new(main_wav), &meta)
-            .map_err(|e| e.with_path(Path::new("main")))?;
+        let pre = read_signals_bytes(pre_wav, &meta).map_err(|e| e.with_path(Path::new("pre")))?;
+        let main =
+            read_signals_bytes(main_wav, &meta).map_err(|e| e.with_path(Path::new("main")))?;
         Ok(RecordingSet { meta, pre, main })
     }
 
@@ -290,12 +296,25 @@ pub fn parse_meta(text: &str) -> Result<Meta, String> {
 }
 
 /// Reads one WAV stream and picks the channels named in `meta`.
-pub fn read_signals<R: Read>(reader: R, meta: &Meta) -> Result<Signals, RecordingError> {
+pub fn read_signals<R: Read>(mut reader: R, meta: &Meta) -> Result<Signals, RecordingError> {
+    let mut buf = Vec::new();
+    reader
+        .read_to_end(&mut buf)
+        .map_err(|e| RecordingError::Wav {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+    read_signals_bytes(&buf, meta)
+}
+
+/// [`read_signals`] on the bytes of a whole WAV file.
+pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingError> {
     let wav_err = |reason: String| RecordingError::Wav {
         path: String::new(),
         reason,
     };
-    let mut r = hound::WavReader::new(reader).map_err(|e| wav_err(e.to_string()))?;
+    let mut cur = std::io::Cursor::new(wav);
+    let r = hound::WavReader::new(&mut cur).map_err(|e| wav_err(e.to_string()))?;
     let spec = r.spec();
     let nch = spec.channels as usize;
     if (spec.sample_rate as f64 - meta.sample_rate_hz).abs() > 1e-6 * meta.sample_rate_hz {
@@ -318,25 +337,6 @@ pub fn read_signals<R: Read>(reader: R, meta: &Meta) -> Result<Signals, Recordin
             }
         }
     }
-    let interleaved: Vec<f64> = match (spec.sample_format, spec.bits_per_sample) {
-        (hound::SampleFormat::Float, 32) => r
-            .samples::<f32>()
-            .map(|s| s.map(|v| v as f64))
-            .collect::<Result<_, _>>()
-            .map_err(|e| wav_err(e.to_string()))?,
-        (hound::SampleFormat::Int, b @ (8 | 16 | 24 | 32)) => {
-            let full = (1u64 << (b - 1)) as f64;
-            r.samples::<i32>()
-                .map(|s| s.map(|v| v as f64 / full))
-                .collect::<Result<_, _>>()
-                .map_err(|e| wav_err(e.to_string()))?
-        }
-        (f, b) => {
-            return Err(wav_err(format!(
-                "unsupported sample format {f:?} with {b} bits"
-            )))
-        }
-    };
     let is_pcm = spec.sample_format == hound::SampleFormat::Int;
     let scale = meta.channel_scale.unwrap_or_default();
     if is_pcm && scale.displacement.is_none() {
@@ -344,7 +344,100 @@ pub fn read_signals<R: Read>(reader: R, meta: &Meta) -> Result<Signals, Recordin
             "PCM file: meta.json needs channel_scale.displacement (metres per full scale) to read the laser channel".into(),
         ));
     }
+    // hound parses the header and stops at the data chunk; the samples are
+    // read in one go and converted frame by frame straight into the channels
+    // (hound's per-sample iterator was most of the time of `analyze`).
+    let bytes = match (spec.sample_format, spec.bits_per_sample) {
+        (hound::SampleFormat::Float, 32) => 4,
+        (hound::SampleFormat::Int, b @ (8 | 16 | 24 | 32)) => (b as usize).div_ceil(8),
+        (f, b) => {
+            return Err(wav_err(format!(
+                "unsupported sample format {f:?} with {b} bits"
+            )))
+        }
+    };
+    let samples = r.len() as usize;
+    let frames = r.duration() as usize;
+    drop(r);
+    // The data chunk starts where hound stopped; its header (b"data", u32
+    // length) precedes it and gives the container size of a sample.
+    let start = cur.position() as usize;
+    let container = (start >= 8 && &wav[start - 8..start - 4] == b"data")
+        .then(|| {
+            u32::from_le_bytes([
+                wav[start - 4],
+                wav[start - 3],
+                wav[start - 2],
+                wav[start - 1],
+            ]) as usize
+        })
+        .and_then(|len| len.checked_div(samples));
+    if spec.bits_per_sample == 8 || container != Some(bytes) {
+        // Unusual layouts (8-bit unsigned, padded containers): hound's reader.
+        let r =
+            hound::WavReader::new(std::io::Cursor::new(wav)).map_err(|e| wav_err(e.to_string()))?;
+        return read_with_hound(r, meta, nch, is_pcm, scale);
+    }
+    let data = wav
+        .get(start..start + frames * nch * bytes)
+        .ok_or_else(|| wav_err("data chunk shorter than its header says".into()))?;
+    let full = if is_pcm {
+        (1u64 << (spec.bits_per_sample - 1)) as f64
+    } else {
+        1.0
+    };
+    let decode = |b: &[u8]| -> f64 {
+        match (is_pcm, bytes) {
+            (false, _) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+            (true, 2) => i16::from_le_bytes([b[0], b[1]]) as f64,
+            (true, 3) => (i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8) as f64,
+            (true, _) => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        }
+    };
+    let frame = nch * bytes;
+    let pick = |c: usize, s: Option<f64>| -> Vec<f64> {
+        let g = s.unwrap_or(1.0) / full;
+        data.chunks_exact(frame)
+            .map(|f| decode(&f[c * bytes..(c + 1) * bytes]) * g)
+            .collect()
+    };
+    let sig = Signals {
+        sample_rate_hz: meta.sample_rate_hz,
+        displacement_m: pick(ch.displacement, scale.displacement),
+        microphone_v: pick(ch.microphone, scale.microphone),
+        drive_v: ch.drive.map(|c| pick(c, scale.drive)),
+    };
+    sig.validate("recording")?;
+    Ok(sig)
+}
+
+/// Sample by sample through hound (8-bit and other unusual layouts).
+fn read_with_hound<R: Read>(
+    mut r: hound::WavReader<R>,
+    meta: &Meta,
+    nch: usize,
+    is_pcm: bool,
+    scale: ChannelScale,
+) -> Result<Signals, RecordingError> {
+    let wav_err = |reason: String| RecordingError::Wav {
+        path: String::new(),
+        reason,
+    };
+    let bits = r.spec().bits_per_sample;
+    let interleaved: Vec<f64> = if is_pcm {
+        let full = (1u64 << (bits - 1)) as f64;
+        r.samples::<i32>()
+            .map(|s| s.map(|v| v as f64 / full))
+            .collect::<Result<_, _>>()
+            .map_err(|e| wav_err(e.to_string()))?
+    } else {
+        r.samples::<f32>()
+            .map(|s| s.map(|v| v as f64))
+            .collect::<Result<_, _>>()
+            .map_err(|e| wav_err(e.to_string()))?
+    };
     let frames = interleaved.len() / nch.max(1);
+    let ch = meta.channels;
     let pick = |c: usize, s: Option<f64>| -> Vec<f64> {
         let g = s.unwrap_or(1.0);
         (0..frames).map(|k| interleaved[k * nch + c] * g).collect()
