@@ -358,10 +358,9 @@ pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingE
     };
     let samples = r.len() as usize;
     let frames = r.duration() as usize;
-    drop(r);
+    let start = r.into_inner().position() as usize;
     // The data chunk starts where hound stopped; its header (b"data", u32
     // length) precedes it and gives the container size of a sample.
-    let start = cur.position() as usize;
     let container = (start >= 8 && &wav[start - 8..start - 4] == b"data")
         .then(|| {
             u32::from_le_bytes([
