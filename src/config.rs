@@ -166,6 +166,8 @@ pub struct Config {
     /// Free space the data directory must keep: below it `/readyz` is not
     /// ready and jobs and imports are refused (503) instead of failing later.
     pub min_free_bytes: u64,
+    /// MES delivery: CFX `Source` and the webhooks of the outbox worker.
+    pub mes: crate::mes::MesConfig,
 }
 
 impl Default for Config {
@@ -188,6 +190,7 @@ impl Default for Config {
             defaults: JobDefaults::default(),
             http: HttpConfig::default(),
             min_free_bytes: 64 * 1024 * 1024,
+            mes: crate::mes::MesConfig::default(),
         }
     }
 }
@@ -246,6 +249,7 @@ impl Config {
             }
             b.validate_devices()?;
         }
+        self.mes.validate()?;
         let mut secrets = std::collections::HashSet::new();
         for t in &self.auth.tokens {
             if is_published_example_token(&t.token) {

@@ -41,6 +41,7 @@ fn load(case: &str) -> Case {
         r_ns_per_m: f(&truth["R_ns_per_m"]),
         ss_m2: f(&truth["ss_m2"]),
         effects: serde_json::from_value(truth["effects"].clone()).unwrap(),
+        laser_noise_m: None,
     };
     let mut bench = BenchParams::default();
     let b = &truth["bench"];

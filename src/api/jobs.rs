@@ -28,6 +28,7 @@ fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
 /// `POST /api/v1/jobs`: validate, store as queued, wake the bench. 202 + Location.
 pub async fn submit(
     State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
     headers: HeaderMap,
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
@@ -42,11 +43,16 @@ pub async fn submit(
             }
         },
     };
-    let spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
     // Refused (503) rather than acknowledged when its results could not be kept.
     st.store.check_space(st.cfg.min_free_bytes)?;
     // serde_json maps are sorted: the text is canonical for equal bodies.
     let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
+    // A recipe fills in its procedure settings (and names the version judged by).
+    let mut body = body;
+    let recipe = super::qc::apply_recipe(&st, &mut body).await?;
+    let mut spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
+    spec.recipe = recipe;
+    spec.submitted_by = caller.0;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
     let id = new_id();
     let inserted = st
@@ -97,6 +103,8 @@ fn hex(b: &[u8]) -> String {
 pub struct JobQuery {
     state: Option<String>,
     part: Option<String>,
+    /// Only jobs created at or after this time (RFC 3339).
+    since: Option<String>,
     limit: Option<i64>,
     cursor: Option<String>,
 }
@@ -116,7 +124,13 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Js
     let before = parse_cursor(q.cursor.as_deref())?;
     let items = st
         .store
-        .list_jobs(state, q.part.as_deref(), before, limit)
+        .list_jobs_since(
+            state,
+            q.part.as_deref(),
+            super::qc::parse_time("since", q.since.as_deref())?.as_deref(),
+            before,
+            limit,
+        )
         .await?;
     let next = (items.len() as i64 == limit)
         .then(|| items.last().map(|j| j.seq.to_string()))
@@ -124,12 +138,21 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Js
     Ok(Json(json!({"items": items, "next_cursor": next})))
 }
 
-pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Job>> {
-    st.store
+/// `GET /api/v1/jobs/{id}`: the job, with `verdict` (pass / fail / invalid /
+/// no_limits, or null without a recipe; details at `/api/v1/jobs/{id}/verdict`).
+pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let j = st
+        .store
         .get_job(&id)
         .await?
-        .map(Json)
-        .ok_or_else(|| Problem::not_found("job", &id))
+        .ok_or_else(|| Problem::not_found("job", &id))?;
+    let mut v = serde_json::to_value(&j).map_err(Problem::internal)?;
+    let verdicts = st.store.job_verdicts(&id).await?;
+    v["verdict"] = json!(verdicts
+        .iter()
+        .find(|x| x.measurement_id.is_none())
+        .map(|x| x.verdict.clone()));
+    Ok(Json(v))
 }
 
 /// `POST /api/v1/jobs/{id}/cancel`: 200 when a queued job is cancelled, 202
@@ -201,5 +224,13 @@ pub async fn part_measurements(
     if st.store.get_part(&serial).await?.is_none() {
         return Err(Problem::not_found("part", &serial));
     }
-    super::measurements::list_page(&st, Some(&serial), None, q.limit, q.cursor.as_deref()).await
+    super::measurements::list_page(
+        &st,
+        Some(&serial),
+        None,
+        None,
+        q.limit,
+        q.cursor.as_deref(),
+    )
+    .await
 }

@@ -21,6 +21,8 @@ use serde_json::{json, Value};
 pub struct MeasQuery {
     part: Option<String>,
     job: Option<String>,
+    /// Only measurements stored at or after this time (RFC 3339).
+    since: Option<String>,
     limit: Option<i64>,
     cursor: Option<String>,
 }
@@ -29,12 +31,17 @@ pub async fn list_page(
     st: &AppState,
     part: Option<&str>,
     job: Option<&str>,
+    since: Option<&str>,
     limit: Option<i64>,
     cursor: Option<&str>,
 ) -> ApiResult<Json<Value>> {
     let limit = page_limit(limit)?;
     let before = parse_cursor(cursor)?;
-    let items = st.store.list_measurements(part, job, before, limit).await?;
+    let since = super::qc::parse_time("since", since)?;
+    let items = st
+        .store
+        .list_measurements_since(part, job, since.as_deref(), before, limit)
+        .await?;
     let next = (items.len() as i64 == limit)
         .then(|| items.last().map(|m| m.seq.to_string()))
         .flatten();
@@ -47,6 +54,7 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<J
         &st,
         q.part.as_deref(),
         q.job.as_deref(),
+        q.since.as_deref(),
         q.limit,
         q.cursor.as_deref(),
     )
@@ -76,7 +84,11 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
         .get_measurement(&id)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", &id))?;
-    Ok(Json(document(&info, result, meta)))
+    let mut doc = document(&info, result, meta);
+    // The QC verdict of this measurement (with its traceability), null without a recipe.
+    doc["measurement"]["verdict"] =
+        serde_json::to_value(st.store.measurement_verdict(&id).await?).unwrap_or(Value::Null);
+    Ok(Json(doc))
 }
 
 /// `GET /api/v1/measurements/{id}/recordings/{pre|main}.wav`: float32 WAV,

@@ -16,12 +16,13 @@ pub mod ops;
 pub mod problem;
 pub mod server;
 pub mod session;
+pub mod qc;
 
 use crate::config::Config;
 use crate::runner::Runner;
 use crate::store::Store;
 use axum::extract::{DefaultBodyLimit, FromRequest, Request};
-use axum::routing::{get, post, MethodRouter};
+use axum::routing::{delete, get, post, put, MethodRouter};
 use axum::Router;
 use problem::Problem;
 use serde_json::Value;
@@ -138,7 +139,52 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/measurements/{id}/plots/{file}",
         get(measurements::plot),
     )
-    .add("get", "/api/v1/events", get(events::events));
+    .add("get", "/api/v1/events", get(events::events))
+    .add(
+        "post",
+        "/api/v1/recipes",
+        post(qc::create).layer(json_limit.clone()),
+    )
+    .add("get", "/api/v1/recipes", get(qc::list))
+    .add("get", "/api/v1/recipes/{name}", get(qc::get_one))
+    .add(
+        "put",
+        "/api/v1/recipes/{name}",
+        put(qc::update).layer(json_limit.clone()),
+    )
+    .add("delete", "/api/v1/recipes/{name}", delete(qc::retire))
+    .add("get", "/api/v1/recipes/{name}/versions", get(qc::versions))
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/versions/{version}",
+        get(qc::version),
+    )
+    .add(
+        "post",
+        "/api/v1/recipes/{name}/limit-proposals",
+        post(qc::propose).layer(json_limit.clone()),
+    )
+    .add("get", "/api/v1/recipes/{name}/spc", get(qc::spc))
+    .add("get", "/api/v1/limit-proposals/{id}", get(qc::get_proposal))
+    .add(
+        "post",
+        "/api/v1/limit-proposals/{id}/approve",
+        post(qc::approve),
+    )
+    .add(
+        "post",
+        "/api/v1/limit-proposals/{id}/reject",
+        post(qc::reject),
+    )
+    .add(
+        "get",
+        "/api/v1/parts/{serial}/verdict",
+        get(qc::part_verdict),
+    )
+    .add("get", "/api/v1/jobs/{id}/verdict", get(qc::job_verdict))
+    .add("get", "/api/v1/outbox", get(qc::outbox))
+    .add("post", "/api/v1/outbox/{id}/retry", post(qc::outbox_retry))
+    .add("delete", "/api/v1/outbox/{id}", delete(qc::outbox_drop));
     (r.router, r.list)
 }
 

@@ -55,6 +55,14 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
             .unwrap_or(0);
         let _ = writeln!(out, "springbench_jobs{{state=\"{}\"}} {n}", s.as_str());
     }
+    let (pending, failed, failures) = st.store.outbox_counts().await?;
+    let _ = writeln!(
+        out,
+        "# HELP springbench_mes_outbox_depth MES deliveries not yet delivered, by state.\n# TYPE springbench_mes_outbox_depth gauge\n\
+         springbench_mes_outbox_depth{{state=\"pending\"}} {pending}\nspringbench_mes_outbox_depth{{state=\"failed\"}} {failed}\n\
+         # HELP springbench_mes_delivery_failures_total Failed MES delivery attempts.\n# TYPE springbench_mes_delivery_failures_total counter\n\
+         springbench_mes_delivery_failures_total {failures}"
+    );
     let (parts, meas) = st.store.counts().await?;
     let _ = writeln!(
         out,

@@ -141,6 +141,12 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         .local_addr()
         .map_err(|e| format!("cannot listen on {addr}: {e}"))?;
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let mes_worker = crate::mes::start(
+        store.clone(),
+        cfg.mes.clone(),
+        runner.outbox_wake(),
+        stop_rx.clone(),
+    );
     let state = AppState {
         store: store.clone(),
         runner: runner.clone(),
@@ -177,6 +183,7 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
             tracing::error!("a bench did not stop within 25 s; its job will be marked interrupted at the next start");
         }
     }
+    let _ = tokio::time::timeout(Duration::from_secs(5), mes_worker).await;
     match tokio::time::timeout(Duration::from_secs(5), server).await {
         Ok(Ok(Ok(()))) => {}
         Ok(Ok(Err(e))) => tracing::error!("server: {e}"),

@@ -9,6 +9,7 @@
 //! [`crate::bench::Bench`]), [`truth`] (what a simulation used, `truth.json`).
 
 pub mod model;
+pub mod production;
 pub mod truth;
 pub mod virtual_bench;
 
@@ -32,6 +33,10 @@ pub struct PartSpec {
     /// Physical effects beyond the basic force balance (hidden effects for tests).
     #[serde(default)]
     pub effects: crate::effects::Effects,
+    /// Laser noise off this part's surface (m, standard deviation), when it
+    /// is worse than the bench's (a dark or glossy surface); None: the bench's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_noise_m: Option<f64>,
 }
 
 impl PartSpec {
@@ -67,6 +72,11 @@ impl PartSpec {
             return Err(format!("k_coeffs_si[{i}] must be finite, got {v}"));
         }
         pos("k_coeffs_si[0] (k0)", self.k_coeffs_si[0])?;
+        if let Some(n) = self.laser_noise_m {
+            if !(n.is_finite() && (0.0..=1e-3).contains(&n)) {
+                return Err(format!("laser_noise_m must be in [0, 1e-3] m, got {n}"));
+            }
+        }
         self.effects.validate()?;
         Ok(())
     }
@@ -153,6 +163,7 @@ pub fn parse_part_toml(text: &str) -> Result<PartSpec, String> {
         r_ns_per_m: t.r_ns_per_m,
         ss_m2: t.ss_m2,
         effects: t.effects,
+        laser_noise_m: None,
     };
     p.validate().map_err(|e| format!("part TOML: {e}"))?;
     Ok(p)

@@ -131,6 +131,11 @@ impl Bench for VirtualBench {
         self.part.validate().map_err(BenchError::Device)?;
         self.bench.validate().map_err(BenchError::Device)?;
         let b = self.bench;
+        // A dark or glossy part surface scatters less light: more laser noise.
+        let laser_noise_m = self
+            .part
+            .laser_noise_m
+            .map_or(b.laser.noise_m, |n| n.max(b.laser.noise_m));
         let fs = b.sample_rate_hz;
         let n = drive_v.len();
         if let Some(i) = drive_v.iter().position(|u| !u.is_finite()) {
@@ -186,7 +191,7 @@ impl Bench for VirtualBench {
             if xm.abs() > b.laser.range_m && abort.is_none() {
                 abort = Some((k, BenchError::LaserOutOfRange { t_s: k as f64 / fs }));
             }
-            let mut xo = xm + b.laser.noise_m * rng.sample::<f64, _>(StandardNormal);
+            let mut xo = xm + laser_noise_m * rng.sample::<f64, _>(StandardNormal);
             if b.laser.quantisation_m > 0.0 {
                 xo = (xo / b.laser.quantisation_m).round() * b.laser.quantisation_m;
             }

@@ -53,6 +53,34 @@ pub struct JobSpec {
     pub part_spec: Option<PartSpec>,
     /// Limits of this job (the bench's, or tighter).
     pub limits: Limits,
+    /// The QC recipe (version and hash) the job runs and is judged by.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe: Option<RecipeRef>,
+    /// Virtual bench: a part of a production lot (preset with manufacturing spread).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub production: Option<ProductionPart>,
+    /// Name of the token that submitted the job (traceability); None with open access.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub submitted_by: Option<String>,
+}
+
+/// The recipe version a job runs (`"recipe": NAME` in the request; filled in at submission).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecipeRef {
+    pub name: String,
+    pub version: i64,
+    pub sha256: String,
+}
+
+/// A part of a production lot on the virtual bench: the nominal `preset`
+/// with the lot's spread drawn from `seed`, and an optional defect.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProductionPart {
+    pub preset: String,
+    pub seed: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub defect: Option<crate::physics::production::Defect>,
 }
 
 /// One message per bad field (`field` is a JSON path like `levels_m[1]`).
@@ -82,6 +110,8 @@ const FIELDS: &[&str] = &[
     "preset",
     "part_spec",
     "limits",
+    "recipe",
+    "production",
 ];
 
 /// A valid part serial: 1-64 characters of letters, digits, `-`, `_`, `.`,
@@ -128,8 +158,22 @@ pub fn mounted_part(spec: &JobSpec, bench: &BenchConfig) -> Result<PartSpec, Str
     if let Some(p) = &spec.part_spec {
         return Ok(p.clone());
     }
+    if let Some(p) = &spec.production {
+        return production_part(p);
+    }
     let name = spec.preset.as_deref().unwrap_or(&bench.preset);
     crate::physics::preset(name)
+}
+
+/// The part a [`ProductionPart`] describes.
+pub fn production_part(p: &ProductionPart) -> Result<PartSpec, String> {
+    let nominal = crate::physics::preset(&p.preset)?;
+    Ok(crate::physics::production::part(
+        &nominal,
+        &crate::physics::production::Spread::default(),
+        p.seed,
+        p.defect,
+    ))
 }
 
 /// Validates a job body against the configuration; returns the accepted job.
@@ -385,11 +429,43 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
         }
     };
 
+    let production = match obj.get("production") {
+        None | Some(Value::Null) => None,
+        Some(v) => {
+            if preset.is_some() || part_spec.is_some() {
+                errors.push(err(
+                    "production",
+                    "give one of preset, part_spec and production",
+                ));
+            }
+            match serde_json::from_value::<ProductionPart>(v.clone()) {
+                Ok(p) => match production_part(&p) {
+                    Ok(_) => Some(p),
+                    Err(e) => {
+                        errors.push(err("production.preset", e));
+                        None
+                    }
+                },
+                Err(e) => {
+                    errors.push(err("production", e.to_string()));
+                    None
+                }
+            }
+        }
+    };
+    if let Some(v) = obj.get("recipe") {
+        if !v.is_null() && !v.as_str().is_some_and(valid_serial) {
+            errors.push(err("recipe", "must be a recipe name"));
+        }
+    }
+
     let moving_mass_kg = match obj.get("moving_mass_kg") {
         None | Some(Value::Null) => {
             // On the virtual bench it defaults to the mounted part's.
             let mounted = if let Some(p) = &part_spec {
                 Ok(p.clone())
+            } else if let Some(p) = &production {
+                production_part(p)
             } else if let Some(name) = &preset {
                 crate::physics::preset(name)
             } else if let Some(b) = bench {
@@ -399,7 +475,12 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
             };
             match mounted {
                 Ok(p) => Some(p.moving_mass_kg),
-                Err(e) if preset.is_none() && part_spec.is_none() && bench.is_some() => {
+                Err(e)
+                if preset.is_none()
+                    && part_spec.is_none()
+                    && production.is_none()
+                    && bench.is_some() =>
+            {
                     errors.push(err(
                         "moving_mass_kg",
                         format!("required: the mounted part's mass is not known ({e})"),
@@ -438,6 +519,9 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
             preset,
             part_spec,
             limits,
+            recipe: None,
+            production,
+            submitted_by: None,
         }),
         _ => Err(vec![err("", "invalid job")]),
     }

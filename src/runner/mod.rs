@@ -77,6 +77,10 @@ pub struct Runner {
     /// Cancel flags of the running jobs, by job id.
     running: Mutex<HashMap<String, Arc<AtomicU8>>>,
     shutdown: Arc<AtomicBool>,
+    /// MES: CFX source and the webhooks each finished job's messages go to.
+    mes: crate::mes::MesConfig,
+    /// Wakes the MES delivery worker when messages were written.
+    outbox: Arc<Notify>,
 }
 
 impl Runner {
@@ -148,6 +152,8 @@ impl Runner {
             slots,
             running: Mutex::new(HashMap::new()),
             shutdown: Arc::new(AtomicBool::new(false)),
+            mes: cfg.mes.clone(),
+            outbox: Arc::new(Notify::new()),
         });
         let tasks = runner
             .slots
@@ -163,6 +169,11 @@ impl Runner {
 
     pub fn events(&self) -> &EventBus {
         &self.events
+    }
+
+    /// The notifier of the MES delivery worker (see [`crate::mes::start`]).
+    pub fn outbox_wake(&self) -> Arc<Notify> {
+        self.outbox.clone()
     }
 
     /// A job was queued on `bench_id`.
@@ -293,13 +304,29 @@ impl Runner {
             Ok(c) => c,
             Err(p) => return self.finish_failed(job, p).await,
         };
-        let outcome = match spec {
-            Err(e) => Err(Stop::Failed(problem(
+        let started_at = self
+            .store
+            .get_job(&job.id)
+            .await?
+            .and_then(|j| j.started_at)
+            .unwrap_or_else(crate::store::now);
+        let recipe = match &spec {
+            Ok(s) => match &s.recipe {
+                Some(r) => Some(self.load_recipe(r).await?),
+                None => None,
+            },
+            Err(_) => None,
+        };
+        let recipe_ok = recipe.clone().transpose();
+        let outcome = match (spec.as_ref(), recipe_ok) {
+            (Err(e), _) => Err(Stop::Failed(problem(
                 "job-unreadable",
                 "Job request unreadable",
                 &format!("the stored request no longer parses: {e}"),
             ))),
-            Ok(spec) => {
+            (Ok(_), Err(e)) => Err(Stop::Failed(problem("recipe", "Recipe not available", &e))),
+            (Ok(spec), Ok(recipe)) => {
+                let spec = spec.clone();
                 let (tx, mut rx) = mpsc::unbounded_channel();
                 let obs = JobObserver::new(tx, cancel.clone(), self.shutdown.clone(), spec.repeats);
                 let bench_cfg = slot.cfg.clone();
@@ -316,6 +343,7 @@ impl Runner {
                         &bench_cfg,
                         seed,
                         cal.as_ref(),
+                        recipe.as_ref(),
                         &mut obs,
                     )
                 });
@@ -363,19 +391,37 @@ impl Runner {
         if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
             self.fault_bench(slot, &job.id, p).await?;
         }
-        let (bench_time, log, warnings, recs, meas) = match done {
+        let (bench_time, log, warnings, recs, meas, verdicts) = match done {
             Some(d) => (
                 Some(d.bench_time_s),
                 d.log,
                 d.warnings,
                 d.recordings,
                 d.measurements,
+                d.verdicts,
             ),
-            None => (None, vec![], vec![], vec![], vec![]),
+            None => (None, vec![], vec![], vec![], vec![], vec![]),
         };
+        let records = self.job_records(
+            &slot.cfg,
+            job,
+            spec.as_ref().ok(),
+            recipe.and_then(|r| r.ok()).as_ref(),
+            &started_at,
+            state,
+            prob.as_ref(),
+            &meas,
+            verdicts,
+        );
+        let job_verdict = records
+            .verdicts
+            .iter()
+            .find(|v| v.measurement_id.is_none())
+            .map(|v| v.verdict);
+        let new_measurements: Vec<String> = meas.iter().map(|m| m.id.clone()).collect();
         if let Err(e) = self
             .store
-            .finish_job(
+            .finish_job_qc(
                 &job.id,
                 state,
                 prob.as_ref(),
@@ -384,6 +430,7 @@ impl Runner {
                 &warnings,
                 recs,
                 meas,
+                &records,
             )
             .await
         {
@@ -427,15 +474,186 @@ impl Runner {
             .map(|j| j.measurement_ids)
             .unwrap_or_default();
         tracing::info!(job = %job.id, state = state.as_str(), wall_s = started.elapsed().as_secs_f64(), "job finished");
+        if !records.messages.is_empty() && !records.webhooks.is_empty() {
+            self.outbox.notify_one();
+        }
+        for id in &new_measurements {
+            self.events
+                .publish(
+                    "measurement.created",
+                    Some(&job.id),
+                    json!({"measurement_id": id, "part_serial": job.part_serial, "source": "bench"}),
+                )
+                .await?;
+        }
         self.events
             .publish(
                 "job.state",
                 Some(&job.id),
                 json!({"state": state.as_str(), "problem": prob, "bench_time_s": bench_time,
-                       "measurement_ids": measurement_ids, "warnings": warnings}),
+                       "measurement_ids": measurement_ids, "warnings": warnings, "verdict": job_verdict}),
             )
             .await?;
         Ok(())
+    }
+
+    /// The recipe version a job names; Err (a message) when it is gone or changed.
+    async fn load_recipe(
+        &self,
+        r: &job::RecipeRef,
+    ) -> StoreResult<Result<crate::qc::Recipe, String>> {
+        let Some(row) = self.store.get_recipe(&r.name, Some(r.version)).await? else {
+            return Ok(Err(format!("recipe {} version {} is not stored", r.name, r.version)));
+        };
+        Ok(match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
+            Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
+            Ok(_) => Err(format!(
+                "recipe {} version {} does not have the hash {} any more",
+                r.name, r.version, r.sha256
+            )),
+            Err(e) => Err(format!("recipe {} version {} unreadable: {e}", r.name, r.version)),
+        })
+    }
+
+    /// Verdicts (per measurement and for the job) with traceability, and the
+    /// job's MES messages: written in the result transaction.
+    #[allow(clippy::too_many_arguments)]
+    fn job_records(
+        &self,
+        bench: &BenchConfig,
+        job: &Job,
+        spec: Option<&JobSpec>,
+        _recipe: Option<&crate::qc::Recipe>,
+        started_at: &str,
+        state: JobState,
+        prob: Option<&Value>,
+        meas: &[NewMeasurement],
+        verdicts: Vec<(String, crate::qc::Verdict)>,
+    ) -> crate::store::qc::JobRecords {
+        use crate::qc::{combine, invalid_job, Verdict};
+        let finished_at = crate::store::now();
+        let mut rec = crate::store::qc::JobRecords {
+            webhooks: self.mes.webhooks.iter().map(|w| w.name.clone()).collect(),
+            ..Default::default()
+        };
+        let rref = spec.and_then(|s| s.recipe.clone());
+        let job_verdict: Option<Verdict> = match (&rref, state) {
+            (None, _) => None,
+            (Some(_), JobState::Succeeded) => {
+                Some(combine(&verdicts.iter().map(|v| v.1.clone()).collect::<Vec<_>>()))
+            }
+            (Some(_), JobState::Failed) => {
+                let kind = prob
+                    .and_then(|p| p["type"].as_str())
+                    .unwrap_or("")
+                    .to_string();
+                let detail = prob
+                    .and_then(|p| p["detail"].as_str())
+                    .unwrap_or("the job failed")
+                    .to_string();
+                Some(invalid_job(
+                    if kind.ends_with("/bench") { "hardware_fault" } else { "job_failed" },
+                    detail,
+                ))
+            }
+            (Some(_), _) => None,
+        };
+        if let (Some(r), Some(jv)) = (&rref, &job_verdict) {
+            let trace = |m: Option<&NewMeasurement>| {
+                json!({
+                    "software_version": crate::VERSION,
+                    "recipe": {"name": r.name, "version": r.version, "sha256": r.sha256},
+                    "bench_id": bench.id,
+                    "bench_kind": bench.kind,
+                    "bench_description": m.and_then(|m| m.config.get("bench_description").cloned()),
+                    // The virtual bench has no calibration record and no sensor identities;
+                    // hardware benches put theirs here.
+                    "calibration": Value::Null,
+                    "sensors": [],
+                    "submitted_by": spec.and_then(|s| s.submitted_by.clone()),
+                    "job_created_at": job.created_at,
+                    "job_started_at": started_at,
+                    "judged_at": finished_at,
+                    "measurement_id": m.map(|m| m.id.clone()),
+                })
+            };
+            for (mid, v) in &verdicts {
+                let m = meas.iter().find(|m| &m.id == mid);
+                rec.verdicts.push(crate::store::qc::NewVerdict {
+                    id: new_id(),
+                    job_id: Some(job.id.clone()),
+                    measurement_id: Some(mid.clone()),
+                    part_serial: job.part_serial.clone(),
+                    recipe_name: r.name.clone(),
+                    recipe_version: r.version,
+                    recipe_sha256: r.sha256.clone(),
+                    verdict: v.verdict.as_str(),
+                    detail: serde_json::to_value(v).unwrap_or(Value::Null),
+                    trace: trace(m),
+                });
+            }
+            rec.verdicts.push(crate::store::qc::NewVerdict {
+                id: new_id(),
+                job_id: Some(job.id.clone()),
+                measurement_id: None,
+                part_serial: job.part_serial.clone(),
+                recipe_name: r.name.clone(),
+                recipe_version: r.version,
+                recipe_sha256: r.sha256.clone(),
+                verdict: jv.verdict.as_str(),
+                detail: serde_json::to_value(jv).unwrap_or(Value::Null),
+                trace: trace(meas.first()),
+            });
+        }
+        // MES messages of every job that ran (WorkStarted, UnitsTested, WorkCompleted).
+        let tested = meas
+            .iter()
+            .map(|m| {
+                let res = m.result.as_ref();
+                let pick = |p: &str| res.and_then(|r| r.pointer(p)).and_then(|v| v.as_f64());
+                let values = [
+                    ("k0", "/small_signal/k0_n_per_m", "N/m"),
+                    ("keff", "/large_signal/keff_n_per_m", "N/m"),
+                    ("xpeak", "/large_signal/xpeak_m", "m"),
+                    ("resonance", "/large_signal/resonance_hz", "Hz"),
+                ]
+                .iter()
+                .filter_map(|(n, p, u)| pick(p).map(|v| (n.to_string(), v, u.to_string())))
+                .collect();
+                crate::mes::cfx::TestedMeasurement {
+                    measurement_id: m.id.clone(),
+                    target_xpeak_m: m.target_xpeak_m,
+                    level_index: m.level_index,
+                    repeat_index: m.repeat_index,
+                    verdict: verdicts.iter().find(|v| v.0 == m.id).map(|v| v.1.clone()),
+                    values,
+                }
+            })
+            .collect();
+        let facts = crate::mes::cfx::JobFacts {
+            job_id: job.id.clone(),
+            part_serial: job.part_serial.clone(),
+            source: format!("{}/{}", self.mes.source, bench.id),
+            started_at: started_at.to_string(),
+            finished_at: finished_at.clone(),
+            state: state.as_str().to_string(),
+            recipe: rref
+                .as_ref()
+                .map(|r| (format!("{}@{}", r.name, r.version), r.sha256.clone())),
+            job_verdict,
+            operator: spec.and_then(|s| s.submitted_by.clone()),
+            measurements: tested,
+        };
+        for (uid, name, body) in crate::mes::cfx::job_messages(&facts, [new_id(), new_id(), new_id()]) {
+            rec.messages.push(crate::store::qc::NewMessage {
+                unique_id: uid,
+                message_name: name,
+                part_serial: job.part_serial.clone(),
+                job_id: Some(job.id.clone()),
+                body,
+            });
+        }
+        rec
     }
 
     async fn on_message(&self, job_id: &str, m: Msg) {
@@ -496,6 +714,8 @@ struct Done {
     warnings: Vec<String>,
     recordings: Vec<NewRecording>,
     measurements: Vec<NewMeasurement>,
+    /// Verdict of each measurement under the job's recipe (by measurement id).
+    verdicts: Vec<(String, crate::qc::Verdict)>,
 }
 
 enum Msg {
@@ -687,6 +907,7 @@ fn execute(
     bench_cfg: &BenchConfig,
     seed: u64,
     calibration: Option<&crate::store::hardware::CalibrationRecord>,
+    recipe: Option<&crate::qc::Recipe>,
     obs: &mut JobObserver,
 ) -> Result<Done, Stop> {
     let part = job::mounted_part(spec, bench_cfg)
@@ -711,6 +932,7 @@ fn execute(
         warnings: vec![],
         recordings: vec![],
         measurements: vec![],
+        verdicts: vec![],
     };
     for r in 0..spec.repeats {
         obs.repeat = r;
@@ -747,18 +969,47 @@ fn execute(
                     w.clone()
                 });
             }
-            let (result, analysis_error) = match identify::analyze(&set, &opts) {
-                Ok(mut rep) => {
-                    rep.warnings.extend(sweep.warning.iter().cloned());
-                    (serde_json::to_value(&rep).ok(), None)
-                }
+            let analysed = if recipe.is_some_and(|r| r.needs_diagnostics()) {
+                // Judging an effect's size needs the diagnostics' fitted effects.
+                let dopts = crate::diagnose::DiagnoseOptions {
+                    analyze: opts.clone(),
+                    effects: vec![],
+                };
+                crate::diagnose::diagnose(&set, &dopts)
+                    .map(|d| identify::Report {
+                        diagnostics: None,
+                        ..d.report
+                    })
+                    .map_err(|e| e.to_string())
+            } else {
+                identify::analyze(&set, &opts).map_err(|e| e.to_string())
+            }
+            .map(|mut rep| {
+                rep.warnings.extend(sweep.warning.iter().cloned());
+                rep
+            });
+            let mid = new_id();
+            if let Some(r) = recipe {
+                let facts = crate::qc::RunFacts {
+                    report: analysed.as_ref().ok().cloned(),
+                    analysis_error: analysed.as_ref().err().cloned(),
+                    target_xpeak_m: Some(sweep.target_xpeak_m),
+                    level_index: li,
+                    drive_v: Some(sweep.drive_v),
+                    max_drive_v: Some(spec.limits.max_drive_v),
+                };
+                done.verdicts
+                    .push((mid.clone(), crate::qc::judge(r, &facts)));
+            }
+            let (result, analysis_error) = match analysed {
+                Ok(rep) => (serde_json::to_value(&rep).ok(), None),
                 Err(e) => {
                     done.log.push(format!(
                         "analysis of level {} ({} m) failed: {e}",
                         li + 1,
                         sweep.target_xpeak_m
                     ));
-                    (None, Some(e.to_string()))
+                    (None, Some(e))
                 }
             };
             let main_index = done.recordings.len();
@@ -776,7 +1027,7 @@ fn execute(
                 );
             }
             done.measurements.push(NewMeasurement {
-                id: new_id(),
+                id: mid,
                 part_serial: spec.part.serial.clone(),
                 job_id: Some(job_id.to_string()),
                 source: "bench",

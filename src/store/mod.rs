@@ -22,6 +22,8 @@ use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
+pub mod qc;
+
 macro_rules! job_select {
     () => {
         "SELECT j.seq, j.id, j.bench_id, j.part_serial, j.priority, j.state, j.step, j.progress, j.eta_s, \
@@ -509,15 +511,31 @@ impl Store {
         before_seq: Option<i64>,
         limit: i64,
     ) -> StoreResult<Vec<Job>> {
+        self.list_jobs_since(state, part, None, before_seq, limit)
+            .await
+    }
+
+    /// [`Store::list_jobs`] of jobs created at or after `since` (RFC 3339 UTC, ms).
+    pub async fn list_jobs_since(
+        &self,
+        state: Option<JobState>,
+        part: Option<&str>,
+        since: Option<&str>,
+        before_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<Job>> {
         let rows = sqlx::query(concat!(
             job_select!(),
             " WHERE (? IS NULL OR j.state = ?) AND (? IS NULL OR j.part_serial = ?) \
+             AND (? IS NULL OR j.created_at >= ?) \
              AND (? IS NULL OR j.seq < ?) ORDER BY j.seq DESC LIMIT ?"
         ))
         .bind(state.map(|s| s.as_str()))
         .bind(state.map(|s| s.as_str()))
         .bind(part.map(str::to_string))
         .bind(part.map(str::to_string))
+        .bind(since.map(str::to_string))
+        .bind(since.map(str::to_string))
         .bind(before_seq)
         .bind(before_seq)
         .bind(limit)
@@ -592,9 +610,39 @@ impl Store {
         recordings: Vec<NewRecording>,
         measurements: Vec<NewMeasurement>,
     ) -> StoreResult<()> {
+        self.finish_job_qc(
+            id,
+            state,
+            problem,
+            bench_time_s,
+            log,
+            warnings,
+            recordings,
+            measurements,
+            &qc::JobRecords::default(),
+        )
+        .await
+    }
+
+    /// [`Store::finish_job`] with the job's verdicts and MES outbox messages
+    /// in the same transaction as its result.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn finish_job_qc(
+        &self,
+        id: &str,
+        state: JobState,
+        problem: Option<&Value>,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+        recordings: Vec<NewRecording>,
+        measurements: Vec<NewMeasurement>,
+        records: &qc::JobRecords,
+    ) -> StoreResult<()> {
         let mut tx = self.pool.begin().await?;
         let ids = insert_results(&mut tx, recordings, measurements).await?;
         let _ = ids;
+        qc::insert_job_records(&mut tx, records).await?;
         let progress_done = if state == JobState::Succeeded {
             1.0
         } else {
@@ -682,12 +730,28 @@ impl Store {
         before_seq: Option<i64>,
         limit: i64,
     ) -> StoreResult<Vec<MeasurementInfo>> {
+        self.list_measurements_since(part, job, None, before_seq, limit)
+            .await
+    }
+
+    /// [`Store::list_measurements`] of measurements stored at or after `since` (RFC 3339 UTC, ms).
+    pub async fn list_measurements_since(
+        &self,
+        part: Option<&str>,
+        job: Option<&str>,
+        since: Option<&str>,
+        before_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<MeasurementInfo>> {
         let rows = sqlx::query(concat!(meas_select!(), " FROM measurements m WHERE (? IS NULL OR m.part_serial = ?) \
-             AND (? IS NULL OR m.job_id = ?) AND (? IS NULL OR m.seq < ?) ORDER BY m.seq DESC LIMIT ?"))
+             AND (? IS NULL OR m.job_id = ?) AND (? IS NULL OR m.created_at >= ?) \
+             AND (? IS NULL OR m.seq < ?) ORDER BY m.seq DESC LIMIT ?"))
         .bind(part.map(str::to_string))
         .bind(part.map(str::to_string))
         .bind(job.map(str::to_string))
         .bind(job.map(str::to_string))
+        .bind(since.map(str::to_string))
+        .bind(since.map(str::to_string))
         .bind(before_seq)
         .bind(before_seq)
         .bind(limit)

@@ -1,0 +1,528 @@
+//! Production QC over HTTP: recipes (versioned), golden-unit limit
+//! proposals and their approval, verdicts, SPC; and the MES outbox.
+//! Translation only: the statistics are `crate::qc`, the tables `store::qc`.
+
+use super::auth::Caller;
+use super::problem::{ApiResult, Problem};
+use super::{AppState, JsonBody, Q};
+use crate::qc::limits::{GoldenUnit, ProposalOptions};
+use crate::qc::{Recipe, RunFacts};
+use crate::runner::FieldError;
+use crate::store::qc::RecipeRow;
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+fn field_errors(e: Vec<crate::qc::FieldError>) -> Problem {
+    Problem::validation(
+        e.into_iter()
+            .map(|e| FieldError {
+                field: e.field,
+                message: e.message,
+            })
+            .collect(),
+    )
+}
+
+/// Parses and checks a recipe body; `name` (from the path) must match when given.
+fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
+    let mut body = body;
+    if let (Some(n), Some(o)) = (name, body.as_object_mut()) {
+        match o.get("name") {
+            None => {
+                o.insert("name".into(), json!(n));
+            }
+            Some(v) if v.as_str() == Some(n) => {}
+            Some(_) => return Err(Problem::field("name", format!("must be '{n}' (the path)"))),
+        }
+    }
+    let r: Recipe = serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
+    r.validate().map_err(field_errors)?;
+    Ok(r)
+}
+
+fn recipe_doc(r: &RecipeRow) -> Value {
+    let mut v = serde_json::to_value(r).unwrap_or(Value::Null);
+    v["has_limits"] = json!(serde_json::from_value::<Recipe>(r.recipe.clone())
+        .map(|x| x.has_limits())
+        .unwrap_or(false));
+    v
+}
+
+fn located(status: StatusCode, loc: String, body: Value) -> Response {
+    let mut r = (status, Json(body)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&loc) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    r
+}
+
+/// `POST /api/v1/recipes`: version 1 of a new recipe (409 when the name exists).
+pub async fn create(
+    State(st): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let r = parse_recipe(body, None)?;
+    if st.store.get_recipe(&r.name, None).await?.is_some() {
+        return Err(Problem::new(
+            StatusCode::CONFLICT,
+            "recipe-exists",
+            "Recipe exists",
+            format!("recipe '{}' exists; PUT /api/v1/recipes/{} makes a new version", r.name, r.name),
+        ));
+    }
+    let body = serde_json::to_value(&r).map_err(Problem::internal)?;
+    let row = st
+        .store
+        .insert_recipe(&r.name, &r.sha256(), &body, "created", None, caller.0.as_deref())
+        .await?;
+    Ok(located(
+        StatusCode::CREATED,
+        format!("/api/v1/recipes/{}", r.name),
+        recipe_doc(&row),
+    ))
+}
+
+/// `PUT /api/v1/recipes/{name}`: a new version (200 with the current one when nothing changed).
+pub async fn update(
+    State(st): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    Path(name): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let r = parse_recipe(body, Some(&name))?;
+    let cur = st.store.get_recipe(&name, None).await?;
+    let sha = r.sha256();
+    if let Some(c) = &cur {
+        if c.sha256 == sha && !c.retired {
+            return Ok((StatusCode::OK, Json(recipe_doc(c))).into_response());
+        }
+    }
+    let body = serde_json::to_value(&r).map_err(Problem::internal)?;
+    let origin = if cur.is_some() { "edited" } else { "created" };
+    let row = st
+        .store
+        .insert_recipe(&name, &sha, &body, origin, None, caller.0.as_deref())
+        .await?;
+    Ok(located(
+        StatusCode::CREATED,
+        format!("/api/v1/recipes/{name}/versions/{}", row.version),
+        recipe_doc(&row),
+    ))
+}
+
+pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
+    let items: Vec<Value> = st.store.list_recipes().await?.iter().map(recipe_doc).collect();
+    Ok(Json(json!({"items": items})))
+}
+
+pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Json<Value>> {
+    let r = st
+        .store
+        .get_recipe(&name, None)
+        .await?
+        .ok_or_else(|| Problem::not_found("recipe", &name))?;
+    Ok(Json(recipe_doc(&r)))
+}
+
+pub async fn versions(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Json<Value>> {
+    let v = st.store.recipe_versions(&name).await?;
+    if v.is_empty() {
+        return Err(Problem::not_found("recipe", &name));
+    }
+    let items: Vec<Value> = v.iter().map(recipe_doc).collect();
+    Ok(Json(json!({"items": items})))
+}
+
+pub async fn version(
+    State(st): State<AppState>,
+    Path((name, version)): Path<(String, i64)>,
+) -> ApiResult<Json<Value>> {
+    let r = st
+        .store
+        .get_recipe(&name, Some(version))
+        .await?
+        .ok_or_else(|| Problem::not_found("recipe version", &format!("{name}@{version}")))?;
+    Ok(Json(recipe_doc(&r)))
+}
+
+/// `DELETE /api/v1/recipes/{name}`: retires the recipe (no new jobs; every
+/// version and verdict stays for traceability). 204.
+pub async fn retire(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<StatusCode> {
+    if st.store.retire_recipe(&name).await? {
+        Ok(StatusCode::NO_CONTENT)
+    } else {
+        Err(Problem::not_found("recipe", &name))
+    }
+}
+
+/// The recipe a job names: fills the procedure settings into the body
+/// (fields the body gives must agree) and returns its reference.
+pub async fn apply_recipe(
+    st: &AppState,
+    body: &mut Value,
+) -> ApiResult<Option<crate::runner::job::RecipeRef>> {
+    let Some(name) = body.get("recipe").and_then(|v| v.as_str()).map(str::to_string) else {
+        return Ok(None);
+    };
+    let row = st
+        .store
+        .get_recipe(&name, None)
+        .await?
+        .filter(|r| !r.retired)
+        .ok_or_else(|| Problem::field("recipe", format!("no recipe '{name}' (or it is retired)")))?;
+    let r: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let p = &r.procedure;
+    let mut settings = vec![
+        ("levels_m", json!(p.levels_m)),
+        ("method", serde_json::to_value(p.method).map_err(Problem::internal)?),
+        ("repeats", json!(p.repeats)),
+    ];
+    if let Some(o) = p.order {
+        settings.push(("order", json!(o)));
+    }
+    if let Some(m) = p.moving_mass_kg {
+        settings.push(("moving_mass_kg", json!(m)));
+    }
+    let Some(obj) = body.as_object_mut() else {
+        return Ok(None);
+    };
+    let mut errors = vec![];
+    if obj.contains_key("target_xpeak_m") {
+        errors.push(FieldError {
+            field: "target_xpeak_m".into(),
+            message: format!("recipe '{name}' sets the levels"),
+        });
+    }
+    for (k, v) in settings {
+        match obj.get(k) {
+            None | Some(Value::Null) => {
+                obj.insert(k.into(), v);
+            }
+            Some(given) if given == &v => {}
+            Some(_) => errors.push(FieldError {
+                field: k.into(),
+                message: format!("recipe '{name}' sets {k} = {v}; leave it out"),
+            }),
+        }
+    }
+    if !errors.is_empty() {
+        return Err(Problem::validation(errors));
+    }
+    Ok(Some(crate::runner::job::RecipeRef {
+        name,
+        version: row.version,
+        sha256: row.sha256,
+    }))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProposalBody {
+    /// Serials of the golden units (each measured with the recipe, valid).
+    serials: Vec<String>,
+    #[serde(flatten)]
+    options: ProposalOptions,
+}
+
+fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
+    RunFacts {
+        report: g.result.clone().and_then(|r| serde_json::from_value(r).ok()),
+        analysis_error: g.analysis_error.clone(),
+        target_xpeak_m: g.target_xpeak_m,
+        level_index: g.level_index.unwrap_or(0).max(0) as usize,
+        drive_v: g.config.pointer("/narrow_sweep/drive_v").and_then(|v| v.as_f64()),
+        max_drive_v: g.config.pointer("/limits/max_drive_v").and_then(|v| v.as_f64()),
+    }
+}
+
+/// `POST /api/v1/recipes/{name}/limit-proposals`: limits from golden units
+/// (their newest valid job under this recipe), stored as `proposed`.
+pub async fn propose(
+    State(st): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    Path(name): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let b: ProposalBody = serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
+    let row = st
+        .store
+        .get_recipe(&name, None)
+        .await?
+        .ok_or_else(|| Problem::not_found("recipe", &name))?;
+    let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let mut golden = Vec::new();
+    let mut errors = Vec::new();
+    for (i, s) in b.serials.iter().enumerate() {
+        match st.store.golden_measurements(&name, s).await? {
+            Some(ms) if !ms.is_empty() => golden.push(GoldenUnit {
+                serial: s.clone(),
+                measurements: ms.iter().map(run_facts).collect(),
+            }),
+            _ => errors.push(FieldError {
+                field: format!("serials[{i}]"),
+                message: format!("part '{s}' has no valid measurement under recipe '{name}'"),
+            }),
+        }
+    }
+    if !errors.is_empty() {
+        return Err(Problem::validation(errors));
+    }
+    let p = crate::qc::limits::propose(&recipe, &golden, &b.options)
+        .map_err(|e| Problem::field("serials", e))?;
+    let id = crate::runner::new_id();
+    let body = serde_json::to_value(&p).map_err(Problem::internal)?;
+    let row = st
+        .store
+        .insert_proposal(&id, &name, row.version, &body, caller.0.as_deref())
+        .await?;
+    Ok(located(
+        StatusCode::CREATED,
+        format!("/api/v1/limit-proposals/{id}"),
+        serde_json::to_value(&row).map_err(Problem::internal)?,
+    ))
+}
+
+pub async fn get_proposal(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let p = st
+        .store
+        .get_proposal(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
+    Ok(Json(serde_json::to_value(&p).map_err(Problem::internal)?))
+}
+
+fn decided(p: &crate::store::qc::ProposalRow) -> Problem {
+    Problem::new(
+        StatusCode::CONFLICT,
+        "proposal-decided",
+        "Proposal decided",
+        format!("limit proposal '{}' is {} already", p.id, p.state),
+    )
+}
+
+/// `POST /api/v1/limit-proposals/{id}/approve` (admin): a new recipe version
+/// with the proposed limits; the approver and time are recorded.
+pub async fn approve(
+    State(st): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    let p = st
+        .store
+        .get_proposal(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
+    if p.state != "proposed" {
+        return Err(decided(&p));
+    }
+    let recipe: Recipe =
+        serde_json::from_value(p.proposal["recipe"].clone()).map_err(Problem::internal)?;
+    let body = serde_json::to_value(&recipe).map_err(Problem::internal)?;
+    match st
+        .store
+        .approve_proposal(&id, &recipe.sha256(), &body, caller.0.as_deref())
+        .await?
+    {
+        Some(row) => Ok(located(
+            StatusCode::CREATED,
+            format!("/api/v1/recipes/{}/versions/{}", row.name, row.version),
+            recipe_doc(&row),
+        )),
+        None => Err(decided(&p)),
+    }
+}
+
+pub async fn reject(
+    State(st): State<AppState>,
+    Extension(caller): Extension<Caller>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let p = st
+        .store
+        .get_proposal(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
+    if !st.store.reject_proposal(&id, caller.0.as_deref()).await? {
+        return Err(decided(&p));
+    }
+    let p = st.store.get_proposal(&id).await?.ok_or_else(|| Problem::not_found("limit proposal", &id))?;
+    Ok(Json(serde_json::to_value(&p).map_err(Problem::internal)?))
+}
+
+/// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
+pub async fn part_verdict(State(st): State<AppState>, Path(serial): Path<String>) -> ApiResult<Json<Value>> {
+    let v = st
+        .store
+        .part_verdict(&serial)
+        .await?
+        .ok_or_else(|| Problem::not_found("verdict of part", &serial))?;
+    Ok(Json(serde_json::to_value(&v).map_err(Problem::internal)?))
+}
+
+/// `GET /api/v1/jobs/{id}/verdict`: the job's verdict and its measurements'.
+pub async fn job_verdict(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let v = st.store.job_verdicts(&id).await?;
+    let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
+        return Err(Problem::not_found("verdict of job", &id));
+    };
+    let mut doc = serde_json::to_value(job).map_err(Problem::internal)?;
+    doc["measurements"] = serde_json::to_value(
+        v.iter().filter(|x| x.measurement_id.is_some()).collect::<Vec<_>>(),
+    )
+    .map_err(Problem::internal)?;
+    Ok(Json(doc))
+}
+
+#[derive(Deserialize)]
+pub struct SpcQuery {
+    parameter: Option<String>,
+    last: Option<i64>,
+    since: Option<String>,
+    until: Option<String>,
+    format: Option<String>,
+}
+
+/// A time filter value: RFC 3339, normalised to the stored form (UTC, milliseconds).
+pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
+    match s {
+        None | Some("") => Ok(None),
+        Some(s) => chrono::DateTime::parse_from_rfc3339(s)
+            .map(|t| {
+                Some(
+                    t.with_timezone(&chrono::Utc)
+                        .to_rfc3339_opts(chrono::SecondsFormat::Millis, true),
+                )
+            })
+            .map_err(|e| Problem::field(field, format!("must be an RFC 3339 time: {e}"))),
+    }
+}
+
+/// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
+pub async fn spc(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+    Q(q): Q<SpcQuery>,
+) -> ApiResult<Response> {
+    let row = st
+        .store
+        .get_recipe(&name, None)
+        .await?
+        .ok_or_else(|| Problem::not_found("recipe", &name))?;
+    let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let since = parse_time("since", q.since.as_deref())?;
+    let until = parse_time("until", q.until.as_deref())?;
+    let last = match q.last {
+        None if since.is_none() && until.is_none() => Some(100),
+        None => None,
+        Some(n) if (1..=100_000).contains(&n) => Some(n),
+        Some(n) => return Err(Problem::field("last", format!("must be 1 to 100000, got {n}"))),
+    };
+    let Some(pname) = q.parameter.clone() else {
+        return Err(Problem::field(
+            "parameter",
+            format!(
+                "required: one of {}",
+                recipe.parameters.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+            ),
+        ));
+    };
+    let Some(spec) = recipe.parameters.iter().find(|p| p.name == pname) else {
+        return Err(Problem::field("parameter", format!("recipe '{name}' has no parameter '{pname}'")));
+    };
+    let rows = st.store.recipe_verdicts(&name, since.as_deref(), until.as_deref(), last).await?;
+    let mut points = Vec::new();
+    let mut invalid = 0;
+    for r in &rows {
+        let v: crate::qc::Verdict = match serde_json::from_value(r.detail.clone()) {
+            Ok(v) => v,
+            Err(_) => continue,
+        };
+        if v.verdict == crate::qc::VerdictKind::Invalid {
+            invalid += 1;
+            continue;
+        }
+        if let Some(p) = v.parameters.iter().find(|p| p.name == pname) {
+            points.push(crate::qc::spc::SpcPoint {
+                time: r.created_at.clone(),
+                part_serial: r.part_serial.clone(),
+                measurement_id: r.measurement_id.clone().unwrap_or_default(),
+                value: p.value,
+                verdict: v.verdict,
+            });
+        }
+    }
+    let s = crate::qc::spc::compute(&pname, &spec.unit(), spec.lower, spec.upper, points, invalid);
+    if q.format.as_deref() == Some("csv") {
+        return Ok((
+            [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+            crate::qc::spc::to_csv(&s),
+        )
+            .into_response());
+    }
+    let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
+    doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
+    Ok(Json(doc).into_response())
+}
+
+#[derive(Deserialize)]
+pub struct OutboxQuery {
+    state: Option<String>,
+    limit: Option<i64>,
+}
+
+/// `GET /api/v1/outbox?state=`: deliveries (default: pending and failed), oldest first.
+pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResult<Json<Value>> {
+    let state = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(s @ ("pending" | "failed" | "delivered" | "dropped")) => Some(s),
+        Some(_) => return Err(Problem::field("state", "one of pending, failed, delivered, dropped")),
+    };
+    let limit = super::page_limit(q.limit)?;
+    let items = st.store.list_outbox(state, limit).await?;
+    let (pending, failed, failures) = st.store.outbox_counts().await?;
+    Ok(Json(json!({"items": items, "pending": pending, "failed": failed,
+                   "failed_attempts_total": failures})))
+}
+
+fn delivery_id(id: &str) -> ApiResult<i64> {
+    id.parse::<i64>().map_err(|_| Problem::not_found("outbox delivery", id))
+}
+
+/// `POST /api/v1/outbox/{id}/retry` (admin): a pending or failed delivery is tried now.
+pub async fn outbox_retry(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let n = delivery_id(&id)?;
+    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    if !st.store.retry_delivery(n).await? {
+        return Err(Problem::new(
+            StatusCode::CONFLICT,
+            "delivery-final",
+            "Delivery final",
+            format!("delivery {id} is {}", d.state),
+        ));
+    }
+    st.runner.outbox_wake().notify_one();
+    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
+}
+
+/// `DELETE /api/v1/outbox/{id}` (admin): the delivery is dropped (the message stays stored).
+pub async fn outbox_drop(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let n = delivery_id(&id)?;
+    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    if !st.store.drop_delivery(n).await? {
+        return Err(Problem::new(
+            StatusCode::CONFLICT,
+            "delivery-final",
+            "Delivery final",
+            format!("delivery {id} is {}", d.state),
+        ));
+    }
+    st.runner.outbox_wake().notify_one();
+    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
+}

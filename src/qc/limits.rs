@@ -1,0 +1,268 @@
+//! Limits from golden units: per parameter mean +- k sigma (or +- a relative
+//! tolerance) over N >= 5 good parts, and a K(x) mask over the range all of
+//! them measured. Pure.
+
+use super::{k_of_x, judge, KxMask, Quantity, Recipe, RunFacts, VerdictKind};
+use crate::identify::Report;
+use serde::{Deserialize, Serialize};
+
+/// Fewest golden units (distinct serials) a proposal needs.
+pub const MIN_GOLDEN: usize = 5;
+
+/// How the limits are spread around the golden mean.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Spread {
+    /// mean +- k * sigma (sample standard deviation of the golden units).
+    KSigma { k: f64 },
+    /// mean +- tolerance_percent / 100 * |mean|.
+    Tolerance { tolerance_percent: f64 },
+}
+
+impl Spread {
+    fn half_width(&self, mean: f64, sigma: f64) -> f64 {
+        match *self {
+            Spread::KSigma { k } => k * sigma,
+            Spread::Tolerance { tolerance_percent } => tolerance_percent / 100.0 * mean.abs(),
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let (n, v) = match *self {
+            Spread::KSigma { k } => ("k", k),
+            Spread::Tolerance { tolerance_percent } => ("tolerance_percent", tolerance_percent),
+        };
+        if v.is_finite() && v > 0.0 && v <= 100.0 {
+            Ok(())
+        } else {
+            Err(format!("{n} must be in (0, 100], got {v}"))
+        }
+    }
+}
+
+/// Options of a proposal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProposalOptions {
+    #[serde(flatten)]
+    pub spread: Spread,
+    /// K(x) mask points (0: no mask).
+    #[serde(default = "default_mask_points")]
+    pub mask_points: usize,
+    /// The mask spans this fraction of the range every golden unit measured.
+    #[serde(default = "default_mask_range")]
+    pub mask_range_fraction: f64,
+}
+
+fn default_mask_points() -> usize {
+    21
+}
+fn default_mask_range() -> f64 {
+    0.9
+}
+
+/// One golden unit: its measurements, one per level (level index, facts).
+#[derive(Debug, Clone)]
+pub struct GoldenUnit {
+    pub serial: String,
+    pub measurements: Vec<RunFacts>,
+}
+
+/// Statistics and proposed limits of one parameter.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProposedLimit {
+    pub name: String,
+    pub unit: String,
+    pub n: usize,
+    pub mean: f64,
+    pub sigma: f64,
+    pub lower: Option<f64>,
+    pub upper: Option<f64>,
+    /// The golden values, in the order of `serials`.
+    pub values: Vec<f64>,
+}
+
+/// A proposal: statistics per parameter and the recipe with these limits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Proposal {
+    pub serials: Vec<String>,
+    pub options: ProposalOptions,
+    pub parameters: Vec<ProposedLimit>,
+    pub kx_mask: Option<KxMask>,
+    /// The recipe as it would be after approval (limits filled in).
+    pub recipe: Recipe,
+}
+
+/// Mean and sample standard deviation (n - 1).
+pub fn mean_sigma(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let mean = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return (mean, 0.0);
+    }
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, var.sqrt())
+}
+
+fn level_dependent(q: Quantity) -> bool {
+    !matches!(q, Quantity::K0 | Quantity::F0 | Quantity::Q | Quantity::R)
+}
+
+/// Proposes limits from golden units. Every golden measurement must be valid
+/// under the recipe (an invalid one is refused by serial), and at least
+/// [`MIN_GOLDEN`] distinct serials are needed.
+pub fn propose(
+    recipe: &Recipe,
+    golden: &[GoldenUnit],
+    opts: &ProposalOptions,
+) -> Result<Proposal, String> {
+    opts.spread.validate()?;
+    if !(opts.mask_range_fraction > 0.0 && opts.mask_range_fraction <= 1.0) {
+        return Err(format!(
+            "mask_range_fraction must be in (0, 1], got {}",
+            opts.mask_range_fraction
+        ));
+    }
+    if opts.mask_points == 1 || opts.mask_points > super::MAX_MASK_POINTS {
+        return Err(format!(
+            "mask_points must be 0 or 2 to {}",
+            super::MAX_MASK_POINTS
+        ));
+    }
+    let mut serials: Vec<String> = golden.iter().map(|g| g.serial.clone()).collect();
+    serials.sort();
+    serials.dedup();
+    if serials.len() != golden.len() {
+        return Err("a golden serial is named twice".into());
+    }
+    if golden.len() < MIN_GOLDEN {
+        return Err(format!(
+            "{} golden units given; at least {MIN_GOLDEN} are needed",
+            golden.len()
+        ));
+    }
+    let levels = recipe.procedure.levels_m.len();
+    // Judge every golden measurement for validity only (limits stripped).
+    let mut bare = recipe.clone();
+    for p in &mut bare.parameters {
+        p.lower = None;
+        p.upper = None;
+    }
+    bare.kx_mask = None;
+    let mut by_level: Vec<Vec<Report>> = vec![Vec::new(); levels];
+    for g in golden {
+        for li in 0..levels {
+            let Some(f) = g.measurements.iter().find(|f| f.level_index == li) else {
+                return Err(format!("golden unit {}: no measurement of level {li}", g.serial));
+            };
+            let v = judge(&bare, f);
+            if v.verdict == VerdictKind::Invalid {
+                let why: Vec<String> = v.invalid_reasons.iter().map(|r| r.detail.clone()).collect();
+                return Err(format!(
+                    "golden unit {}: the measurement is invalid ({})",
+                    g.serial,
+                    why.join("; ")
+                ));
+            }
+            by_level[li].push(f.report.clone().unwrap_or_default());
+        }
+    }
+    let mut out = recipe.clone();
+    let mut stats = Vec::new();
+    for p in &mut out.parameters {
+        if !p.from_golden() {
+            continue;
+        }
+        if levels > 1 && level_dependent(p.quantity) && p.level_index.is_none() {
+            return Err(format!(
+                "parameter {}: a level series needs level_index for golden limits",
+                p.name
+            ));
+        }
+        let li = p.level_index.unwrap_or(0);
+        let mut values = Vec::with_capacity(golden.len());
+        for (gi, r) in by_level[li].iter().enumerate() {
+            let facts = RunFacts {
+                report: Some(r.clone()),
+                level_index: li,
+                ..Default::default()
+            };
+            let mut single = bare.clone();
+            single.parameters = vec![p.clone()];
+            let v = judge(&single, &facts);
+            let Some(o) = v.parameters.first() else {
+                return Err(format!(
+                    "golden unit {}: parameter {} has no value",
+                    golden[gi].serial, p.name
+                ));
+            };
+            values.push(o.value);
+        }
+        let (mean, sigma) = mean_sigma(&values);
+        let h = opts.spread.half_width(mean, sigma);
+        p.lower = Some(mean - h);
+        p.upper = Some(mean + h);
+        stats.push(ProposedLimit {
+            name: p.name.clone(),
+            unit: p.unit(),
+            n: values.len(),
+            mean,
+            sigma,
+            lower: p.lower,
+            upper: p.upper,
+            values,
+        });
+    }
+    if opts.mask_points >= 2 {
+        // The mask is drawn at the highest level (the widest range).
+        let li = (0..levels)
+            .max_by(|&a, &b| recipe.procedure.levels_m[a].total_cmp(&recipe.procedure.levels_m[b]))
+            .unwrap_or(0);
+        let reports = &by_level[li];
+        let lo = reports
+            .iter()
+            .map(|r| r.stiffness.valid_range_m[0])
+            .fold(f64::NEG_INFINITY, f64::max);
+        let hi = reports
+            .iter()
+            .map(|r| r.stiffness.valid_range_m[1])
+            .fold(f64::INFINITY, f64::min);
+        if !(lo < 0.0 && hi > 0.0) {
+            return Err(format!(
+                "the golden units' common measured range {lo} .. {hi} m does not span x = 0"
+            ));
+        }
+        let (lo, hi) = (lo * opts.mask_range_fraction, hi * opts.mask_range_fraction);
+        let n = opts.mask_points;
+        let mut mask = KxMask {
+            x_m: vec![],
+            lower_n_per_m: vec![],
+            upper_n_per_m: vec![],
+            level_index: (levels > 1).then_some(li),
+        };
+        for i in 0..n {
+            let x = lo + (hi - lo) * i as f64 / (n - 1) as f64;
+            let ks: Vec<f64> = reports.iter().map(|r| k_of_x(r, x)).collect();
+            let (mean, sigma) = mean_sigma(&ks);
+            let h = opts.spread.half_width(mean, sigma);
+            mask.x_m.push(x);
+            mask.lower_n_per_m.push(mean - h);
+            mask.upper_n_per_m.push(mean + h);
+        }
+        out.kx_mask = Some(mask);
+    }
+    if let Err(e) = out.validate() {
+        let msgs: Vec<String> = e.iter().map(|e| format!("{}: {}", e.field, e.message)).collect();
+        return Err(format!("the proposed limits are not usable: {}", msgs.join("; ")));
+    }
+    Ok(Proposal {
+        serials: golden.iter().map(|g| g.serial.clone()).collect(),
+        options: opts.clone(),
+        parameters: stats,
+        kx_mask: out.kx_mask.clone(),
+        recipe: out,
+    })
+}

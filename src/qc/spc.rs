@@ -1,0 +1,141 @@
+//! Statistical process control of one judged parameter: n, mean, sigma,
+//! Cp, Cpk (within: average moving range / d2), Pp, Ppk (overall sample
+//! sigma), yield and the data of an individuals control chart. Pure.
+
+use super::limits::mean_sigma;
+use super::VerdictKind;
+use serde::{Deserialize, Serialize};
+
+/// d2 of a moving range of two (individuals chart).
+pub const D2: f64 = 1.128;
+
+/// One value of the parameter (a valid, judged measurement).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpcPoint {
+    /// When the verdict was made (RFC 3339 UTC).
+    pub time: String,
+    pub part_serial: String,
+    pub measurement_id: String,
+    pub value: f64,
+    pub verdict: VerdictKind,
+}
+
+/// The statistics of a window.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Spc {
+    pub parameter: String,
+    pub unit: String,
+    /// Values in the window (valid measurements only).
+    pub n: usize,
+    pub mean: Option<f64>,
+    /// Overall sample standard deviation (n - 1): used by Pp and Ppk.
+    pub sigma: Option<f64>,
+    /// Within (short-term) sigma: average moving range / 1.128: used by Cp, Cpk and the chart.
+    pub sigma_within: Option<f64>,
+    pub lower: Option<f64>,
+    pub upper: Option<f64>,
+    pub cp: Option<f64>,
+    pub cpk: Option<f64>,
+    pub pp: Option<f64>,
+    pub ppk: Option<f64>,
+    /// Passed / (passed + failed) over the window's verdicts (invalid ones apart).
+    pub yield_fraction: Option<f64>,
+    pub passed: usize,
+    pub failed: usize,
+    pub invalid: usize,
+    /// Individuals chart: centre line and control limits (mean +- 3 sigma_within).
+    pub center_line: Option<f64>,
+    pub ucl: Option<f64>,
+    pub lcl: Option<f64>,
+    /// The values in time order.
+    pub points: Vec<SpcPoint>,
+}
+
+fn capability(lower: Option<f64>, upper: Option<f64>, mean: f64, s: f64) -> (Option<f64>, Option<f64>) {
+    if !(s.is_finite() && s > 0.0) {
+        return (None, None);
+    }
+    let cp = match (lower, upper) {
+        (Some(l), Some(u)) => Some((u - l) / (6.0 * s)),
+        _ => None,
+    };
+    let k = [upper.map(|u| (u - mean) / (3.0 * s)), lower.map(|l| (mean - l) / (3.0 * s))]
+        .into_iter()
+        .flatten()
+        .fold(None, |a: Option<f64>, v| Some(a.map_or(v, |a| a.min(v))));
+    (cp, k)
+}
+
+/// Statistics of `points` (time order) against the limits; `invalid` is the
+/// number of invalid verdicts in the same window (they carry no value).
+pub fn compute(
+    parameter: &str,
+    unit: &str,
+    lower: Option<f64>,
+    upper: Option<f64>,
+    points: Vec<SpcPoint>,
+    invalid: usize,
+) -> Spc {
+    let v: Vec<f64> = points.iter().map(|p| p.value).collect();
+    let n = v.len();
+    let (mean, sigma) = if n > 0 { mean_sigma(&v) } else { (f64::NAN, f64::NAN) };
+    let sigma_within = if n >= 2 {
+        let mr: f64 = v.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (n - 1) as f64;
+        mr / D2
+    } else {
+        f64::NAN
+    };
+    let (cp, cpk) = capability(lower, upper, mean, sigma_within);
+    let (pp, ppk) = capability(lower, upper, mean, sigma);
+    let passed = points.iter().filter(|p| p.verdict == VerdictKind::Pass).count();
+    let failed = points.iter().filter(|p| p.verdict == VerdictKind::Fail).count();
+    let fin = |x: f64| x.is_finite().then_some(x);
+    Spc {
+        parameter: parameter.to_string(),
+        unit: unit.to_string(),
+        n,
+        mean: fin(mean),
+        sigma: if n >= 2 { fin(sigma) } else { None },
+        sigma_within: fin(sigma_within),
+        lower,
+        upper,
+        cp,
+        cpk,
+        pp,
+        ppk,
+        yield_fraction: (passed + failed > 0).then(|| passed as f64 / (passed + failed) as f64),
+        passed,
+        failed,
+        invalid,
+        center_line: fin(mean),
+        ucl: fin(mean + 3.0 * sigma_within),
+        lcl: fin(mean - 3.0 * sigma_within),
+        points,
+    }
+}
+
+/// CSV of the control-chart points with the limits on every line.
+pub fn to_csv(s: &Spc) -> String {
+    let o = |x: Option<f64>| x.map(|v| format!("{v}")).unwrap_or_default();
+    let mut out = String::from(
+        "time,part_serial,measurement_id,parameter,unit,value,verdict,lower,upper,center_line,lcl,ucl\n",
+    );
+    for p in &s.points {
+        out.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            p.time,
+            p.part_serial,
+            p.measurement_id,
+            s.parameter,
+            s.unit,
+            p.value,
+            p.verdict.as_str(),
+            o(s.lower),
+            o(s.upper),
+            o(s.center_line),
+            o(s.lcl),
+            o(s.ucl)
+        ));
+    }
+    out
+}
