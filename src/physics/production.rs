@@ -40,7 +40,7 @@ pub enum Defect {
     Stiff,
     /// K(x) 30 % softer throughout.
     Soft,
-    /// Strong even-order asymmetry: k1 times 6 (off-centre corrugation).
+    /// Strong asymmetry: k1 times 3 (off-centre corrugation).
     Asymmetric,
     /// Progressive hardening: k2 and k4 times 2.5 (hardens early).
     Hardening,
@@ -85,7 +85,7 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
         Some(Defect::Soft) => p.k_coeffs_si.iter_mut().for_each(|k| *k *= 0.7),
         Some(Defect::Asymmetric) => {
             if p.k_coeffs_si.len() > 1 {
-                p.k_coeffs_si[1] *= 6.0;
+                p.k_coeffs_si[1] *= 3.0;
             }
         }
         Some(Defect::Hardening) => {
@@ -145,7 +145,7 @@ mod tests {
         let stiff = part(&nominal, &s, 9, Some(Defect::Stiff));
         assert!((stiff.k_coeffs_si[0] / good.k_coeffs_si[0] - 1.3).abs() < 1e-12);
         let asym = part(&nominal, &s, 9, Some(Defect::Asymmetric));
-        assert!((asym.k_coeffs_si[1] / good.k_coeffs_si[1] - 6.0).abs() < 1e-12);
+        assert!((asym.k_coeffs_si[1] / good.k_coeffs_si[1] - 3.0).abs() < 1e-12);
         assert_eq!(asym.k_coeffs_si[0], good.k_coeffs_si[0]);
         let damped = part(&nominal, &s, 9, Some(Defect::Damped));
         assert!((damped.q() * 3.0 - good.q()).abs() < 1e-9);

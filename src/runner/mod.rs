@@ -974,6 +974,7 @@ fn execute(
                 let dopts = crate::diagnose::DiagnoseOptions {
                     analyze: opts.clone(),
                     effects: vec![],
+                    ..Default::default()
                 };
                 crate::diagnose::diagnose(&set, &dopts)
                     .map(|d| identify::Report {

@@ -1,0 +1,410 @@
+//! Production QC through the daemon on the virtual bench: a recipe, golden
+//! units, limits proposed and approved, production parts judged (good ones
+//! pass, defective ones fail, unmeasurable ones are invalid and never pass),
+//! SPC against an independent computation, traceability; and the MES outbox
+//! surviving a receiver outage and a kill -9.
+//!
+//! Size: by default 5 golden units and 6 production parts (one good, three
+//! defects, both kinds of unmeasurable part); `SPRINGBENCH_QC_FULL=1` runs the
+//! acceptance lot of the issue: 8 golden units and 30 production parts (23
+//! good, 5 defects, 2 unmeasurable). Two virtual benches run in parallel.
+
+mod common;
+
+use common::{client, Daemon};
+use hmac::{Hmac, Mac};
+use serde_json::{json, Value};
+use sha2::Sha256;
+use std::collections::{HashMap, HashSet};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const STATION: &str = "station-secret-0123456789";
+const ENGINEER: &str = "engineer-secret-0123456789";
+
+fn tokens() -> &'static str {
+    "[[auth.tokens]]\nname = \"station-1\"\ntoken = \"station-secret-0123456789\"\nrole = \"operator\"\n\
+     [[auth.tokens]]\nname = \"qc-engineer\"\ntoken = \"engineer-secret-0123456789\"\nrole = \"admin\"\n"
+}
+
+fn benches() -> &'static str {
+    "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n"
+}
+
+async fn send(
+    c: &reqwest::Client,
+    d: &Daemon,
+    method: reqwest::Method,
+    path: &str,
+    token: &str,
+    body: Option<Value>,
+) -> (u16, Value) {
+    let mut r = c
+        .request(method, d.url(path))
+        .bearer_auth(token)
+        .header("content-type", "application/json");
+    if let Some(b) = body {
+        r = r.body(b.to_string());
+    }
+    let r = r.send().await.unwrap();
+    let s = r.status().as_u16();
+    let v = r.json::<Value>().await.unwrap_or(Value::Null);
+    (s, v)
+}
+
+async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
+    let (s, v) = send(c, d, reqwest::Method::GET, path, STATION, None).await;
+    assert_eq!(s, 200, "{path}: {v}");
+    v
+}
+
+fn recipe() -> Value {
+    json!({
+        "name": "spider-4in",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0"},
+            {"name": "q", "quantity": "q"},
+            {"name": "keff", "quantity": "keff"},
+            {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004},
+            {"name": "asym_4mm", "quantity": "k_asymmetry", "x_m": 0.004},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0},
+            {"name": "friction", "quantity": "effect_size", "effect": "coulomb_friction",
+             "effect_parameter": "force_n", "upper": 0.1}
+        ]
+    })
+}
+
+/// Submits jobs and waits for all of them; returns the job documents in order.
+async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Value> {
+    let mut ids = vec![];
+    for b in bodies {
+        let (s, v) = send(c, d, reqwest::Method::POST, "/api/v1/jobs", STATION, Some(b.clone())).await;
+        assert_eq!(s, 202, "{v}");
+        ids.push(v["id"].as_str().unwrap().to_string());
+    }
+    let mut out = vec![];
+    for id in ids {
+        let t = Instant::now();
+        loop {
+            let j = get(c, d, &format!("/api/v1/jobs/{id}")).await;
+            if common::terminal(j["state"].as_str().unwrap()) {
+                out.push(j);
+                break;
+            }
+            assert!(t.elapsed() < Duration::from_secs(600), "job {id} did not finish");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+    out
+}
+
+fn job(serial: &str, seed: u64, defect: Option<&str>) -> Value {
+    let mut production = json!({"preset": "spider_4in", "seed": seed});
+    if let Some(d) = defect {
+        production["defect"] = json!(d);
+    }
+    json!({"part": {"serial": serial, "kind": "spider"}, "recipe": "spider-4in", "production": production})
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn golden_units_limits_and_production_verdicts() {
+    let full = std::env::var("SPRINGBENCH_QC_FULL").is_ok_and(|v| v == "1");
+    let d = Daemon::start(&format!("{}{}", tokens(), benches()));
+    let c = client();
+
+    // Recipe: only an admin creates it; the station (operator) may not.
+    let (s, _) = send(&c, &d, reqwest::Method::POST, "/api/v1/recipes", STATION, Some(recipe())).await;
+    assert_eq!(s, 403);
+    let (s, r) = send(&c, &d, reqwest::Method::POST, "/api/v1/recipes", ENGINEER, Some(recipe())).await;
+    assert_eq!(s, 201, "{r}");
+    assert_eq!(r["version"], 1);
+    assert_eq!(r["created_by"], "qc-engineer");
+    assert!(!r["has_limits"].as_bool().unwrap());
+
+    // Golden units: measured with the recipe, verdict no_limits (valid, nothing to judge yet).
+    let n_golden = if full { 8 } else { 5 };
+    let golden: Vec<Value> = (0..n_golden)
+        .map(|i| job(&format!("G-{i:02}"), 100 + i as u64, None))
+        .collect();
+    let done = run_jobs(&c, &d, &golden).await;
+    for j in &done {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        assert_eq!(j["verdict"], "no_limits", "{}", j["id"]);
+    }
+    let serials: Vec<String> = (0..n_golden).map(|i| format!("G-{i:02}")).collect();
+    let (s, p) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/recipes/spider-4in/limit-proposals",
+        STATION,
+        Some(json!({"serials": serials, "method": "k_sigma", "k": 6.0})),
+    )
+    .await;
+    assert_eq!(s, 201, "{p}");
+    assert_eq!(p["state"], "proposed");
+    let pid = p["id"].as_str().unwrap().to_string();
+    // Statistics of k0 equal the golden values' own mean and sample sigma.
+    let k0 = p["proposal"]["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|x| x["name"] == "k0")
+        .unwrap()
+        .clone();
+    let vals: Vec<f64> = k0["values"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert_eq!(vals.len(), n_golden);
+    let (m, sd) = mean_sd(&vals);
+    assert!((k0["mean"].as_f64().unwrap() - m).abs() < 1e-9 * m);
+    assert!((k0["upper"].as_f64().unwrap() - (m + 6.0 * sd)).abs() < 1e-9 * m);
+    // Only an admin approves; approval is recorded and makes version 2.
+    let path = format!("/api/v1/limit-proposals/{pid}/approve");
+    let (s, _) = send(&c, &d, reqwest::Method::POST, &path, STATION, None).await;
+    assert_eq!(s, 403);
+    let (s, v2) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
+    assert_eq!(s, 201, "{v2}");
+    assert_eq!((v2["version"].as_i64(), v2["origin"].as_str()), (Some(2), Some("limits_approved")));
+    assert!(v2["has_limits"].as_bool().unwrap());
+    let p = get(&c, &d, &format!("/api/v1/limit-proposals/{pid}")).await;
+    assert_eq!((p["state"].as_str(), p["decided_by"].as_str()), (Some("approved"), Some("qc-engineer")));
+    let (s, _) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
+    assert_eq!(s, 409, "approved twice");
+
+    // Production: (serial, body, expected verdict, expected failing parameter or invalid reason).
+    let mut lot: Vec<(String, Value, &str, &str)> = vec![];
+    let n_good = if full { 23 } else { 1 };
+    for i in 0..n_good {
+        let s = format!("P-{i:02}");
+        lot.push((s.clone(), job(&s, 500 + i as u64, None), "pass", ""));
+    }
+    let defects: &[(&str, &str)] = if full {
+        &[("stiff", "k0"), ("asymmetric", "asym_4mm"), ("hardening", "keff"), ("damped", "q"), ("friction", "friction")]
+    } else {
+        &[("stiff", "k0"), ("asymmetric", "asym_4mm"), ("damped", "q")]
+    };
+    for (i, (defect, param)) in defects.iter().enumerate() {
+        let s = format!("D-{defect}");
+        lot.push((s.clone(), job(&s, 700 + i as u64, Some(defect)), "fail", param));
+    }
+    // Unmeasurable: the amplifier limited to 0.3 V cannot reach 8 mm; a dark surface makes the laser noisy.
+    let mut weak = job("U-drive", 801, None);
+    weak["limits"] = json!({"max_drive_v": 0.3});
+    lot.push(("U-drive".into(), weak, "invalid", "target_not_reached"));
+    lot.push(("U-dark".into(), job("U-dark", 802, Some("dark_surface")), "invalid", "noise_high"));
+
+    let bodies: Vec<Value> = lot.iter().map(|l| l.1.clone()).collect();
+    let done = run_jobs(&c, &d, &bodies).await;
+    let mut wrong = vec![];
+    for ((serial, _, want, why), j) in lot.iter().zip(&done) {
+        let v = get(&c, &d, &format!("/api/v1/parts/{serial}/verdict")).await;
+        let got = v["verdict"].as_str().unwrap().to_string();
+        let detail = &v["detail"];
+        let ok = got == *want
+            && match *want {
+                "fail" => detail["failures"].as_array().unwrap().iter().any(|f| f["name"] == *why),
+                "invalid" => detail["invalid_reasons"].as_array().unwrap().iter().any(|r| r["code"] == *why),
+                _ => true,
+            };
+        if !ok {
+            wrong.push(format!("{serial}: want {want} ({why}), got {got}: {detail}"));
+        }
+        // Never pass on an invalid measurement.
+        if !detail["invalid_reasons"].as_array().unwrap().is_empty() {
+            assert_ne!(got, "pass", "{serial}");
+        }
+        assert_eq!(j["verdict"].as_str(), Some(got.as_str()), "job and part verdict agree");
+        // Traceability.
+        let t = &v["traceability"];
+        assert_eq!(t["recipe"]["version"], 2);
+        assert_eq!(t["recipe"]["sha256"], v2["sha256"]);
+        assert_eq!(t["submitted_by"], "station-1");
+        assert_eq!(t["software_version"], env!("CARGO_PKG_VERSION"));
+        assert!(t["bench_id"].as_str().unwrap().starts_with("virtual-"));
+        assert!(t["calibration"].is_null(), "the virtual bench has no calibration record");
+        // Each failing parameter carries its value and limits.
+        for f in detail["failures"].as_array().unwrap() {
+            let (x, lo, hi) = (f["value"].as_f64().unwrap(), f["lower"].as_f64(), f["upper"].as_f64());
+            assert!(lo.is_some_and(|l| x < l) || hi.is_some_and(|h| x > h), "{f}");
+        }
+    }
+    assert!(wrong.is_empty(), "{} wrong verdicts:\n{}", wrong.len(), wrong.join("\n"));
+
+    // The measurement carries its verdict too.
+    let mid = done[0]["measurement_ids"][0].as_str().unwrap();
+    let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+    assert_eq!(m["measurement"]["verdict"]["verdict"], "pass");
+
+    // SPC of k0 over the window: Cpk and Ppk equal an independent computation
+    // on the stored k0 of the same measurements.
+    let spc = get(&c, &d, "/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000").await;
+    let pts = spc["points"].as_array().unwrap();
+    let mut values = vec![];
+    for p in pts {
+        let id = p["measurement_id"].as_str().unwrap();
+        let m = get(&c, &d, &format!("/api/v1/measurements/{id}")).await;
+        values.push(m["small_signal"]["k0_n_per_m"].as_f64().unwrap());
+    }
+    // Golden units (no_limits) and production (pass/fail); the invalid ones have no value.
+    assert_eq!(values.len(), n_golden + lot.len() - 2);
+    assert_eq!(spc["invalid"], 2);
+    let (lo, hi) = (spc["lower"].as_f64().unwrap(), spc["upper"].as_f64().unwrap());
+    let (mean, sd) = mean_sd(&values);
+    let mr = values.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (values.len() - 1) as f64;
+    let sw = mr / 1.128;
+    let cpk = ((hi - mean).min(mean - lo)) / (3.0 * sw);
+    let ppk = ((hi - mean).min(mean - lo)) / (3.0 * sd);
+    let rel = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1e-12);
+    assert!(rel(spc["cpk"].as_f64().unwrap(), cpk), "Cpk {} vs {cpk}", spc["cpk"]);
+    assert!(rel(spc["ppk"].as_f64().unwrap(), ppk), "Ppk {} vs {ppk}", spc["ppk"]);
+    let fails = lot.iter().filter(|l| l.2 == "fail" && l.3 == "k0").count();
+    assert_eq!(spc["failed"].as_u64().unwrap() as usize, lot.iter().filter(|l| l.2 == "fail").count());
+    assert!(fails >= 1);
+    let csv = c
+        .get(d.url("/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000&format=csv"))
+        .bearer_auth(STATION)
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert_eq!(csv.lines().count(), values.len() + 1);
+    println!(
+        "QC lot: {} golden, {} production; k0 mean {mean:.1} N/m, sigma {sd:.2}, Cpk {cpk:.3}, Ppk {ppk:.3}",
+        n_golden,
+        lot.len()
+    );
+}
+
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+    (m, var.sqrt())
+}
+
+/// What the webhook receiver saw: (UniqueID, part serial, signature valid), in arrival order.
+type Seen = Arc<Mutex<Vec<(String, String, bool)>>>;
+
+const HOOK_SECRET: &str = "hook-secret-0123456789";
+
+async fn receiver(port: u16, seen: Seen, refuse_first: usize) -> tokio::task::JoinHandle<()> {
+    use axum::http::{HeaderMap, StatusCode};
+    let listener = tokio::net::TcpListener::bind(("127.0.0.1", port)).await.unwrap();
+    let count = Arc::new(Mutex::new(0usize));
+    let app = axum::Router::new().route(
+        "/cfx",
+        axum::routing::post(move |headers: HeaderMap, body: axum::body::Bytes| {
+            let seen = seen.clone();
+            let count = count.clone();
+            async move {
+                {
+                    let mut n = count.lock().unwrap();
+                    *n += 1;
+                    if *n <= refuse_first {
+                        return StatusCode::SERVICE_UNAVAILABLE;
+                    }
+                }
+                let sig = headers
+                    .get("x-springbench-signature")
+                    .and_then(|v| v.to_str().ok())
+                    .unwrap_or("")
+                    .to_string();
+                let mut mac = Hmac::<Sha256>::new_from_slice(HOOK_SECRET.as_bytes()).unwrap();
+                mac.update(&body);
+                let want: String = mac.finalize().into_bytes().iter().map(|b| format!("{b:02x}")).collect();
+                let v: Value = serde_json::from_slice(&body).unwrap();
+                let body = &v["MessageBody"];
+                let serial = body["PrimaryIdentifier"]
+                    .as_str()
+                    .or(body["TestedUnits"][0]["UnitIdentifier"].as_str())
+                    .unwrap_or("")
+                    .to_string();
+                seen.lock().unwrap().push((
+                    v["UniqueID"].as_str().unwrap().to_string(),
+                    serial,
+                    sig == format!("sha256={want}"),
+                ));
+                StatusCode::OK
+            }
+        }),
+    );
+    tokio::spawn(async move {
+        let _ = axum::serve(listener, app).await;
+    })
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mes_outbox_survives_receiver_outage_and_kill_9() {
+    // The receiver is down: its port is free while the jobs finish.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let cfg = format!(
+        "{}{}[mes]\nsource = \"line-3\"\ninitial_backoff_s = 0.2\nmax_backoff_s = 1.0\n\
+         [[mes.webhooks]]\nname = \"mes\"\nurl = \"http://127.0.0.1:{port}/cfx\"\nsecret = \"{HOOK_SECRET}\"\n",
+        tokens(),
+        benches()
+    );
+    let mut d = Daemon::start(&cfg);
+    let c = client();
+    // 10 jobs on 5 parts (two each: the order per part matters).
+    let bodies: Vec<Value> = (0..10)
+        .map(|i| json!({"part": {"serial": format!("M-{}", i % 5)}, "preset": "spider_4in", "target_xpeak_m": 0.006}))
+        .collect();
+    let done = run_jobs(&c, &d, &bodies).await;
+    assert!(done.iter().all(|j| j["state"] == "succeeded"));
+    // Every bench measurement was announced on the event stream.
+    let ob = get(&c, &d, "/api/v1/outbox?limit=500").await;
+    assert_eq!(ob["pending"], 30, "{ob}");
+    let expected: Vec<(String, String)> = ob["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| (x["unique_id"].as_str().unwrap().to_string(), x["part_serial"].as_str().unwrap().to_string()))
+        .collect();
+    let names: Vec<&str> = ob["items"].as_array().unwrap()[..3].iter().map(|x| x["message_name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        ["CFX.Production.WorkStarted", "CFX.Production.TestAndInspection.UnitsTested", "CFX.Production.WorkCompleted"]
+    );
+    let metrics = c.get(d.url("/metrics")).bearer_auth(STATION).send().await.unwrap().text().await.unwrap();
+    assert!(metrics.contains("springbench_mes_outbox_depth{state=\"pending\"} 30"), "{metrics}");
+    assert!(!metrics.contains("springbench_mes_delivery_failures_total 0\n"), "attempts failed while down");
+    // Killed with the messages pending.
+    d.kill9();
+
+    // The receiver comes back, refusing its first 5 requests (503); then the daemon.
+    let seen: Seen = Arc::new(Mutex::new(vec![]));
+    let rx = receiver(port, seen.clone(), 5).await;
+    let dir = d.take_dir().unwrap();
+    let d2 = Daemon::start_in(dir.path(), &cfg);
+    let t = Instant::now();
+    loop {
+        let got: HashSet<String> = seen.lock().unwrap().iter().map(|s| s.0.clone()).collect();
+        if expected.iter().all(|e| got.contains(&e.0)) {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "not every message arrived: {} of 30", got.len());
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let seen = seen.lock().unwrap().clone();
+    assert!(seen.iter().all(|s| s.2), "every signature valid");
+    // Per part: first arrivals in the order the outbox holds them.
+    let mut first: HashMap<String, Vec<String>> = HashMap::new();
+    let mut got = HashSet::new();
+    for (uid, serial, _) in &seen {
+        if got.insert(uid.clone()) {
+            first.entry(serial.clone()).or_default().push(uid.clone());
+        }
+    }
+    for part in (0..5).map(|i| format!("M-{i}")) {
+        let want: Vec<String> = expected.iter().filter(|e| e.1 == part).map(|e| e.0.clone()).collect();
+        assert_eq!(want.len(), 6);
+        assert_eq!(first.get(&part), Some(&want), "order of {part}");
+    }
+    let ob = get(&c, &d2, "/api/v1/outbox").await;
+    assert_eq!((ob["pending"].as_i64(), ob["failed"].as_i64()), (Some(0), Some(0)), "{ob}");
+    println!("MES: 30 messages, {} posts received (5 refused)", seen.len() + 5);
+    rx.abort();
+}
