@@ -80,7 +80,15 @@ fn recipe() -> Value {
 async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Value> {
     let mut ids = vec![];
     for b in bodies {
-        let (s, v) = send(c, d, reqwest::Method::POST, "/api/v1/jobs", STATION, Some(b.clone())).await;
+        let (s, v) = send(
+            c,
+            d,
+            reqwest::Method::POST,
+            "/api/v1/jobs",
+            STATION,
+            Some(b.clone()),
+        )
+        .await;
         assert_eq!(s, 202, "{v}");
         ids.push(v["id"].as_str().unwrap().to_string());
     }
@@ -93,7 +101,10 @@ async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Valu
                 out.push(j);
                 break;
             }
-            assert!(t.elapsed() < Duration::from_secs(600), "job {id} did not finish");
+            assert!(
+                t.elapsed() < Duration::from_secs(600),
+                "job {id} did not finish"
+            );
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
     }
@@ -115,9 +126,25 @@ async fn golden_units_limits_and_production_verdicts() {
     let c = client();
 
     // Recipe: only an admin creates it; the station (operator) may not.
-    let (s, _) = send(&c, &d, reqwest::Method::POST, "/api/v1/recipes", STATION, Some(recipe())).await;
+    let (s, _) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/recipes",
+        STATION,
+        Some(recipe()),
+    )
+    .await;
     assert_eq!(s, 403);
-    let (s, r) = send(&c, &d, reqwest::Method::POST, "/api/v1/recipes", ENGINEER, Some(recipe())).await;
+    let (s, r) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/recipes",
+        ENGINEER,
+        Some(recipe()),
+    )
+    .await;
     assert_eq!(s, 201, "{r}");
     assert_eq!(r["version"], 1);
     assert_eq!(r["created_by"], "qc-engineer");
@@ -154,7 +181,12 @@ async fn golden_units_limits_and_production_verdicts() {
         .find(|x| x["name"] == "k0")
         .unwrap()
         .clone();
-    let vals: Vec<f64> = k0["values"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let vals: Vec<f64> = k0["values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     assert_eq!(vals.len(), n_golden);
     let (m, sd) = mean_sd(&vals);
     assert!((k0["mean"].as_f64().unwrap() - m).abs() < 1e-9 * m);
@@ -165,10 +197,16 @@ async fn golden_units_limits_and_production_verdicts() {
     assert_eq!(s, 403);
     let (s, v2) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
     assert_eq!(s, 201, "{v2}");
-    assert_eq!((v2["version"].as_i64(), v2["origin"].as_str()), (Some(2), Some("limits_approved")));
+    assert_eq!(
+        (v2["version"].as_i64(), v2["origin"].as_str()),
+        (Some(2), Some("limits_approved"))
+    );
     assert!(v2["has_limits"].as_bool().unwrap());
     let p = get(&c, &d, &format!("/api/v1/limit-proposals/{pid}")).await;
-    assert_eq!((p["state"].as_str(), p["decided_by"].as_str()), (Some("approved"), Some("qc-engineer")));
+    assert_eq!(
+        (p["state"].as_str(), p["decided_by"].as_str()),
+        (Some("approved"), Some("qc-engineer"))
+    );
     let (s, _) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
     assert_eq!(s, 409, "approved twice");
 
@@ -180,19 +218,35 @@ async fn golden_units_limits_and_production_verdicts() {
         lot.push((s.clone(), job(&s, 500 + i as u64, None), "pass", ""));
     }
     let defects: &[(&str, &str)] = if full {
-        &[("stiff", "k0"), ("asymmetric", "asym_4mm"), ("hardening", "keff"), ("damped", "q"), ("friction", "friction")]
+        &[
+            ("stiff", "k0"),
+            ("asymmetric", "asym_4mm"),
+            ("hardening", "keff"),
+            ("damped", "q"),
+            ("friction", "friction"),
+        ]
     } else {
         &[("stiff", "k0"), ("asymmetric", "asym_4mm"), ("damped", "q")]
     };
     for (i, (defect, param)) in defects.iter().enumerate() {
         let s = format!("D-{defect}");
-        lot.push((s.clone(), job(&s, 700 + i as u64, Some(defect)), "fail", param));
+        lot.push((
+            s.clone(),
+            job(&s, 700 + i as u64, Some(defect)),
+            "fail",
+            param,
+        ));
     }
     // Unmeasurable: the amplifier limited to 0.3 V cannot reach 8 mm; a dark surface makes the laser noisy.
     let mut weak = job("U-drive", 801, None);
     weak["limits"] = json!({"max_drive_v": 0.3});
     lot.push(("U-drive".into(), weak, "invalid", "target_not_reached"));
-    lot.push(("U-dark".into(), job("U-dark", 802, Some("dark_surface")), "invalid", "noise_high"));
+    lot.push((
+        "U-dark".into(),
+        job("U-dark", 802, Some("dark_surface")),
+        "invalid",
+        "noise_high",
+    ));
 
     let bodies: Vec<Value> = lot.iter().map(|l| l.1.clone()).collect();
     let done = run_jobs(&c, &d, &bodies).await;
@@ -203,18 +257,32 @@ async fn golden_units_limits_and_production_verdicts() {
         let detail = &v["detail"];
         let ok = got == *want
             && match *want {
-                "fail" => detail["failures"].as_array().unwrap().iter().any(|f| f["name"] == *why),
-                "invalid" => detail["invalid_reasons"].as_array().unwrap().iter().any(|r| r["code"] == *why),
+                "fail" => detail["failures"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|f| f["name"] == *why),
+                "invalid" => detail["invalid_reasons"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|r| r["code"] == *why),
                 _ => true,
             };
         if !ok {
-            wrong.push(format!("{serial}: want {want} ({why}), got {got}: {detail}"));
+            wrong.push(format!(
+                "{serial}: want {want} ({why}), got {got}: {detail}"
+            ));
         }
         // Never pass on an invalid measurement.
         if !detail["invalid_reasons"].as_array().unwrap().is_empty() {
             assert_ne!(got, "pass", "{serial}");
         }
-        assert_eq!(j["verdict"].as_str(), Some(got.as_str()), "job and part verdict agree");
+        assert_eq!(
+            j["verdict"].as_str(),
+            Some(got.as_str()),
+            "job and part verdict agree"
+        );
         // Traceability.
         let t = &v["traceability"];
         assert_eq!(t["recipe"]["version"], 2);
@@ -222,14 +290,29 @@ async fn golden_units_limits_and_production_verdicts() {
         assert_eq!(t["submitted_by"], "station-1");
         assert_eq!(t["software_version"], env!("CARGO_PKG_VERSION"));
         assert!(t["bench_id"].as_str().unwrap().starts_with("virtual-"));
-        assert!(t["calibration"].is_null(), "the virtual bench has no calibration record");
+        assert!(
+            t["calibration"].is_null(),
+            "the virtual bench has no calibration record"
+        );
         // Each failing parameter carries its value and limits.
         for f in detail["failures"].as_array().unwrap() {
-            let (x, lo, hi) = (f["value"].as_f64().unwrap(), f["lower"].as_f64(), f["upper"].as_f64());
-            assert!(lo.is_some_and(|l| x < l) || hi.is_some_and(|h| x > h), "{f}");
+            let (x, lo, hi) = (
+                f["value"].as_f64().unwrap(),
+                f["lower"].as_f64(),
+                f["upper"].as_f64(),
+            );
+            assert!(
+                lo.is_some_and(|l| x < l) || hi.is_some_and(|h| x > h),
+                "{f}"
+            );
         }
     }
-    assert!(wrong.is_empty(), "{} wrong verdicts:\n{}", wrong.len(), wrong.join("\n"));
+    assert!(
+        wrong.is_empty(),
+        "{} wrong verdicts:\n{}",
+        wrong.len(),
+        wrong.join("\n")
+    );
 
     // The measurement carries its verdict too.
     let mid = done[0]["measurement_ids"][0].as_str().unwrap();
@@ -238,7 +321,12 @@ async fn golden_units_limits_and_production_verdicts() {
 
     // SPC of k0 over the window: Cpk and Ppk equal an independent computation
     // on the stored k0 of the same measurements.
-    let spc = get(&c, &d, "/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000").await;
+    let spc = get(
+        &c,
+        &d,
+        "/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000",
+    )
+    .await;
     let pts = spc["points"].as_array().unwrap();
     let mut values = vec![];
     for p in pts {
@@ -249,17 +337,32 @@ async fn golden_units_limits_and_production_verdicts() {
     // Golden units (no_limits) and production (pass/fail); the invalid ones have no value.
     assert_eq!(values.len(), n_golden + lot.len() - 2);
     assert_eq!(spc["invalid"], 2);
-    let (lo, hi) = (spc["lower"].as_f64().unwrap(), spc["upper"].as_f64().unwrap());
+    let (lo, hi) = (
+        spc["lower"].as_f64().unwrap(),
+        spc["upper"].as_f64().unwrap(),
+    );
     let (mean, sd) = mean_sd(&values);
-    let mr = values.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (values.len() - 1) as f64;
+    let mr =
+        values.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (values.len() - 1) as f64;
     let sw = mr / 1.128;
     let cpk = ((hi - mean).min(mean - lo)) / (3.0 * sw);
     let ppk = ((hi - mean).min(mean - lo)) / (3.0 * sd);
     let rel = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1e-12);
-    assert!(rel(spc["cpk"].as_f64().unwrap(), cpk), "Cpk {} vs {cpk}", spc["cpk"]);
-    assert!(rel(spc["ppk"].as_f64().unwrap(), ppk), "Ppk {} vs {ppk}", spc["ppk"]);
+    assert!(
+        rel(spc["cpk"].as_f64().unwrap(), cpk),
+        "Cpk {} vs {cpk}",
+        spc["cpk"]
+    );
+    assert!(
+        rel(spc["ppk"].as_f64().unwrap(), ppk),
+        "Ppk {} vs {ppk}",
+        spc["ppk"]
+    );
     let fails = lot.iter().filter(|l| l.2 == "fail" && l.3 == "k0").count();
-    assert_eq!(spc["failed"].as_u64().unwrap() as usize, lot.iter().filter(|l| l.2 == "fail").count());
+    assert_eq!(
+        spc["failed"].as_u64().unwrap() as usize,
+        lot.iter().filter(|l| l.2 == "fail").count()
+    );
     assert!(fails >= 1);
     let csv = c
         .get(d.url("/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000&format=csv"))
@@ -292,7 +395,9 @@ const HOOK_SECRET: &str = "hook-secret-0123456789";
 
 async fn receiver(port: u16, seen: Seen, refuse_first: usize) -> tokio::task::JoinHandle<()> {
     use axum::http::{HeaderMap, StatusCode};
-    let listener = tokio::net::TcpListener::bind(("127.0.0.1", port)).await.unwrap();
+    let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+        .await
+        .unwrap();
     let count = Arc::new(Mutex::new(0usize));
     let app = axum::Router::new().route(
         "/cfx",
@@ -314,7 +419,12 @@ async fn receiver(port: u16, seen: Seen, refuse_first: usize) -> tokio::task::Jo
                     .to_string();
                 let mut mac = Hmac::<Sha256>::new_from_slice(HOOK_SECRET.as_bytes()).unwrap();
                 mac.update(&body);
-                let want: String = mac.finalize().into_bytes().iter().map(|b| format!("{b:02x}")).collect();
+                let want: String = mac
+                    .finalize()
+                    .into_bytes()
+                    .iter()
+                    .map(|b| format!("{b:02x}"))
+                    .collect();
                 let v: Value = serde_json::from_slice(&body).unwrap();
                 let body = &v["MessageBody"];
                 let serial = body["PrimaryIdentifier"]
@@ -339,7 +449,11 @@ async fn receiver(port: u16, seen: Seen, refuse_first: usize) -> tokio::task::Jo
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mes_outbox_survives_receiver_outage_and_kill_9() {
     // The receiver is down: its port is free while the jobs finish.
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
     let cfg = format!(
         "{}{}[mes]\nsource = \"line-3\"\ninitial_backoff_s = 0.2\nmax_backoff_s = 1.0\n\
          [[mes.webhooks]]\nname = \"mes\"\nurl = \"http://127.0.0.1:{port}/cfx\"\nsecret = \"{HOOK_SECRET}\"\n",
@@ -361,16 +475,42 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|x| (x["unique_id"].as_str().unwrap().to_string(), x["part_serial"].as_str().unwrap().to_string()))
+        .map(|x| {
+            (
+                x["unique_id"].as_str().unwrap().to_string(),
+                x["part_serial"].as_str().unwrap().to_string(),
+            )
+        })
         .collect();
-    let names: Vec<&str> = ob["items"].as_array().unwrap()[..3].iter().map(|x| x["message_name"].as_str().unwrap()).collect();
+    let names: Vec<&str> = ob["items"].as_array().unwrap()[..3]
+        .iter()
+        .map(|x| x["message_name"].as_str().unwrap())
+        .collect();
     assert_eq!(
         names,
-        ["CFX.Production.WorkStarted", "CFX.Production.TestAndInspection.UnitsTested", "CFX.Production.WorkCompleted"]
+        [
+            "CFX.Production.WorkStarted",
+            "CFX.Production.TestAndInspection.UnitsTested",
+            "CFX.Production.WorkCompleted"
+        ]
     );
-    let metrics = c.get(d.url("/metrics")).bearer_auth(STATION).send().await.unwrap().text().await.unwrap();
-    assert!(metrics.contains("springbench_mes_outbox_depth{state=\"pending\"} 30"), "{metrics}");
-    assert!(!metrics.contains("springbench_mes_delivery_failures_total 0\n"), "attempts failed while down");
+    let metrics = c
+        .get(d.url("/metrics"))
+        .bearer_auth(STATION)
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        metrics.contains("springbench_mes_outbox_depth{state=\"pending\"} 30"),
+        "{metrics}"
+    );
+    assert!(
+        !metrics.contains("springbench_mes_delivery_failures_total 0\n"),
+        "attempts failed while down"
+    );
     // Killed with the messages pending.
     d.kill9();
 
@@ -385,7 +525,11 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
         if expected.iter().all(|e| got.contains(&e.0)) {
             break;
         }
-        assert!(t.elapsed() < Duration::from_secs(120), "not every message arrived: {} of 30", got.len());
+        assert!(
+            t.elapsed() < Duration::from_secs(120),
+            "not every message arrived: {} of 30",
+            got.len()
+        );
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let seen = seen.lock().unwrap().clone();
@@ -399,12 +543,23 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
         }
     }
     for part in (0..5).map(|i| format!("M-{i}")) {
-        let want: Vec<String> = expected.iter().filter(|e| e.1 == part).map(|e| e.0.clone()).collect();
+        let want: Vec<String> = expected
+            .iter()
+            .filter(|e| e.1 == part)
+            .map(|e| e.0.clone())
+            .collect();
         assert_eq!(want.len(), 6);
         assert_eq!(first.get(&part), Some(&want), "order of {part}");
     }
     let ob = get(&c, &d2, "/api/v1/outbox").await;
-    assert_eq!((ob["pending"].as_i64(), ob["failed"].as_i64()), (Some(0), Some(0)), "{ob}");
-    println!("MES: 30 messages, {} posts received (5 refused)", seen.len() + 5);
+    assert_eq!(
+        (ob["pending"].as_i64(), ob["failed"].as_i64()),
+        (Some(0), Some(0)),
+        "{ob}"
+    );
+    println!(
+        "MES: 30 messages, {} posts received (5 refused)",
+        seen.len() + 5
+    );
     rx.abort();
 }

@@ -224,13 +224,6 @@ pub async fn part_measurements(
     if st.store.get_part(&serial).await?.is_none() {
         return Err(Problem::not_found("part", &serial));
     }
-    super::measurements::list_page(
-        &st,
-        Some(&serial),
-        None,
-        None,
-        q.limit,
-        q.cursor.as_deref(),
-    )
-    .await
+    super::measurements::list_page(&st, Some(&serial), None, None, q.limit, q.cursor.as_deref())
+        .await
 }

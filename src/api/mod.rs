@@ -14,9 +14,9 @@ pub mod measurements;
 pub mod metrics;
 pub mod ops;
 pub mod problem;
+pub mod qc;
 pub mod server;
 pub mod session;
-pub mod qc;
 
 use crate::config::Config;
 use crate::runner::Runner;

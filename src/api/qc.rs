@@ -72,13 +72,23 @@ pub async fn create(
             StatusCode::CONFLICT,
             "recipe-exists",
             "Recipe exists",
-            format!("recipe '{}' exists; PUT /api/v1/recipes/{} makes a new version", r.name, r.name),
+            format!(
+                "recipe '{}' exists; PUT /api/v1/recipes/{} makes a new version",
+                r.name, r.name
+            ),
         ));
     }
     let body = serde_json::to_value(&r).map_err(Problem::internal)?;
     let row = st
         .store
-        .insert_recipe(&r.name, &r.sha256(), &body, "created", None, caller.0.as_deref())
+        .insert_recipe(
+            &r.name,
+            &r.sha256(),
+            &body,
+            "created",
+            None,
+            caller.0.as_deref(),
+        )
         .await?;
     Ok(located(
         StatusCode::CREATED,
@@ -116,11 +126,20 @@ pub async fn update(
 }
 
 pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
-    let items: Vec<Value> = st.store.list_recipes().await?.iter().map(recipe_doc).collect();
+    let items: Vec<Value> = st
+        .store
+        .list_recipes()
+        .await?
+        .iter()
+        .map(recipe_doc)
+        .collect();
     Ok(Json(json!({"items": items})))
 }
 
-pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn get_one(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+) -> ApiResult<Json<Value>> {
     let r = st
         .store
         .get_recipe(&name, None)
@@ -129,7 +148,10 @@ pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> Ap
     Ok(Json(recipe_doc(&r)))
 }
 
-pub async fn versions(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn versions(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+) -> ApiResult<Json<Value>> {
     let v = st.store.recipe_versions(&name).await?;
     if v.is_empty() {
         return Err(Problem::not_found("recipe", &name));
@@ -166,7 +188,11 @@ pub async fn apply_recipe(
     st: &AppState,
     body: &mut Value,
 ) -> ApiResult<Option<crate::runner::job::RecipeRef>> {
-    let Some(name) = body.get("recipe").and_then(|v| v.as_str()).map(str::to_string) else {
+    let Some(name) = body
+        .get("recipe")
+        .and_then(|v| v.as_str())
+        .map(str::to_string)
+    else {
         return Ok(None);
     };
     let row = st
@@ -174,12 +200,17 @@ pub async fn apply_recipe(
         .get_recipe(&name, None)
         .await?
         .filter(|r| !r.retired)
-        .ok_or_else(|| Problem::field("recipe", format!("no recipe '{name}' (or it is retired)")))?;
+        .ok_or_else(|| {
+            Problem::field("recipe", format!("no recipe '{name}' (or it is retired)"))
+        })?;
     let r: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
     let p = &r.procedure;
     let mut settings = vec![
         ("levels_m", json!(p.levels_m)),
-        ("method", serde_json::to_value(p.method).map_err(Problem::internal)?),
+        (
+            "method",
+            serde_json::to_value(p.method).map_err(Problem::internal)?,
+        ),
         ("repeats", json!(p.repeats)),
     ];
     if let Some(o) = p.order {
@@ -231,12 +262,21 @@ pub struct ProposalBody {
 
 fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
     RunFacts {
-        report: g.result.clone().and_then(|r| serde_json::from_value(r).ok()),
+        report: g
+            .result
+            .clone()
+            .and_then(|r| serde_json::from_value(r).ok()),
         analysis_error: g.analysis_error.clone(),
         target_xpeak_m: g.target_xpeak_m,
         level_index: g.level_index.unwrap_or(0).max(0) as usize,
-        drive_v: g.config.pointer("/narrow_sweep/drive_v").and_then(|v| v.as_f64()),
-        max_drive_v: g.config.pointer("/limits/max_drive_v").and_then(|v| v.as_f64()),
+        drive_v: g
+            .config
+            .pointer("/narrow_sweep/drive_v")
+            .and_then(|v| v.as_f64()),
+        max_drive_v: g
+            .config
+            .pointer("/limits/max_drive_v")
+            .and_then(|v| v.as_f64()),
     }
 }
 
@@ -248,7 +288,8 @@ pub async fn propose(
     Path(name): Path<String>,
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
-    let b: ProposalBody = serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
+    let b: ProposalBody =
+        serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
     let row = st
         .store
         .get_recipe(&name, None)
@@ -287,7 +328,10 @@ pub async fn propose(
     ))
 }
 
-pub async fn get_proposal(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn get_proposal(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
     let p = st
         .store
         .get_proposal(&id)
@@ -350,12 +394,19 @@ pub async fn reject(
     if !st.store.reject_proposal(&id, caller.0.as_deref()).await? {
         return Err(decided(&p));
     }
-    let p = st.store.get_proposal(&id).await?.ok_or_else(|| Problem::not_found("limit proposal", &id))?;
+    let p = st
+        .store
+        .get_proposal(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
     Ok(Json(serde_json::to_value(&p).map_err(Problem::internal)?))
 }
 
 /// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
-pub async fn part_verdict(State(st): State<AppState>, Path(serial): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn part_verdict(
+    State(st): State<AppState>,
+    Path(serial): Path<String>,
+) -> ApiResult<Json<Value>> {
     let v = st
         .store
         .part_verdict(&serial)
@@ -365,14 +416,19 @@ pub async fn part_verdict(State(st): State<AppState>, Path(serial): Path<String>
 }
 
 /// `GET /api/v1/jobs/{id}/verdict`: the job's verdict and its measurements'.
-pub async fn job_verdict(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn job_verdict(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
     let v = st.store.job_verdicts(&id).await?;
     let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
         return Err(Problem::not_found("verdict of job", &id));
     };
     let mut doc = serde_json::to_value(job).map_err(Problem::internal)?;
     doc["measurements"] = serde_json::to_value(
-        v.iter().filter(|x| x.measurement_id.is_some()).collect::<Vec<_>>(),
+        v.iter()
+            .filter(|x| x.measurement_id.is_some())
+            .collect::<Vec<_>>(),
     )
     .map_err(Problem::internal)?;
     Ok(Json(doc))
@@ -420,21 +476,37 @@ pub async fn spc(
         None if since.is_none() && until.is_none() => Some(100),
         None => None,
         Some(n) if (1..=100_000).contains(&n) => Some(n),
-        Some(n) => return Err(Problem::field("last", format!("must be 1 to 100000, got {n}"))),
+        Some(n) => {
+            return Err(Problem::field(
+                "last",
+                format!("must be 1 to 100000, got {n}"),
+            ))
+        }
     };
     let Some(pname) = q.parameter.clone() else {
         return Err(Problem::field(
             "parameter",
             format!(
                 "required: one of {}",
-                recipe.parameters.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+                recipe
+                    .parameters
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         ));
     };
     let Some(spec) = recipe.parameters.iter().find(|p| p.name == pname) else {
-        return Err(Problem::field("parameter", format!("recipe '{name}' has no parameter '{pname}'")));
+        return Err(Problem::field(
+            "parameter",
+            format!("recipe '{name}' has no parameter '{pname}'"),
+        ));
     };
-    let rows = st.store.recipe_verdicts(&name, since.as_deref(), until.as_deref(), last).await?;
+    let rows = st
+        .store
+        .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
+        .await?;
     let mut points = Vec::new();
     let mut invalid = 0;
     for r in &rows {
@@ -456,7 +528,14 @@ pub async fn spc(
             });
         }
     }
-    let s = crate::qc::spc::compute(&pname, &spec.unit(), spec.lower, spec.upper, points, invalid);
+    let s = crate::qc::spc::compute(
+        &pname,
+        &spec.unit(),
+        spec.lower,
+        spec.upper,
+        points,
+        invalid,
+    );
     if q.format.as_deref() == Some("csv") {
         return Ok((
             [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
@@ -480,23 +559,38 @@ pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResu
     let state = match q.state.as_deref() {
         None | Some("") => None,
         Some(s @ ("pending" | "failed" | "delivered" | "dropped")) => Some(s),
-        Some(_) => return Err(Problem::field("state", "one of pending, failed, delivered, dropped")),
+        Some(_) => {
+            return Err(Problem::field(
+                "state",
+                "one of pending, failed, delivered, dropped",
+            ))
+        }
     };
     let limit = super::page_limit(q.limit)?;
     let items = st.store.list_outbox(state, limit).await?;
     let (pending, failed, failures) = st.store.outbox_counts().await?;
-    Ok(Json(json!({"items": items, "pending": pending, "failed": failed,
-                   "failed_attempts_total": failures})))
+    Ok(Json(
+        json!({"items": items, "pending": pending, "failed": failed,
+                   "failed_attempts_total": failures}),
+    ))
 }
 
 fn delivery_id(id: &str) -> ApiResult<i64> {
-    id.parse::<i64>().map_err(|_| Problem::not_found("outbox delivery", id))
+    id.parse::<i64>()
+        .map_err(|_| Problem::not_found("outbox delivery", id))
 }
 
 /// `POST /api/v1/outbox/{id}/retry` (admin): a pending or failed delivery is tried now.
-pub async fn outbox_retry(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn outbox_retry(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
     let n = delivery_id(&id)?;
-    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    let d = st
+        .store
+        .get_delivery(n)
+        .await?
+        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
     if !st.store.retry_delivery(n).await? {
         return Err(Problem::new(
             StatusCode::CONFLICT,
@@ -506,14 +600,25 @@ pub async fn outbox_retry(State(st): State<AppState>, Path(id): Path<String>) ->
         ));
     }
     st.runner.outbox_wake().notify_one();
-    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    let d = st
+        .store
+        .get_delivery(n)
+        .await?
+        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
     Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
 }
 
 /// `DELETE /api/v1/outbox/{id}` (admin): the delivery is dropped (the message stays stored).
-pub async fn outbox_drop(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+pub async fn outbox_drop(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
     let n = delivery_id(&id)?;
-    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    let d = st
+        .store
+        .get_delivery(n)
+        .await?
+        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
     if !st.store.drop_delivery(n).await? {
         return Err(Problem::new(
             StatusCode::CONFLICT,
@@ -523,6 +628,10 @@ pub async fn outbox_drop(State(st): State<AppState>, Path(id): Path<String>) -> 
         ));
     }
     st.runner.outbox_wake().notify_one();
-    let d = st.store.get_delivery(n).await?.ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+    let d = st
+        .store
+        .get_delivery(n)
+        .await?
+        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
     Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
 }

@@ -75,7 +75,8 @@ fn num(v: f64, unit: &str) -> Value {
 
 /// The three messages of a job: (UniqueID, MessageName, envelope), in order.
 pub fn job_messages(f: &JobFacts, ids: [String; 3]) -> Vec<(String, String, Value)> {
-    let units = json!([{"UnitIdentifier": f.part_serial, "PositionNumber": 1, "PositionName": null}]);
+    let units =
+        json!([{"UnitIdentifier": f.part_serial, "PositionNumber": 1, "PositionName": null}]);
     let started = envelope(
         WORK_STARTED,
         &ids[0],
@@ -210,7 +211,10 @@ mod tests {
             verdict: VerdictKind::Fail,
             failures: vec![p("k0", 2700.0, ParamResult::Fail)],
             invalid_reasons: vec![],
-            parameters: vec![p("k0", 2700.0, ParamResult::Fail), p("keff", 2400.0, ParamResult::Pass)],
+            parameters: vec![
+                p("k0", 2700.0, ParamResult::Fail),
+                p("keff", 2400.0, ParamResult::Pass),
+            ],
         };
         let f = JobFacts {
             job_id: "J1".into(),
@@ -242,7 +246,10 @@ mod tests {
         let t = &body["TestedUnits"][0]["Tests"][0];
         assert_eq!(t["Result"], "Failed");
         assert_eq!(t["Measurements"][0]["MeasuredValue"]["Value"], 2700.0);
-        assert_eq!(t["Measurements"][0]["MaximumAcceptableValue"]["Value"], 2500.0);
+        assert_eq!(
+            t["Measurements"][0]["MaximumAcceptableValue"]["Value"],
+            2500.0
+        );
         assert_eq!(t["Measurements"][1]["Result"], "Passed");
         assert_eq!(t["SymptomsFound"][0]["SymptomCode"], "k0-out-of-limits");
         assert_eq!(m[2].2["MessageBody"]["Result"], "Completed");

@@ -67,7 +67,10 @@ impl MesConfig {
         let mut names = std::collections::HashSet::new();
         for w in &self.webhooks {
             if w.name.is_empty() || !names.insert(w.name.as_str()) {
-                return Err(format!("mes webhook '{}': names must be unique and non-empty", w.name));
+                return Err(format!(
+                    "mes webhook '{}': names must be unique and non-empty",
+                    w.name
+                ));
             }
             if !w.url.starts_with("http://") {
                 return Err(format!(
@@ -76,7 +79,10 @@ impl MesConfig {
                 ));
             }
             if w.secret.len() < 16 {
-                return Err(format!("mes webhook '{}': secret must have at least 16 characters", w.name));
+                return Err(format!(
+                    "mes webhook '{}': secret must have at least 16 characters",
+                    w.name
+                ));
             }
         }
         for (n, v) in [
@@ -97,10 +103,14 @@ impl MesConfig {
 
 /// `sha256=<hex>` of the body under `secret`.
 pub fn signature(secret: &str, body: &[u8]) -> String {
-    let mut mac = Hmac::<Sha256>::new_from_slice(secret.as_bytes()).expect("HMAC takes any key length");
+    let mut mac =
+        Hmac::<Sha256>::new_from_slice(secret.as_bytes()).expect("HMAC takes any key length");
     mac.update(body);
     let tag = mac.finalize().into_bytes();
-    format!("sha256={}", tag.iter().map(|b| format!("{b:02x}")).collect::<String>())
+    format!(
+        "sha256={}",
+        tag.iter().map(|b| format!("{b:02x}")).collect::<String>()
+    )
 }
 
 /// Delay before the next attempt after `attempts` failed ones (s).
@@ -153,7 +163,9 @@ pub fn start(
                 let wait = match store.next_delivery_due().await {
                     Ok(Some(t)) => chrono::DateTime::parse_from_rfc3339(&t)
                         .ok()
-                        .map(|t| (t.with_timezone(&chrono::Utc) - chrono::Utc::now()).num_milliseconds())
+                        .map(|t| {
+                            (t.with_timezone(&chrono::Utc) - chrono::Utc::now()).num_milliseconds()
+                        })
                         .unwrap_or(1000)
                         .clamp(10, 1000),
                     _ => 1000,

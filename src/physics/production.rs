@@ -105,7 +105,14 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
         Some(Defect::DarkSurface) => p.laser_noise_m = Some(60e-6),
     }
     if let Some(d) = defect {
-        p.name = format!("{} ({})", p.name, serde_json::to_value(d).unwrap_or_default().as_str().unwrap_or(""));
+        p.name = format!(
+            "{} ({})",
+            p.name,
+            serde_json::to_value(d)
+                .unwrap_or_default()
+                .as_str()
+                .unwrap_or("")
+        );
     }
     p
 }

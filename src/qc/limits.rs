@@ -2,7 +2,7 @@
 //! tolerance) over N >= 5 good parts, and a K(x) mask over the range all of
 //! them measured. Pure.
 
-use super::{k_of_x, judge, KxMask, Quantity, Recipe, RunFacts, VerdictKind};
+use super::{judge, k_of_x, KxMask, Quantity, Recipe, RunFacts, VerdictKind};
 use crate::identify::Report;
 use serde::{Deserialize, Serialize};
 
@@ -156,7 +156,10 @@ pub fn propose(
     for g in golden {
         for li in 0..levels {
             let Some(f) = g.measurements.iter().find(|f| f.level_index == li) else {
-                return Err(format!("golden unit {}: no measurement of level {li}", g.serial));
+                return Err(format!(
+                    "golden unit {}: no measurement of level {li}",
+                    g.serial
+                ));
             };
             let v = judge(&bare, f);
             if v.verdict == VerdictKind::Invalid {
@@ -255,8 +258,14 @@ pub fn propose(
         out.kx_mask = Some(mask);
     }
     if let Err(e) = out.validate() {
-        let msgs: Vec<String> = e.iter().map(|e| format!("{}: {}", e.field, e.message)).collect();
-        return Err(format!("the proposed limits are not usable: {}", msgs.join("; ")));
+        let msgs: Vec<String> = e
+            .iter()
+            .map(|e| format!("{}: {}", e.field, e.message))
+            .collect();
+        return Err(format!(
+            "the proposed limits are not usable: {}",
+            msgs.join("; ")
+        ));
     }
     Ok(Proposal {
         serials: golden.iter().map(|g| g.serial.clone()).collect(),

@@ -248,7 +248,10 @@ impl Recipe {
     pub fn validate(&self) -> Result<(), Vec<FieldError>> {
         let mut e = Vec::new();
         if !crate::runner::job::valid_serial(&self.name) {
-            e.push(ferr("name", "1-64 characters: letters, digits, '-', '_', '.'"));
+            e.push(ferr(
+                "name",
+                "1-64 characters: letters, digits, '-', '_', '.'",
+            ));
         }
         let p = &self.procedure;
         if p.levels_m.is_empty() || p.levels_m.len() > crate::runner::job::MAX_LEVELS {
@@ -300,9 +303,15 @@ impl Recipe {
         for (i, ps) in self.parameters.iter().enumerate() {
             let f = |s: &str| format!("parameters[{i}].{s}");
             if !crate::runner::job::valid_serial(&ps.name) {
-                e.push(ferr(f("name"), "1-64 characters: letters, digits, '-', '_', '.'"));
+                e.push(ferr(
+                    f("name"),
+                    "1-64 characters: letters, digits, '-', '_', '.'",
+                ));
             } else if !names.insert(ps.name.as_str()) || ps.name == KX_MASK {
-                e.push(ferr(f("name"), format!("'{}' is used twice or reserved", ps.name)));
+                e.push(ferr(
+                    f("name"),
+                    format!("'{}' is used twice or reserved", ps.name),
+                ));
             }
             let needs_x = matches!(ps.quantity, Quantity::KAtX | Quantity::KAsymmetry);
             match ps.x_m {
@@ -376,7 +385,10 @@ impl Recipe {
         if let Some(m) = &self.kx_mask {
             let n = m.x_m.len();
             if n == 0 || n > MAX_MASK_POINTS {
-                e.push(ferr("kx_mask.x_m", format!("1 to {MAX_MASK_POINTS} points")));
+                e.push(ferr(
+                    "kx_mask.x_m",
+                    format!("1 to {MAX_MASK_POINTS} points"),
+                ));
             }
             if m.lower_n_per_m.len() != n || m.upper_n_per_m.len() != n {
                 e.push(ferr(
@@ -388,7 +400,11 @@ impl Recipe {
             if all.clone().any(|v| !finite(*v)) {
                 e.push(ferr("kx_mask", "every value must be a finite number"));
             }
-            if m.lower_n_per_m.iter().zip(&m.upper_n_per_m).any(|(a, b)| a > b) {
+            if m.lower_n_per_m
+                .iter()
+                .zip(&m.upper_n_per_m)
+                .any(|(a, b)| a > b)
+            {
                 e.push(ferr("kx_mask", "a lower bound is above its upper bound"));
             }
             if let Some(li) = m.level_index {
@@ -529,7 +545,15 @@ fn effect_value(report: &Report, effect: &str, parameter: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
-fn judge_value(name: &str, q: Option<Quantity>, unit: String, value: f64, lo: Option<f64>, hi: Option<f64>, x_m: Option<f64>) -> ParamOutcome {
+fn judge_value(
+    name: &str,
+    q: Option<Quantity>,
+    unit: String,
+    value: f64,
+    lo: Option<f64>,
+    hi: Option<f64>,
+    x_m: Option<f64>,
+) -> ParamOutcome {
     let result = if lo.is_none() && hi.is_none() {
         ParamResult::NotJudged
     } else if lo.is_some_and(|l| value < l) || hi.is_some_and(|h| value > h) || !value.is_finite() {
@@ -623,7 +647,8 @@ pub fn validity_problems(recipe: &Recipe, facts: &RunFacts) -> Vec<InvalidReason
             out.push(reason("clipping", w.clone()));
         } else if l.contains("align") {
             out.push(reason("alignment", w.clone()));
-        } else if l.contains("not reached") && facts.target_xpeak_m.is_some()
+        } else if l.contains("not reached")
+            && facts.target_xpeak_m.is_some()
             && !out.iter().any(|o| o.code == "target_not_reached")
         {
             out.push(reason("target_not_reached", w.clone()));
@@ -717,7 +742,15 @@ pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
                 if worst.as_ref().is_none_or(|(e, _)| excess > *e) {
                     worst = Some((
                         excess,
-                        judge_value(KX_MASK, Some(Quantity::KAtX), "N/m".into(), k, Some(lo), Some(hi), Some(x)),
+                        judge_value(
+                            KX_MASK,
+                            Some(Quantity::KAtX),
+                            "N/m".into(),
+                            k,
+                            Some(lo),
+                            Some(hi),
+                            Some(x),
+                        ),
                     ));
                 }
             }
@@ -754,7 +787,11 @@ pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
     };
     Verdict {
         verdict,
-        failures: if verdict == VerdictKind::Fail { failures } else { vec![] },
+        failures: if verdict == VerdictKind::Fail {
+            failures
+        } else {
+            vec![]
+        },
         invalid_reasons: invalid,
         parameters: params,
     }
@@ -767,7 +804,11 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
     if verdicts.is_empty() {
         return invalid_job("job_failed", "the job produced no measurement".into());
     }
-    let worst = verdicts.iter().map(|v| v.verdict).max().unwrap_or(VerdictKind::Invalid);
+    let worst = verdicts
+        .iter()
+        .map(|v| v.verdict)
+        .max()
+        .unwrap_or(VerdictKind::Invalid);
     let mut out = Verdict {
         verdict: worst,
         failures: vec![],
@@ -778,7 +819,8 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
         if worst == VerdictKind::Fail {
             out.failures.extend(v.failures.iter().cloned());
         }
-        out.invalid_reasons.extend(v.invalid_reasons.iter().cloned());
+        out.invalid_reasons
+            .extend(v.invalid_reasons.iter().cloned());
         out.parameters.extend(v.parameters.iter().cloned());
     }
     out

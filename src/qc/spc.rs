@@ -51,7 +51,12 @@ pub struct Spc {
     pub points: Vec<SpcPoint>,
 }
 
-fn capability(lower: Option<f64>, upper: Option<f64>, mean: f64, s: f64) -> (Option<f64>, Option<f64>) {
+fn capability(
+    lower: Option<f64>,
+    upper: Option<f64>,
+    mean: f64,
+    s: f64,
+) -> (Option<f64>, Option<f64>) {
     if !(s.is_finite() && s > 0.0) {
         return (None, None);
     }
@@ -59,10 +64,13 @@ fn capability(lower: Option<f64>, upper: Option<f64>, mean: f64, s: f64) -> (Opt
         (Some(l), Some(u)) => Some((u - l) / (6.0 * s)),
         _ => None,
     };
-    let k = [upper.map(|u| (u - mean) / (3.0 * s)), lower.map(|l| (mean - l) / (3.0 * s))]
-        .into_iter()
-        .flatten()
-        .fold(None, |a: Option<f64>, v| Some(a.map_or(v, |a| a.min(v))));
+    let k = [
+        upper.map(|u| (u - mean) / (3.0 * s)),
+        lower.map(|l| (mean - l) / (3.0 * s)),
+    ]
+    .into_iter()
+    .flatten()
+    .fold(None, |a: Option<f64>, v| Some(a.map_or(v, |a| a.min(v))));
     (cp, k)
 }
 
@@ -78,7 +86,11 @@ pub fn compute(
 ) -> Spc {
     let v: Vec<f64> = points.iter().map(|p| p.value).collect();
     let n = v.len();
-    let (mean, sigma) = if n > 0 { mean_sigma(&v) } else { (f64::NAN, f64::NAN) };
+    let (mean, sigma) = if n > 0 {
+        mean_sigma(&v)
+    } else {
+        (f64::NAN, f64::NAN)
+    };
     let sigma_within = if n >= 2 {
         let mr: f64 = v.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (n - 1) as f64;
         mr / D2
@@ -87,8 +99,14 @@ pub fn compute(
     };
     let (cp, cpk) = capability(lower, upper, mean, sigma_within);
     let (pp, ppk) = capability(lower, upper, mean, sigma);
-    let passed = points.iter().filter(|p| p.verdict == VerdictKind::Pass).count();
-    let failed = points.iter().filter(|p| p.verdict == VerdictKind::Fail).count();
+    let passed = points
+        .iter()
+        .filter(|p| p.verdict == VerdictKind::Pass)
+        .count();
+    let failed = points
+        .iter()
+        .filter(|p| p.verdict == VerdictKind::Fail)
+        .count();
     let fin = |x: f64| x.is_finite().then_some(x);
     Spc {
         parameter: parameter.to_string(),

@@ -75,8 +75,20 @@ fn recipe() -> Recipe {
         parameters: vec![
             param("k0", Quantity::K0, None, Some(2300.0), Some(2500.0)),
             param("q", Quantity::Q, None, Some(5.0), Some(7.0)),
-            param("k_at_4mm", Quantity::KAtX, Some(0.004), Some(2700.0), Some(3100.0)),
-            param("asym_4mm", Quantity::KAsymmetry, Some(0.004), Some(0.8), Some(1.0)),
+            param(
+                "k_at_4mm",
+                Quantity::KAtX,
+                Some(0.004),
+                Some(2700.0),
+                Some(3100.0),
+            ),
+            param(
+                "asym_4mm",
+                Quantity::KAsymmetry,
+                Some(0.004),
+                Some(0.8),
+                Some(1.0),
+            ),
             param("model_error", Quantity::ModelError, None, None, Some(5.0)),
         ],
         validity: Validity::default(),
@@ -107,7 +119,10 @@ fn pass_inside_the_limits_fail_names_every_failing_parameter() {
     assert!(v.failures.is_empty());
     assert_eq!(v.parameters.len(), 5);
     let k0 = &v.parameters[0];
-    assert_eq!((k0.value, k0.lower, k0.upper, k0.unit.as_str()), (2400.0, Some(2300.0), Some(2500.0), "N/m"));
+    assert_eq!(
+        (k0.value, k0.lower, k0.upper, k0.unit.as_str()),
+        (2400.0, Some(2300.0), Some(2500.0), "N/m")
+    );
 
     // Stiff and over-damped: k0, K(4 mm) and Q fail, with their values and limits.
     let bad = report(2700.0, 0.0, 3.0e7, 4.0);
@@ -134,7 +149,11 @@ fn an_untrusted_measurement_is_invalid_never_pass() {
     let v = judge(&r, &f);
     assert_eq!(v.verdict, VerdictKind::Invalid);
     assert_eq!(v.invalid_reasons[0].code, "target_not_reached");
-    assert!(v.invalid_reasons[0].detail.contains("drive limit"), "{}", v.invalid_reasons[0].detail);
+    assert!(
+        v.invalid_reasons[0].detail.contains("drive limit"),
+        "{}",
+        v.invalid_reasons[0].detail
+    );
     assert!(v.failures.is_empty());
 
     // Noise floor above the bound.
@@ -149,16 +168,32 @@ fn an_untrusted_measurement_is_invalid_never_pass() {
     assert_eq!(v.invalid_reasons[0].code, "model_error_high");
     // Unreliable small-signal fit.
     let mut f = facts(good.clone());
-    f.report.as_mut().unwrap().small_signal.as_mut().unwrap().reliable = false;
-    assert_eq!(judge(&r, &f).invalid_reasons[0].code, "small_signal_unreliable");
+    f.report
+        .as_mut()
+        .unwrap()
+        .small_signal
+        .as_mut()
+        .unwrap()
+        .reliable = false;
+    assert_eq!(
+        judge(&r, &f).invalid_reasons[0].code,
+        "small_signal_unreliable"
+    );
     // Clipping reported by the analysis.
     let mut f = facts(good.clone());
-    f.report.as_mut().unwrap().warnings.push("microphone clipped in 12 samples".into());
+    f.report
+        .as_mut()
+        .unwrap()
+        .warnings
+        .push("microphone clipped in 12 samples".into());
     assert_eq!(judge(&r, &f).invalid_reasons[0].code, "clipping");
     // K(x) point outside the measured range.
     let mut f = facts(good.clone());
     f.report.as_mut().unwrap().stiffness.valid_range_m = [-0.003, 0.008];
-    assert_eq!(judge(&r, &f).invalid_reasons[0].code, "outside_measured_range");
+    assert_eq!(
+        judge(&r, &f).invalid_reasons[0].code,
+        "outside_measured_range"
+    );
     // No result at all.
     let f = RunFacts {
         analysis_error: Some("too short".into()),
@@ -192,9 +227,18 @@ fn job_verdict_invalid_outranks_fail_outranks_pass() {
     let pass = judge(&r, &facts(report(2400.0, 0.0, 3.0e7, 6.0)));
     let fail = judge(&r, &facts(report(2700.0, 0.0, 3.0e7, 6.0)));
     let invalid = invalid_job("hardware_fault", "laser out of range".into());
-    assert_eq!(combine(&[pass.clone(), pass.clone()]).verdict, VerdictKind::Pass);
-    assert_eq!(combine(&[pass.clone(), fail.clone()]).verdict, VerdictKind::Fail);
-    assert_eq!(combine(&[fail, invalid.clone(), pass]).verdict, VerdictKind::Invalid);
+    assert_eq!(
+        combine(&[pass.clone(), pass.clone()]).verdict,
+        VerdictKind::Pass
+    );
+    assert_eq!(
+        combine(&[pass.clone(), fail.clone()]).verdict,
+        VerdictKind::Fail
+    );
+    assert_eq!(
+        combine(&[fail, invalid.clone(), pass]).verdict,
+        VerdictKind::Invalid
+    );
     assert_eq!(combine(&[]).verdict, VerdictKind::Invalid);
 }
 
@@ -205,7 +249,8 @@ fn recipe_validation_names_each_bad_field() {
     r.procedure.levels_m = vec![0.0];
     r.parameters[2].x_m = None;
     r.parameters[0].lower = Some(3000.0);
-    r.parameters.push(param("k0", Quantity::Keff, None, None, None));
+    r.parameters
+        .push(param("k0", Quantity::Keff, None, None, None));
     let mut fx = param("friction", Quantity::EffectSize, None, None, Some(0.05));
     fx.effect = Some("coulomb_friction".into());
     fx.effect_parameter = Some("force".into());
@@ -287,14 +332,22 @@ fn golden_limits_are_mean_plus_minus_k_sigma_and_a_mask() {
     assert!((0.5 * (m.lower_n_per_m[4] + m.upper_n_per_m[4]) - mid).abs() < 1e-6);
     assert!((0.5 * (m.upper_n_per_m[4] - m.lower_n_per_m[4]) - 3.0 * sigma).abs() < 1e-6);
     // The approved recipe judges a golden unit pass and a stiff part fail on k0 and the mask.
-    assert_eq!(judge(&p.recipe, &golden[2].measurements[0]).verdict, VerdictKind::Pass);
+    assert_eq!(
+        judge(&p.recipe, &golden[2].measurements[0]).verdict,
+        VerdictKind::Pass
+    );
     let v = judge(&p.recipe, &facts(report(2500.0, 0.0, 3.0e7, 6.0)));
     let names: Vec<&str> = v.failures.iter().map(|f| f.name.as_str()).collect();
-    assert!(names.contains(&"k0") && names.contains(&KX_MASK), "{names:?}");
+    assert!(
+        names.contains(&"k0") && names.contains(&KX_MASK),
+        "{names:?}"
+    );
 
     // Tolerance: +- 10 % of the mean.
     let opts_t = ProposalOptions {
-        spread: Spread::Tolerance { tolerance_percent: 10.0 },
+        spread: Spread::Tolerance {
+            tolerance_percent: 10.0,
+        },
         mask_points: 0,
         mask_range_fraction: 0.9,
     };
@@ -304,9 +357,16 @@ fn golden_limits_are_mean_plus_minus_k_sigma_and_a_mask() {
     assert!(p.kx_mask.is_none());
 
     // Four golden units are too few; an invalid golden unit is refused by serial.
-    assert!(propose(&r, &golden[..4], &opts).unwrap_err().contains("at least 5"));
+    assert!(propose(&r, &golden[..4], &opts)
+        .unwrap_err()
+        .contains("at least 5"));
     let mut g = golden.clone();
-    g[1].measurements[0].report.as_mut().unwrap().model.noise_floor_percent = 9.0;
+    g[1].measurements[0]
+        .report
+        .as_mut()
+        .unwrap()
+        .model
+        .noise_floor_percent = 9.0;
     assert!(propose(&r, &g, &opts).unwrap_err().contains("G-1"));
 }
 
@@ -321,7 +381,11 @@ fn spc_matches_the_closed_form() {
             part_serial: format!("S{i}"),
             measurement_id: format!("m{i}"),
             value: v,
-            verdict: if v < 5.0 { VerdictKind::Pass } else { VerdictKind::Fail },
+            verdict: if v < 5.0 {
+                VerdictKind::Pass
+            } else {
+                VerdictKind::Fail
+            },
         })
         .collect();
     let s = compute("x", "1", Some(0.0), Some(6.0), pts, 2);
@@ -344,7 +408,10 @@ fn spc_matches_the_closed_form() {
     assert!((s1.cpk.unwrap() - 3.0 / (3.0 * sw)).abs() < 1e-12);
     let csv = super::spc::to_csv(&s);
     assert_eq!(csv.lines().count(), 6);
-    assert!(csv.lines().nth(5).unwrap().contains(",5,fail,0,6,3,"), "{csv}");
+    assert!(
+        csv.lines().nth(5).unwrap().contains(",5,fail,0,6,3,"),
+        "{csv}"
+    );
     // Empty window: no NaN anywhere.
     let e = compute("x", "1", Some(0.0), Some(6.0), vec![], 0);
     assert!(e.mean.is_none() && e.cpk.is_none() && e.yield_fraction.is_none());

@@ -476,11 +476,11 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
             match mounted {
                 Ok(p) => Some(p.moving_mass_kg),
                 Err(e)
-                if preset.is_none()
-                    && part_spec.is_none()
-                    && production.is_none()
-                    && bench.is_some() =>
-            {
+                    if preset.is_none()
+                        && part_spec.is_none()
+                        && production.is_none()
+                        && bench.is_some() =>
+                {
                     errors.push(err(
                         "moving_mass_kg",
                         format!("required: the mounted part's mass is not known ({e})"),

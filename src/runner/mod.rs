@@ -503,16 +503,24 @@ impl Runner {
         r: &job::RecipeRef,
     ) -> StoreResult<Result<crate::qc::Recipe, String>> {
         let Some(row) = self.store.get_recipe(&r.name, Some(r.version)).await? else {
-            return Ok(Err(format!("recipe {} version {} is not stored", r.name, r.version)));
+            return Ok(Err(format!(
+                "recipe {} version {} is not stored",
+                r.name, r.version
+            )));
         };
-        Ok(match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
-            Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
-            Ok(_) => Err(format!(
-                "recipe {} version {} does not have the hash {} any more",
-                r.name, r.version, r.sha256
-            )),
-            Err(e) => Err(format!("recipe {} version {} unreadable: {e}", r.name, r.version)),
-        })
+        Ok(
+            match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
+                Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
+                Ok(_) => Err(format!(
+                    "recipe {} version {} does not have the hash {} any more",
+                    r.name, r.version, r.sha256
+                )),
+                Err(e) => Err(format!(
+                    "recipe {} version {} unreadable: {e}",
+                    r.name, r.version
+                )),
+            },
+        )
     }
 
     /// Verdicts (per measurement and for the job) with traceability, and the
@@ -539,9 +547,9 @@ impl Runner {
         let rref = spec.and_then(|s| s.recipe.clone());
         let job_verdict: Option<Verdict> = match (&rref, state) {
             (None, _) => None,
-            (Some(_), JobState::Succeeded) => {
-                Some(combine(&verdicts.iter().map(|v| v.1.clone()).collect::<Vec<_>>()))
-            }
+            (Some(_), JobState::Succeeded) => Some(combine(
+                &verdicts.iter().map(|v| v.1.clone()).collect::<Vec<_>>(),
+            )),
             (Some(_), JobState::Failed) => {
                 let kind = prob
                     .and_then(|p| p["type"].as_str())
@@ -552,7 +560,11 @@ impl Runner {
                     .unwrap_or("the job failed")
                     .to_string();
                 Some(invalid_job(
-                    if kind.ends_with("/bench") { "hardware_fault" } else { "job_failed" },
+                    if kind.ends_with("/bench") {
+                        "hardware_fault"
+                    } else {
+                        "job_failed"
+                    },
                     detail,
                 ))
             }
@@ -644,7 +656,9 @@ impl Runner {
             operator: spec.and_then(|s| s.submitted_by.clone()),
             measurements: tested,
         };
-        for (uid, name, body) in crate::mes::cfx::job_messages(&facts, [new_id(), new_id(), new_id()]) {
+        for (uid, name, body) in
+            crate::mes::cfx::job_messages(&facts, [new_id(), new_id(), new_id()])
+        {
             rec.messages.push(crate::store::qc::NewMessage {
                 unique_id: uid,
                 message_name: name,

@@ -743,9 +743,12 @@ impl Store {
         before_seq: Option<i64>,
         limit: i64,
     ) -> StoreResult<Vec<MeasurementInfo>> {
-        let rows = sqlx::query(concat!(meas_select!(), " FROM measurements m WHERE (? IS NULL OR m.part_serial = ?) \
+        let rows = sqlx::query(concat!(
+            meas_select!(),
+            " FROM measurements m WHERE (? IS NULL OR m.part_serial = ?) \
              AND (? IS NULL OR m.job_id = ?) AND (? IS NULL OR m.created_at >= ?) \
-             AND (? IS NULL OR m.seq < ?) ORDER BY m.seq DESC LIMIT ?"))
+             AND (? IS NULL OR m.seq < ?) ORDER BY m.seq DESC LIMIT ?"
+        ))
         .bind(part.map(str::to_string))
         .bind(part.map(str::to_string))
         .bind(job.map(str::to_string))

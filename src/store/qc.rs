@@ -267,13 +267,18 @@ impl Store {
         created_by: Option<&str>,
     ) -> StoreResult<RecipeRow> {
         let mut tx = self.pool.begin().await?;
-        let row = insert_recipe_tx(&mut tx, name, sha256, body, origin, proposal_id, created_by).await?;
+        let row =
+            insert_recipe_tx(&mut tx, name, sha256, body, origin, proposal_id, created_by).await?;
         tx.commit().await?;
         Ok(row)
     }
 
     /// A recipe version (the newest when `version` is None).
-    pub async fn get_recipe(&self, name: &str, version: Option<i64>) -> StoreResult<Option<RecipeRow>> {
+    pub async fn get_recipe(
+        &self,
+        name: &str,
+        version: Option<i64>,
+    ) -> StoreResult<Option<RecipeRow>> {
         let row = sqlx::query(
             "SELECT * FROM qc_recipes WHERE name = ? AND (? IS NULL OR version = ?) ORDER BY version DESC LIMIT 1",
         )
@@ -359,15 +364,26 @@ impl Store {
         by: Option<&str>,
     ) -> StoreResult<Option<RecipeRow>> {
         let mut tx = self.pool.begin().await?;
-        let Some(p) = sqlx::query("SELECT recipe_name FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'")
-            .bind(id.to_string())
-            .fetch_optional(&mut *tx)
-            .await?
+        let Some(p) = sqlx::query(
+            "SELECT recipe_name FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'",
+        )
+        .bind(id.to_string())
+        .fetch_optional(&mut *tx)
+        .await?
         else {
             return Ok(None);
         };
         let name: String = p.get(0);
-        let row = insert_recipe_tx(&mut tx, &name, sha256, recipe, "limits_approved", Some(id), by).await?;
+        let row = insert_recipe_tx(
+            &mut tx,
+            &name,
+            sha256,
+            recipe,
+            "limits_approved",
+            Some(id),
+            by,
+        )
+        .await?;
         sqlx::query(
             "UPDATE qc_limit_proposals SET state = 'approved', decided_by = ?, decided_at = ?, approved_version = ? WHERE id = ?",
         )
@@ -407,15 +423,26 @@ impl Store {
 
     /// The verdicts of a job: the job's (measurement_id None) first, then per measurement.
     pub async fn job_verdicts(&self, job_id: &str) -> StoreResult<Vec<VerdictRow>> {
-        let rows = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE job_id = ? ORDER BY measurement_id IS NOT NULL, seq"))
+        let rows = sqlx::query(concat!(
+            "SELECT ",
+            verdict_cols!(),
+            " FROM qc_verdicts WHERE job_id = ? ORDER BY measurement_id IS NOT NULL, seq"
+        ))
         .bind(job_id.to_string())
         .fetch_all(&self.pool)
         .await?;
         rows.iter().map(verdict_from_row).collect()
     }
 
-    pub async fn measurement_verdict(&self, measurement_id: &str) -> StoreResult<Option<VerdictRow>> {
-        let row = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1"))
+    pub async fn measurement_verdict(
+        &self,
+        measurement_id: &str,
+    ) -> StoreResult<Option<VerdictRow>> {
+        let row = sqlx::query(concat!(
+            "SELECT ",
+            verdict_cols!(),
+            " FROM qc_verdicts WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1"
+        ))
         .bind(measurement_id.to_string())
         .fetch_optional(&self.pool)
         .await?;
@@ -473,7 +500,10 @@ impl Store {
         for r in rows {
             out.push(GoldenRow {
                 measurement_id: r.get(0),
-                result: r.get::<Option<String>, _>(1).map(|s| parse_json(&s)).transpose()?,
+                result: r
+                    .get::<Option<String>, _>(1)
+                    .map(|s| parse_json(&s))
+                    .transpose()?,
                 analysis_error: r.get(2),
                 target_xpeak_m: r.get(3),
                 level_index: r.get(4),
@@ -487,7 +517,11 @@ impl Store {
 
     /// Deliveries that may go now: per (webhook, part) only the oldest one not
     /// yet delivered or dropped, if it is pending and due.
-    pub async fn due_deliveries(&self, now_rfc3339: &str, limit: i64) -> StoreResult<Vec<DeliveryRow>> {
+    pub async fn due_deliveries(
+        &self,
+        now_rfc3339: &str,
+        limit: i64,
+    ) -> StoreResult<Vec<DeliveryRow>> {
         let rows = sqlx::query(concat!(delivery_select!(), " WHERE d.state = 'pending' AND d.next_attempt_at <= ? AND d.seq = \
              (SELECT MIN(x.seq) FROM mes_deliveries x WHERE x.webhook = d.webhook AND x.part_serial = d.part_serial \
               AND x.state IN ('pending', 'failed')) ORDER BY d.seq LIMIT ?"))
@@ -500,9 +534,10 @@ impl Store {
 
     /// The earliest time a pending delivery is due (for the worker's sleep).
     pub async fn next_delivery_due(&self) -> StoreResult<Option<String>> {
-        let r = sqlx::query("SELECT MIN(next_attempt_at) FROM mes_deliveries WHERE state = 'pending'")
-            .fetch_one(&self.pool)
-            .await?;
+        let r =
+            sqlx::query("SELECT MIN(next_attempt_at) FROM mes_deliveries WHERE state = 'pending'")
+                .fetch_one(&self.pool)
+                .await?;
         Ok(r.get(0))
     }
 
@@ -543,7 +578,11 @@ impl Store {
     }
 
     /// Outbox listing, oldest first; `state` None: pending and failed.
-    pub async fn list_outbox(&self, state: Option<&str>, limit: i64) -> StoreResult<Vec<DeliveryRow>> {
+    pub async fn list_outbox(
+        &self,
+        state: Option<&str>,
+        limit: i64,
+    ) -> StoreResult<Vec<DeliveryRow>> {
         let rows = sqlx::query(concat!(delivery_select!(), " WHERE (? IS NULL AND d.state IN ('pending', 'failed')) OR d.state = ? ORDER BY d.seq LIMIT ?"))
         .bind(state.map(str::to_string))
         .bind(state.map(str::to_string))
