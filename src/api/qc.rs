@@ -252,7 +252,6 @@ pub async fn apply_recipe(
 }
 
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ProposalBody {
     /// Serials of the golden units (each measured with the recipe, valid).
     serials: Vec<String>,

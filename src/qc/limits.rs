@@ -11,7 +11,7 @@ pub const MIN_GOLDEN: usize = 5;
 
 /// How the limits are spread around the golden mean.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "method", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "method", rename_all = "snake_case")]
 pub enum Spread {
     /// mean +- k * sigma (sample standard deviation of the golden units).
     KSigma { k: f64 },
@@ -42,7 +42,6 @@ impl Spread {
 
 /// Options of a proposal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct ProposalOptions {
     #[serde(flatten)]
     pub spread: Spread,
