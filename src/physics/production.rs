@@ -44,7 +44,7 @@ pub enum Defect {
     Asymmetric,
     /// Progressive hardening: k2 and k4 times 2.5 (hardens early).
     Hardening,
-    /// R times 3 (Q a third): a rubbing or glued part.
+    /// R times 2 (Q halved): a rubbing or glued part.
     Damped,
     /// Coulomb friction of 0.25 N (the part rubs on the clamp).
     Friction,
@@ -95,7 +95,7 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
                 }
             }
         }
-        Some(Defect::Damped) => p.r_ns_per_m *= 3.0,
+        Some(Defect::Damped) => p.r_ns_per_m *= 2.0,
         Some(Defect::Friction) => {
             p.effects.coulomb_friction = Some(crate::effects::CoulombFriction {
                 force_n: 0.25,
@@ -155,7 +155,7 @@ mod tests {
         assert!((asym.k_coeffs_si[1] / good.k_coeffs_si[1] - 3.0).abs() < 1e-12);
         assert_eq!(asym.k_coeffs_si[0], good.k_coeffs_si[0]);
         let damped = part(&nominal, &s, 9, Some(Defect::Damped));
-        assert!((damped.q() * 3.0 - good.q()).abs() < 1e-9);
+        assert!((damped.q() * 2.0 - good.q()).abs() < 1e-9);
         let dark = part(&nominal, &s, 9, Some(Defect::DarkSurface));
         assert_eq!(dark.laser_noise_m, Some(60e-6));
         assert_eq!(dark.k_coeffs_si, good.k_coeffs_si);
