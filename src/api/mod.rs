@@ -143,14 +143,14 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "post",
         "/api/v1/recipes",
-        post(qc::create).layer(json_limit.clone()),
+        post(qc::create).layer(json_limit),
     )
     .add("get", "/api/v1/recipes", get(qc::list))
     .add("get", "/api/v1/recipes/{name}", get(qc::get_one))
     .add(
         "put",
         "/api/v1/recipes/{name}",
-        put(qc::update).layer(json_limit.clone()),
+        put(qc::update).layer(json_limit),
     )
     .add("delete", "/api/v1/recipes/{name}", delete(qc::retire))
     .add("get", "/api/v1/recipes/{name}/versions", get(qc::versions))
@@ -162,7 +162,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "post",
         "/api/v1/recipes/{name}/limit-proposals",
-        post(qc::propose).layer(json_limit.clone()),
+        post(qc::propose).layer(json_limit),
     )
     .add("get", "/api/v1/recipes/{name}/spc", get(qc::spc))
     .add("get", "/api/v1/limit-proposals/{id}", get(qc::get_proposal))

@@ -84,8 +84,8 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
         Some(Defect::Stiff) => p.k_coeffs_si.iter_mut().for_each(|k| *k *= 1.3),
         Some(Defect::Soft) => p.k_coeffs_si.iter_mut().for_each(|k| *k *= 0.7),
         Some(Defect::Asymmetric) => {
-            if p.k_coeffs_si.len() > 1 {
-                p.k_coeffs_si[1] *= 3.0;
+            if let Some(k1) = p.k_coeffs_si.get_mut(1) {
+                *k1 *= 3.0;
             }
         }
         Some(Defect::Hardening) => {

@@ -153,6 +153,7 @@ pub fn propose(
     bare.kx_mask = None;
     let mut by_level: Vec<Vec<Report>> = vec![Vec::new(); levels];
     for g in golden {
+        #[allow(clippy::needless_range_loop)] // li is also the level index searched for
         for li in 0..levels {
             let Some(f) = g.measurements.iter().find(|f| f.level_index == li) else {
                 return Err(format!(

@@ -538,7 +538,7 @@ pub fn stiffness_coefficients(report: &Report) -> &[f64] {
 }
 
 fn effect_value(report: &Report, effect: &str, parameter: &str) -> f64 {
-    let v = serde_json::to_value(&report.model.effects).unwrap_or_default();
+    let v = serde_json::to_value(report.model.effects).unwrap_or_default();
     v.get(effect)
         .and_then(|e| e.get(parameter))
         .and_then(|p| p.as_f64())
