@@ -168,6 +168,31 @@ pub struct Config {
     pub min_free_bytes: u64,
     /// MES delivery: CFX `Source` and the webhooks of the outbox worker.
     pub mes: crate::mes::MesConfig,
+    pub retention: Retention,
+}
+
+/// How long raw signals are kept (decision 0013). A recording is kept while
+/// it is younger than `raw_max_age_days` **or** belongs to one of the last
+/// `raw_keep_last_per_part` measurements of its part; an unset limit keeps
+/// nothing by itself, both unset keep everything. Results, fits, verdicts,
+/// jobs and configurations are always kept.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Retention {
+    pub raw_max_age_days: Option<f64>,
+    pub raw_keep_last_per_part: Option<u32>,
+    /// Seconds between two retention passes (the first runs at start).
+    pub interval_s: f64,
+}
+
+impl Default for Retention {
+    fn default() -> Self {
+        Retention {
+            raw_max_age_days: None,
+            raw_keep_last_per_part: None,
+            interval_s: 3600.0,
+        }
+    }
 }
 
 impl Default for Config {
@@ -191,6 +216,7 @@ impl Default for Config {
             http: HttpConfig::default(),
             min_free_bytes: 64 * 1024 * 1024,
             mes: crate::mes::MesConfig::default(),
+            retention: Retention::default(),
         }
     }
 }
@@ -279,6 +305,21 @@ impl Config {
             return Err("max_upload_bytes and max_json_bytes must be > 0".into());
         }
         self.http.validate()?;
+        let r = &self.retention;
+        if let Some(d) = r.raw_max_age_days {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(format!("retention.raw_max_age_days must be > 0, got {d}"));
+            }
+        }
+        if r.raw_keep_last_per_part == Some(0) {
+            return Err("retention.raw_keep_last_per_part must be >= 1 (leave it out to keep every part's raw signals)".into());
+        }
+        if !(r.interval_s.is_finite() && r.interval_s >= 1.0) {
+            return Err(format!(
+                "retention.interval_s must be >= 1 s, got {}",
+                r.interval_s
+            ));
+        }
         Ok(())
     }
 
@@ -440,6 +481,14 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("boss") || e.contains("role"), "{e}");
+        let e = Config::parse("[retention]\nraw_keep_last_per_part = 0").unwrap_err();
+        assert!(e.contains("raw_keep_last_per_part"), "{e}");
+        let e = Config::parse("[retention]\nraw_max_age_days = -3").unwrap_err();
+        assert!(e.contains("raw_max_age_days"), "{e}");
+        let c = Config::parse("[retention]\nraw_max_age_days = 30\nraw_keep_last_per_part = 3")
+            .unwrap();
+        assert_eq!(c.retention.raw_max_age_days, Some(30.0));
+        assert_eq!(c.retention.raw_keep_last_per_part, Some(3));
     }
 
     #[test]

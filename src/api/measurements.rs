@@ -7,7 +7,8 @@ use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
 use crate::diagnose::{self, DiagnoseOptions};
 use crate::effects::EffectId;
 use crate::identify::{self, AnalyzeOptions, Method};
-use crate::recording::{signals_to_wav_bytes, Meta, RecordingSet};
+use crate::recording::codec::{self, SampleFormat, WavStream};
+use crate::recording::{ChannelScale, Meta, RecordingSet, Signals};
 use crate::runner::{job::valid_serial, new_id, FieldError};
 use crate::store::{MeasurementInfo, NewMeasurement, NewRecording};
 use axum::extract::{Multipart, Path, State};
@@ -91,8 +92,38 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     Ok(Json(doc))
 }
 
+/// 410 for raw signals the retention policy removed (the results stay).
+fn pruned(id: &str, at: &str) -> Problem {
+    Problem::new(
+        StatusCode::GONE,
+        "raw-signals-removed",
+        "Raw signals removed",
+        format!(
+            "the raw signals of measurement '{id}' were removed by the retention policy at {at}; its results are kept"
+        ),
+    )
+}
+
+/// A stored recording, present (not pruned).
+async fn stored_recording(
+    st: &AppState,
+    id: &str,
+    which: &str,
+) -> ApiResult<crate::store::StoredRecording> {
+    let rec = st
+        .store
+        .get_recording(id, which)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", id))?;
+    if let Some(at) = &rec.pruned_at {
+        return Err(pruned(id, at));
+    }
+    Ok(rec)
+}
+
 /// `GET /api/v1/measurements/{id}/recordings/{pre|main}.wav`: float32 WAV,
-/// channels 0 displacement (m), 1 microphone (V), 2 drive (V) when present.
+/// channels 0 displacement (m), 1 microphone (V), 2 drive (V) when present,
+/// decoded from the stored FLAC block by block while it is sent.
 pub async fn recording(
     State(st): State<AppState>,
     Path((id, file)): Path<(String, String)>,
@@ -107,12 +138,21 @@ pub async fn recording(
             ))
         }
     };
-    let wav = st
-        .store
-        .get_recording(&id, which)
-        .await?
-        .ok_or_else(|| Problem::not_found("measurement", &id))?;
-    Ok(([(header::CONTENT_TYPE, "audio/wav")], wav).into_response())
+    let rec = stored_recording(&st, &id, which).await?;
+    let stream = WavStream::new(rec.bytes, rec.channel_scale)
+        .map_err(|e| Problem::internal(format!("stored recording unreadable: {e}")))?;
+    let len = stream.wav_len();
+    let body = axum::body::Body::from_stream(futures_util::stream::iter(
+        stream.map(|c| c.map_err(std::io::Error::other)),
+    ));
+    Ok((
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static("audio/wav")),
+            (header::CONTENT_LENGTH, HeaderValue::from(len)),
+        ],
+        body,
+    )
+        .into_response())
 }
 
 /// Loads a stored measurement's recording set and its analysis options.
@@ -122,19 +162,19 @@ async fn load_set(st: &AppState, id: &str) -> ApiResult<(RecordingSet, AnalyzeOp
         .get_measurement(id)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", id))?;
-    let pre = st.store.get_recording(id, "pre").await?;
-    let main = st.store.get_recording(id, "main").await?;
-    let (Some(pre), Some(main)) = (pre, main) else {
-        return Err(Problem::not_found("recordings of measurement", id));
-    };
+    let pre = stored_recording(st, id, "pre").await?;
+    let main = stored_recording(st, id, "main").await?;
     let opts: AnalyzeOptions = info
         .config
         .get("analysis")
         .and_then(|a| serde_json::from_value(a.clone()).ok())
         .unwrap_or_default();
-    let meta_text = meta.to_string();
+    let meta: Meta = serde_json::from_value(meta)
+        .map_err(|e| Problem::internal(format!("stored meta unreadable: {e}")))?;
     let set = tokio::task::spawn_blocking(move || {
-        RecordingSet::from_bytes(meta_text.as_bytes(), &pre, &main)
+        let pre = codec::decode(&pre.bytes, pre.channel_scale.as_ref())?;
+        let main = codec::decode(&main.bytes, main.channel_scale.as_ref())?;
+        Ok::<_, crate::recording::RecordingError>(RecordingSet { meta, pre, main })
     })
     .await
     .map_err(Problem::internal)?
@@ -436,7 +476,8 @@ pub async fn import(
     let pre = fields.remove("pre").unwrap_or_default();
     let main = fields.remove("main").unwrap_or_default();
     let opts2 = opts.clone();
-    // Read, re-encode in the standard layout (float32) and analyse, off the runtime.
+    // Read, keep in the standard layout at the imported resolution (FLAC for
+    // PCM up to 24 bits, else the imported WAV format) and analyse, off the runtime.
     let prepared = tokio::task::spawn_blocking(move || {
         let set = RecordingSet::from_bytes(&meta, &pre, &main).map_err(|e| {
             let msg = e.to_string();
@@ -459,14 +500,6 @@ pub async fn import(
                 message: msg,
             }
         })?;
-        let enc = |s| {
-            signals_to_wav_bytes(s).map_err(|e| FieldError {
-                field: "".into(),
-                message: e.to_string(),
-            })
-        };
-        let pre_wav = enc(&set.pre)?;
-        let main_wav = enc(&set.main)?;
         let mut meta = Meta {
             channel_scale: None,
             ..Meta::standard(set.meta.moving_mass_kg, set.meta.sample_rate_hz)
@@ -476,29 +509,30 @@ pub async fn import(
             (Some(_), Some(_)) => Some(2),
             _ => None,
         };
+        // Without a drive channel in both files, both are stored without one (same layout).
+        let drop_drive = meta.channels.drive.is_none();
+        let scale: ChannelScale = set.meta.channel_scale.unwrap_or_default();
+        let keep = |field: &str, s: &Signals, wav: &[u8]| {
+            let mut s = s.clone();
+            if drop_drive {
+                s.drive_v = None;
+            }
+            codec::wav_format(wav)
+                .and_then(|f: SampleFormat| codec::encode_lossless(&s, f, &scale))
+                .map_err(|e| FieldError {
+                    field: field.into(),
+                    message: e.to_string(),
+                })
+        };
+        let pre_st = keep("pre", &set.pre, &pre)?;
+        let main_st = keep("main", &set.main, &main)?;
         let analysis = identify::analyze(&set, &opts2);
-        Ok::<_, FieldError>((set, meta, pre_wav, main_wav, analysis))
+        Ok::<_, FieldError>((set, meta, pre_st, main_st, analysis))
     })
     .await
     .map_err(Problem::internal)?;
     let (set, meta, pre_wav, main_wav, analysis) =
         prepared.map_err(|e| Problem::validation(vec![e]))?;
-    let drop_drive = meta.channels.drive.is_none();
-    // Without a drive channel in both files, store both without one (same layout).
-    let (pre_wav, main_wav) =
-        if drop_drive && (set.pre.drive_v.is_some() || set.main.drive_v.is_some()) {
-            let strip = |s: &crate::recording::Signals| {
-                let mut s = s.clone();
-                s.drive_v = None;
-                signals_to_wav_bytes(&s)
-            };
-            (
-                strip(&set.pre).map_err(Problem::internal)?,
-                strip(&set.main).map_err(Problem::internal)?,
-            )
-        } else {
-            (pre_wav, main_wav)
-        };
     let (result, analysis_error) = match analysis {
         Ok(r) => (
             Some(serde_json::to_value(&r).map_err(Problem::internal)?),
@@ -507,11 +541,11 @@ pub async fn import(
         Err(e) => (None, Some(e.to_string())),
     };
     let id = new_id();
-    let rec = |kind, s: &crate::recording::Signals, wav| NewRecording {
+    let rec = |kind, s: &Signals, stored| NewRecording {
         kind,
         sample_rate_hz: s.sample_rate_hz,
         frames: s.len() as i64,
-        wav,
+        stored,
     };
     st.store
         .insert_measurements(

@@ -72,6 +72,21 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
         out,
         "# HELP springbench_measurements Measurements stored.\n# TYPE springbench_measurements gauge\nspringbench_measurements {meas}"
     );
+    let (raw_bytes, kept, pruned) = st.store.raw_usage().await?;
+    let dir = st.cfg.data_dir.clone();
+    let dir_bytes = tokio::task::spawn_blocking(move || crate::store::dir_bytes(&dir))
+        .await
+        .unwrap_or(0);
+    let _ = writeln!(
+        out,
+        "# HELP springbench_data_dir_bytes Bytes of the files in the data directory (database and WAL).\n\
+         # TYPE springbench_data_dir_bytes gauge\nspringbench_data_dir_bytes {dir_bytes}\n\
+         # HELP springbench_recordings_bytes Bytes of stored raw signals (FLAC or WAV blobs).\n\
+         # TYPE springbench_recordings_bytes gauge\nspringbench_recordings_bytes {raw_bytes}\n\
+         # HELP springbench_recordings Recordings by whether the retention policy removed their raw signals.\n\
+         # TYPE springbench_recordings gauge\n\
+         springbench_recordings{{state=\"kept\"}} {kept}\nspringbench_recordings{{state=\"pruned\"}} {pruned}"
+    );
     out.push_str("# HELP springbench_bench_busy 1 while the bench runs a job.\n# TYPE springbench_bench_busy gauge\n");
     for b in st.runner.bench_statuses() {
         let _ = writeln!(

@@ -80,4 +80,10 @@ pub trait Bench: Send {
     fn run_records(&self) -> Vec<serde_json::Value> {
         Vec::new()
     }
+    /// The resolution every captured sample is on (converter bits and full
+    /// scale per channel); the store keeps recordings exactly at it (FLAC).
+    /// `None`: unknown, stored as float32 WAV (decision 0013).
+    fn resolution(&self) -> Option<crate::recording::codec::Resolution> {
+        None
+    }
 }

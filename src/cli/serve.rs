@@ -156,6 +156,11 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
     };
     let http = state.cfg.http.clone();
     let (max_conn, fd_note) = api::server::fit_connection_limit(http.max_connections);
+    let retention = tokio::spawn(retention_loop(
+        store.clone(),
+        state.cfg.retention.clone(),
+        stop_rx.clone(),
+    ));
     let app = api::app(state);
     let server_stop = stop_rx.clone();
     let server = tokio::spawn(async move {
@@ -189,9 +194,36 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         Ok(Ok(Err(e))) => tracing::error!("server: {e}"),
         _ => tracing::warn!("open connections did not close within 5 s"),
     }
+    retention.abort();
     store.close().await;
     tracing::info!("stopped");
     Ok(())
+}
+
+/// Applies the retention policy at start and every `interval_s` (decision 0013).
+async fn retention_loop(
+    store: Store,
+    policy: crate::config::Retention,
+    mut stop: tokio::sync::watch::Receiver<bool>,
+) {
+    if policy.raw_max_age_days.is_none() && policy.raw_keep_last_per_part.is_none() {
+        return;
+    }
+    loop {
+        match store.prune_raw(&policy).await {
+            Ok(r) if r.recordings_pruned > 0 => tracing::info!(
+                recordings = r.recordings_pruned,
+                bytes = r.bytes_freed,
+                "retention: raw signals removed (results kept)"
+            ),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("retention pass failed: {e}"),
+        }
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_secs_f64(policy.interval_s)) => {}
+            _ = stop.wait_for(|v| *v) => return,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -95,6 +95,17 @@ pub struct BenchParams {
     pub microphone: Microphone,
     /// ADC full scale of the microphone and drive inputs (V peak); beyond it the samples clip.
     pub adc_full_scale_v: f64,
+    /// Bits of the converter that captures all three channels (the laser's
+    /// analog output over +-`laser.range_m`, the microphone and the drive
+    /// loopback over +-`adc_full_scale_v`), as a commercial bench wires it.
+    /// Every captured sample is one of its codes; the store keeps exactly
+    /// those (FLAC, decision 0013).
+    #[serde(default = "default_converter_bits")]
+    pub converter_bits: u32,
+}
+
+fn default_converter_bits() -> u32 {
+    24
 }
 
 impl Default for BenchParams {
@@ -132,6 +143,7 @@ impl Default for BenchParams {
                 delay_s: 0.0,
             },
             adc_full_scale_v: 100.0,
+            converter_bits: default_converter_bits(),
         }
     }
 }
@@ -186,6 +198,12 @@ impl BenchParams {
         nonneg("microphone.noise_pa", self.microphone.noise_pa)?;
         nonneg("microphone.delay_s", self.microphone.delay_s)?;
         pos("adc_full_scale_v", self.adc_full_scale_v)?;
+        if !(8..=24).contains(&self.converter_bits) {
+            return Err(format!(
+                "bench.converter_bits must be 8..=24, got {}",
+                self.converter_bits
+            ));
+        }
         Ok(())
     }
 }

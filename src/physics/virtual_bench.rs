@@ -5,7 +5,8 @@
 use super::model::{idx, BenchParams, Integrator, Model};
 use super::PartSpec;
 use crate::bench::{Bench, BenchError, Block, Control, Limits};
-use crate::recording::Signals;
+use crate::recording::codec::Resolution;
+use crate::recording::{ChannelScale, Signals};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -63,6 +64,19 @@ impl VirtualBench {
     }
 }
 
+/// The converter of a virtual bench: `converter_bits` over the laser's
+/// range and the ADC's full scale.
+pub fn converter_resolution(b: &BenchParams) -> Resolution {
+    Resolution {
+        bits: b.converter_bits,
+        scale: ChannelScale {
+            displacement: Some(b.laser.range_m),
+            microphone: Some(b.adc_full_scale_v),
+            drive: Some(b.adc_full_scale_v),
+        },
+    }
+}
+
 /// Value of `hist` at fractional index `pos` (zero before the start).
 #[inline]
 fn delayed(hist: &[f64], k: usize, delay_samples: f64) -> f64 {
@@ -114,6 +128,10 @@ impl Bench for VirtualBench {
 
     fn limits(&self) -> Limits {
         self.limits
+    }
+
+    fn resolution(&self) -> Option<Resolution> {
+        Some(converter_resolution(&self.bench))
     }
 
     fn describe(&self) -> String {
@@ -180,7 +198,9 @@ impl Bench for VirtualBench {
                 }
             }
         };
-        let clip = |v: f64| v.clamp(-b.adc_full_scale_v, b.adc_full_scale_v);
+        // The converter: every captured sample is one of its codes (rounded, clipped).
+        let res = converter_resolution(&b);
+        let adc = |fs: Option<f64>, v: f64| Resolution::quantise(res.bits, fs.unwrap_or(1.0), v);
         let mut block_start = 0;
         for k in 0..n {
             let u = drive_v[k] * gain_at(k, &abort);
@@ -195,12 +215,12 @@ impl Bench for VirtualBench {
             if b.laser.quantisation_m > 0.0 {
                 xo = (xo / b.laser.quantisation_m).round() * b.laser.quantisation_m;
             }
-            xs.push(xo.clamp(-b.laser.range_m, b.laser.range_m));
+            xs.push(adc(res.scale.displacement, xo));
             // Microphone.
             let pm = delayed(&p_true, k, mic_delay_samples)
                 + b.microphone.noise_pa * rng.sample::<f64, _>(StandardNormal);
-            mics.push(clip(b.microphone.gain_v_per_pa * pm));
-            drv.push(clip(u));
+            mics.push(adc(res.scale.microphone, b.microphone.gain_v_per_pa * pm));
+            drv.push(adc(res.scale.drive, u));
             let u1 = if k + 1 < n {
                 drive_v[k + 1] * gain_at(k + 1, &abort)
             } else {

@@ -17,6 +17,8 @@
 //!
 //! This module does file I/O; everything downstream of it works on [`Signals`].
 
+pub mod codec;
+
 use serde::{Deserialize, Serialize};
 use std::io::{Read, Seek, Write};
 use std::path::Path;

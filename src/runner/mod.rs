@@ -963,7 +963,9 @@ fn execute(
             done.log.extend(outcome.log.iter().cloned());
         }
         let pre_index = done.recordings.len();
-        done.recordings.push(recording("pre", &outcome.pre)?);
+        let res = bench.resolution();
+        done.recordings
+            .push(recording("pre", &outcome.pre, res.as_ref())?);
         let n = outcome.narrow.len().max(1);
         for (li, sweep) in outcome.narrow.iter().enumerate() {
             let fit_p = obs.proc_share + (1.0 - obs.proc_share) * li as f64 / n as f64;
@@ -1028,7 +1030,8 @@ fn execute(
                 }
             };
             let main_index = done.recordings.len();
-            done.recordings.push(recording("main", &sweep.signals)?);
+            done.recordings
+                .push(recording("main", &sweep.signals, res.as_ref())?);
             let mut cfg_m = config.clone();
             cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
                                            "f_end_hz": sweep.f_end_hz});
@@ -1063,11 +1066,17 @@ fn execute(
     Ok(done)
 }
 
-fn recording(kind: &'static str, s: &crate::recording::Signals) -> Result<NewRecording, Stop> {
-    let wav = crate::recording::signals_to_wav_bytes(s).map_err(|e| {
+/// A recording as the store keeps it: at the bench's resolution (FLAC, bit
+/// for bit what was captured), or float32 WAV when the bench declares none.
+fn recording(
+    kind: &'static str,
+    s: &crate::recording::Signals,
+    res: Option<&crate::recording::codec::Resolution>,
+) -> Result<NewRecording, Stop> {
+    let stored = crate::recording::codec::encode_capture(s, res).map_err(|e| {
         Stop::Failed(problem(
             "recording",
-            "Recording could not be encoded",
+            "Recording could not be stored losslessly",
             &e.to_string(),
         ))
     })?;
@@ -1075,7 +1084,7 @@ fn recording(kind: &'static str, s: &crate::recording::Signals) -> Result<NewRec
         kind,
         sample_rate_hz: s.sample_rate_hz,
         frames: s.len() as i64,
-        wav,
+        stored,
     })
 }
 

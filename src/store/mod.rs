@@ -23,6 +23,8 @@ use std::str::FromStr;
 use std::time::Duration;
 
 pub mod qc;
+mod raw;
+pub use raw::{dir_bytes, RetentionReport, StoredRecording};
 
 macro_rules! job_select {
     () => {
@@ -188,13 +190,14 @@ pub struct NewMeasurement {
     pub main: usize,
 }
 
-/// A recording to store (float32 WAV bytes).
+/// A recording to store: FLAC (or WAV) bytes and their channel scale
+/// ([`crate::recording::codec`]).
 #[derive(Debug, Clone)]
 pub struct NewRecording {
     pub kind: &'static str,
     pub sample_rate_hz: f64,
     pub frames: i64,
-    pub wav: Vec<u8>,
+    pub stored: crate::recording::codec::Stored,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -763,24 +766,6 @@ impl Store {
         rows.iter().map(meas_from_row).collect()
     }
 
-    /// The WAV bytes of a measurement's `pre` or `main` recording.
-    pub async fn get_recording(
-        &self,
-        measurement_id: &str,
-        which: &str,
-    ) -> StoreResult<Option<Vec<u8>>> {
-        let sql = match which {
-            "pre" => "SELECT r.wav FROM measurements m JOIN recordings r ON r.id = m.pre_recording_id WHERE m.id = ?",
-            "main" => "SELECT r.wav FROM measurements m JOIN recordings r ON r.id = m.main_recording_id WHERE m.id = ?",
-            _ => return Ok(None),
-        };
-        let row = sqlx::query(sql)
-            .bind(measurement_id.to_string())
-            .fetch_optional(&self.pool)
-            .await?;
-        Ok(row.map(|r| r.get::<Vec<u8>, _>(0)))
-    }
-
     // ---- fits ----
 
     /// Keeps a fit of a stored measurement (effects, order, the refitted report).
@@ -911,12 +896,17 @@ async fn insert_results(
     let mut rec_ids = Vec::with_capacity(recordings.len());
     for r in recordings {
         let row = sqlx::query(
-            "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, created_at) VALUES (?, ?, ?, ?, ?) RETURNING id",
+            "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, channel_scale_json, created_at) VALUES (?, ?, ?, ?, ?, ?) RETURNING id",
         )
         .bind(r.kind)
         .bind(r.sample_rate_hz)
         .bind(r.frames)
-        .bind(r.wav)
+        .bind(r.stored.bytes)
+        .bind(
+            r.stored
+                .channel_scale
+                .map(|c| serde_json::to_string(&c).unwrap_or_default()),
+        )
         .bind(t.clone())
         .fetch_one(&mut **tx)
         .await?;
@@ -1047,7 +1037,10 @@ mod tests {
             kind,
             sample_rate_hz: 48000.0,
             frames: 3,
-            wav: vec![1, 2, 3, kind.len() as u8],
+            stored: crate::recording::codec::Stored {
+                bytes: vec![1, 2, 3, kind.len() as u8],
+                channel_scale: None,
+            },
         }
     }
 
@@ -1138,11 +1131,11 @@ mod tests {
             json!(1234.5)
         );
         assert_eq!(
-            s.get_recording("m1", "main").await.unwrap().unwrap(),
+            s.get_recording("m1", "main").await.unwrap().unwrap().bytes,
             vec![1, 2, 3, 4]
         );
         assert_eq!(
-            s.get_recording("m1", "pre").await.unwrap().unwrap(),
+            s.get_recording("m1", "pre").await.unwrap().unwrap().bytes,
             vec![1, 2, 3, 3]
         );
         assert!(s.get_recording("m1", "other").await.unwrap().is_none());

@@ -1,0 +1,319 @@
+//! Raw signals in the store: reading a recording back, the retention policy
+//! (raw signals removed, results never), disk usage for `/metrics`.
+
+use super::{now, Store, StoreError, StoreResult};
+use crate::config::Retention;
+use crate::recording::ChannelScale;
+use sqlx::Row;
+use std::path::Path;
+
+/// A stored recording as the store holds it ([`crate::recording::codec`]).
+#[derive(Debug, Clone)]
+pub struct StoredRecording {
+    /// FLAC or WAV bytes, standard layout; empty once pruned.
+    pub bytes: Vec<u8>,
+    /// Physical value of full scale per channel (`None`: float32 in physical units).
+    pub channel_scale: Option<ChannelScale>,
+    pub frames: i64,
+    pub sample_rate_hz: f64,
+    /// When the retention policy removed the raw signals.
+    pub pruned_at: Option<String>,
+}
+
+/// What one retention pass removed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct RetentionReport {
+    pub recordings_pruned: i64,
+    pub bytes_freed: i64,
+}
+
+/// Recordings whose raw signals the policy lets go: not referenced by a
+/// measurement that is among the last `?1` of its part or younger than `?2`.
+macro_rules! prunable {
+    () => {
+        "WITH ranked AS ( \
+       SELECT pre_recording_id AS pre, main_recording_id AS main, created_at, \
+              ROW_NUMBER() OVER (PARTITION BY part_serial ORDER BY seq DESC) AS rn \
+       FROM measurements), \
+     keep AS ( \
+       SELECT pre AS rid FROM ranked WHERE rn <= ?1 OR created_at >= ?2 \
+       UNION SELECT main FROM ranked WHERE rn <= ?1 OR created_at >= ?2) \
+     SELECT id FROM recordings WHERE pruned_at IS NULL AND id NOT IN (SELECT rid FROM keep)"
+    };
+}
+
+impl Store {
+    /// A measurement's `pre` or `main` recording.
+    pub async fn get_recording(
+        &self,
+        measurement_id: &str,
+        which: &str,
+    ) -> StoreResult<Option<StoredRecording>> {
+        macro_rules! sel {
+            ($col:literal) => {
+                concat!(
+                    "SELECT r.wav, r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
+                     FROM measurements m JOIN recordings r ON r.id = m.",
+                    $col,
+                    " WHERE m.id = ?"
+                )
+            };
+        }
+        let sql = match which {
+            "pre" => sel!("pre_recording_id"),
+            "main" => sel!("main_recording_id"),
+            _ => return Ok(None),
+        };
+        let row = sqlx::query(sql)
+            .bind(measurement_id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|r| {
+            let scale = r
+                .get::<Option<String>, _>(1)
+                .map(|s| {
+                    serde_json::from_str(&s).map_err(|e| {
+                        StoreError::Corrupt(format!("stored channel scale unreadable: {e}"))
+                    })
+                })
+                .transpose()?;
+            Ok(StoredRecording {
+                bytes: r.get(0),
+                channel_scale: scale,
+                frames: r.get(2),
+                sample_rate_hz: r.get(3),
+                pruned_at: r.get(4),
+            })
+        })
+        .transpose()
+    }
+
+    /// Applies the retention policy once: the raw signals of recordings the
+    /// policy does not keep are removed (the row, its frame count and the
+    /// measurement stay; results, fits, jobs and configurations are never
+    /// touched). Nothing happens when the policy sets no limit.
+    pub async fn prune_raw(&self, policy: &Retention) -> StoreResult<RetentionReport> {
+        if policy.raw_max_age_days.is_none() && policy.raw_keep_last_per_part.is_none() {
+            return Ok(RetentionReport::default());
+        }
+        let cutoff = policy.raw_max_age_days.map(|d| {
+            let ms = (d * 86_400_000.0).clamp(0.0, 1e15) as i64;
+            (chrono::Utc::now() - chrono::Duration::milliseconds(ms))
+                .to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
+        });
+        let keep_last = policy.raw_keep_last_per_part.map(i64::from);
+        let mut tx = self.pool.begin().await?;
+        let row = sqlx::query(concat!(
+            "SELECT COUNT(*), COALESCE(SUM(length(wav)), 0) FROM recordings WHERE id IN (",
+            prunable!(),
+            ")"
+        ))
+        .bind(keep_last)
+        .bind(cutoff.clone())
+        .fetch_one(&mut *tx)
+        .await?;
+        let report = RetentionReport {
+            recordings_pruned: row.get(0),
+            bytes_freed: row.get(1),
+        };
+        sqlx::query(concat!(
+            "UPDATE recordings SET wav = X'', pruned_at = ?3 WHERE id IN (",
+            prunable!(),
+            ")"
+        ))
+        .bind(keep_last)
+        .bind(cutoff)
+        .bind(now())
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(report)
+    }
+
+    /// (bytes of raw signals held, recordings held, recordings pruned).
+    pub async fn raw_usage(&self) -> StoreResult<(i64, i64, i64)> {
+        let r = sqlx::query(
+            "SELECT COALESCE(SUM(length(wav)), 0), \
+                    COALESCE(SUM(pruned_at IS NULL), 0), COALESCE(SUM(pruned_at IS NOT NULL), 0) \
+             FROM recordings",
+        )
+        .fetch_one(&self.pool)
+        .await?;
+        Ok((r.get(0), r.get(1), r.get(2)))
+    }
+}
+
+/// Bytes of the files under `dir` (the database, its WAL and anything else
+/// kept there); unreadable entries count as 0.
+pub fn dir_bytes(dir: &Path) -> u64 {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    rd.flatten()
+        .map(|e| match e.metadata() {
+            Ok(m) if m.is_dir() => dir_bytes(&e.path()),
+            Ok(m) => m.len(),
+            Err(_) => 0,
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{NewMeasurement, NewRecording};
+    use serde_json::json;
+
+    fn rec(kind: &'static str, fill: u8) -> NewRecording {
+        NewRecording {
+            kind,
+            sample_rate_hz: 48000.0,
+            frames: 1000,
+            stored: crate::recording::codec::Stored {
+                bytes: vec![fill; 1000],
+                channel_scale: None,
+            },
+        }
+    }
+
+    fn meas(id: &str, serial: &str) -> NewMeasurement {
+        NewMeasurement {
+            id: id.into(),
+            part_serial: serial.into(),
+            job_id: None,
+            source: "import",
+            bench_id: None,
+            config: json!({"analysis": {"method": "two-signal"}}),
+            meta: json!({"moving_mass_kg": 0.05}),
+            result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
+            analysis_error: None,
+            target_xpeak_m: None,
+            repeat_index: None,
+            level_index: None,
+            pre: 0,
+            main: 1,
+        }
+    }
+
+    async fn setback(s: &Store, id: &str, days: f64) {
+        let t = (chrono::Utc::now() - chrono::Duration::milliseconds((days * 86_400_000.0) as i64))
+            .to_rfc3339_opts(chrono::SecondsFormat::Millis, true);
+        sqlx::query("UPDATE measurements SET created_at = ? WHERE id = ?")
+            .bind(t)
+            .bind(id.to_string())
+            .execute(&s.pool)
+            .await
+            .unwrap();
+    }
+
+    #[tokio::test]
+    async fn retention_removes_raw_signals_and_never_results() {
+        let s = Store::memory().await.unwrap();
+        // Part A: 4 measurements (a0 oldest); part B: 1, 40 days old.
+        for i in 0..4u8 {
+            s.insert_measurements(
+                ("A", None, None),
+                vec![rec("pre", i), rec("main", 10 + i)],
+                vec![meas(&format!("a{i}"), "A")],
+            )
+            .await
+            .unwrap();
+        }
+        s.insert_measurements(
+            ("B", None, None),
+            vec![rec("pre", 20), rec("main", 21)],
+            vec![meas("b0", "B")],
+        )
+        .await
+        .unwrap();
+        s.insert_fit("f1", "a0", &json!({"effects": []}), &json!({"k": 1}))
+            .await
+            .unwrap();
+        setback(&s, "a0", 40.0).await;
+        setback(&s, "a1", 20.0).await;
+        setback(&s, "b0", 40.0).await;
+        assert_eq!(s.raw_usage().await.unwrap(), (10_000, 10, 0));
+
+        // No limit configured: nothing goes.
+        let none = Retention::default();
+        assert_eq!(
+            s.prune_raw(&none).await.unwrap(),
+            RetentionReport::default()
+        );
+
+        // Keep the last 2 per part: a0 and a1 lose their raw signals.
+        let last2 = Retention {
+            raw_keep_last_per_part: Some(2),
+            ..Retention::default()
+        };
+        let r = s.prune_raw(&last2).await.unwrap();
+        assert_eq!(
+            r,
+            RetentionReport {
+                recordings_pruned: 4,
+                bytes_freed: 4000
+            }
+        );
+        for (id, gone) in [
+            ("a0", true),
+            ("a1", true),
+            ("a2", false),
+            ("a3", false),
+            ("b0", false),
+        ] {
+            for which in ["pre", "main"] {
+                let rec = s.get_recording(id, which).await.unwrap().unwrap();
+                assert_eq!(rec.pruned_at.is_some(), gone, "{id} {which}");
+                assert_eq!(rec.bytes.is_empty(), gone, "{id} {which}");
+                assert_eq!(rec.frames, 1000);
+            }
+        }
+        // A second pass has nothing more to do.
+        assert_eq!(s.prune_raw(&last2).await.unwrap().recordings_pruned, 0);
+
+        // Keep 30 days or the last 1: b0 (40 days old, but the last of B) and
+        // a2 (young) stay; nothing more goes.
+        let both = Retention {
+            raw_max_age_days: Some(30.0),
+            raw_keep_last_per_part: Some(1),
+            ..Retention::default()
+        };
+        let r = s.prune_raw(&both).await.unwrap();
+        assert_eq!(r.recordings_pruned, 0);
+        assert!(s
+            .get_recording("b0", "pre")
+            .await
+            .unwrap()
+            .unwrap()
+            .pruned_at
+            .is_none());
+        // Only 30 days: b0 goes too.
+        let age = Retention {
+            raw_max_age_days: Some(30.0),
+            ..Retention::default()
+        };
+        assert_eq!(s.prune_raw(&age).await.unwrap().recordings_pruned, 2);
+        assert!(s
+            .get_recording("b0", "main")
+            .await
+            .unwrap()
+            .unwrap()
+            .pruned_at
+            .is_some());
+
+        // Every result, fit, configuration and meta is still there.
+        for id in ["a0", "a1", "a2", "a3", "b0"] {
+            let (info, result, meta) = s.get_measurement(id).await.unwrap().unwrap();
+            assert_eq!(
+                result.unwrap()["large_signal"]["keff_n_per_m"],
+                json!(1000.0)
+            );
+            assert_eq!(info.config["analysis"]["method"], json!("two-signal"));
+            assert_eq!(meta["moving_mass_kg"], json!(0.05));
+        }
+        assert_eq!(s.list_fits("a0").await.unwrap().len(), 1);
+        assert_eq!(s.counts().await.unwrap(), (2, 5));
+        let (bytes, kept, pruned) = s.raw_usage().await.unwrap();
+        assert_eq!((kept + pruned, bytes), (10, kept * 1000));
+    }
+}
