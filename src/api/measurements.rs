@@ -191,16 +191,23 @@ fn numeric_failure(title: &'static str, e: impl std::fmt::Display) -> Problem {
     )
 }
 
-/// `POST /api/v1/measurements/{id}/fits` `{"effects": [...], "order": N, "method": "..."}`:
-/// fits the stored recordings again with the given effects; every fit is kept.
-pub async fn fit(
-    State(st): State<AppState>,
-    Path(id): Path<String>,
-    JsonBody(body): JsonBody,
-) -> ApiResult<Response> {
-    let obj = body
-        .as_object()
-        .ok_or_else(|| Problem::field("", "the body must be a JSON object"))?;
+/// A fit request as accepted (`POST /api/v1/measurements/{id}/fits`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitRequest {
+    pub effects: Vec<EffectId>,
+    pub order: Option<usize>,
+    pub method: Option<Method>,
+}
+
+/// Validates a fit body: `{"effects": [...], "order": N, "method": "..."}`,
+/// one error per bad field.
+pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
+    let Some(obj) = body.as_object() else {
+        return Err(vec![FieldError {
+            field: "".into(),
+            message: "the body must be a JSON object".into(),
+        }]);
+    };
     let mut errors = vec![];
     for k in obj.keys() {
         if !["effects", "order", "method"].contains(&k.as_str()) {
@@ -267,8 +274,27 @@ pub async fn fit(
         },
     };
     if !errors.is_empty() {
-        return Err(Problem::validation(errors));
+        return Err(errors);
     }
+    Ok(FitRequest {
+        effects,
+        order,
+        method,
+    })
+}
+
+/// `POST /api/v1/measurements/{id}/fits` `{"effects": [...], "order": N, "method": "..."}`:
+/// fits the stored recordings again with the given effects; every fit is kept.
+pub async fn fit(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let FitRequest {
+        effects,
+        order,
+        method,
+    } = fit_request(&body).map_err(Problem::validation)?;
     let (set, mut analyze) = load_set(&st, &id).await?;
     if let Some(m) = method {
         analyze.method = m;
