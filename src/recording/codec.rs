@@ -213,6 +213,9 @@ pub fn encode_lossless(
     format: SampleFormat,
     scale: &ChannelScale,
 ) -> Result<Stored, RecordingError> {
+    if s.is_empty() {
+        return Err(invalid("the recording has no samples"));
+    }
     let nch = channel_list(s).len();
     let g = scales(scale, nch);
     let scale = ChannelScale {
@@ -272,7 +275,10 @@ pub fn decode(bytes: &[u8], scale: Option<&ChannelScale>) -> Result<Signals, Rec
     let mut st = WavStream::new(bytes.to_vec(), scale.copied())?;
     let n = st.frames as usize;
     let nch = st.channels as usize;
-    let mut cols: Vec<Vec<f64>> = (0..nch).map(|_| Vec::with_capacity(n)).collect();
+    // The header's frame count is not trusted for the allocation (found by
+    // tests/fuzz.rs: a forged count asked for 31 GB); the vectors grow as decoded.
+    let cap = n.min(1 << 20);
+    let mut cols: Vec<Vec<f64>> = (0..nch).map(|_| Vec::with_capacity(cap)).collect();
     while let Some(block) = st.next_block()? {
         for (k, v) in block.iter().enumerate() {
             cols[k % nch].push(*v);
@@ -785,6 +791,12 @@ mod tests {
                 "cut {cut}"
             );
         }
+        // A forged frame count (2^36 - 1 frames in STREAMINFO) is an error, not
+        // a 31 GB allocation.
+        let mut forged = st.bytes.clone();
+        forged[21] |= 0x0f;
+        forged[22..26].copy_from_slice(&[0xff; 4]);
+        assert!(decode(&forged, st.channel_scale.as_ref()).is_err());
         let mut flipped = st.bytes.clone();
         let i = flipped.len() / 3;
         flipped[i] ^= 0x10;
