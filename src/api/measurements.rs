@@ -197,6 +197,8 @@ pub struct FitRequest {
     pub effects: Vec<EffectId>,
     pub order: Option<usize>,
     pub method: Option<Method>,
+    /// An explicit effect list: fit exactly that model (else the ladder chooses).
+    pub exact: bool,
 }
 
 /// Validates a fit body: `{"effects": [...], "order": N, "method": "..."}`,
@@ -280,6 +282,7 @@ pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
         effects,
         order,
         method,
+        exact,
     })
 }
 
@@ -294,6 +297,7 @@ pub async fn fit(
         effects,
         order,
         method,
+        exact,
     } = fit_request(&body).map_err(Problem::validation)?;
     let (set, mut analyze) = load_set(&st, &id).await?;
     if let Some(m) = method {
