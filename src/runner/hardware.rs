@@ -160,6 +160,7 @@ impl Runner {
                 Some(&p),
                 None,
                 &[],
+                &[],
                 vec![],
                 vec![],
             )
@@ -296,6 +297,7 @@ impl Runner {
                         None,
                         None,
                         &log,
+                        &[],
                         vec![],
                         vec![],
                     )
