@@ -914,6 +914,8 @@ fn procedure_stop(e: ProcedureError) -> Stop {
 }
 
 /// Runs a job on its own blocking thread: procedure per repeat, then the fit per narrow sweep.
+// Each argument is one thing the blocking thread owns or borrows for the job's duration.
+#[allow(clippy::too_many_arguments)]
 fn execute(
     job_id: &str,
     job_seq: i64,
