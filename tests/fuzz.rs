@@ -20,6 +20,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value};
+use springbench::bench::laser::{self, ascii_lines, keyence, optoncdt, ProtocolConfig, Reading};
 use springbench::recording::codec::{self, Resolution, SampleFormat};
 use springbench::recording::{self as rec, ChannelScale, Meta, Signals};
 use std::path::{Path, PathBuf};
@@ -236,6 +237,69 @@ fn target_multipart(data: &[u8]) {
     }
 }
 
+/// The serial laser protocols' configurations the `laser_frames` target picks from.
+fn laser_configs() -> Vec<ProtocolConfig> {
+    vec![
+        ProtocolConfig::Optoncdt(optoncdt::OptoncdtConfig {
+            range_m: 0.01,
+            counter: true,
+            invert: false,
+        }),
+        ProtocolConfig::Optoncdt(optoncdt::OptoncdtConfig {
+            range_m: 0.05,
+            counter: false,
+            invert: true,
+        }),
+        ProtocolConfig::Keyence(keyence::KeyenceConfig {
+            head: 1,
+            unit_m: 1e-3,
+            range_m: None,
+            invert: false,
+        }),
+        ProtocolConfig::AsciiLines(ascii_lines::AsciiLinesConfig::default()),
+        ProtocolConfig::AsciiLines(ascii_lines::AsciiLinesConfig {
+            counter_bits: Some(16),
+            ..ascii_lines::AsciiLinesConfig::default()
+        }),
+    ]
+}
+
+/// Bytes from a serial laser (`bench::laser::parse_stream` of each protocol).
+/// Byte 0 picks the protocol, byte 1 the chunk size the bytes arrive in, the
+/// rest is the stream. Besides no panic: every value is finite, and the
+/// readings do not depend on how the bytes were chunked (the parsers keep
+/// their partial frame between calls).
+fn target_laser_frames(data: &[u8]) {
+    let configs = laser_configs();
+    let (Some(&sel), Some(&chunk)) = (data.first(), data.get(1)) else {
+        return;
+    };
+    let cfg = &configs[sel as usize % configs.len()];
+    let bytes = &data[2..];
+    let whole = laser::parse_stream(cfg, bytes);
+    let mut p = cfg.build();
+    let mut out = Vec::new();
+    let mut chunked = Ok(());
+    for c in bytes.chunks(1 + chunk as usize % 64) {
+        chunked = p.feed(c, &mut out);
+        if chunked.is_err() {
+            break;
+        }
+    }
+    for r in whole.iter().flatten().chain(&out) {
+        if let Reading::Value { displacement_m, .. } = r {
+            assert!(displacement_m.is_finite(), "{r:?}");
+        }
+    }
+    match (&whole, &chunked) {
+        (Ok(w), Ok(())) => assert_eq!(w, &out, "chunking changed the readings"),
+        (Err(e), Err(f)) => assert_eq!(e.offset, f.offset, "chunking moved the error"),
+        (w, c) => panic!("chunking changed the outcome: whole {w:?}, chunked {c:?}"),
+    }
+    let _ = p.parse_identity(bytes);
+    let _ = optoncdt::parse_getinfo(bytes);
+}
+
 // ---------------------------------------------------------------- seeds
 
 fn wav_bytes(s: &Signals, format: SampleFormat, scale: &ChannelScale) -> Vec<u8> {
@@ -356,6 +420,25 @@ fn seeds(target: &str) -> Vec<(String, Vec<u8>)> {
             s("pcm-import.txt", multipart(&[("meta", &meta_pcm), ("pre", &pcm16_3), ("main", &pcm24_3), ("method", b"one-signal"), ("order", b"4")])),
             s("missing-main.txt", multipart(&[("meta", &meta_std), ("pre", &f32_3)])),
         ],
+        "laser_frames" => {
+            let with = |sel: u8, chunk: u8, b: &[u8]| [&[sel, chunk][..], b].concat();
+            let mut opto = Vec::new();
+            for k in 0..40u32 {
+                opto.extend(optoncdt::encode_value(1000 + 1500 * k, false));
+                opto.extend(optoncdt::encode_value(k, true));
+            }
+            let mut opto_plain = b"->\r\n".to_vec();
+            for raw in [0, 32768, 65535, optoncdt::CODE_NO_TARGET, optoncdt::CODE_TOO_FAR, 70000] {
+                opto_plain.extend(optoncdt::encode_value(raw, false));
+            }
+            vec![
+                s("optoncdt-counter.bin", with(0, 7, &opto)),
+                s("optoncdt-codes.bin", with(1, 0, &opto_plain)),
+                s("keyence.txt", with(2, 3, b"MS,OUT01,+01.2345\rMS,OUT01,-0.0040\rMS,OUT01,FFFFFFF\rER,MS,02\rMS,OUT01,+12.5\r")),
+                s("ascii-lines.txt", with(3, 5, b"0.25\n1.234\r\n-0.5\nOOR\n---\nERR7\nE12\n3.5e-1\n")),
+                s("ascii-counter.txt", with(4, 11, b"65534,0.25\n65535;0.3\n0\t0.35\n1 OUT\n2,-1.0\n")),
+            ]
+        }
         _ => vec![],
     }
 }
@@ -603,6 +686,11 @@ fn fuzz_fit_body() {
 #[test]
 fn fuzz_multipart_import() {
     fuzz("multipart", target_multipart);
+}
+
+#[test]
+fn fuzz_laser_frames() {
+    fuzz("laser_frames", target_laser_frames);
 }
 
 /// The seeds are valid inputs: the harness mutates something that parses.

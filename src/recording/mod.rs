@@ -218,7 +218,7 @@ impl RecordingSet {
         let pre = read_signals_bytes(&pre, &meta).map_err(|e| e.with_path(&pp))?;
         let (mp, main) = open("main.wav")?;
         let main = read_signals_bytes(&main, &meta).map_err(|e| e.with_path(&mp))?;
-        Ok(RecordingSet { meta, pre, main })
+        RecordingSet::settled(meta, pre, main)
     }
 
     /// Reads a set from in-memory parts (the API's multipart import).
@@ -238,6 +238,22 @@ impl RecordingSet {
         let pre = read_signals_bytes(pre_wav, &meta).map_err(|e| e.with_path(Path::new("pre")))?;
         let main =
             read_signals_bytes(main_wav, &meta).map_err(|e| e.with_path(Path::new("main")))?;
+        RecordingSet::settled(meta, pre, main)
+    }
+
+    /// A set whose meta states the files' (equal) sample rate exactly.
+    pub fn settled(
+        mut meta: Meta,
+        pre: Signals,
+        main: Signals,
+    ) -> Result<RecordingSet, RecordingError> {
+        if pre.sample_rate_hz != main.sample_rate_hz {
+            return Err(RecordingError::Invalid(format!(
+                "sample_rate_hz: pre.wav is sampled at {} Hz, main.wav at {} Hz",
+                pre.sample_rate_hz, main.sample_rate_hz
+            )));
+        }
+        meta.sample_rate_hz = main.sample_rate_hz;
         Ok(RecordingSet { meta, pre, main })
     }
 
@@ -403,7 +419,10 @@ pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingE
             .collect()
     };
     let sig = Signals {
-        sample_rate_hz: meta.sample_rate_hz,
+        // The file's rate: meta.json may state it within 1e-6 (checked above),
+        // the samples were taken at the WAV's integer rate (tests/fuzz.rs found
+        // 8000.0000001 read here and refused by storage at 8000).
+        sample_rate_hz: spec.sample_rate as f64,
         displacement_m: pick(ch.displacement, scale.displacement),
         microphone_v: pick(ch.microphone, scale.microphone),
         drive_v: ch.drive.map(|c| pick(c, scale.drive)),
@@ -425,6 +444,7 @@ fn read_with_hound<R: Read>(
         reason,
     };
     let bits = r.spec().bits_per_sample;
+    let rate = r.spec().sample_rate as f64;
     let interleaved: Vec<f64> = if is_pcm {
         let full = (1u64 << (bits - 1)) as f64;
         r.samples::<i32>()
@@ -444,7 +464,7 @@ fn read_with_hound<R: Read>(
         (0..frames).map(|k| interleaved[k * nch + c] * g).collect()
     };
     let sig = Signals {
-        sample_rate_hz: meta.sample_rate_hz,
+        sample_rate_hz: rate,
         displacement_m: pick(ch.displacement, scale.displacement),
         microphone_v: pick(ch.microphone, scale.microphone),
         drive_v: ch.drive.map(|c| pick(c, scale.drive)),
@@ -554,6 +574,40 @@ mod tests {
         assert!((s.microphone_v[2] - 2000.0 / (1u64 << 23) as f64).abs() < 1e-12);
         assert!(s.drive_v.is_none());
         assert_eq!(meta.extra["operator"], "kept");
+    }
+
+    /// meta.json may state the rate within 1e-6 of the file's; the signals
+    /// carry the file's integer rate, so storage (FLAC, integer rates) keeps
+    /// them (tests/fuzz.rs multipart finding: 8000.0000001 was refused).
+    #[test]
+    fn the_files_rate_is_the_signals_rate() {
+        let s = Signals {
+            sample_rate_hz: 8000.0,
+            ..sig(200)
+        };
+        let wav = signals_to_wav_bytes(&s).unwrap();
+        let meta = Meta::standard(0.05, 8000.0000001);
+        let set =
+            RecordingSet::from_bytes(serde_json::to_string(&meta).unwrap().as_bytes(), &wav, &wav)
+                .unwrap();
+        assert_eq!(set.main.sample_rate_hz, 8000.0);
+        assert_eq!(set.meta.sample_rate_hz, 8000.0);
+        let st = codec::encode_lossless(
+            &set.main,
+            codec::SampleFormat::Float32,
+            &ChannelScale::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            codec::decode(&st.bytes, st.channel_scale.as_ref()).unwrap(),
+            set.main
+        );
+        // Beyond 1e-6 it is still refused.
+        let meta = Meta::standard(0.05, 8000.01);
+        let e =
+            RecordingSet::from_bytes(serde_json::to_string(&meta).unwrap().as_bytes(), &wav, &wav)
+                .unwrap_err();
+        assert!(e.to_string().contains("differs"), "{e}");
     }
 
     #[test]
