@@ -81,10 +81,26 @@ async fn compute(st: &AppState, id: &str, name: &str) -> ApiResult<Derived> {
         Ok((set, d)) => {
             let id2 = id.to_string();
             tokio::task::spawn_blocking(move || {
+                // Never stored with a NaN written as null (issue 11).
+                let checked = crate::store::finite::to_value(&d.report.model).and_then(|m| {
+                    Ok((m, crate::store::finite::to_value(&d.report.diagnostics)?))
+                });
+                let (model, diagnostics) = match checked {
+                    Ok(x) => x,
+                    Err(e) => {
+                        let p = Problem::new(
+                            StatusCode::UNPROCESSABLE_ENTITY,
+                            "analysis-failed",
+                            "Diagnostics failed",
+                            format!("result refused: {e}"),
+                        );
+                        return all_problems(&p);
+                    }
+                };
                 let doc = json!({
                     "measurement_id": id2,
-                    "model": d.report.model,
-                    "diagnostics": d.report.diagnostics,
+                    "model": model,
+                    "diagnostics": diagnostics,
                     "plots": diagnose::plot_names().iter()
                         .map(|n| format!("/api/v1/measurements/{id2}/plots/{n}.svg")).collect::<Vec<_>>(),
                 });
@@ -112,13 +128,7 @@ async fn compute(st: &AppState, id: &str, name: &str) -> ApiResult<Derived> {
             .map_err(Problem::internal)?
         }
         // A diagnosis that fails on this fit's data fails every time: kept too.
-        Err(p) if p.status == StatusCode::UNPROCESSABLE_ENTITY => {
-            let mut items = vec![problem_item(DIAGNOSTICS.into(), clone_problem(&p))];
-            for n in diagnose::plot_names() {
-                items.push(problem_item(format!("{n}.svg"), clone_problem(&p)));
-            }
-            items
-        }
+        Err(p) if p.status == StatusCode::UNPROCESSABLE_ENTITY => all_problems(&p),
         Err(p) => return Err(p),
     };
     st.store.put_derived(id, "", &items).await?;
@@ -126,6 +136,15 @@ async fn compute(st: &AppState, id: &str, name: &str) -> ApiResult<Derived> {
         .into_iter()
         .find(|d| d.name == name)
         .ok_or_else(|| Problem::not_found("plot", name))
+}
+
+/// The same problem as the answer to the diagnostics and every plot.
+fn all_problems(p: &Problem) -> Vec<Derived> {
+    let mut items = vec![problem_item(DIAGNOSTICS.into(), clone_problem(p))];
+    for n in diagnose::plot_names() {
+        items.push(problem_item(format!("{n}.svg"), clone_problem(p)));
+    }
+    items
 }
 
 fn clone_problem(p: &Problem) -> Problem {

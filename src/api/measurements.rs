@@ -6,12 +6,12 @@ use super::problem::{ApiResult, Problem};
 use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
 use crate::diagnose::{self, DiagnoseOptions};
 use crate::effects::EffectId;
-use crate::identify::{self, AnalyzeOptions, Method};
-use crate::recording::codec::{self, SampleFormat, WavStream};
-use crate::recording::{ChannelScale, Meta, RecordingSet, Signals};
-use crate::runner::{job::valid_serial, new_id, FieldError};
-use crate::store::{MeasurementInfo, NewMeasurement, NewRecording};
-use axum::extract::{Multipart, Path, State};
+use crate::identify::{AnalyzeOptions, Method};
+use crate::recording::codec::{self, WavStream};
+use crate::recording::{Meta, RecordingSet};
+use crate::runner::{new_id, FieldError};
+use crate::store::MeasurementInfo;
+use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -64,7 +64,7 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<J
 
 /// The result document (`identify::Report`, as `analyze --json` prints it)
 /// with the measurement's record under `measurement`.
-fn document(info: &MeasurementInfo, result: Option<Value>, meta: Value) -> Value {
+pub(super) fn document(info: &MeasurementInfo, result: Option<Value>, meta: Value) -> Value {
     let mut doc = match result {
         Some(Value::Object(m)) => Value::Object(m),
         _ => json!({}),
@@ -316,7 +316,8 @@ pub async fn fit(
         .await
         .map_err(Problem::internal)?
         .map_err(|e| numeric_failure("Fit failed", e))?;
-    let result = serde_json::to_value(&d.report).map_err(Problem::internal)?;
+    let result = crate::store::finite::to_value(&d.report)
+        .map_err(|e| numeric_failure("Fit failed", format!("result refused: {e}")))?;
     let fit = st
         .store
         .insert_fit(&new_id(), &id, &request, &result)
@@ -388,237 +389,4 @@ pub async fn plot(
             )
         })?;
     super::derived::answer(&st, &id, &file).await
-}
-
-fn multipart_problem(e: axum::extract::multipart::MultipartError, limit: usize) -> Problem {
-    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        Problem::too_large(limit)
-    } else {
-        Problem::bad_request(format!("multipart body unreadable: {}", e.body_text()))
-    }
-}
-
-/// `POST /api/v1/measurements` (multipart): fields `meta` (meta.json), `pre`
-/// and `main` (WAV), `serial` (or `"part_serial"` in meta), optional `kind`,
-/// `notes`, `method`, `order`. Analysed and stored like a bench measurement;
-/// 201 with the result document (an analysis that fails is stored with its
-/// `analysis_error`, the recordings are kept for a later fit).
-pub async fn import(
-    State(st): State<AppState>,
-    multipart: Result<Multipart, axum::extract::multipart::MultipartRejection>,
-) -> ApiResult<Response> {
-    let limit = st.cfg.max_upload_bytes;
-    st.store.check_space(st.cfg.min_free_bytes)?;
-    let mut mp = multipart.map_err(|e| {
-        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            Problem::too_large(limit)
-        } else {
-            Problem::bad_request(e.body_text())
-        }
-    })?;
-    let mut fields: std::collections::HashMap<String, Vec<u8>> = Default::default();
-    let mut errors = vec![];
-    while let Some(f) = mp
-        .next_field()
-        .await
-        .map_err(|e| multipart_problem(e, limit))?
-    {
-        let name = f.name().unwrap_or("").to_string();
-        let data = f.bytes().await.map_err(|e| multipart_problem(e, limit))?;
-        if [
-            "meta", "pre", "main", "serial", "kind", "notes", "method", "order",
-        ]
-        .contains(&name.as_str())
-        {
-            fields.insert(name, data.to_vec());
-        } else {
-            errors.push(FieldError {
-                field: name,
-                message: "unknown field".into(),
-            });
-        }
-    }
-    let text = |k: &str| -> Option<String> {
-        fields
-            .get(k)
-            .map(|b| String::from_utf8_lossy(b).trim().to_string())
-    };
-    for k in ["meta", "pre", "main"] {
-        if !fields.contains_key(k) {
-            errors.push(FieldError {
-                field: k.into(),
-                message: "required".into(),
-            });
-        }
-    }
-    let meta_serial = fields
-        .get("meta")
-        .and_then(|m| serde_json::from_slice::<Value>(m).ok())
-        .and_then(|m| {
-            m.get("part_serial")
-                .and_then(|s| s.as_str())
-                .map(String::from)
-        });
-    let serial = text("serial").or(meta_serial);
-    match &serial {
-        None => errors.push(FieldError {
-            field: "serial".into(),
-            message: "required (the part's serial number)".into(),
-        }),
-        Some(s) if !valid_serial(s) => errors.push(FieldError {
-            field: "serial".into(),
-            message: crate::runner::job::SERIAL_RULE.into(),
-        }),
-        _ => {}
-    }
-    let mut opts = AnalyzeOptions {
-        method: st.cfg.defaults.method,
-        order: st.cfg.defaults.order,
-    };
-    if let Some(m) = text("method") {
-        match serde_json::from_value::<Method>(json!(m)) {
-            Ok(m) => opts.method = m,
-            Err(_) => errors.push(FieldError {
-                field: "method".into(),
-                message: "must be two-signal or one-signal".into(),
-            }),
-        }
-    }
-    if let Some(o) = text("order") {
-        match o.parse::<usize>() {
-            Ok(n) if (1..=crate::runner::job::MAX_ORDER).contains(&n) => opts.order = Some(n),
-            _ => errors.push(FieldError {
-                field: "order".into(),
-                message: format!(
-                    "must be an integer from 1 to {}",
-                    crate::runner::job::MAX_ORDER
-                ),
-            }),
-        }
-    }
-    if !errors.is_empty() {
-        return Err(Problem::validation(errors));
-    }
-    let serial = serial.unwrap_or_default();
-    let kind = text("kind").filter(|s| !s.is_empty());
-    let notes = text("notes").filter(|s| !s.is_empty());
-    let meta = fields.remove("meta").unwrap_or_default();
-    let pre = fields.remove("pre").unwrap_or_default();
-    let main = fields.remove("main").unwrap_or_default();
-    let opts2 = opts.clone();
-    // Read, keep in the standard layout at the imported resolution (FLAC for
-    // PCM up to 24 bits, else the imported WAV format) and analyse, off the runtime.
-    let prepared = tokio::task::spawn_blocking(move || {
-        let set = RecordingSet::from_bytes(&meta, &pre, &main).map_err(|e| {
-            let msg = e.to_string();
-            let field = if msg.starts_with("pre") {
-                "pre".to_string()
-            } else if msg.starts_with("main") {
-                "main".to_string()
-            } else if let Some(key) = ["moving_mass_kg", "sample_rate_hz", "channel_scale."]
-                .iter()
-                .find(|k| msg.starts_with(**k))
-            {
-                // the meta.json key, e.g. meta.channel_scale.displacement
-                let k = msg.split_whitespace().next().unwrap_or(key);
-                format!("meta.{k}")
-            } else {
-                "meta".to_string()
-            };
-            FieldError {
-                field,
-                message: msg,
-            }
-        })?;
-        let mut meta = Meta {
-            channel_scale: None,
-            ..Meta::standard(set.meta.moving_mass_kg, set.meta.sample_rate_hz)
-        };
-        meta.extra = set.meta.extra.clone();
-        meta.channels.drive = match (&set.pre.drive_v, &set.main.drive_v) {
-            (Some(_), Some(_)) => Some(2),
-            _ => None,
-        };
-        // Without a drive channel in both files, both are stored without one (same layout).
-        let drop_drive = meta.channels.drive.is_none();
-        let scale: ChannelScale = set.meta.channel_scale.unwrap_or_default();
-        let keep = |field: &str, s: &Signals, wav: &[u8]| {
-            let mut s = s.clone();
-            if drop_drive {
-                s.drive_v = None;
-            }
-            codec::wav_format(wav)
-                .and_then(|f: SampleFormat| codec::encode_lossless(&s, f, &scale))
-                .map_err(|e| FieldError {
-                    field: field.into(),
-                    message: e.to_string(),
-                })
-        };
-        let pre_st = keep("pre", &set.pre, &pre)?;
-        let main_st = keep("main", &set.main, &main)?;
-        let analysis = identify::analyze(&set, &opts2);
-        Ok::<_, FieldError>((set, meta, pre_st, main_st, analysis))
-    })
-    .await
-    .map_err(Problem::internal)?;
-    let (set, meta, pre_wav, main_wav, analysis) =
-        prepared.map_err(|e| Problem::validation(vec![e]))?;
-    let (result, analysis_error) = match analysis {
-        Ok(r) => (
-            Some(serde_json::to_value(&r).map_err(Problem::internal)?),
-            None,
-        ),
-        Err(e) => (None, Some(e.to_string())),
-    };
-    let id = new_id();
-    let rec = |kind, s: &Signals, stored| NewRecording {
-        kind,
-        sample_rate_hz: s.sample_rate_hz,
-        frames: s.len() as i64,
-        stored,
-    };
-    st.store
-        .insert_measurements(
-            (&serial, kind.as_deref(), notes.as_deref()),
-            vec![
-                rec("pre", &set.pre, pre_wav),
-                rec("main", &set.main, main_wav),
-            ],
-            vec![NewMeasurement {
-                id: id.clone(),
-                part_serial: serial.clone(),
-                job_id: None,
-                source: "import",
-                bench_id: None,
-                config: json!({"analysis": opts}),
-                meta: serde_json::to_value(&meta).map_err(Problem::internal)?,
-                result,
-                analysis_error,
-                target_xpeak_m: None,
-                repeat_index: None,
-                level_index: None,
-                pre: 0,
-                main: 1,
-            }],
-        )
-        .await?;
-    let (info, result, meta) = st
-        .store
-        .get_measurement(&id)
-        .await?
-        .ok_or_else(|| Problem::internal("imported measurement vanished"))?;
-    let _ = st
-        .runner
-        .events()
-        .publish(
-            "measurement.created",
-            None,
-            json!({"measurement_id": id, "part_serial": serial, "source": "import"}),
-        )
-        .await;
-    let mut r = (StatusCode::CREATED, Json(document(&info, result, meta))).into_response();
-    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/measurements/{id}")) {
-        r.headers_mut().insert(header::LOCATION, v);
-    }
-    Ok(r)
 }

@@ -9,6 +9,7 @@ pub mod benches;
 pub mod derived;
 pub mod events;
 pub mod guard;
+pub mod import;
 pub mod jobs;
 pub mod measurements;
 pub mod metrics;
@@ -107,7 +108,8 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "post",
         "/api/v1/measurements",
-        limited(post(measurements::import).layer(upload_limit), &expensive),
+        // The slot is taken inside, once the body is spooled (api::import).
+        post(import::import).layer(upload_limit),
     )
     .add(
         "get",

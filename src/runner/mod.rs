@@ -1006,6 +1006,12 @@ fn execute(
             .map(|mut rep| {
                 rep.warnings.extend(sweep.warning.iter().cloned());
                 rep
+            })
+            // Never stored as null: a non-finite number fails the analysis (issue 11).
+            .and_then(|rep| {
+                crate::store::finite::check(&rep)
+                    .map(|_| rep)
+                    .map_err(|e| format!("result refused: {e}"))
             });
             let mid = new_id();
             if let Some(r) = recipe {
@@ -1021,7 +1027,7 @@ fn execute(
                     .push((mid.clone(), crate::qc::judge(r, &facts)));
             }
             let (result, analysis_error) = match analysed {
-                Ok(rep) => (serde_json::to_value(&rep).ok(), None),
+                Ok(rep) => (crate::store::finite::to_value(&rep).ok(), None),
                 Err(e) => {
                     done.log.push(format!(
                         "analysis of level {} ({} m) failed: {e}",

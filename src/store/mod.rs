@@ -22,6 +22,9 @@ use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
+pub mod finite;
+mod imports;
+pub use imports::ImportInserted;
 pub mod qc;
 mod raw;
 pub use raw::{dir_bytes, RetentionReport, StoredRecording};
