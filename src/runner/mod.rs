@@ -1006,12 +1006,6 @@ fn execute(
             .map(|mut rep| {
                 rep.warnings.extend(sweep.warning.iter().cloned());
                 rep
-            })
-            // Never stored as null: a non-finite number fails the analysis (issue 11).
-            .and_then(|rep| {
-                crate::store::finite::check(&rep)
-                    .map(|_| rep)
-                    .map_err(|e| format!("result refused: {e}"))
             });
             let mid = new_id();
             if let Some(r) = recipe {
@@ -1027,7 +1021,21 @@ fn execute(
                     .push((mid.clone(), crate::qc::judge(r, &facts)));
             }
             let (result, analysis_error) = match analysed {
-                Ok(rep) => (crate::store::finite::to_value(&rep).ok(), None),
+                // Never stored with a non-finite number written as null
+                // (issue 11): the result is refused, the reason kept. QC has
+                // judged the report above with its own rules.
+                Ok(rep) => match crate::store::finite::to_value(&rep) {
+                    Ok(v) => (Some(v), None),
+                    Err(e) => {
+                        let e = format!("result refused: {e}");
+                        done.log.push(format!(
+                            "analysis of level {} ({} m): {e}",
+                            li + 1,
+                            sweep.target_xpeak_m
+                        ));
+                        (None, Some(e))
+                    }
+                },
                 Err(e) => {
                     done.log.push(format!(
                         "analysis of level {} ({} m) failed: {e}",
