@@ -212,6 +212,24 @@ async fn golden_units_limits_and_production_verdicts() {
     );
     let (s, _) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
     assert_eq!(s, 409, "approved twice");
+    // The recipe's proposals, newest first (what the QC view lists).
+    let list = get(&c, &d, "/api/v1/recipes/spider-4in/limit-proposals").await;
+    let items = list["items"].as_array().unwrap();
+    assert_eq!(items.len(), 1, "{list}");
+    assert_eq!(
+        (items[0]["id"].as_str(), items[0]["state"].as_str()),
+        (Some(pid.as_str()), Some("approved"))
+    );
+    let (s, _) = send(
+        &c,
+        &d,
+        reqwest::Method::GET,
+        "/api/v1/recipes/no-such-recipe/limit-proposals",
+        STATION,
+        None,
+    )
+    .await;
+    assert_eq!(s, 404);
 
     // Production: (serial, body, expected verdict, expected failing parameter or invalid reason).
     let mut lot: Vec<(String, Value, &str, &str)> = vec![];

@@ -550,3 +550,180 @@ async fn a_clear_message_when_the_daemon_is_unreachable() {
     }
     b.quit().await;
 }
+
+/// QC: a recipe, five golden units measured, limits proposed and approved in
+/// the QC view, a part measured from the operator form under the recipe
+/// (PASS, large) and a stiff defective part (FAIL with the failing
+/// parameters), then the SPC of k0 with its capability figures and chart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn qc_recipe_limits_verdicts_and_spc() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&format!(
+        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
+        tokens()
+    ));
+    let c = common::client();
+    let recipe = json!({
+        "name": "spider-4in",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0"},
+            {"name": "keff", "quantity": "keff"},
+            {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    });
+    let r = c
+        .post(d.url("/api/v1/recipes"))
+        .bearer_auth(ADMIN)
+        .json(&recipe)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    // Five golden units (production spread, no defect), on two benches.
+    let mut ids = vec![];
+    for i in 1..=5 {
+        let body = json!({"part": {"serial": format!("G-{i:02}"), "kind": "spider"},
+                          "recipe": "spider-4in", "production": {"preset": "spider_4in", "seed": i}});
+        let r = c
+            .post(d.url("/api/v1/jobs"))
+            .bearer_auth(OPERATOR)
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 202);
+        ids.push(r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_string());
+    }
+    for id in &ids {
+        let t = std::time::Instant::now();
+        loop {
+            let j = get(&d, &format!("/api/v1/jobs/{id}")).await;
+            if common::terminal(j["state"].as_str().unwrap_or("")) {
+                assert_eq!(j["state"], "succeeded", "{j}");
+                assert_eq!(j["verdict"], "no_limits", "{j}");
+                break;
+            }
+            assert!(t.elapsed() < Duration::from_secs(600), "golden job {id}");
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+    }
+
+    // The QC view as admin: the recipe, then a proposal from the golden units, approved.
+    b.login(&d.base, ADMIN, "admin").await;
+    b.goto(&format!("{}/#/qc", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#recipes tr[data-recipe=\"spider-4in\"]')",
+        SHORT,
+        "the recipe list",
+    )
+    .await;
+    b.screenshot("qc-recipes").await;
+    b.goto(&format!("{}/#/qc/spider-4in", d.base)).await;
+    b.wait_js("document.querySelector('#golden-serials')", SHORT, "the proposal form")
+        .await;
+    b.type_into("#golden-serials", "G-01, G-02, G-03, G-04, G-05").await;
+    b.click("#propose").await;
+    let pid = b
+        .wait_js(
+            "(() => { const p = document.querySelector('#proposals .proposal[data-state=\"proposed\"]'); return p ? p.dataset.proposal : null; })()",
+            LONG,
+            "the proposal",
+        )
+        .await;
+    let pid = pid.as_str().unwrap().to_string();
+    b.screenshot("qc-proposal").await;
+    b.click(&format!("#approve-{pid}")).await;
+    b.wait_js("document.querySelector('#confirm').open", SHORT, "the confirmation")
+        .await;
+    b.click("#confirm-yes").await;
+    b.wait_js(
+        "document.querySelector('#recipe h1') && document.querySelector('#recipe h1').textContent.includes('version 2')",
+        SHORT,
+        "recipe version 2 with the approved limits",
+    )
+    .await;
+    let p = get(&d, &format!("/api/v1/limit-proposals/{pid}")).await;
+    assert_eq!(p["state"], "approved", "{p}");
+    assert_eq!(p["decided_by"], "admin-1", "the approver is recorded");
+    let v2 = get(&d, "/api/v1/recipes/spider-4in").await;
+    assert_eq!(v2["version"], 2);
+    let k0 = v2["recipe"]["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "k0")
+        .unwrap()
+        .clone();
+    assert!(k0["lower"].is_number() && k0["upper"].is_number(), "{k0}");
+    b.assert_no_console_errors("in the QC view").await;
+
+    // The station: a good part from the operator form under the recipe: PASS.
+    b.goto(&format!("{}/#/operator", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#recipe option[value=\"spider-4in\"]')",
+        SHORT,
+        "the recipe in the submit form",
+    )
+    .await;
+    b.js(
+        "const s = document.querySelector('#recipe'); s.value = 'spider-4in'; s.dispatchEvent(new Event('change')); return true;",
+        vec![],
+    )
+    .await;
+    b.type_into("#serial", "SN-QC-GOOD\n").await;
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'pass' && document.querySelector('#verdict .verdict-part').textContent.includes('SN-QC-GOOD')",
+        LONG,
+        "PASS for SN-QC-GOOD",
+    )
+    .await;
+    let jobs = get(&d, "/api/v1/jobs?part=SN-QC-GOOD").await;
+    assert_eq!(jobs["items"][0]["verdict"], "pass", "{jobs}");
+    assert_eq!(b.text("#verdict-big").await, "PASS");
+    b.screenshot("operator-verdict-pass").await;
+    // A stiff defective part (posted by the line): FAIL with the failing parameters.
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .bearer_auth(OPERATOR)
+        .json(&json!({"part": {"serial": "SN-QC-STIFF", "kind": "spider"}, "recipe": "spider-4in",
+                      "production": {"preset": "spider_4in", "seed": 77, "defect": "stiff"}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202);
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict .verdict-part').textContent.includes('SN-QC-STIFF')",
+        LONG,
+        "FAIL for SN-QC-STIFF",
+    )
+    .await;
+    let failing = b.text("#failing").await;
+    assert!(failing.contains("k0") || failing.contains("keff"), "{failing}");
+    assert!(failing.contains("N/m"), "values with units: {failing}");
+    b.screenshot("operator-verdict-fail").await;
+    b.assert_no_console_errors("on the operator view with verdicts").await;
+
+    // SPC of k0 over the recipe: the figures the API gives, and the chart.
+    b.goto(&format!("{}/#/qc/spider-4in?parameter=k0", d.base)).await;
+    let n = b
+        .wait_js(
+            "document.querySelector('#spc-plot canvas') && document.querySelector('#spc-stats').dataset.n",
+            LONG,
+            "the SPC chart of k0",
+        )
+        .await;
+    let spc = get(&d, "/api/v1/recipes/spider-4in/spc?parameter=k0").await;
+    assert_eq!(n, json!(spc["n"].as_u64().unwrap().to_string()));
+    assert!(spc["n"].as_u64().unwrap() >= 7, "{spc}");
+    let stats = b.text("#spc-stats").await;
+    assert!(stats.contains("Cpk") && stats.contains("N/m"), "{stats}");
+    b.screenshot("qc-spc").await;
+    b.assert_no_console_errors("in the SPC view").await;
+    b.quit().await;
+}

@@ -166,6 +166,11 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/recipes/{name}/limit-proposals",
         post(qc::propose).layer(json_limit),
     )
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/limit-proposals",
+        get(qc::list_proposals),
+    )
     .add("get", "/api/v1/recipes/{name}/spc", get(qc::spc))
     .add("get", "/api/v1/limit-proposals/{id}", get(qc::get_proposal))
     .add(

@@ -327,6 +327,19 @@ pub async fn propose(
     ))
 }
 
+/// `GET /api/v1/recipes/{name}/limit-proposals`: the recipe's newest 50
+/// proposals (all states), newest first.
+pub async fn list_proposals(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+) -> ApiResult<Json<Value>> {
+    if st.store.get_recipe(&name, None).await?.is_none() {
+        return Err(Problem::not_found("recipe", &name));
+    }
+    let items = st.store.recipe_proposals(&name, 50).await?;
+    Ok(Json(json!({"items": items})))
+}
+
 pub async fn get_proposal(
     State(st): State<AppState>,
     Path(id): Path<String>,

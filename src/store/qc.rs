@@ -345,6 +345,18 @@ impl Store {
             .ok_or_else(|| StoreError::Corrupt(format!("proposal {id} vanished after insert")))
     }
 
+    /// The newest limit proposals of a recipe (at most `limit`), newest first.
+    pub async fn recipe_proposals(&self, name: &str, limit: i64) -> StoreResult<Vec<ProposalRow>> {
+        let rows = sqlx::query(
+            "SELECT * FROM qc_limit_proposals WHERE recipe_name = ? ORDER BY created_at DESC, id DESC LIMIT ?",
+        )
+        .bind(name.to_string())
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(proposal_from_row).collect()
+    }
+
     pub async fn get_proposal(&self, id: &str) -> StoreResult<Option<ProposalRow>> {
         let row = sqlx::query("SELECT * FROM qc_limit_proposals WHERE id = ?")
             .bind(id.to_string())

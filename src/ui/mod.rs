@@ -44,6 +44,7 @@ pub const ASSETS: &[Asset] = &[
     asset!("measurement.js", JS),
     asset!("compare.js", JS),
     asset!("diagnostics.js", JS),
+    asset!("qc.js", JS),
     asset!("favicon.svg", "image/svg+xml"),
     asset!("vendor/uplot/uPlot.esm.js", JS),
     asset!("vendor/uplot/uPlot.min.css", "text/css; charset=utf-8"),

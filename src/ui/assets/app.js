@@ -9,6 +9,7 @@ import * as parts from './parts.js';
 import * as measurement from './measurement.js';
 import * as compare from './compare.js';
 import * as diagnostics from './diagnostics.js';
+import * as qc from './qc.js';
 
 const ROLES = ['viewer', 'operator', 'admin'];
 const main = document.getElementById('view');
@@ -25,6 +26,7 @@ const views = {
   measurement: measurement.render,
   compare: compare.render,
   diagnostics: diagnostics.render,
+  qc: qc.render,
 };
 
 /** True when the session's role includes `role`. */
@@ -33,10 +35,15 @@ function can(role) {
   return ROLES.indexOf(mine) >= ROLES.indexOf(role) && ROLES.indexOf(mine) >= 0;
 }
 
-/** A modal yes/no question (keyboard: Enter confirms the focused button, Escape keeps). */
-function confirmDialog(text) {
+/**
+ * A modal yes/no question (keyboard: Enter confirms the focused button, Escape keeps).
+ * `yes` / `no` label the buttons (default: cancelling a job).
+ */
+function confirmDialog(text, { yes = 'Yes, cancel the job', no = 'Keep running' } = {}) {
   const d = document.getElementById('confirm');
   document.getElementById('confirm-text').textContent = text;
+  document.getElementById('confirm-yes').textContent = yes;
+  document.getElementById('confirm-no').textContent = no;
   return new Promise((resolve) => {
     d.addEventListener('close', () => resolve(d.returnValue === 'ok'), { once: true });
     d.returnValue = 'cancel';

@@ -58,6 +58,15 @@ export async function render(main, ctx) {
     );
     const level = h('input', { id: 'level-mm', name: 'level', type: 'number', min: '0.1', max: '15', step: '0.1', value: '8', required: true });
     const benchSel = h('select', { id: 'bench', name: 'bench' });
+    const recipeSel = h('select', { id: 'recipe', name: 'recipe' }, h('option', { value: '' }, '(none: measure at the level below)'));
+    api('/api/v1/recipes')
+      .then((l) => {
+        for (const r of l.items || []) recipeSel.append(h('option', { value: r.name }, `${r.name} (v${r.version})`));
+      })
+      .catch(() => {});
+    recipeSel.addEventListener('change', () => {
+      level.disabled = !!recipeSel.value;
+    });
     form = h(
       'form',
       { id: 'submit-form', class: 'card submit', autocomplete: 'off' },
@@ -65,6 +74,7 @@ export async function render(main, ctx) {
       h('div', { class: 'form-grid' },
         h('label', { for: 'serial' }, 'Serial'), serial,
         h('label', { for: 'kind' }, 'Part kind'), kind,
+        h('label', { for: 'recipe' }, 'QC recipe'), recipeSel,
         h('label', { for: 'level-mm' }, 'Target Xpeak (mm)'), level,
         h('label', { for: 'bench' }, 'Bench'), benchSel,
       ),
@@ -78,7 +88,10 @@ export async function render(main, ctx) {
       ev.preventDefault();
       const s = serial.value.trim();
       const mm = Number(level.value);
-      const body = { part: { serial: s, kind: kind.value }, target_xpeak_m: mm / 1000 };
+      const body = { part: { serial: s, kind: kind.value } };
+      // A recipe sets the levels (and is judged by); otherwise the level given here.
+      if (recipeSel.value) body.recipe = recipeSel.value;
+      else body.target_xpeak_m = mm / 1000;
       if (benchSel.value) body.bench = benchSel.value;
       formMsg.className = '';
       formMsg.textContent = 'Submitting\u2026';
@@ -220,12 +233,41 @@ export async function render(main, ctx) {
       verdictEl.dataset.job = j.id;
       return [h('div', { class: 'verdict-big', id: 'verdict-big' }, big), h('div', { class: 'verdict-part' }, `part ${j.part_serial}`, h('span', { class: 'muted' }, `  job ${shortId(j.id)}, ${when(j.finished_at)}`)), sub];
     };
+    // A job run under a recipe has a verdict whatever its state (a failed job is `invalid`).
+    let v = null;
+    try {
+      v = await api(`/api/v1/jobs/${j.id}/verdict`);
+    } catch {
+      v = null;
+    }
+    if (verdictFor !== `${j.id}:${j.state}`) return;
+    const mid = j.measurement_ids && j.measurement_ids[0];
+    const openLink = mid ? h('a', { href: `#/measurement/${mid}`, id: 'open-result' }, 'open the result') : null;
+    if (v && v.verdict) {
+      const d = v.detail || {};
+      const recipe = h('p', { class: 'muted', id: 'verdict-recipe' }, `recipe ${v.recipe_name} version ${v.recipe_version} (${String(v.recipe_sha256 || '').slice(0, 12)})`);
+      const pv = (x) => `${x.name}${x.x_m !== undefined && x.x_m !== null ? ` at ${num(x.x_m * 1e3, 3)} mm` : ''}`;
+      if (v.verdict === 'pass') {
+        put(verdictEl, head('pass', 'PASS', recipe, openLink));
+      } else if (v.verdict === 'fail') {
+        put(verdictEl, head('fail', 'FAIL',
+          h('ul', { class: 'failing', id: 'failing' }, (d.failures || []).map((f) => h('li', {},
+            `${pv(f)}: ${num(f.value, 5)} ${f.unit} outside ${f.lower === null || f.lower === undefined ? '\u2013' : num(f.lower, 5)} \u2026 ${f.upper === null || f.upper === undefined ? '\u2013' : num(f.upper, 5)} ${f.unit}`))),
+          recipe, openLink));
+      } else if (v.verdict === 'invalid') {
+        put(verdictEl, head('not-measured', 'INVALID',
+          h('ul', { class: 'verdict-why', id: 'invalid-reasons' }, (d.invalid_reasons || []).map((r) => h('li', {}, `${r.code.replace(/_/g, ' ')}: ${r.detail}`))),
+          h('p', {}, 'The measurement cannot be trusted: the part was not judged. Measure it again.'), recipe, openLink));
+      } else {
+        put(verdictEl, head('measured', 'NO LIMITS', h('p', { class: 'muted' }, 'Measured under the recipe, which has no approved limits yet (golden units).'), recipe, openLink));
+      }
+      return;
+    }
     if (j.state !== 'succeeded') {
       const why = pick(j, 'problem.detail', 'problem.title') || j.state;
       put(verdictEl, head('not-measured', 'NOT MEASURED', h('p', { class: 'verdict-why' }, `${j.state}: ${why}`, h('br'), 'The part was not judged: measure it again.')));
       return;
     }
-    const mid = j.measurement_ids && j.measurement_ids[0];
     let m = null;
     try {
       m = mid ? await api(`/api/v1/measurements/${mid}`) : null;
@@ -233,27 +275,17 @@ export async function render(main, ctx) {
       m = null;
     }
     if (verdictFor !== `${j.id}:${j.state}`) return;
-    const qc = m && (m.qc || m.verdict || (m.measurement && (m.measurement.qc || m.measurement.verdict)));
     const ls = (m && m.large_signal) || {};
     const figures = h('table', { class: 'kv' },
       h('tr', {}, h('th', {}, 'Keff at Xpeak'), h('td', {}, q(ls.keff_n_per_m, 'N/mm', 1e-3))),
       h('tr', {}, h('th', {}, 'Xpeak'), h('td', {}, q(ls.xpeak_m, 'mm', 1e3))),
       h('tr', {}, h('th', {}, 'resonance'), h('td', {}, q(ls.resonance_hz, 'Hz'))),
     );
-    if (qc && typeof qc === 'object' && qc.verdict) {
-      const pass = String(qc.verdict).toLowerCase() === 'pass';
-      const failing = (qc.checks || []).filter((c) => c.pass === false);
-      put(verdictEl, head(pass ? 'pass' : 'fail', pass ? 'PASS' : 'FAIL',
-        failing.length ? h('ul', { class: 'failing', id: 'failing' }, failing.map((c) => h('li', {}, `${c.parameter || c.name}: ${num(c.value)} outside [${num(c.lower)}, ${num(c.upper)}] ${c.unit || ''}`))) : null,
-        figures, mid ? h('a', { href: `#/measurement/${mid}` }, 'open the result') : null));
-      return;
-    }
     if (m && m.measurement && m.measurement.analysis_error) {
       put(verdictEl, head('not-measured', 'NO RESULT', h('p', { class: 'verdict-why' }, `analysis failed: ${m.measurement.analysis_error}`)));
       return;
     }
-    put(verdictEl, head('measured', 'MEASURED', h('p', { class: 'muted' }, 'No QC verdict: no recipe applies to this part.'), figures,
-      mid ? h('a', { href: `#/measurement/${mid}`, id: 'open-result' }, 'open the result') : null));
+    put(verdictEl, head('measured', 'MEASURED', h('p', { class: 'muted' }, 'No QC verdict: the job named no recipe.'), figures, openLink));
   }
 
   let refreshing = false;

@@ -1,0 +1,243 @@
+// QC views: recipes (#/qc), one recipe (#/qc/NAME): its parameters and
+// limits, versions, limit proposals from golden units (propose: operator;
+// approve / reject: admin), and SPC per parameter (capability figures and an
+// individuals chart with the specification and control limits).
+
+import { api, download, ApiError } from './api.js';
+import { h, put, num, when, shortId } from './util.js';
+import { chart } from './plots.js';
+
+/** A limit or value with its unit, as stored (SI or the parameter's own unit). */
+function lim(v, unit) {
+  return v === null || v === undefined ? '\u2013' : `${num(v, 5)} ${unit || ''}`.trim();
+}
+
+function paramLabel(p) {
+  const x = p.x_m !== undefined && p.x_m !== null ? ` at x = ${num(p.x_m * 1e3, 3)} mm` : '';
+  return `${p.name}${x}`;
+}
+
+export async function render(main, ctx) {
+  if (ctx.arg) return renderRecipe(main, ctx, ctx.arg);
+  const list = await api('/api/v1/recipes');
+  if (ctx.stale()) return;
+  const items = list.items || [];
+  put(
+    main,
+    h('section', { class: 'card', id: 'recipes' },
+      h('h1', {}, 'QC recipes'),
+      items.length
+        ? h('table', { class: 'list' },
+            h('thead', {}, h('tr', {}, h('th', {}, 'recipe'), h('th', {}, 'part kind'), h('th', {}, 'version'), h('th', {}, 'SHA-256'), h('th', {}, 'parameters'), h('th', {}, 'limits'), h('th', {}, 'created'))),
+            h('tbody', {}, items.map((r) => {
+              const rec = r.recipe || {};
+              const ps = rec.parameters || [];
+              const limited = ps.filter((p) => p.lower !== null && p.lower !== undefined || p.upper !== null && p.upper !== undefined).length;
+              return h('tr', { dataset: { recipe: r.name } },
+                h('td', {}, h('a', { href: `#/qc/${encodeURIComponent(r.name)}` }, r.name)),
+                h('td', {}, rec.part_kind || '\u2013'),
+                h('td', {}, String(r.version)),
+                h('td', { class: 'mono' }, String(r.sha256 || '').slice(0, 12)),
+                h('td', {}, String(ps.length)),
+                h('td', {}, limited ? `${limited} of ${ps.length}` : h('span', { class: 'badge state-queued' }, 'none yet')),
+                h('td', {}, when(r.created_at)),
+              );
+            })))
+        : h('p', { class: 'muted', id: 'no-recipes' }, 'No recipe yet. An admin creates one with POST /api/v1/recipes (see the README\u2019s QC walk-through).'),
+    ),
+  );
+}
+
+async function renderRecipe(main, ctx, name) {
+  const r = await api(`/api/v1/recipes/${encodeURIComponent(name)}`);
+  if (ctx.stale()) return;
+  const rec = r.recipe || {};
+  const params = rec.parameters || [];
+  const versions = await api(`/api/v1/recipes/${encodeURIComponent(name)}/versions`).catch(() => ({ items: [] }));
+  const proposals = await api(`/api/v1/recipes/${encodeURIComponent(name)}/limit-proposals`).catch(() => ({ items: [] }));
+  if (ctx.stale()) return;
+
+  const spcEl = h('section', { class: 'card', id: 'spc' });
+  const propEl = h('section', { class: 'card', id: 'proposals' });
+
+  put(
+    main,
+    h('div', { class: 'qc' },
+      h('section', { class: 'card', id: 'recipe' },
+        h('h1', {}, `Recipe ${r.name}`, h('span', { class: 'muted' }, `  version ${r.version}, SHA-256 ${String(r.sha256 || '').slice(0, 16)}\u2026`)),
+        h('p', { class: 'muted' }, `part kind ${rec.part_kind || '\u2013'}; levels ${((rec.procedure || {}).levels_m || []).map((x) => `${num(x * 1e3, 3)} mm`).join(', ') || '\u2013'}`),
+        h('table', { class: 'list', id: 'recipe-params' },
+          h('thead', {}, h('tr', {}, h('th', {}, 'parameter'), h('th', {}, 'quantity'), h('th', {}, 'lower'), h('th', {}, 'upper'))),
+          h('tbody', {}, params.map((p) => h('tr', {},
+            h('td', {}, paramLabel(p)),
+            h('td', {}, p.quantity),
+            h('td', {}, lim(p.lower, p.unit)),
+            h('td', {}, lim(p.upper, p.unit)),
+          )))),
+        rec.kx_mask ? h('p', { class: 'muted' }, `K(x) mask: ${(rec.kx_mask.x_m || []).length} points over ${num(rec.kx_mask.x_m[0] * 1e3, 3)} \u2026 ${num(rec.kx_mask.x_m[rec.kx_mask.x_m.length - 1] * 1e3, 3)} mm`) : null,
+        h('details', {}, h('summary', {}, `${(versions.items || []).length} versions`),
+          h('ul', {}, (versions.items || []).map((v) => h('li', {}, `version ${v.version} (${String(v.sha256 || '').slice(0, 12)}), ${when(v.created_at)}`)))),
+      ),
+      propEl,
+      spcEl,
+    ),
+  );
+  drawProposals(propEl, ctx, name, proposals.items || []);
+  drawSpc(spcEl, ctx, name, params);
+}
+
+function drawProposals(el, ctx, name, items) {
+  const msg = h('p', { id: 'proposal-msg', role: 'status' });
+  const rows = items.map((p) => {
+    const pr = p.proposal || {};
+    const decide = ctx.can('admin') && p.state === 'proposed'
+      ? h('span', {},
+          h('button', {
+            class: 'primary', id: `approve-${p.id}`,
+            onclick: async () => {
+              const ok = await ctx.confirm(`Approve the limits of proposal ${shortId(p.id)} (${(pr.serials || []).length} golden units)? A new recipe version judges every later part with them.`, { yes: 'Yes, approve', no: 'Back' });
+              if (!ok) return;
+              try {
+                const v = await api(`/api/v1/limit-proposals/${p.id}/approve`, { method: 'POST', body: {} });
+                msg.className = 'ok';
+                msg.textContent = `Approved: recipe ${name} version ${v.version}.`;
+                location.hash = `#/qc/${encodeURIComponent(name)}?approved=${v.version}`;
+              } catch (e) {
+                msg.className = 'error';
+                msg.textContent = `Not approved: ${e.message}`;
+              }
+            },
+          }, 'Approve'),
+          ' ',
+          h('button', {
+            class: 'danger', id: `reject-${p.id}`,
+            onclick: async () => {
+              if (!(await ctx.confirm(`Reject proposal ${shortId(p.id)}?`, { yes: 'Yes, reject', no: 'Back' }))) return;
+              try {
+                await api(`/api/v1/limit-proposals/${p.id}/reject`, { method: 'POST', body: {} });
+                location.hash = `#/qc/${encodeURIComponent(name)}?rejected=${p.id}`;
+              } catch (e) {
+                msg.className = 'error';
+                msg.textContent = `Not rejected: ${e.message}`;
+              }
+            },
+          }, 'Reject'))
+      : null;
+    return h('div', { class: 'proposal', dataset: { proposal: p.id, state: p.state } },
+      h('h3', {}, `Proposal ${shortId(p.id)} `, h('span', { class: `badge proposal-${p.state}` }, p.state),
+        h('span', { class: 'muted' }, `  by ${p.created_by || 'open access'}, ${when(p.created_at)}`),
+        p.decided_at ? h('span', { class: 'muted' }, `; ${p.state} by ${p.decided_by || 'open access'}, ${when(p.decided_at)}${p.approved_version ? ` (version ${p.approved_version})` : ''}`) : null),
+      h('p', { class: 'muted' }, `golden units: ${(pr.serials || []).join(', ')}; spread ${spreadText(pr.options)}`),
+      h('table', { class: 'list' },
+        h('thead', {}, h('tr', {}, h('th', {}, 'parameter'), h('th', {}, 'n'), h('th', {}, 'mean'), h('th', {}, 'sigma'), h('th', {}, 'lower'), h('th', {}, 'upper'))),
+        h('tbody', {}, (pr.parameters || []).map((l) => h('tr', {},
+          h('td', {}, l.name), h('td', {}, String(l.n)), h('td', {}, lim(l.mean, l.unit)), h('td', {}, lim(l.sigma, l.unit)),
+          h('td', {}, lim(l.lower, l.unit)), h('td', {}, lim(l.upper, l.unit)))))),
+      decide,
+    );
+  });
+  let form = null;
+  if (ctx.can('operator')) {
+    const serials = h('input', { id: 'golden-serials', required: true, placeholder: 'G-01, G-02, G-03, G-04, G-05', size: 48 });
+    const k = h('input', { id: 'golden-k', type: 'number', min: '0.5', max: '10', step: '0.5', value: '3', required: true });
+    form = h('form', { id: 'propose-form', class: 'form-grid' },
+      h('label', { for: 'golden-serials' }, 'Golden units (serials, at least 5)'), serials,
+      h('label', { for: 'golden-k' }, 'Limits: mean \u00b1 k \u03c3, k ='), k,
+      h('button', { type: 'submit', id: 'propose' }, 'Propose limits'));
+    form.addEventListener('submit', async (ev) => {
+      ev.preventDefault();
+      const list = serials.value.split(/[\s,;]+/).filter(Boolean);
+      try {
+        const p = await api(`/api/v1/recipes/${encodeURIComponent(name)}/limit-proposals`, { method: 'POST', body: { serials: list, method: 'k_sigma', k: Number(k.value) } });
+        location.hash = `#/qc/${encodeURIComponent(name)}?proposed=${p.id}`;
+      } catch (e) {
+        msg.className = 'error';
+        msg.textContent = e instanceof ApiError ? `Not proposed: ${e.message}` : `Not proposed: ${e}`;
+      }
+    });
+  }
+  put(el, h('h2', {}, 'Limits from golden units'), form, msg,
+    rows.length ? rows : h('p', { class: 'muted' }, 'No proposal yet.'),
+    ctx.can('admin') ? null : h('p', { class: 'muted' }, 'Approving limits needs an admin token.'));
+}
+
+function spreadText(o) {
+  if (!o) return '\u2013';
+  if (o.method === 'k_sigma') return `mean \u00b1 ${o.k} \u03c3`;
+  if (o.method === 'tolerance') return `mean \u00b1 ${o.tolerance_percent} %`;
+  return JSON.stringify(o);
+}
+
+function drawSpc(el, ctx, name, params) {
+  if (!params.length) {
+    put(el, h('h2', {}, 'SPC'), h('p', { class: 'muted' }, 'The recipe judges no parameter.'));
+    return;
+  }
+  const sel = h('select', { id: 'spc-parameter' }, params.map((p) => h('option', { value: p.name }, paramLabel(p))));
+  const last = h('input', { id: 'spc-last', type: 'number', min: '2', max: '100000', value: '100' });
+  const stats = h('table', { class: 'kv', id: 'spc-stats' });
+  const plot = h('div', { id: 'spc-plot' });
+  const note = h('p', { class: 'muted', id: 'spc-note' });
+  const csv = h('button', { id: 'spc-csv', class: 'link' }, 'download CSV');
+  const want = ctx.params.get('parameter');
+  if (want) sel.value = want;
+  async function load() {
+    const path = `/api/v1/recipes/${encodeURIComponent(name)}/spc?parameter=${encodeURIComponent(sel.value)}&last=${Number(last.value) || 100}`;
+    csv.onclick = () => download(`${path}&format=csv`, `spc-${name}-${sel.value}.csv`);
+    let s;
+    try {
+      s = await api(path);
+    } catch (e) {
+      put(stats);
+      plot.replaceChildren();
+      note.textContent = `No SPC: ${e.message}`;
+      return;
+    }
+    if (ctx.stale()) return;
+    const u = s.unit || '';
+    const row = (k, v) => h('tr', {}, h('th', {}, k), h('td', {}, v));
+    put(stats,
+      row('n (valid measurements)', String(s.n)),
+      row('mean', lim(s.mean, u)),
+      row('\u03c3 overall (Pp, Ppk)', lim(s.sigma, u)),
+      row('\u03c3 within (Cp, Cpk)', lim(s.sigma_within, u)),
+      row('specification', `${lim(s.lower, u)} \u2026 ${lim(s.upper, u)}`),
+      row('Cp / Cpk', `${num(s.cp, 3)} / ${num(s.cpk, 3)}`),
+      row('Pp / Ppk', `${num(s.pp, 3)} / ${num(s.ppk, 3)}`),
+      row('yield', s.yield_fraction === null || s.yield_fraction === undefined ? '\u2013' : `${num(100 * s.yield_fraction, 4)} % (${s.passed} pass, ${s.failed} fail; ${s.invalid} invalid not counted)`),
+    );
+    stats.dataset.cpk = s.cpk === null || s.cpk === undefined ? '' : String(s.cpk);
+    stats.dataset.n = String(s.n);
+    const pts = s.points || [];
+    note.textContent = pts.length < 2 ? 'The chart needs at least two valid measurements.' : `Individuals chart of the last ${pts.length} valid measurements (x: the measurement's place in time order; hover for the part).`;
+    if (pts.length < 1) {
+      plot.replaceChildren();
+      return;
+    }
+    const xs = pts.map((_, i) => i + 1);
+    const flat = (v) => xs.map(() => (v === null || v === undefined ? null : v));
+    const series = [
+      { label: `${s.parameter}`, unit: u, points: true },
+      { label: 'lower spec', unit: u, color: '#d62728', dash: true },
+      { label: 'upper spec', unit: u, color: '#d62728', dash: true },
+      { label: 'centre line', unit: u, color: '#2ca02c' },
+      { label: 'LCL', unit: u, color: '#9467bd', dash: true },
+      { label: 'UCL', unit: u, color: '#9467bd', dash: true },
+    ];
+    chart(plot, {
+      title: `${s.parameter}: individuals chart`,
+      kind: 'SPC',
+      x: { label: 'measurement', unit: '#' },
+      y: { label: s.parameter, unit: u },
+      series,
+      data: [xs, pts.map((p) => p.value), flat(s.lower), flat(s.upper), flat(s.center_line), flat(s.lcl), flat(s.ucl)],
+      height: 280,
+    });
+  }
+  sel.addEventListener('change', load);
+  last.addEventListener('change', load);
+  put(el, h('h2', {}, 'SPC'),
+    h('div', { class: 'form-grid' }, h('label', { for: 'spc-parameter' }, 'Parameter'), sel, h('label', { for: 'spc-last' }, 'Last N measurements'), last),
+    stats, note, plot, csv);
+  load();
+}
