@@ -247,12 +247,16 @@ impl Browser {
             .is_empty()
     }
 
+    /// Clicks the element; when the page re-rendered it between finding and
+    /// clicking (a live list redraws every refresh), finds it again (3 tries).
     pub async fn click(&self, css: &str) {
-        self.find(css)
-            .await
-            .click()
-            .await
-            .unwrap_or_else(|e| panic!("click {css}: {e}"));
+        for attempt in 1..=3 {
+            match self.find(css).await.click().await {
+                Ok(()) => return,
+                Err(e) if attempt < 3 && e.to_string().contains("stale element") => {}
+                Err(e) => panic!("click {css}: {e}"),
+            }
+        }
     }
 
     pub async fn type_into(&self, css: &str, text: &str) {

@@ -234,11 +234,14 @@ export async function render(main, ctx) {
       return [h('div', { class: 'verdict-big', id: 'verdict-big' }, big), h('div', { class: 'verdict-part' }, `part ${j.part_serial}`, h('span', { class: 'muted' }, `  job ${shortId(j.id)}, ${when(j.finished_at)}`)), sub];
     };
     // A job run under a recipe has a verdict whatever its state (a failed job is `invalid`).
+    // Only a job run under a recipe has one (asking for the others would be a 404).
     let v = null;
-    try {
-      v = await api(`/api/v1/jobs/${j.id}/verdict`);
-    } catch {
-      v = null;
+    if (j.request && j.request.recipe) {
+      try {
+        v = await api(`/api/v1/jobs/${j.id}/verdict`);
+      } catch {
+        v = null;
+      }
     }
     if (verdictFor !== `${j.id}:${j.state}`) return;
     const mid = j.measurement_ids && j.measurement_ids[0];

@@ -12,6 +12,14 @@ function lim(v, unit) {
   return v === null || v === undefined ? '\u2013' : `${num(v, 5)} ${unit || ''}`.trim();
 }
 
+/** The unit of a recipe parameter's limits (docs/qc.md, "quantity"). */
+const UNITS = { k0: 'N/m', keff: 'N/m', k_at_x: 'N/m', f0: 'Hz', q: '1', r: 'N s/m', k_asymmetry: '1', model_error: '%' };
+function unitOf(p) {
+  if (p.unit) return p.unit;
+  if (p.quantity === 'effect_size') return p.effect_parameter && p.effect_parameter.endsWith('_n') ? 'N' : '';
+  return UNITS[p.quantity] || '';
+}
+
 function paramLabel(p) {
   const x = p.x_m !== undefined && p.x_m !== null ? ` at x = ${num(p.x_m * 1e3, 3)} mm` : '';
   return `${p.name}${x}`;
@@ -71,8 +79,8 @@ async function renderRecipe(main, ctx, name) {
           h('tbody', {}, params.map((p) => h('tr', {},
             h('td', {}, paramLabel(p)),
             h('td', {}, p.quantity),
-            h('td', {}, lim(p.lower, p.unit)),
-            h('td', {}, lim(p.upper, p.unit)),
+            h('td', {}, lim(p.lower, unitOf(p))),
+            h('td', {}, lim(p.upper, unitOf(p))),
           )))),
         rec.kx_mask ? h('p', { class: 'muted' }, `K(x) mask: ${(rec.kx_mask.x_m || []).length} points over ${num(rec.kx_mask.x_m[0] * 1e3, 3)} \u2026 ${num(rec.kx_mask.x_m[rec.kx_mask.x_m.length - 1] * 1e3, 3)} mm`) : null,
         h('details', {}, h('summary', {}, `${(versions.items || []).length} versions`),
