@@ -151,7 +151,7 @@ pub fn propose(
         p.upper = None;
     }
     bare.kx_mask = None;
-    let mut by_level: Vec<Vec<Report>> = vec![Vec::new(); levels];
+    let mut by_level: Vec<Vec<RunFacts>> = vec![Vec::new(); levels];
     for g in golden {
         #[allow(clippy::needless_range_loop)] // li is also the level index searched for
         for li in 0..levels {
@@ -170,7 +170,7 @@ pub fn propose(
                     why.join("; ")
                 ));
             }
-            by_level[li].push(f.report.clone().unwrap_or_default());
+            by_level[li].push(f.clone());
         }
     }
     let mut out = recipe.clone();
@@ -187,9 +187,11 @@ pub fn propose(
         }
         let li = p.level_index.unwrap_or(0);
         let mut values = Vec::with_capacity(golden.len());
-        for (gi, r) in by_level[li].iter().enumerate() {
+        for (gi, f) in by_level[li].iter().enumerate() {
+            // The golden unit's own facts (its target level: Keff is judged there).
             let facts = RunFacts {
-                report: Some(r.clone()),
+                report: f.report.clone(),
+                target_xpeak_m: f.target_xpeak_m,
                 level_index: li,
                 ..Default::default()
             };
@@ -224,7 +226,10 @@ pub fn propose(
         let li = (0..levels)
             .max_by(|&a, &b| recipe.procedure.levels_m[a].total_cmp(&recipe.procedure.levels_m[b]))
             .unwrap_or(0);
-        let reports = &by_level[li];
+        let reports: Vec<Report> = by_level[li]
+            .iter()
+            .map(|f| f.report.clone().unwrap_or_default())
+            .collect();
         let lo = reports
             .iter()
             .map(|r| r.stiffness.valid_range_m[0])

@@ -657,6 +657,32 @@ pub fn validity_problems(recipe: &Recipe, facts: &RunFacts) -> Vec<InvalidReason
     out
 }
 
+/// Keff at the recipe's target amplitude: the first-harmonic describing
+/// function of the fitted K(x) over `c +- X_target` (c: the measured centre
+/// of the excursion at resonance). The level control stops near, not at,
+/// the target (a hardening spider jumps to about 7.5 mm for an 8 mm
+/// target, and another part of the same lot to 7.9 mm), and the Keff of
+/// such a part changes by about 10 % per 0.5 mm, so the Keff measured at the
+/// reached Xpeak would judge the level control, not the part. Without a
+/// target (or a fitted K(x)): the measured Keff.
+pub fn keff_at_target(r: &crate::identify::Report, target_xpeak_m: Option<f64>) -> f64 {
+    let ls = &r.large_signal;
+    let k = &r.stiffness.coefficients_n_per_m_pow_i_plus_1;
+    match target_xpeak_m {
+        Some(xt) if xt > 0.0 && !k.is_empty() => {
+            let c = 0.5 * (ls.x_min_at_resonance_m + ls.x_max_at_resonance_m);
+            let c = if c.is_finite() { c } else { 0.0 };
+            let v = crate::identify::large::describing_function_keff(k, c - xt, c + xt);
+            if v.is_finite() {
+                v
+            } else {
+                ls.keff_n_per_m
+            }
+        }
+        _ => ls.keff_n_per_m,
+    }
+}
+
 /// The verdict of one measurement under a recipe.
 pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
     let mut invalid = validity_problems(recipe, facts);
@@ -681,7 +707,7 @@ pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
             Quantity::F0 => ss.map(|s| s.f0_hz),
             Quantity::Q => ss.map(|s| s.q),
             Quantity::R => ss.map(|s| s.r_ns_per_m),
-            Quantity::Keff => Some(r.large_signal.keff_n_per_m),
+            Quantity::Keff => Some(keff_at_target(r, facts.target_xpeak_m)),
             Quantity::KAtX | Quantity::KAsymmetry => {
                 let x = p.x_m.unwrap_or(0.0);
                 if !(inside(x) && inside(-x)) {

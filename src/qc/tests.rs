@@ -416,3 +416,28 @@ fn spc_matches_the_closed_form() {
     let e = compute("x", "1", Some(0.0), Some(6.0), vec![], 0);
     assert!(e.mean.is_none() && e.cpk.is_none() && e.yield_fraction.is_none());
 }
+
+#[test]
+fn keff_is_judged_at_the_target_amplitude_not_the_reached_one() {
+    // K(x) = k0 + k2 x^2: the describing function at amplitude X is
+    // k0 + 3/4 k2 X^2 (exact), whatever Xpeak the level control reached.
+    let (k0, k2) = (2400.0, 3.0e7);
+    let mut r = report(k0, 0.0, k2, 6.0);
+    r.large_signal.xpeak_m = 0.0075;
+    r.large_signal.x_min_at_resonance_m = -0.0075;
+    r.large_signal.x_max_at_resonance_m = 0.0075;
+    let want = |x: f64| k0 + 0.75 * k2 * x * x;
+    let got = keff_at_target(&r, Some(0.008));
+    assert!((got - want(0.008)).abs() < 1e-9 * want(0.008), "{got}");
+    // A part that reached 8.0 mm instead gives the same figure.
+    r.large_signal.xpeak_m = 0.008;
+    assert!((keff_at_target(&r, Some(0.008)) - got).abs() < 1e-9 * got);
+    // A centre offset c: x = c + X cos(theta) gives k0 + k2 (3 c^2 + 3/4 X^2).
+    r.large_signal.x_min_at_resonance_m = -0.007;
+    r.large_signal.x_max_at_resonance_m = 0.009;
+    let c: f64 = 0.001;
+    let w = k0 + k2 * (3.0 * c * c + 0.75 * 0.008 * 0.008);
+    assert!((keff_at_target(&r, Some(0.008)) - w).abs() < 1e-9 * w);
+    // Without a target: the measured Keff.
+    assert_eq!(keff_at_target(&r, None), r.large_signal.keff_n_per_m);
+}
