@@ -456,6 +456,7 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
             (m_hash.as_str(), "#plot-kx canvas"),
             (c_hash.as_str(), "#plot-compare canvas"),
             (d_hash.as_str(), "#candidates tr"),
+            ("#/qc", "#recipes"),
         ];
         for (hash, ready) in views {
             b.goto(&format!("{}/{hash}", d.base)).await;
