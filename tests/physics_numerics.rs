@@ -190,7 +190,14 @@ fn energy_balance_holds() {
     let drive = SweepSpec::new(20.0, 80.0, 1.5, 30.0).samples(48000.0);
     let mut part = preset("spider_4in").unwrap();
     part.effects = all_effects();
-    // (a) adiabatic box without leak (the gas energy is exact), all dissipative effects, Le.
+    // A second mechanical mode inside the sweep (its spring and damper count).
+    part.second_mode = Some(springbench::physics::SecondMode {
+        mass_kg: 0.005,
+        f_hz: 60.0,
+        q: 5.0,
+    });
+    // (a) adiabatic box without leak (the gas energy is exact), all dissipative effects,
+    // a second mode, Le.
     let mut b = BenchParams::default();
     b.box_.leak_tau_s = f64::INFINITY;
     b.exciter.le_h = 1e-3;

@@ -42,6 +42,7 @@ fn load(case: &str) -> Case {
         ss_m2: f(&truth["ss_m2"]),
         effects: serde_json::from_value(truth["effects"].clone()).unwrap(),
         laser_noise_m: None,
+        second_mode: None,
     };
     let mut bench = BenchParams::default();
     let b = &truth["bench"];

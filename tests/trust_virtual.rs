@@ -147,6 +147,11 @@ fn check_effect(id: EffectId) {
             d.report.model.effects.ids(),
             d.report.small_signal.as_ref().map(|s| s.effects.ids())
         );
+        // A part with library effects only: nothing unexplained (no false
+        // alarm of tests/beyond_library.rs's report).
+        let u = &d.report.diagnostics.as_ref().unwrap()["unexplained"];
+        eprintln!("{id} seed {seed}: {}", u["signature"]);
+        assert_eq!(u["present"], false, "{id} seed {seed}: {u}");
         assert!(e.k_rms_percent <= 1.0, "{id} seed {seed}: {e:?}");
         assert!(e.k0_percent.abs() <= 3.0, "{id} seed {seed}: {e:?}");
         assert!(e.r_percent.abs() <= 5.0, "{id} seed {seed}: {e:?}");

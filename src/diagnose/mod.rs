@@ -10,6 +10,7 @@ pub mod spectrum;
 pub mod stats;
 pub mod svg;
 pub mod synth;
+pub mod unexplained;
 
 use crate::effects::EffectId;
 use crate::identify::{AnalyzeOptions, ForceBalanceData, Report};
@@ -68,6 +69,23 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         );
     }
     let mut diagnostics = result.diagnostics_json(&data);
+    // Beyond the library: what the chosen model leaves, described.
+    let mut unexplained = unexplained::describe(
+        &data,
+        &result.residual_n,
+        result.model_error_percent,
+        result.noise_floor_percent,
+    );
+    if unexplained.present {
+        warnings.push(unexplained.signature.clone());
+        if !unexplained.experiments.is_empty() {
+            warnings.push(format!(
+                "to tell more about the unexplained structure: {}",
+                unexplained.experiments.join("; or ")
+            ));
+        }
+    }
+    diagnostics["ambiguities"] = serde_json::Value::Array(ambiguities(&result));
     // The small-signal model: the same engine on the pre-measurement (creep,
     // friction and delay show below resonance), k0, f0 and Q from its choice.
     if let Some(plain) = report.small_signal.clone() {
@@ -104,6 +122,31 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
             )),
         }
     }
+    // Effects fitted while structure stays unexplained may stand in for it:
+    // their parameters are reported, not claimed as measured.
+    if unexplained.present {
+        let mut ids: Vec<String> = result
+            .model
+            .effect_ids
+            .iter()
+            .map(|e| e.as_str().to_string())
+            .collect();
+        if let Some(ss) = &report.small_signal {
+            for e in ss.effects.ids() {
+                if !ids.iter().any(|i| i == e.as_str()) {
+                    ids.push(e.as_str().to_string());
+                }
+            }
+        }
+        if !ids.is_empty() {
+            warnings.push(format!(
+                "the model still misses structure, so the parameters of {} may stand in for it: not claimed as measured",
+                ids.join(", ")
+            ));
+        }
+        unexplained.parameters_not_claimed = ids;
+    }
+    diagnostics["unexplained"] = serde_json::to_value(&unexplained).unwrap_or_default();
     if let Some(ss) = small_signal_comparison(set, &report) {
         diagnostics["comparison"]["small_signal"] = ss;
     }
@@ -118,6 +161,44 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     }
     report.warnings.extend(warnings);
     Ok(Diagnosis { report })
+}
+
+/// Pairs of effects the data cannot separate: an effect the ladder added and
+/// a significant candidate left out that removed nearly as much of the base
+/// model's error (at least 80 % of it, held-out) and mimics it (it is no
+/// longer significant once the first is in). Each names the experiment that
+/// would separate them.
+fn ambiguities(r: &engine::EngineResult) -> Vec<serde_json::Value> {
+    let mut out = Vec::new();
+    let find = |name: &str| r.candidates.iter().find(|c| c.effect == name);
+    for added in r.ladder.iter().filter_map(|s| s.added.as_deref()) {
+        let Some(a) = find(added) else { continue };
+        for b in &r.candidates {
+            let in_model = r
+                .ladder
+                .iter()
+                .any(|s| s.added.as_deref() == Some(&b.effect))
+                || r.model.effect_ids.iter().any(|e| e.as_str() == b.effect);
+            if b.effect == a.effect || in_model || !b.significant {
+                continue;
+            }
+            if b.error_reduction_percent >= 0.8 * a.error_reduction_percent {
+                let exp = EffectId::parse(&b.effect)
+                    .map(|e| engine::Term::Effect(e).separating_experiment())
+                    .unwrap_or("another drive level");
+                out.push(serde_json::json!({
+                    "effects": [a.effect, b.effect],
+                    "error_reduction_percent": [a.error_reduction_percent, b.error_reduction_percent],
+                    "separating_experiment": exp,
+                    "note": format!(
+                        "this data cannot separate {} from {} (they remove {:.0} % and {:.0} % of the base model's error); the ladder kept {}; to separate them: {}",
+                        a.effect, b.effect, a.error_reduction_percent, b.error_reduction_percent, a.effect, exp
+                    ),
+                }));
+            }
+        }
+    }
+    out
 }
 
 /// The small-signal transfer function `Hx = X / Mic` of the pre-measurement

@@ -37,6 +37,33 @@ pub struct PartSpec {
     /// is worse than the bench's (a dark or glossy surface); None: the bench's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser_noise_m: Option<f64>,
+    /// A second mechanical mode (a part of the moving mass on its own
+    /// spring). Deliberately *not* an effect of the library
+    /// (src/effects.rs): a part with it tests the diagnostics' report of
+    /// structure outside the library. None: the part moves as one body.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_mode: Option<SecondMode>,
+}
+
+/// A second mechanical mode: `mass_kg` of the moving mass (included in
+/// `moving_mass_kg`, so the part weighs the same) hangs on a spring and a
+/// damper that resonate at `f_hz` with quality factor `q` against a fixed
+/// main body: `m2 x2'' = k2 (x - x2) + r2 (v - v2)`, the main body feels the
+/// opposite force. Far below `f_hz` the part moves as one body.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SecondMode {
+    pub mass_kg: f64,
+    pub f_hz: f64,
+    pub q: f64,
+}
+
+impl SecondMode {
+    /// k2 (N/m) and r2 (N s/m).
+    pub fn spring_damper(&self) -> (f64, f64) {
+        let w = 2.0 * std::f64::consts::PI * self.f_hz;
+        (self.mass_kg * w * w, self.mass_kg * w / self.q)
+    }
 }
 
 impl PartSpec {
@@ -77,6 +104,17 @@ impl PartSpec {
                 return Err(format!("laser_noise_m must be in [0, 1e-3] m, got {n}"));
             }
         }
+        if let Some(m) = &self.second_mode {
+            if !(m.mass_kg.is_finite() && m.mass_kg > 0.0 && m.mass_kg < 0.5 * self.moving_mass_kg)
+            {
+                return Err(format!(
+                    "second_mode.mass_kg must be > 0 and below half the moving mass, got {}",
+                    m.mass_kg
+                ));
+            }
+            pos("second_mode.f_hz", m.f_hz)?;
+            pos("second_mode.q", m.q)?;
+        }
         self.effects.validate()?;
         Ok(())
     }
@@ -114,6 +152,8 @@ struct PartToml {
     ss_m2: f64,
     #[serde(default)]
     effects: crate::effects::Effects,
+    #[serde(default)]
+    second_mode: Option<SecondMode>,
 }
 
 const PRESETS: [(&str, &str); 5] = [
@@ -164,6 +204,7 @@ pub fn parse_part_toml(text: &str) -> Result<PartSpec, String> {
         ss_m2: t.ss_m2,
         effects: t.effects,
         laser_noise_m: None,
+        second_mode: t.second_mode,
     };
     p.validate().map_err(|e| format!("part TOML: {e}"))?;
     Ok(p)

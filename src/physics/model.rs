@@ -209,7 +209,7 @@ impl BenchParams {
 }
 
 /// Number of state variables.
-pub const NSTATE: usize = 7;
+pub const NSTATE: usize = 9;
 /// Indices into the state vector.
 pub mod idx {
     pub const X: usize = 0;
@@ -219,12 +219,20 @@ pub mod idx {
     pub const P: usize = 4;
     pub const I: usize = 5;
     pub const XR: usize = 6;
+    /// Displacement and velocity of the second mode's mass (`PartSpec::second_mode`).
+    pub const X2: usize = 7;
+    pub const V2: usize = 8;
 }
 
 /// Plain-number view of the part and the bench used inside the derivative.
 #[derive(Debug, Clone)]
 pub struct Model {
+    /// Mass of the main body (the moving mass less a second mode's mass).
     pub m: f64,
+    /// Second mode: mass (kg), spring (N/m), damper (N s/m); m2 = 0: none.
+    pub m2: f64,
+    pub k2: f64,
+    pub r2: f64,
     /// k_0..k_11, zero-padded (a fixed array keeps the inner loop short).
     pub k: [f64; 12],
     /// Highest non-zero power + 1.
@@ -245,6 +253,7 @@ pub struct Model {
     leak_cab_per_tau: f64,
     /// Any force effect present (skip their evaluation otherwise).
     any_force_effect: bool,
+    inv_m2: f64,
 }
 
 /// Instantaneous powers (W) and stored energies (J) for the energy balance.
@@ -271,8 +280,16 @@ impl Model {
             || fx.creep.is_some()
             || fx.stiffness_drift.is_some();
         let ex = bench.exciter;
+        let (m2, (k2, r2)) = part
+            .second_mode
+            .map_or((0.0, (0.0, 0.0)), |m| (m.mass_kg, m.spring_damper()));
+        let m1 = part.moving_mass_kg - m2;
         Model {
-            m: part.moving_mass_kg,
+            m: m1,
+            m2,
+            k2,
+            r2,
+            inv_m2: if m2 > 0.0 { 1.0 / m2 } else { 0.0 },
             k,
             k_len,
             r: part.r_ns_per_m,
@@ -291,7 +308,7 @@ impl Model {
             } else {
                 0.0
             },
-            inv_m: 1.0 / part.moving_mass_kg,
+            inv_m: 1.0 / m1,
             inv_mmd: 1.0 / ex.mmd_kg,
             inv_re: 1.0 / ex.re_ohm,
             inv_le: if ex.le_h > 0.0 { 1.0 / ex.le_h } else { 0.0 },
@@ -375,7 +392,14 @@ impl Model {
         } else {
             0.0
         };
-        let a = (self.ss * p - self.r * v - self.stiffness(x) * x - fe) * self.inv_m;
+        // Second mode: the force of its spring and damper on the main body.
+        let (v2, f2) = if self.m2 > 0.0 {
+            let v2 = s[idx::V2];
+            (v2, self.k2 * (x - s[idx::X2]) + self.r2 * (v - v2))
+        } else {
+            (0.0, 0.0)
+        };
+        let a = (self.ss * p - self.r * v - self.stiffness(x) * x - fe - f2) * self.inv_m;
         let ad = (ex.bl_tm * i - ex.rmd_ns_per_m * vd - ex.kmd_n_per_m * xd - ex.sd_m2 * p)
             * self.inv_mmd;
         let dvol = -ex.sd_m2 * vd + self.ss * v;
@@ -392,7 +416,7 @@ impl Model {
             Some(c) => (x - xr) / c.tau_s,
             None => 0.0,
         };
-        [v, a, vd, ad, dp, di, dxr]
+        [v, a, vd, ad, dp, di, dxr, v2, f2 * self.inv_m2]
     }
 
     /// Powers and stored energy at a state (for the energy-balance test).
@@ -444,6 +468,11 @@ impl Model {
         if let Some(c) = &fx.creep {
             stored += 0.5 * c.k_n_per_m * (x - xr) * (x - xr);
             diss += c.k_n_per_m * (x - xr) * (x - xr) / c.tau_s;
+        }
+        if self.m2 > 0.0 {
+            let (x2, v2) = (s[idx::X2], s[idx::V2]);
+            stored += 0.5 * self.m2 * v2 * v2 + 0.5 * self.k2 * (x - x2) * (x - x2);
+            diss += self.r2 * (v - v2) * (v - v2);
         }
         let _ = t;
         Energy {

@@ -31,6 +31,7 @@ pub fn truth_json(part: &PartSpec, bench: &BenchParams, seed: u64, outcome: &Out
         "R_ns_per_m": part.r_ns_per_m,
         "ss_m2": part.ss_m2,
         "effects": part.effects,
+        "second_mode": part.second_mode,
         "mic_gain": bench.microphone.gain_v_per_pa,
         "mic_delay_s": bench.microphone.delay_s
             + part.effects.channel_delay.map(|c| c.delay_s).unwrap_or(0.0),
