@@ -3,13 +3,12 @@
 //! unexplained structure reported with a signature, and no library effect is
 //! claimed with a parameter: whatever the ladder added to stand in for the
 //! mode is listed as "not claimed as measured". A plain part raises no
-//! alarm (the library parts are checked in tests/trust_virtual.rs). Two
-//! library effects this data cannot separate are reported as a pair with
-//! the experiment that separates them.
+//! alarm (the library parts are checked in tests/trust_virtual.rs). Pairs
+//! of library effects one level cannot separate: tests/series.rs.
 //!
 //! `SPRINGBENCH_TRUST_SEEDS=N` runs N seeds per case (default 1).
 use springbench::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
-use springbench::effects::{EffectId, Effects, QuadraticDamping};
+use springbench::effects::EffectId;
 use springbench::physics::{preset, simulate_recording_set, PartSpec, SecondMode};
 
 fn seeds() -> u64 {
@@ -115,36 +114,4 @@ fn plain_part_raises_no_alarm() {
             .iter()
             .any(|w| w.contains("outside the library")));
     }
-}
-
-#[test]
-fn friction_and_quadratic_damping_are_an_ambiguous_pair_at_one_level() {
-    // At one drive level a v|v| damping and a dry friction both add a loss
-    // at the velocity peaks: the ladder keeps the better one (the true one)
-    // and reports the other with the experiment that separates them.
-    let mut part = preset("spider_4in").unwrap();
-    part.effects = Effects {
-        quadratic_damping: Some(QuadraticDamping {
-            coeff_ns2_per_m2: 1.0,
-        }),
-        ..Default::default()
-    };
-    let d = run(&part, 90);
-    let dg = d.report.diagnostics.as_ref().unwrap();
-    eprintln!("ambiguities {}", dg["ambiguities"]);
-    assert_eq!(
-        d.report.model.effects.ids(),
-        vec![EffectId::QuadraticDamping]
-    );
-    assert_eq!(unexplained(&d)["present"], false);
-    let pair = dg["ambiguities"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|a| a["effects"] == serde_json::json!(["quadratic_damping", "coulomb_friction"]))
-        .unwrap_or_else(|| panic!("no pair in {}", dg["ambiguities"]));
-    assert!(pair["separating_experiment"]
-        .as_str()
-        .unwrap()
-        .contains("second drive level"));
 }

@@ -9,6 +9,7 @@
 use rand::{Rng, SeedableRng};
 use springbench::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use springbench::effects::*;
+use springbench::identify::large::describing_function_keff;
 use springbench::identify::Report;
 use springbench::physics::{preset, simulate_recording_set, PartSpec};
 
@@ -71,6 +72,11 @@ pub struct Errors {
     pub base_k_rms_percent: f64,
     pub k0_percent: f64,
     pub r_percent: f64,
+    /// Keff of the result against the part's own effective stiffness at the
+    /// measured excursion (describing function of the true K(x) x at the
+    /// resonance period's time) (%), and the same for `large_signal.base`.
+    pub keff_percent: f64,
+    pub base_keff_percent: f64,
 }
 
 fn k_of(c: &[f64], x: f64) -> f64 {
@@ -103,7 +109,14 @@ pub fn errors(part: &PartSpec, r: &Report) -> Errors {
     let base = &s.base;
     let k0_true = k_true(part, 0.0, 0.0);
     let ss = r.small_signal.as_ref().expect("small-signal fit");
+    let l = &r.large_signal;
+    let mut kt: Vec<f64> = part.k_coeffs_si.clone();
+    kt[0] = k_true(part, 0.0, l.resonance_time_s);
+    let keff_true = describing_function_keff(&kt, l.x_min_at_resonance_m, l.x_max_at_resonance_m);
+    let base_keff = l.base.as_ref().map_or(l.keff_n_per_m, |b| b.keff_n_per_m);
     Errors {
+        keff_percent: 100.0 * (l.keff_n_per_m / keff_true - 1.0),
+        base_keff_percent: 100.0 * (base_keff / keff_true - 1.0),
         k_rms_percent: k_rms(
             part,
             &s.coefficients_n_per_m_pow_i_plus_1,
@@ -155,6 +168,12 @@ fn check_effect(id: EffectId) {
         assert!(e.k_rms_percent <= 1.0, "{id} seed {seed}: {e:?}");
         assert!(e.k0_percent.abs() <= 3.0, "{id} seed {seed}: {e:?}");
         assert!(e.r_percent.abs() <= 5.0, "{id} seed {seed}: {e:?}");
+        assert!(e.keff_percent.abs() <= 1.5, "{id} seed {seed}: {e:?}");
+        // Keff comes from the model that holds the effect, with its error.
+        let l = &d.report.large_signal;
+        assert_eq!(l.keff_method.as_deref(), Some("chosen_model"));
+        let se = l.keff_se_n_per_m.unwrap();
+        assert!(se > 0.0 && se < 0.01 * l.keff_n_per_m, "{se}");
     }
 }
 

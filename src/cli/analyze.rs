@@ -26,6 +26,11 @@ pub struct AnalyzeArgs {
     /// Directory to write the diagnostic SVG plots into (with --diagnose).
     #[arg(long)]
     pub plots: Option<PathBuf>,
+    /// Recording sets of the same part at other levels, comma separated
+    /// (with --diagnose): K(x) and the effects fitted jointly over DIR and
+    /// these, beside each level's own fit.
+    #[arg(long, value_delimiter = ',')]
+    pub series: Vec<PathBuf>,
 }
 
 /// Parses `--method`.
@@ -55,6 +60,9 @@ pub fn check_flags(args: &AnalyzeArgs) -> Result<(), String> {
     }
     if !args.diagnose && args.plots.is_some() {
         return Err("--plots only acts with --diagnose (the plots are the diagnostics'); add --diagnose or drop --plots".into());
+    }
+    if !args.diagnose && !args.series.is_empty() {
+        return Err("--series only acts with --diagnose (the joint fit is the diagnostics'); add --diagnose or drop --series".into());
     }
     if args.order == Some(0) {
         return Err("--order must be at least 1".into());
@@ -123,18 +131,33 @@ pub fn table(r: &Report) -> String {
         "Large signal (main sweep), m = {:.4} kg",
         l.moving_mass_kg
     );
+    let from_model = l.keff_method.as_deref() == Some("chosen_model");
     let _ = writeln!(
         o,
-        "  fR      {:>10.3} Hz   (x lags the force by 90 degrees)",
-        l.resonance_hz
+        "  fR      {:>10.3} Hz   ({})",
+        l.resonance_hz,
+        if from_model {
+            "Keff of the chosen model's K(x) resonating with m"
+        } else {
+            "x lags the force by 90 degrees"
+        }
     );
     let _ = writeln!(
         o,
-        "  Keff    {:>10.1} N/m   ({:.4} N/mm) @ Xpeak = {:.3} mm",
+        "  Keff    {:>10.1} N/m{}   ({:.4} N/mm) @ Xpeak = {:.3} mm",
         l.keff_n_per_m,
+        l.keff_se_n_per_m
+            .map_or(String::new(), |se| format!(" ± {se:.1}")),
         l.keff_n_per_m * 1e-3,
         mm(l.xpeak_m)
     );
+    if let Some(b) = &l.base {
+        let _ = writeln!(
+            o,
+            "  base (phase method, no effects): fR {:.3} Hz, Keff {:.1} N/m",
+            b.resonance_hz, b.keff_n_per_m
+        );
+    }
     let _ = writeln!(
         o,
         "  Ceff    {:>10.4e} m/N ({:.4} mm/N)",

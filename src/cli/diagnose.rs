@@ -51,7 +51,26 @@ pub fn options(args: &AnalyzeArgs) -> Result<DiagnoseOptions, String> {
 /// writes the SVG plots when `--plots DIR` is given.
 pub fn run(set: &RecordingSet, args: &AnalyzeArgs) -> Result<(), String> {
     let opts = options(args)?;
-    let diagnosis = diagnose(set, &opts).map_err(|e| e.to_string())?;
+    let mut diagnosis = diagnose(set, &opts).map_err(|e| e.to_string())?;
+    let series = if args.series.is_empty() {
+        None
+    } else {
+        let mut sets = vec![set.clone()];
+        for dir in &args.series {
+            sets.push(RecordingSet::read_dir(dir).map_err(|e| format!("--series: {e}"))?);
+        }
+        let eopts = crate::diagnose::engine::EngineOptions {
+            order: opts.analyze.order,
+            forced: opts.effects.clone(),
+            ladder: !opts.exact,
+            ..Default::default()
+        };
+        let s = crate::diagnose::series::fit_series_sets(&sets, &eopts)?;
+        if let Some(d) = diagnosis.report.diagnostics.as_mut() {
+            d["series"] = serde_json::to_value(&s).unwrap_or_default();
+        }
+        Some(s)
+    };
     if let Some(dir) = &args.plots {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         for name in plot_names() {
@@ -69,8 +88,65 @@ pub fn run(set: &RecordingSet, args: &AnalyzeArgs) -> Result<(), String> {
         // then the diagnostics.
         print!("{}", super::analyze::table(&diagnosis.report));
         print!("\nDiagnostics\n{}", table(&diagnosis));
+        if let Some(s) = &series {
+            print!("\n{}", series_table(s));
+        }
     }
     Ok(())
+}
+
+/// The joint fit over a level series beside each level's own fit.
+pub fn series_table(s: &crate::diagnose::series::SeriesFit) -> String {
+    let mut o = String::new();
+    let ids = |e: &crate::effects::Effects| {
+        let v: Vec<&str> = e.ids().iter().map(|i| i.as_str()).collect();
+        if v.is_empty() {
+            "-".to_string()
+        } else {
+            v.join(" + ")
+        }
+    };
+    let k = |c: &[f64], x: f64| c.iter().rev().fold(0.0, |a, k| a * x + k);
+    let _ = writeln!(o, "Level series: one K(x), R and effects over all levels");
+    let _ = writeln!(
+        o,
+        "  {:<8} {:>16} {:>10} {:>10} {:>10} {:>10}  effects",
+        "", "range mm", "K(-x) N/m", "K(0) N/m", "K(+x) N/m", "R N s/m"
+    );
+    let j = &s.joint;
+    for (i, l) in s.levels.iter().enumerate() {
+        let c = &l.stiffness_coefficients_n_per_m_pow_i_plus_1;
+        let _ = writeln!(
+            o,
+            "  level {:<2} {:>7.3} .. {:<6.3} {:>10.1} {:>10.1} {:>10.1} {:>10.4}  {}",
+            i + 1,
+            l.range_m[0] * 1e3,
+            l.range_m[1] * 1e3,
+            k(c, l.range_m[0]),
+            k(c, 0.0),
+            k(c, l.range_m[1]),
+            l.r_ns_per_m,
+            ids(&l.effects)
+        );
+    }
+    let c = &j.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let _ = writeln!(
+        o,
+        "  joint    {:>7.3} .. {:<6.3} {:>10.1} {:>10.1} {:>10.1} {:>10.4}  {}",
+        j.valid_range_m[0] * 1e3,
+        j.valid_range_m[1] * 1e3,
+        k(c, j.valid_range_m[0]),
+        k(c, 0.0),
+        k(c, j.valid_range_m[1]),
+        j.r_ns_per_m,
+        ids(&j.effects)
+    );
+    let _ = writeln!(
+        o,
+        "  joint model error {:.3} % (noise floor {:.3} %), order {}",
+        j.model_error_percent, j.noise_floor_percent, j.order
+    );
+    o
 }
 
 /// The readable table of a diagnosis.

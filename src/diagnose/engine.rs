@@ -131,6 +131,14 @@ pub struct FittedModel {
     pub residual_percent: f64,
     /// Residual of blocked cross-validation (held-out data).
     pub cv_residual_percent: f64,
+    /// Block-robust covariance of the K(x) coefficients (row-major, same
+    /// units as the coefficients): for derived figures such as Keff.
+    #[serde(skip)]
+    pub stiffness_covariance: Vec<Vec<f64>>,
+    /// K(0) changes by this much per second (N/m/s) when stiffness drift is
+    /// in the model (K(x) above holds at `reference_time_s`).
+    #[serde(skip)]
+    pub dk0_dt_n_per_m_s: f64,
 }
 
 /// One candidate, ranked against the model it would extend.
@@ -808,6 +816,10 @@ fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<
         force_per_mic_n_per_v: s,
         residual_percent: pct(p, fit.sse),
         cv_residual_percent: pct(p, built.gram.cv_sse(folds)),
+        stiffness_covariance: (0..k_cov.nrows())
+            .map(|i| (0..k_cov.ncols()).map(|j| k_cov[(i, j)]).collect())
+            .collect(),
+        dk0_dt_n_per_m_s: effects.stiffness_drift.map_or(0.0, |d| d.dk0_dt_n_per_m_s),
     };
     (model, fit.beta)
 }

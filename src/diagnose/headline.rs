@@ -4,7 +4,9 @@
 //! at the ends of the measured range. Pure.
 
 use super::engine::{EngineResult, FittedModel};
-use crate::identify::{SmallSignal, Stiffness, StiffnessChange};
+use crate::identify::{
+    large::describing_function_keff, LargeSignal, SmallSignal, Stiffness, StiffnessChange,
+};
 
 fn k_of(k: &[f64], x: f64) -> f64 {
     k.iter().rev().fold(0.0, |acc, c| acc * x + c)
@@ -96,6 +98,69 @@ pub fn stiffness(plain: &Stiffness, r: &EngineResult) -> Stiffness {
         s.base = Some(Box::new(b));
     }
     s
+}
+
+/// Keff of the chosen model over the excursion at resonance and its
+/// block-robust standard error: the describing function is linear in the
+/// K(x) coefficients, `Keff = sum_i c_i D_i` with `D_i` the describing
+/// function of `x^i`, so `var(Keff) = D^T C D`. With stiffness drift, K(0)
+/// is moved to the resonance period's time.
+pub fn keff_of(m: &FittedModel, x_min_m: f64, x_max_m: f64, t_s: f64) -> (f64, f64) {
+    let mut k = m.stiffness_coefficients_n_per_m_pow_i_plus_1.clone();
+    if k.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    k[0] += m.dk0_dt_n_per_m_s * (t_s - m.reference_time_s.unwrap_or(t_s));
+    let keff = describing_function_keff(&k, x_min_m, x_max_m);
+    let d: Vec<f64> = (0..k.len())
+        .map(|i| {
+            let mut unit = vec![0.0; i + 1];
+            unit[i] = 1.0;
+            describing_function_keff(&unit, x_min_m, x_max_m)
+        })
+        .collect();
+    let c = &m.stiffness_covariance;
+    let mut var = 0.0;
+    for (i, di) in d.iter().enumerate() {
+        for (j, dj) in d.iter().enumerate() {
+            var += di * dj * c.get(i).and_then(|r| r.get(j)).copied().unwrap_or(0.0);
+        }
+    }
+    (keff, var.max(0.0).sqrt())
+}
+
+/// The headline large-signal values of a diagnosed report: with effects in
+/// the chosen model, Keff is the describing function of its K(x) over the
+/// measured excursion at resonance (with its standard error) and fR the
+/// frequency that Keff and the moving mass resonate at; the phase method's
+/// values (which an effect such as a delayed microphone or creep biases)
+/// stay beside in `base`. Without effects: the identification's values.
+pub fn large_signal(plain: &LargeSignal, r: &EngineResult) -> LargeSignal {
+    let m = &r.model;
+    if m.effect_ids.is_empty() {
+        return plain.clone();
+    }
+    let (keff, se) = keff_of(
+        m,
+        plain.x_min_at_resonance_m,
+        plain.x_max_at_resonance_m,
+        plain.resonance_time_s,
+    );
+    if !(keff.is_finite() && keff > 0.0 && plain.moving_mass_kg > 0.0) {
+        return plain.clone();
+    }
+    let mut base = plain.clone();
+    base.base = None;
+    LargeSignal {
+        resonance_hz: (keff / plain.moving_mass_kg).sqrt() / (2.0 * std::f64::consts::PI),
+        keff_n_per_m: keff,
+        ceff_m_per_n: 1.0 / keff,
+        keff_from_k_of_x_n_per_m: keff,
+        keff_se_n_per_m: Some(se),
+        keff_method: Some("chosen_model".into()),
+        base: Some(Box::new(base)),
+        ..plain.clone()
+    }
 }
 
 /// The headline small-signal values: from the small-signal model with

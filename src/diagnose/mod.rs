@@ -6,6 +6,7 @@
 pub mod engine;
 pub mod headline;
 pub mod regress;
+pub mod series;
 pub mod spectrum;
 pub mod stats;
 pub mod svg;
@@ -62,6 +63,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     // model's (the engine's force balance is the Two Signal one).
     if opts.analyze.method == crate::identify::Method::TwoSignal {
         report.stiffness = headline::stiffness(&report.stiffness, &result);
+        report.large_signal = headline::large_signal(&report.large_signal, &result);
     } else if !result.model.effect_ids.is_empty() {
         warnings.push(
             "the effects were fitted with the two-signal force balance; K(x) above is the one-signal fit without them"
@@ -85,7 +87,8 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
             ));
         }
     }
-    diagnostics["ambiguities"] = serde_json::Value::Array(ambiguities(&result));
+    diagnostics["ambiguities"] =
+        serde_json::Value::Array(ambiguities(&data, &result, &engine_opts));
     // The small-signal model: the same engine on the pre-measurement (creep,
     // friction and delay show below resonance), k0, f0 and Q from its choice.
     if let Some(plain) = report.small_signal.clone() {
@@ -163,39 +166,64 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     Ok(Diagnosis { report })
 }
 
-/// Pairs of effects the data cannot separate: an effect the ladder added and
-/// a significant candidate left out that removed nearly as much of the base
-/// model's error (at least 80 % of it, held-out) and mimics it (it is no
-/// longer significant once the first is in). Each names the experiment that
+/// Pairs of effects the data cannot separate: an effect A the ladder added
+/// and a significant candidate B left out that removed nearly as much of the
+/// base model's error (at least 80 % of it, held-out), and the swap test
+/// fails: with B in the model instead of A, A is not significant either (so
+/// neither is needed once the other is in). Each names the experiment that
 /// would separate them.
-fn ambiguities(r: &engine::EngineResult) -> Vec<serde_json::Value> {
+pub fn ambiguities(
+    d: &ForceBalanceData,
+    r: &engine::EngineResult,
+    opts: &engine::EngineOptions,
+) -> Vec<serde_json::Value> {
     let mut out = Vec::new();
     let find = |name: &str| r.candidates.iter().find(|c| c.effect == name);
     for added in r.ladder.iter().filter_map(|s| s.added.as_deref()) {
         let Some(a) = find(added) else { continue };
         for b in &r.candidates {
-            let in_model = r
-                .ladder
-                .iter()
-                .any(|s| s.added.as_deref() == Some(&b.effect))
-                || r.model.effect_ids.iter().any(|e| e.as_str() == b.effect);
+            let in_model = r.model.effect_ids.iter().any(|e| e.as_str() == b.effect);
             if b.effect == a.effect || in_model || !b.significant {
                 continue;
             }
-            if b.error_reduction_percent >= 0.8 * a.error_reduction_percent {
-                let exp = EffectId::parse(&b.effect)
-                    .map(|e| engine::Term::Effect(e).separating_experiment())
-                    .unwrap_or("another drive level");
-                out.push(serde_json::json!({
-                    "effects": [a.effect, b.effect],
-                    "error_reduction_percent": [a.error_reduction_percent, b.error_reduction_percent],
-                    "separating_experiment": exp,
-                    "note": format!(
-                        "this data cannot separate {} from {} (they remove {:.0} % and {:.0} % of the base model's error); the ladder kept {}; to separate them: {}",
-                        a.effect, b.effect, a.error_reduction_percent, b.error_reduction_percent, a.effect, exp
-                    ),
-                }));
+            if b.error_reduction_percent < 0.8 * a.error_reduction_percent {
+                continue;
             }
+            let (Ok(ea), Ok(eb)) = (EffectId::parse(&a.effect), EffectId::parse(&b.effect)) else {
+                continue;
+            };
+            // Swap: the chosen model with B instead of A, A ranked against it.
+            let mut forced: Vec<EffectId> = r
+                .model
+                .effect_ids
+                .iter()
+                .copied()
+                .filter(|e| *e != ea)
+                .collect();
+            forced.push(eb);
+            let swapped = engine::EngineOptions {
+                forced,
+                ladder: false,
+                order: Some(r.model.order),
+                ..opts.clone()
+            };
+            let a_after_b = engine::run(d, &swapped)
+                .ok()
+                .and_then(|s| s.candidates.into_iter().find(|c| c.effect == a.effect));
+            if a_after_b.as_ref().is_some_and(|c| c.significant) {
+                continue;
+            }
+            let exp = engine::Term::Effect(eb).separating_experiment();
+            out.push(serde_json::json!({
+                "effects": [a.effect, b.effect],
+                "error_reduction_percent": [a.error_reduction_percent, b.error_reduction_percent],
+                "p_value_of_first_after_second": a_after_b.map(|c| c.p_value),
+                "separating_experiment": exp,
+                "note": format!(
+                    "this data cannot separate {} from {} (they remove {:.0} % and {:.0} % of the base model's error, and neither is significant once the other is in); the ladder kept {}; to separate them: {}",
+                    a.effect, b.effect, a.error_reduction_percent, b.error_reduction_percent, a.effect, exp
+                ),
+            }));
         }
     }
     out

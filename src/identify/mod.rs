@@ -110,6 +110,23 @@ pub struct LargeSignal {
     /// 0.5 % (box air spring, damping).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub displacement_peak_note: Option<String>,
+    /// Time of the resonance period's centre (s from the start of the main
+    /// recording): where stiffness drift is evaluated for Keff.
+    #[serde(default)]
+    pub resonance_time_s: f64,
+    /// Block-robust standard error of Keff (N/m), when Keff comes from a
+    /// fitted model (diagnostics with effects); None for the phase method.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_se_n_per_m: Option<f64>,
+    /// How fR and Keff were found: "phase" (x lags the force by 90 degrees,
+    /// model-free) or "chosen_model" (the describing function of the chosen
+    /// model's K(x) over the excursion at resonance, fR = sqrt(Keff/m)/2 pi).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_method: Option<String>,
+    /// With effects in the chosen model: the identification's values (phase
+    /// method, no effects) in the same layout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<Box<LargeSignal>>,
 }
 
 /// Nonlinear stiffness K(x) = sum k_i x^i (x in m, K in N/m).
@@ -429,6 +446,10 @@ fn large_signal(
         keff_from_k_of_x_n_per_m: keff_kx,
         displacement_peak_hz: peak_hz,
         displacement_peak_note: note,
+        resonance_time_s: 0.5 * (period.start + period.end) / p.fs_hz,
+        keff_se_n_per_m: None,
+        keff_method: Some("phase".into()),
+        base: None,
     })
 }
 

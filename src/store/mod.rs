@@ -45,7 +45,13 @@ macro_rules! meas_select {
      json_object('keff_n_per_m', json_extract(m.result_json, '$.large_signal.keff_n_per_m'), \
                  'xpeak_m', json_extract(m.result_json, '$.large_signal.xpeak_m'), \
                  'resonance_hz', json_extract(m.result_json, '$.large_signal.resonance_hz'), \
-                 'k0_n_per_m', json_extract(m.result_json, '$.small_signal.k0_n_per_m')) AS summary"
+                 'k0_n_per_m', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 THEN NULL \
+                                    ELSE json_extract(m.result_json, '$.small_signal.k0_n_per_m') END, \
+                 'k0_null_reason', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 \
+                                    THEN printf('small_signal.reliable is false (k0 %.1f +- %.1f N/m, misfit %.2f %%): not a plain number', \
+                                         json_extract(m.result_json, '$.small_signal.k0_n_per_m'), \
+                                         json_extract(m.result_json, '$.small_signal.k0_se_n_per_m'), \
+                                         json_extract(m.result_json, '$.small_signal.misfit_percent')) END) AS summary"
     };
 }
 
@@ -1098,7 +1104,9 @@ mod tests {
             bench_id: Some("b1".into()),
             config: json!({"method": "two-signal"}),
             meta: json!({"moving_mass_kg": 0.05}),
-            result: Some(json!({"large_signal": {"keff_n_per_m": 1234.5}})),
+            result: Some(json!({"large_signal": {"keff_n_per_m": 1234.5},
+                "small_signal": {"k0_n_per_m": 1792.0, "k0_se_n_per_m": 210.0,
+                                 "misfit_percent": 12.5, "reliable": false}})),
             analysis_error: None,
             target_xpeak_m: Some(0.008),
             repeat_index: Some(0),
@@ -1129,6 +1137,12 @@ mod tests {
         assert_eq!(j.progress, 1.0);
         let (info, result, _) = s.get_measurement("m1").await.unwrap().unwrap();
         assert_eq!(info.summary["keff_n_per_m"], json!(1234.5));
+        // An unreliable small-signal k0 is never a plain number in the summary.
+        assert_eq!(info.summary["k0_n_per_m"], json!(null));
+        assert_eq!(
+            info.summary["k0_null_reason"],
+            json!("small_signal.reliable is false (k0 1792.0 +- 210.0 N/m, misfit 12.50 %): not a plain number")
+        );
         assert_eq!(
             result.unwrap()["large_signal"]["keff_n_per_m"],
             json!(1234.5)
