@@ -422,16 +422,20 @@ mod tests {
 
     #[test]
     fn example_emulated_bench_config_parses_with_the_feature() {
-        let text = include_str!("../deploy/emulated-bench.toml");
-        let r = Config::parse(text);
-        if cfg!(feature = "hardware") {
-            let cfg = r.expect("deploy/emulated-bench.toml is valid");
-            assert_eq!(cfg.benches[0].kind, BenchKind::Emulated);
-            let hw = cfg.benches[0].hardware.as_ref().unwrap();
-            assert_eq!(hw.calibration.amplifier_gain, 100.0);
-        } else {
-            let e = r.unwrap_err();
-            assert!(e.contains("`hardware` feature"), "{e}");
+        for text in [
+            include_str!("../deploy/emulated-bench.toml"),
+            include_str!("../deploy/emulated-serial-bench.toml"),
+        ] {
+            let r = Config::parse(text);
+            if cfg!(feature = "hardware") {
+                let cfg = r.expect("deploy/emulated*-bench.toml is valid");
+                assert_eq!(cfg.benches[0].kind, BenchKind::Emulated);
+                let hw = cfg.benches[0].hardware.as_ref().unwrap();
+                assert_eq!(hw.calibration.amplifier_gain, 100.0);
+            } else {
+                let e = r.unwrap_err();
+                assert!(e.contains("`hardware` feature"), "{e}");
+            }
         }
     }
 

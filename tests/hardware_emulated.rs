@@ -5,93 +5,18 @@
 #![cfg(feature = "hardware")]
 
 mod common;
+#[path = "common/hardware.rs"]
+mod hw;
 
 use common::{client, get, submit, terminal, wait_job, Daemon};
-use serde_json::{json, Value};
+use hw::k_rms_error_percent;
+use serde_json::json;
 use std::path::Path;
 use std::time::Duration;
 
-/// RMS of K_fit(x) - K_true(x) over the valid range, relative to RMS K_true (%).
-fn k_rms_error_percent(fit: &[f64], truth: &[f64], range: [f64; 2]) -> f64 {
-    let k = |c: &[f64], x: f64| c.iter().rev().fold(0.0, |acc, ci| acc * x + ci);
-    let n = 401;
-    let (mut e2, mut t2) = (0.0, 0.0);
-    for i in 0..n {
-        let x = range[0] + (range[1] - range[0]) * i as f64 / (n - 1) as f64;
-        e2 += (k(fit, x) - k(truth, x)).powi(2);
-        t2 += k(truth, x).powi(2);
-    }
-    100.0 * (e2 / t2).sqrt()
-}
-
-/// An emulated bench with an analog laser; `faults` is TOML for `[[benches.emulator.faults]]`.
+/// An emulated bench with the analog laser; `faults` is TOML for `[[benches.emulator.faults]]`.
 fn config(trace_dir: &Path, faults: &str) -> String {
-    format!(
-        r#"
-[[benches]]
-id = "emu-1"
-kind = "emulated"
-preset = "spider_4in"
-seed = 7
-limits = {{ max_displacement_m = 0.015, max_drive_v = 100.0 }}
-
-[benches.hardware]
-output_device = "emulated-out"
-input_device = "emulated-in"
-sample_rate_hz = 48000
-buffer_frames = 480
-output_channels = 2
-input_channels = 4
-channels = {{ drive = 0, microphone = 0, loopback = 1, laser = 2 }}
-
-[benches.hardware.calibration]
-dac_full_scale_v = 1.0
-amplifier_gain = 100.0
-adc_full_scale_v = 10.0
-loopback_divider = 0.05
-mic_sensitivity_v_per_pa = 0.0005
-mic_calibrated_on = "2026-10-01"
-
-[benches.hardware.laser]
-kind = "analog"
-scale_m_per_v = 0.005
-range_m = 0.025
-model = "emulated analog laser"
-serial = "EMU-0001"
-
-[benches.emulator]
-latency_s = 0.005
-trace_dir = "{}"
-{faults}
-"#,
-        trace_dir.display()
-    )
-}
-
-async fn self_check(c: &reqwest::Client, d: &Daemon) -> Value {
-    let r = c
-        .post(d.url("/api/v1/benches/emu-1/self-check"))
-        .json(&json!({}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 202);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    wait_job(c, d, &id, Duration::from_secs(120), terminal).await
-}
-
-async fn bench_state(c: &reqwest::Client, d: &Daemon) -> Value {
-    let b = get(c, d, "/api/v1/benches").await;
-    b["items"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|b| b["id"] == "emu-1")
-        .unwrap()
-        .clone()
+    hw::config(trace_dir, hw::ANALOG_LASER, faults)
 }
 
 /// A spider job through the emulated bench with the analog laser: K(x)
@@ -150,72 +75,14 @@ async fn analog_laser_job_recovers_k_and_reports_latency_and_calibration() {
     assert!((mp - 0.3).abs() < 0.05, "mic at silence {mp}");
 }
 
-/// Runs one fault scenario: the faulted job fails with a bench-fault problem,
-/// the drive reached zero within 50 ms of the event on the emulated output,
-/// the bench is faulted (and refuses jobs), /healthz answers, and after a
-/// passing self-check a job succeeds.
 async fn fault_scenario(faults: &str, expect_in_detail: &str) {
     let traces = tempfile::tempdir().unwrap();
-    let d = Daemon::start(&config(traces.path(), faults));
-    let c = client();
-    // Job 1: a self-check, so that job 2 is the first measurement.
-    let sc = self_check(&c, &d).await;
-    assert_eq!(sc["state"], "succeeded", "{sc}");
-    let id = submit(&c, &d, json!({"part": {"serial": "SP-F"}})).await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
-    assert_eq!(j["state"], "failed", "{j}");
-    assert_eq!(j["problem"]["type"], "/problems/bench-fault", "{j}");
-    let detail = j["problem"]["detail"].as_str().unwrap();
-    assert!(detail.contains(expect_in_detail), "{detail}");
-    // Measured on the emulated output: the drive was on at the event and zero within 50 ms.
-    let tr: Value =
-        serde_json::from_str(&std::fs::read_to_string(traces.path().join("run-2-2.json")).unwrap())
-            .unwrap();
-    let fs = tr["sample_rate_hz"].as_f64().unwrap();
-    let event = tr["event_sample"].as_u64().expect("event recorded") as f64;
-    let last = tr["last_nonzero_drive_sample"].as_u64().unwrap() as f64;
-    let to_zero_s = (last - event) / fs;
-    println!(
-        "{expect_in_detail}: drive zero {:.1} ms after the event; trace {tr}",
-        to_zero_s * 1e3
-    );
-    assert!(last > event, "the drive was already off at the event: {tr}");
-    assert!(
-        to_zero_s <= 0.05,
-        "drive reached zero {to_zero_s} s after the event"
-    );
-    // The bench is faulted and says why; the daemon is healthy.
-    let b = bench_state(&c, &d).await;
-    assert_eq!(b["state"], "faulted", "{b}");
-    assert!(
-        b["fault"]["detail"]
-            .as_str()
-            .unwrap()
-            .contains(expect_in_detail),
-        "{b}"
-    );
-    let h = get(&c, &d, "/healthz").await;
-    assert_eq!(h["status"], "ok");
-    let r = get(&c, &d, "/readyz").await;
-    assert!(r["benches"].to_string().contains("faulted"), "{r}");
-    // A job on the faulted bench fails at once, naming the fault.
-    let id = submit(&c, &d, json!({"part": {"serial": "SP-F"}})).await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(60), terminal).await;
-    assert_eq!(j["state"], "failed", "{j}");
-    assert!(
-        j["problem"]["detail"]
-            .as_str()
-            .unwrap()
-            .contains("self-check"),
-        "{j}"
-    );
-    // A passing self-check clears it; the next job succeeds.
-    let sc = self_check(&c, &d).await;
-    assert_eq!(sc["state"], "succeeded", "{sc}");
-    assert_eq!(bench_state(&c, &d).await["state"], "idle");
-    let id = submit(&c, &d, json!({"part": {"serial": "SP-F"}})).await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
-    assert_eq!(j["state"], "succeeded", "{j}");
+    hw::fault_scenario(
+        &config(traces.path(), faults),
+        traces.path(),
+        expect_in_detail,
+    )
+    .await;
 }
 
 #[tokio::test]
@@ -234,4 +101,70 @@ async fn displacement_limit_faults_the_bench_and_ramps_the_drive_down() {
         "displacement limit exceeded",
     )
     .await;
+}
+
+/// A cancel during a sweep on a bench paced in real time: the drive on the
+/// emulated output reaches zero within 50 ms of the moment the cancel request
+/// was sent (put on the output by the trace's wall-clock log of the blocks),
+/// the job is cancelled, the bench is not faulted.
+#[tokio::test]
+async fn cancel_during_a_sweep_ramps_the_drive_down_within_50_ms() {
+    let traces = tempfile::tempdir().unwrap();
+    let d = Daemon::start(&config(traces.path(), "paced = true\n"));
+    let c = client();
+    let sc = hw::self_check(&c, &d).await;
+    assert_eq!(sc["state"], "succeeded", "{sc}");
+    let id = submit(&c, &d, json!({"part": {"serial": "SP-C"}})).await;
+    wait_job(&c, &d, &id, Duration::from_secs(60), |s| s != "queued").await;
+    // 3 s into the 16 s pre-measurement sweep (paced: wall time is audio time).
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let t_cancel = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    let r = c
+        .post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
+        .header("content-type", "application/json")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let j = wait_job(&c, &d, &id, Duration::from_secs(60), terminal).await;
+    assert_eq!(j["state"], "cancelled", "{j}");
+    // The sweep that was playing: the last trace of job 2.
+    let last_sweep = (1..100)
+        .take_while(|k| traces.path().join(format!("run-2-{k}.json")).exists())
+        .last()
+        .expect("a trace of job 2");
+    let tr: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(traces.path().join(format!("run-2-{last_sweep}.json"))).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(tr["paced"], true);
+    let fs = tr["sample_rate_hz"].as_f64().unwrap();
+    // DAC samples played when the request was sent (the log's last block before it).
+    let clock: Vec<(f64, u64)> = serde_json::from_value(tr["clock"].clone()).unwrap();
+    let event = clock
+        .iter()
+        .take_while(|(t, _)| *t <= t_cancel)
+        .last()
+        .map_or(0, |p| p.1) as f64;
+    let last = tr["last_nonzero_drive_sample"].as_u64().unwrap() as f64;
+    let to_zero_s = (last - event) / fs;
+    println!(
+        "cancel: drive zero {:.1} ms after the request was sent (sweep {last_sweep}, event at {:.3} s of the sweep, peak {} V)",
+        to_zero_s * 1e3,
+        event / fs,
+        tr["peak_drive_v"]
+    );
+    assert!(
+        last > event,
+        "the drive was already off at the cancel: {tr}"
+    );
+    assert!(
+        to_zero_s <= 0.05,
+        "drive zero {to_zero_s} s after the cancel"
+    );
+    assert_eq!(hw::bench_state(&c, &d).await["state"], "idle");
+    assert_eq!(get(&c, &d, "/healthz").await["status"], "ok");
 }

@@ -128,6 +128,11 @@ pub enum LaserConfig {
         #[serde(default)]
         serial: String,
     },
+    /// A laser on a serial line (port, baud, protocol, rate); its samples are
+    /// put on the audio clock per job ([`crate::bench::align`]). On an
+    /// emulated bench `port` is not opened: the bench emulator opens a
+    /// pseudo-terminal and its laser emulator speaks the protocol there.
+    Serial(crate::bench::laser::SerialLaserConfig),
 }
 
 impl Default for LaserConfig {
@@ -143,9 +148,19 @@ impl Default for LaserConfig {
 }
 
 impl LaserConfig {
+    /// Largest |x| the sensor measures (m): beyond it is out of range (a
+    /// bench fault). A serial sensor with an unknown range flags out-of-range
+    /// samples itself: infinite here.
     pub fn range_m(&self) -> f64 {
+        use crate::bench::laser::ProtocolConfig as P;
         match self {
             LaserConfig::Analog { range_m, .. } => *range_m,
+            // Serial sensors report x from the middle of their span.
+            LaserConfig::Serial(c) => match &c.protocol {
+                P::Optoncdt(p) => p.range_m / 2.0,
+                P::Keyence(p) => p.range_m.map_or(f64::INFINITY, |r| r / 2.0),
+                P::AsciiLines(p) => p.range_m.map_or(f64::INFINITY, |r| r / 2.0),
+            },
         }
     }
 }
@@ -170,6 +185,45 @@ pub struct EmulatorConfig {
     /// Faults injected on purpose (tests and demonstrations).
     #[serde(default)]
     pub faults: Vec<FaultPlan>,
+    /// The laser emulator behind a `kind = "serial"` laser: its own clock.
+    #[serde(default)]
+    pub serial_laser: SerialLaserEmulation,
+    /// Deliver the captured blocks in real time (the wall clock paces the
+    /// emulated converter), as a real interface does; otherwise as fast as
+    /// the CPU runs the physics.
+    #[serde(default)]
+    pub paced: bool,
+}
+
+/// `[benches.emulator.serial_laser]`: the emulated serial sensor's clock and
+/// line (it speaks the configured protocol on a pseudo-terminal).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SerialLaserEmulation {
+    /// Clock error of the sensor (ppm, + = fast).
+    pub ppm: f64,
+    /// Input-clock time of the sensor's sample 0 (s).
+    pub offset_s: f64,
+    /// Sampling-instant jitter (s RMS).
+    pub jitter_s: f64,
+    /// Bytes leave in chunks of this much sensor time (s), like a USB-serial adapter's latency timer.
+    pub chunk_s: f64,
+    /// What the sensor says about itself (protocols with an identity command).
+    pub model: String,
+    pub serial: String,
+}
+
+impl Default for SerialLaserEmulation {
+    fn default() -> Self {
+        SerialLaserEmulation {
+            ppm: 150.0,
+            offset_s: 0.003,
+            jitter_s: 2e-6,
+            chunk_s: 0.016,
+            model: "ILD1420-40 (emulated)".into(),
+            serial: "EMU-LASER-1".into(),
+        }
+    }
 }
 
 fn default_emu_latency() -> f64 {
@@ -190,6 +244,8 @@ impl Default for EmulatorConfig {
             laser_noise_m: default_laser_noise(),
             trace_dir: None,
             faults: vec![],
+            serial_laser: SerialLaserEmulation::default(),
+            paced: false,
         }
     }
 }
@@ -217,6 +273,10 @@ pub enum FaultKind {
     AudioStreamError,
     /// The part slips in its clamp: the laser sees it move 30 mm outwards within 20 ms.
     PartSlips,
+    /// The serial laser's adapter is unplugged: the laser emulator closes its pseudo-terminal.
+    LaserUnplugged,
+    /// The serial laser sends bytes that are no frame of its protocol.
+    LaserGarbage,
 }
 
 impl HardwareConfig {
@@ -307,6 +367,11 @@ impl HardwareConfig {
                     return e(format!("laser.range_m must be > 0, got {range_m}"));
                 }
             }
+            LaserConfig::Serial(c) => {
+                // SerialLaserConfig's messages start with "laser.".
+                c.validate()
+                    .map_err(|m| format!("bench '{bench_id}': hardware.{m}"))?;
+            }
         }
         Ok(())
     }
@@ -327,6 +392,22 @@ impl EmulatorConfig {
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return e(format!("{n} must be >= 0, got {v}"));
+            }
+        }
+        let sl = &self.serial_laser;
+        if !(sl.ppm.is_finite() && sl.ppm.abs() <= 1000.0) {
+            return e(format!(
+                "serial_laser.ppm must be within +-1000, got {}",
+                sl.ppm
+            ));
+        }
+        for (n, v, hi) in [
+            ("offset_s", sl.offset_s, 1.0),
+            ("jitter_s", sl.jitter_s, 1e-3),
+            ("chunk_s", sl.chunk_s, 0.1),
+        ] {
+            if !(v.is_finite() && (0.0..=hi).contains(&v)) {
+                return e(format!("serial_laser.{n} must be in [0, {hi}], got {v}"));
             }
         }
         for f in &self.faults {

@@ -140,15 +140,35 @@ pub fn measurement_record(
             // Analog laser: displacement, microphone and loopback on one converter clock.
             json!({"method": "same converter", "offset_s": 0.0, "clock_ppm": 0.0, "residual_s": 0.0})
         });
+    let pre_alignment = pre.as_ref().and_then(|m| m.get("alignment")).cloned();
     json!({
         "calibration_id": cal.id,
         "calibration": cal.calibration,
         "sensors": cal.sensors,
         "latency_s": latency_s,
         "alignment": alignment,
+        "pre_alignment": pre_alignment,
         "main_sweep": main,
         "pre_sweep": pre,
     })
+}
+
+/// Why a measurement must not be fitted: the serial laser's samples of its
+/// narrow sweep or of its pre-measurement could not be put on the audio clock.
+pub fn alignment_invalid(record: &Value) -> Option<String> {
+    for (key, what) in [
+        ("alignment", "narrow sweep"),
+        ("pre_alignment", "pre-measurement"),
+    ] {
+        let a = &record[key];
+        if a.get("valid").and_then(Value::as_bool) == Some(false) {
+            let why = a["invalid_reason"].as_str().unwrap_or("no reason given");
+            return Some(format!(
+                "the laser alignment of the {what} is invalid: {why}"
+            ));
+        }
+    }
+    None
 }
 
 impl Runner {

@@ -987,7 +987,25 @@ fn execute(
                     w.clone()
                 });
             }
-            let analysed = if recipe.is_some_and(|r| r.needs_diagnostics()) {
+            let hw_record = calibration.map(|c| {
+                hardware::measurement_record(
+                    c,
+                    &bench.run_records()[runs_before..],
+                    outcome.pre.len(),
+                    sweep.signals.len(),
+                    li,
+                )
+            });
+            let not_aligned = hw_record.as_ref().and_then(hardware::alignment_invalid);
+            let analysed = if let Some(why) = &not_aligned {
+                // Never a fit of a displacement not on the audio clock.
+                done.log.push(format!(
+                    "level {} ({} m) not fitted: {why}",
+                    li + 1,
+                    sweep.target_xpeak_m
+                ));
+                Err(why.clone())
+            } else if recipe.is_some_and(|r| r.needs_diagnostics()) {
                 // Judging an effect's size needs the diagnostics' fitted effects.
                 let dopts = crate::diagnose::DiagnoseOptions {
                     analyze: opts.clone(),
@@ -1036,6 +1054,7 @@ fn execute(
                         (None, Some(e))
                     }
                 },
+                Err(e) if not_aligned.is_some() => (None, Some(e)),
                 Err(e) => {
                     done.log.push(format!(
                         "analysis of level {} ({} m) failed: {e}",
@@ -1051,14 +1070,8 @@ fn execute(
             let mut cfg_m = config.clone();
             cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
                                            "f_end_hz": sweep.f_end_hz});
-            if let Some(c) = calibration {
-                cfg_m["hardware"] = hardware::measurement_record(
-                    c,
-                    &bench.run_records()[runs_before..],
-                    outcome.pre.len(),
-                    sweep.signals.len(),
-                    li,
-                );
+            if let Some(h) = hw_record {
+                cfg_m["hardware"] = h;
             }
             done.measurements.push(NewMeasurement {
                 id: mid,

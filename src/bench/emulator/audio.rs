@@ -24,8 +24,15 @@ use std::collections::VecDeque;
 pub const SLIP_M: f64 = 0.03;
 pub const SLIP_TIME_S: f64 = 0.02;
 
-/// Receives the true displacement (m) at every DAC sample.
-pub type DisplacementTap = Box<dyn FnMut(&[f64]) + Send>;
+/// Receives the true displacement (m) at every DAC sample, in blocks, with
+/// the input-clock time (s) of the block's first sample: the time at which
+/// the emulated input converter samples that instant (the clock runs on
+/// across sweeps, so a serial laser emulator sees one continuous trajectory).
+pub type DisplacementTap = Box<dyn FnMut(f64, &[f64]) + Send>;
+
+/// Called when an injected laser fault ([`FaultKind::LaserUnplugged`],
+/// [`FaultKind::LaserGarbage`]) is due: the serial laser emulator acts on it.
+pub type LaserFaultHook = Box<dyn FnMut(FaultKind) + Send>;
 
 /// A physics-backed audio device.
 pub struct EmulatedAudio {
@@ -48,6 +55,9 @@ pub struct EmulatedAudio {
     run: Option<Run>,
     /// Receives the true displacement (m) at every DAC sample (serial laser emulators).
     tap: Option<DisplacementTap>,
+    laser_fault_hook: Option<LaserFaultHook>,
+    /// DAC samples stepped since the device was made (all runs): the emulated converter clock.
+    clock_k: u64,
 }
 
 /// State of one started stream pair.
@@ -68,6 +78,15 @@ struct Run {
     played_v: Vec<f32>,
     event_sample: Option<usize>,
     x_tap: Vec<f64>,
+    /// Converter clock (`clock_k`) of the first sample in `x_tap`.
+    x_tap_k: u64,
+    /// Converter clock at the run's first sample.
+    clock_k0: u64,
+    /// Wall-clock start (paced runs) and, after every captured block, (Unix
+    /// time in s, DAC samples played): lets a test put a wall-clock event
+    /// (a cancel request) on the emulated output.
+    started: std::time::Instant,
+    clock_log: Vec<(f64, usize)>,
 }
 
 impl EmulatedAudio {
@@ -104,12 +123,34 @@ impl EmulatedAudio {
             sweep: 0,
             run: None,
             tap: None,
+            laser_fault_hook: None,
+            clock_k: 0,
         }
     }
 
     /// Hands the true displacement at every DAC sample to `tap` (e.g. a serial laser emulator).
     pub fn set_displacement_tap(&mut self, tap: DisplacementTap) {
         self.tap = Some(tap);
+    }
+
+    /// Lets `hook` act on the injected laser faults when they are due.
+    pub fn set_laser_fault_hook(&mut self, hook: LaserFaultHook) {
+        self.laser_fault_hook = Some(hook);
+    }
+
+    /// Hands the displacement stepped so far to the tap.
+    fn flush_tap(&mut self) {
+        let (Some(tap), Some(run)) = (self.tap.as_mut(), self.run.as_mut()) else {
+            return;
+        };
+        if !run.x_tap.is_empty() {
+            tap(
+                (run.x_tap_k + self.in_lat as u64) as f64 / self.fs,
+                &run.x_tap,
+            );
+            run.x_tap_k += run.x_tap.len() as u64;
+            run.x_tap.clear();
+        }
     }
 
     /// Output-to-input latency in samples.
@@ -130,6 +171,7 @@ impl EmulatedAudio {
         }
         run.u_prev = u;
         run.dac_k += 1;
+        self.clock_k += 1;
         run.played_v.push(u as f32);
         let mut x = run.sim.state[idx::X];
         if let Some((FaultKind::PartSlips, at)) = run.fault {
@@ -139,6 +181,15 @@ impl EmulatedAudio {
         }
         if run.event_sample.is_none() && x.abs() > self.limit_m {
             run.event_sample = Some(k);
+        }
+        if let Some((kind @ (FaultKind::LaserUnplugged | FaultKind::LaserGarbage), at)) = run.fault
+        {
+            if k == at {
+                run.event_sample = Some(k);
+                if let Some(h) = self.laser_fault_hook.as_mut() {
+                    h(kind);
+                }
+            }
         }
         if self.tap.is_some() {
             run.x_tap.push(x);
@@ -168,6 +219,8 @@ impl EmulatedAudio {
                 let xr = xm.clamp(-1.02 * range_m, 1.02 * range_m);
                 put(self.map.laser, q((xr - offset_m) / scale_m_per_v));
             }
+            // The serial laser emulator samples x through the tap.
+            LaserConfig::Serial(_) => {}
         }
         run.adc_line.extend(frame);
     }
@@ -179,7 +232,10 @@ impl EmulatedAudio {
         let last_nonzero = run.played_v.iter().rposition(|u| u.abs() > 1e-6);
         let fault_sample = run.fault.map(|(_, s)| s);
         let event = match run.fault {
-            Some((FaultKind::PartSlips, _)) => run.event_sample,
+            Some((
+                FaultKind::PartSlips | FaultKind::LaserUnplugged | FaultKind::LaserGarbage,
+                _,
+            )) => run.event_sample,
             Some((FaultKind::AudioStreamError, s)) if run.stream_error_sent => Some(s),
             _ => None,
         };
@@ -194,6 +250,8 @@ impl EmulatedAudio {
             "last_nonzero_drive_sample": last_nonzero,
             "peak_drive_v": run.played_v.iter().fold(0.0f32, |a, u| a.max(u.abs())),
             "latency_samples": self.latency_samples(),
+            "paced": self.emu.paced,
+            "clock": run.clock_log,
         });
         let _ = std::fs::create_dir_all(dir);
         let path = dir.join(format!("run-{}-{}.json", self.job_seq, self.sweep));
@@ -240,6 +298,10 @@ impl AudioIo for EmulatedAudio {
             played_v: Vec::new(),
             event_sample: None,
             x_tap: Vec::new(),
+            x_tap_k: self.clock_k,
+            clock_k0: self.clock_k,
+            started: std::time::Instant::now(),
+            clock_log: Vec::new(),
         });
         Ok(())
     }
@@ -257,6 +319,15 @@ impl AudioIo for EmulatedAudio {
                 ));
             }
         }
+        if self.emu.paced {
+            // A real device delivers the block when its last frame was converted.
+            let due = run.started
+                + std::time::Duration::from_secs_f64((run.adc_k + self.block) as f64 / self.fs);
+            let now = std::time::Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
         for _ in 0..self.block {
             self.step();
         }
@@ -264,10 +335,11 @@ impl AudioIo for EmulatedAudio {
         let n = self.block * self.in_channels;
         out.extend(run.adc_line.drain(..n));
         run.adc_k += self.block;
-        if let Some(tap) = self.tap.as_mut() {
-            tap(&run.x_tap);
-            run.x_tap.clear();
-        }
+        let unix_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        run.clock_log.push((unix_s, run.dac_k));
+        self.flush_tap();
         Ok(())
     }
 
@@ -288,8 +360,16 @@ impl AudioIo for EmulatedAudio {
             self.step();
             steps += 1;
         }
+        self.flush_tap();
         let run = self.run.take().expect("started");
         self.write_trace(&run);
+    }
+
+    fn input_clock(&self) -> Option<(u32, u64)> {
+        // One clock for the device's life: captured frame j of a run is
+        // converter sample clock_k0 + j (the input line delays by in_lat what
+        // the physics did in_lat samples before).
+        self.run.as_ref().map(|r| (0, r.clock_k0))
     }
 
     fn describe(&self) -> String {

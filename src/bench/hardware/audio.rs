@@ -29,4 +29,11 @@ pub trait AudioIo: Send {
     fn stop(&mut self, timeout_s: f64);
     /// Device names and sample format, for the measurement record.
     fn describe(&self) -> String;
+    /// The input clock of the running stream: its epoch (incremented when the
+    /// converter's frame counter restarted) and the frame position of the
+    /// first captured frame. `None`: unknown (each stream start is a new
+    /// epoch at position 0).
+    fn input_clock(&self) -> Option<(u32, u64)> {
+        None
+    }
 }

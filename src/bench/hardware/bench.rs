@@ -13,6 +13,7 @@
 use super::audio::{AudioError, AudioIo};
 use super::drive::DriveSource;
 use super::latency::{estimate_latency, LatencyEstimate};
+use super::serial_rig::SerialRig;
 use crate::bench::settings::{HardwareConfig, LaserConfig};
 use crate::bench::{Bench, BenchError, Block, Control, Limits};
 use crate::recording::Signals;
@@ -41,6 +42,11 @@ pub struct RunInfo {
     pub drive_clamped_samples: u64,
     /// Largest applied drive seen on the loopback (V).
     pub peak_drive_v: f64,
+    /// Serial laser: how its samples were put on the audio clock (method,
+    /// validity and reason, offset, clock ratio, residual, sensor identity).
+    /// `None` with an analog laser (one converter clock).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<serde_json::Value>,
 }
 
 /// The channels of one capture, in SI, on the input clock.
@@ -70,6 +76,12 @@ pub struct HardwareBench {
     /// Latency (samples) used to hand blocks to the observer before this sweep's own is measured.
     last_latency: usize,
     runs: Vec<RunInfo>,
+    /// The serial laser, when `hw.laser` is `kind = "serial"`.
+    serial: Option<SerialRig>,
+    /// Input-clock epoch and frame position of the last capture's first frame.
+    clock: (u32, u64),
+    /// Captures started (the epoch when the device does not say).
+    captures: u32,
 }
 
 impl HardwareBench {
@@ -81,7 +93,16 @@ impl HardwareBench {
             audio,
             last_latency: 0,
             runs: Vec::new(),
+            serial: None,
+            clock: (0, 0),
+            captures: 0,
         }
+    }
+
+    /// Attaches the serial laser (`hw.laser` of `kind = "serial"`).
+    pub fn with_serial_laser(mut self, rig: SerialRig) -> Self {
+        self.serial = Some(rig);
+        self
     }
 
     /// What every sweep so far measured about the bench, oldest first.
@@ -116,6 +137,8 @@ impl HardwareBench {
                 } => cap
                     .displacement_m
                     .push(offset_m + scale_m_per_v * get(ch.laser)),
+                // Filled from the serial laser after each block.
+                LaserConfig::Serial(_) => {}
             }
         }
     }
@@ -165,9 +188,20 @@ impl HardwareBench {
         let ramp_len = ((self.hw.ramp_down_s * fs).round() as usize).max(1);
         let src = DriveSource::new(dac, limit_dac, ramp_len);
         let shared = src.shared();
-        self.audio
-            .start(src)
-            .map_err(|e| BenchError::Fault(format!("audio device: {e}")))?;
+        self.captures += 1;
+        if let Some(rig) = self.serial.as_mut() {
+            // Audio time is not known before the start: the collection stamps of
+            // samples from before the sweep are refreshed by the first block.
+            rig.begin_sweep(0.0).map_err(BenchError::Fault)?;
+        }
+        if let Err(e) = self.audio.start(src) {
+            if let Some(rig) = self.serial.as_mut() {
+                rig.end_sweep();
+            }
+            return Err(BenchError::Fault(format!("audio device: {e}")));
+        }
+        let (epoch, pos0) = self.audio.input_clock().unwrap_or((self.captures, 0));
+        self.clock = (epoch, pos0);
         let mut cap = Capture::default();
         let mut buf = Vec::new();
         let mut outcome: Result<(), BenchError> = Ok(());
@@ -184,6 +218,15 @@ impl HardwareBench {
             }
             let from = cap.len();
             self.convert(&buf, &mut cap);
+            if let Some(rig) = self.serial.as_mut() {
+                let now_s = (pos0 + cap.len() as u64) as f64 / fs;
+                if let Err(m) = rig.after_block(epoch, now_s) {
+                    outcome = Err(BenchError::Fault(m));
+                    break;
+                }
+                let len = cap.len();
+                rig.fill(epoch, pos0 as f64 / fs, fs, &mut cap.displacement_m, len);
+            }
             if let Err(m) = self.check(&cap, from, max_drive_v) {
                 outcome = Err(BenchError::Fault(m));
                 break;
@@ -199,6 +242,15 @@ impl HardwareBench {
         // Let the ramp (or the played-out signal's silence) reach the output, then stop.
         self.audio
             .stop(self.hw.ramp_down_s + self.hw.max_latency_s + 0.25);
+        if let Some(rig) = self.serial.as_mut() {
+            if outcome.is_ok() {
+                let end_s = (pos0 + cap.len() as u64) as f64 / fs;
+                if let Err(m) = rig.finish(epoch, end_s) {
+                    outcome = Err(BenchError::Fault(m));
+                }
+            }
+            rig.end_sweep();
+        }
         outcome.map(|_| (cap, shared.clamped()))
     }
 
@@ -249,6 +301,18 @@ impl Bench for HardwareBench {
             match &self.hw.laser {
                 LaserConfig::Analog { model, serial, .. } =>
                     format!("analog {model} {serial}").trim_end().to_string(),
+                LaserConfig::Serial(c) => match &self.serial {
+                    Some(r) => {
+                        let id = r.identity();
+                        format!(
+                            "serial {} on {} ({} Hz): {} {}",
+                            id.protocol, c.port, c.rate_hz, id.model, id.serial
+                        )
+                        .trim_end()
+                        .to_string()
+                    }
+                    None => format!("serial on {} (not open)", c.port),
+                },
             }
         )
     }
@@ -306,12 +370,19 @@ impl Bench for HardwareBench {
             s.resize(n, 0.0);
             s
         };
-        let signals = Signals {
+        let mut signals = Signals {
             sample_rate_hz: fs,
             displacement_m: seg(&cap.displacement_m),
             microphone_v: seg(&cap.microphone_v),
             drive_v: Some(seg(&cap.drive_v)),
         };
+        let (epoch, pos0) = self.clock;
+        let alignment = self.serial.as_mut().map(|rig| {
+            let start_s = (pos0 + l as u64) as f64 / fs;
+            let al = rig.align(epoch, start_s, fs, &signals.microphone_v);
+            signals.displacement_m = al.displacement_m;
+            alignment_record(&al.report, rig.identity())
+        });
         self.runs.push(RunInfo {
             frames: n,
             latency_s: est.latency_samples / fs,
@@ -320,9 +391,41 @@ impl Bench for HardwareBench {
             loopback_gain: est.gain,
             drive_clamped_samples: clamped,
             peak_drive_v: cap.drive_v.iter().fold(0.0f64, |a, u| a.max(u.abs())),
+            alignment,
         });
         Ok(signals)
     }
+}
+
+/// What a measurement stores about a serial laser's alignment (JSON; finite
+/// numbers only: an unknown figure is null).
+fn alignment_record(
+    r: &crate::bench::align::AlignmentReport,
+    id: &crate::bench::laser::LaserIdentity,
+) -> serde_json::Value {
+    let f = |v: f64| v.is_finite().then_some(v);
+    let method = match r.clock {
+        crate::bench::laser::SampleClock::DeviceCounter => "device counter + force balance",
+        crate::bench::laser::SampleClock::DeviceStream => "counted stream + force balance",
+        crate::bench::laser::SampleClock::HostPoll => "none (host poll times)",
+    };
+    serde_json::json!({
+        "method": method,
+        "valid": r.valid,
+        "invalid_reason": r.invalid_reason,
+        "offset_s": f(r.offset_s),
+        "clock_ppm": f(r.ratio_ppm),
+        "clock_ppm_stderr": f(r.ratio_stderr_ppm),
+        "residual_s": f(r.residual_rms_s),
+        "residual_max_s": f(r.residual_max_s),
+        "line_stderr_s": f(r.line_stderr_s),
+        "windows": r.windows,
+        "job_windows": r.job_windows,
+        "dropped_samples": r.dropped_samples,
+        "fit_residual": f(r.fit_residual),
+        "nominal_rate_hz": r.nominal_rate_hz,
+        "sensor": id,
+    })
 }
 
 /// Root mean square about the mean, and the mean.

@@ -38,6 +38,11 @@ pub enum FeedValue {
 /// Displacement (m) as a function of audio-clock time (s).
 pub trait DisplacementFeed: Send {
     fn sample(&mut self, t_audio_s: f64) -> FeedValue;
+    /// The latest audio time the feed can answer, if it is a live one (a
+    /// polled sensor answers with the value "now").
+    fn latest_s(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// A precomputed trajectory: `x[k]` at audio time `start_s + k / rate_hz`,
@@ -139,6 +144,12 @@ impl DisplacementFeed for SharedFeed {
         let hi = (i + 3).min(r.x.len());
         let seg: Vec<f64> = r.x.range(lo..hi).copied().collect();
         FeedValue::Value(cubic(&seg, u - lo as f64).unwrap_or(r.x[0]))
+    }
+
+    fn latest_s(&self) -> Option<f64> {
+        let r = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        (r.start_s.is_finite() && r.x.len() >= 4)
+            .then(|| r.start_s + (r.x.len() - 3) as f64 / r.rate_hz)
     }
 }
 
@@ -267,6 +278,11 @@ impl LaserEmulator {
     pub fn close(&self) {
         self.faults.close.store(true, Ordering::Release);
     }
+    /// A handle that requests faults from another thread (e.g. an emulated
+    /// audio device's fault plan).
+    pub fn controls(&self) -> EmulatorControls {
+        EmulatorControls(self.faults.clone())
+    }
     /// Device samples sent so far.
     pub fn samples_sent(&self) -> u64 {
         self.sent.load(Ordering::Acquire)
@@ -274,6 +290,21 @@ impl LaserEmulator {
     /// When the emulator closed the pty (after [`LaserEmulator::close`]).
     pub fn closed_at(&self) -> Option<Instant> {
         *self.closed_at.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// Requests faults of a running [`LaserEmulator`].
+#[derive(Debug, Clone)]
+pub struct EmulatorControls(Arc<Faults>);
+
+impl EmulatorControls {
+    /// As [`LaserEmulator::close`].
+    pub fn close(&self) {
+        self.0.close.store(true, Ordering::Release);
+    }
+    /// As [`LaserEmulator::inject_garbage`].
+    pub fn inject_garbage(&self) {
+        self.0.garbage.store(true, Ordering::Release);
     }
 }
 
@@ -425,7 +456,7 @@ fn run(
                         // The value now: audio time from the wall clock or the feed.
                         let t_now = match cfg.pacing {
                             Pacing::Wall { epoch } => epoch.elapsed().as_secs_f64(),
-                            Pacing::Unpaced => cfg.t_of(n),
+                            Pacing::Unpaced => feed.latest_s().unwrap_or_else(|| cfg.t_of(n)),
                         };
                         let x = match feed.sample(t_now) {
                             FeedValue::Value(x) => x,

@@ -371,6 +371,10 @@ pub trait LaserSource: Send {
     fn fault_watch(&self) -> FaultWatch;
     /// Stops streaming/polling (the port stays open; `start` again to resume).
     fn stop(&mut self);
+    /// Arms (default after `start`) or disarms the silence watch: a bench
+    /// disarms it between sweeps, when an emulated sensor has nothing to
+    /// send; arming restarts the silence clock.
+    fn arm(&mut self, _armed: bool) {}
 }
 
 /// Unwraps a device counter of `bits` bits into a monotonic index.

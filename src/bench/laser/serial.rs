@@ -35,6 +35,8 @@ pub struct SerialLaser {
     shared: Arc<Mutex<Shared>>,
     watch: FaultWatch,
     stop: Arc<AtomicBool>,
+    /// The silence watch is on (see [`LaserSource::arm`]).
+    armed: Arc<AtomicBool>,
     thread: Option<JoinHandle<(Port, Box<dyn LaserProtocol>)>>,
 }
 
@@ -141,6 +143,7 @@ impl SerialLaser {
             shared: Arc::default(),
             watch: FaultWatch::new(),
             stop: Arc::new(AtomicBool::new(false)),
+            armed: Arc::new(AtomicBool::new(true)),
             thread: None,
         })
     }
@@ -201,6 +204,7 @@ impl LaserSource for SerialLaser {
         let shared = self.shared.clone();
         let watch = self.watch.clone();
         let stop = self.stop.clone();
+        let armed = self.armed.clone();
         let rate = self.cfg.rate_hz;
         let stall = Duration::from_secs_f64(self.cfg.stall_timeout_s);
         let thread = std::thread::Builder::new()
@@ -214,6 +218,7 @@ impl LaserSource for SerialLaser {
                     stall,
                     &shared,
                     &stop,
+                    &armed,
                 );
                 if let Err(e) = r {
                     watch.raise(e.kind());
@@ -244,6 +249,10 @@ impl LaserSource for SerialLaser {
     fn stop(&mut self) {
         self.join();
     }
+
+    fn arm(&mut self, armed: bool) {
+        self.armed.store(armed, Ordering::Release);
+    }
 }
 
 impl Drop for SerialLaser {
@@ -253,7 +262,8 @@ impl Drop for SerialLaser {
 }
 
 /// The reader thread: feeds bytes to the protocol, numbers the samples,
-/// polls (polled protocols), watches for silence.
+/// polls (polled protocols), watches for silence (when armed).
+#[allow(clippy::too_many_arguments)]
 fn read_loop(
     port: &mut Port,
     proto: &mut dyn LaserProtocol,
@@ -262,6 +272,7 @@ fn read_loop(
     stall: Duration,
     shared: &Mutex<Shared>,
     stop: &AtomicBool,
+    armed: &AtomicBool,
 ) -> Result<(), LaserError> {
     let clock = proto.clock();
     let bits = proto.counter_bits();
@@ -275,6 +286,7 @@ fn read_loop(
     let mut next_poll = Instant::now();
     let mut poll_sent: Option<Instant> = None;
     let mut batch = Vec::new();
+    let mut was_armed = true;
     while !stop.load(Ordering::Acquire) {
         // Polled: one request in flight, at the configured rate.
         if let Some(req) = &poll_req {
@@ -340,8 +352,23 @@ fn read_loop(
             parsed?;
         }
         // Silence: a streamed sensor that stopped, or an unanswered poll.
+        let is_armed = armed.load(Ordering::Acquire);
+        if is_armed && !was_armed {
+            last_value = arrived;
+            if poll_sent.is_some() {
+                poll_sent = Some(arrived);
+            }
+        }
+        was_armed = is_armed;
         let silent = arrived.saturating_duration_since(last_value);
         let poll_late = poll_sent.is_some_and(|t| arrived.saturating_duration_since(t) > stall);
+        if !is_armed {
+            if poll_late {
+                // Unwatched: ask again rather than wait forever.
+                poll_sent = None;
+            }
+            continue;
+        }
         if silent > stall.max(poll_period * 3) || poll_late {
             return Err(LaserError::Stalled {
                 silent_ms: silent.as_secs_f64() * 1e3,
