@@ -26,7 +26,7 @@ use crate::bench::laser::{LaserIdentity, LaserSample, LaserSource, SampleClock};
 use std::time::{Duration, Instant};
 
 /// The laser may lag the captured audio by this much before the bench waits for it (s).
-pub const CATCH_UP_MARGIN_S: f64 = 0.02;
+pub const CATCH_UP_MARGIN_S: f64 = 0.005;
 /// Longest wall-clock wait for the laser to catch up before it is a fault (s).
 pub const CATCH_UP_TIMEOUT_S: f64 = 2.0;
 /// Laser samples kept from before a sweep (s of laser time).
