@@ -1,5 +1,6 @@
 //! `identify::analyze` on the p1_spider reference set (files read once,
-//! outside the timed loop). Run single-threaded: `cargo bench --bench analyze`.
+//! outside the timed loop, except `read_and_analyze`: the CLI's whole path
+//! without process start). Run single-threaded: `cargo bench --bench analyze`.
 use criterion::{criterion_group, criterion_main, Criterion};
 use springbench::identify::{analyze, AnalyzeOptions, Method};
 use springbench::recording::RecordingSet;
@@ -23,6 +24,16 @@ fn bench(c: &mut Criterion) {
             b.iter(|| analyze(black_box(&set), &opts).unwrap())
         });
     }
+    // The whole path of `springbench analyze DIR` without process start:
+    // reading pre.wav, main.wav and meta.json (15 MB) plus the analysis.
+    g.bench_function("read_and_analyze", |b| {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/reference-recordings/p1_spider");
+        b.iter(|| {
+            let set = RecordingSet::read_dir(&dir).unwrap();
+            analyze(black_box(&set), &AnalyzeOptions::default()).unwrap()
+        })
+    });
     g.finish();
 }
 
