@@ -158,6 +158,11 @@ pub struct Config {
     pub max_upload_bytes: usize,
     /// Largest accepted JSON body, bytes.
     pub max_json_bytes: usize,
+    /// Longest recording (frames) analysed, fitted or diagnosed: the analysis
+    /// holds the recording in memory several times over. Longer imports are
+    /// stored without a result (`analysis_error` says why); fits and
+    /// diagnostics of them answer 422. Default 2^22 (87 s at 48 kHz).
+    pub max_analysis_frames: u64,
     pub auth: Auth,
     pub benches: Vec<BenchConfig>,
     pub defaults: JobDefaults,
@@ -202,6 +207,7 @@ impl Default for Config {
             data_dir: PathBuf::from("./springbench-data"),
             max_upload_bytes: 256 * 1024 * 1024,
             max_json_bytes: 1024 * 1024,
+            max_analysis_frames: 1 << 22,
             auth: Auth::default(),
             benches: vec![BenchConfig {
                 id: "virtual-1".into(),

@@ -195,3 +195,180 @@ async fn overflowing_inputs_are_refused_per_field() {
     let jobs = common::get(&c, &d, "/api/v1/jobs").await;
     assert_eq!(jobs["items"].as_array().unwrap().len(), 0);
 }
+
+/// A PCM 24-bit, 3-channel WAV of `frames` frames at 48 kHz written
+/// directly (a sweep plus a few hundred LSB of noise per channel, like the
+/// bench's converter sees it).
+fn write_pcm24(path: &std::path::Path, frames: usize) {
+    use std::io::Write;
+    let data = frames * 9;
+    let mut h = Vec::with_capacity(44);
+    h.extend_from_slice(b"RIFF");
+    h.extend_from_slice(&(36 + data as u32).to_le_bytes());
+    h.extend_from_slice(b"WAVEfmt ");
+    h.extend_from_slice(&16u32.to_le_bytes());
+    h.extend_from_slice(&1u16.to_le_bytes());
+    h.extend_from_slice(&3u16.to_le_bytes());
+    h.extend_from_slice(&48000u32.to_le_bytes());
+    h.extend_from_slice(&(48000u32 * 9).to_le_bytes());
+    h.extend_from_slice(&9u16.to_le_bytes());
+    h.extend_from_slice(&24u16.to_le_bytes());
+    h.extend_from_slice(b"data");
+    h.extend_from_slice(&(data as u32).to_le_bytes());
+    let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(path).unwrap());
+    w.write_all(&h).unwrap();
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut phase = 0.0f64;
+    let mut buf = Vec::with_capacity(9 * 4096);
+    for k in 0..frames {
+        // 20 Hz -> 200 Hz over the file
+        let f = 20.0 + 180.0 * k as f64 / frames as f64;
+        phase += 2.0 * std::f64::consts::PI * f / 48000.0;
+        let s = phase.sin();
+        for amp in [3.0e6, 1.0e6, 2.0e6] {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let noise = (seed % 1024) as f64 - 512.0;
+            let c = (amp * s + noise) as i32;
+            buf.extend_from_slice(&c.to_le_bytes()[..3]);
+        }
+        if buf.len() >= 9 * 4096 {
+            w.write_all(&buf).unwrap();
+            buf.clear();
+        }
+    }
+    w.write_all(&buf).unwrap();
+    w.flush().unwrap();
+}
+
+fn status_kb(pid: u32, key: &str) -> u64 {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    s.lines()
+        .find_map(|l| l.strip_prefix(key))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap()
+}
+
+/// Peak VmRSS of `pid` while `f` runs: VmHWM after resetting it through
+/// /proc/PID/clear_refs (root), and a 10 ms sampler besides.
+async fn peak_during<F: std::future::Future>(pid: u32, f: F) -> (u64, u64, F::Output) {
+    let _ = std::fs::write(format!("/proc/{pid}/clear_refs"), "5");
+    let start = status_kb(pid, "VmRSS:");
+    let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(start));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sampler = {
+        let (peak, stop) = (peak.clone(), stop.clone());
+        std::thread::spawn(move || {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                peak.fetch_max(
+                    status_kb(pid, "VmRSS:"),
+                    std::sync::atomic::Ordering::Relaxed,
+                );
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+        })
+    };
+    let out = f.await;
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    sampler.join().unwrap();
+    let hwm = status_kb(pid, "VmHWM:");
+    let p = peak.load(std::sync::atomic::Ordering::Relaxed);
+    (start, p.max(hwm), out)
+}
+
+/// Issue 11: a 200 MB import peaked at 1.17 GB. Now the recordings are
+/// spooled to the data directory, stored block by block (FLAC encoded frame
+/// by frame, written into SQLite in 1 MiB chunks) and not analysed above
+/// `max_analysis_frames`: the daemon's resident memory grows by less than
+/// 100 MB. The download of the stored recording is measured too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_200_mb_import_stays_under_100_mb_of_extra_memory() {
+    let d = Daemon::start("");
+    let c = client();
+    let tmp = tempfile::tempdir().unwrap();
+    let frames = 200_000_000 / 9;
+    let (pre_p, main_p) = (tmp.path().join("pre.wav"), tmp.path().join("main.wav"));
+    write_pcm24(&pre_p, 48_000);
+    write_pcm24(&main_p, frames);
+    let meta = json!({"moving_mass_kg": 0.005, "sample_rate_hz": 48000,
+        "channels": {"displacement": 0, "microphone": 1, "drive": 2},
+        "channel_scale": {"displacement": 0.02, "microphone": 10.0, "drive": 100.0}});
+    let pre = std::fs::read(&pre_p).unwrap();
+    let main = std::fs::read(&main_p).unwrap();
+    let body_bytes = pre.len() + main.len();
+    assert!(body_bytes > 200_000_000);
+    let f = form(&serde_json::to_vec(&meta).unwrap(), &pre, &main, "SN-BIG");
+    let pid = d.pid();
+    let (start, peak, r) = peak_during(pid, import(&c, &d, f, Some("big-1"))).await;
+    let status = r.status().as_u16();
+    let doc: Value = r.json().await.unwrap();
+    assert_eq!(status, 201, "{doc}");
+    let id = doc["measurement"]["id"].as_str().unwrap().to_string();
+    assert!(
+        doc["measurement"]["analysis_error"]
+            .as_str()
+            .unwrap()
+            .contains("max_analysis_frames"),
+        "{doc}"
+    );
+    let db = std::fs::metadata(d.dir.join("data/springbench.db"))
+        .map(|m| m.len())
+        .unwrap_or(0)
+        + std::fs::metadata(d.dir.join("data/springbench.db-wal"))
+            .map(|m| m.len())
+            .unwrap_or(0);
+    println!(
+        "import of {body_bytes} bytes ({frames} frames): VmRSS {start} kB -> peak {peak} kB (+{} MB); database + WAL {db} bytes",
+        (peak - start) / 1024
+    );
+    // The spool is gone.
+    let left: Vec<_> = std::fs::read_dir(d.dir.join("data/tmp"))
+        .unwrap()
+        .flatten()
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+
+    // The download: the float32 WAV of every frame, the samples as imported.
+    let (start2, peak2, got) = peak_during(pid, async {
+        let mut r = c
+            .get(d.url(&format!("/api/v1/measurements/{id}/recordings/main.wav")))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 200);
+        let mut n = 0usize;
+        let mut head = Vec::new();
+        while let Some(chunk) = r.chunk().await.unwrap() {
+            if head.len() < 44 + 12 * 16 {
+                head.extend_from_slice(&chunk[..chunk.len().min(44 + 12 * 16 - head.len())]);
+            }
+            n += chunk.len();
+        }
+        (n, head)
+    })
+    .await;
+    println!(
+        "download of {} bytes: VmRSS {start2} kB -> peak {peak2} kB (+{} MB)",
+        got.0,
+        (peak2 - start2) / 1024
+    );
+    assert_eq!(got.0, 44 + frames * 12);
+    // First frames: code / 2^23 * full scale, as float32.
+    for k in 0..16 {
+        for (c, fs) in [0.02f64, 10.0, 100.0].iter().enumerate() {
+            let o = 9 * k + 3 * c;
+            let code = i32::from_le_bytes([0, main[44 + o], main[45 + o], main[46 + o]]) >> 8;
+            let want = (code as f64 / (1u64 << 23) as f64 * fs) as f32;
+            let p = 44 + 12 * k + 4 * c;
+            let v = f32::from_le_bytes(got.1[p..p + 4].try_into().unwrap());
+            assert_eq!(v, want, "frame {k} channel {c}");
+        }
+    }
+    assert!(
+        peak - start < 100 * 1024,
+        "a 200 MB import grew VmRSS by {} MB",
+        (peak - start) / 1024
+    );
+}

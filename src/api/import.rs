@@ -13,10 +13,10 @@
 use super::problem::{ApiResult, Problem};
 use super::AppState;
 use crate::identify::{self, AnalyzeOptions, Method};
-use crate::recording::codec::{self, SampleFormat};
-use crate::recording::{ChannelScale, Meta, RecordingSet, Signals};
+use crate::recording::stream::{self, Streamed};
+use crate::recording::{Meta, RecordingSet};
 use crate::runner::{job::valid_serial, new_id, FieldError};
-use crate::store::{ImportInserted, NewMeasurement, NewRecording};
+use crate::store::{ImportInserted, NewMeasurement, RecordingFile};
 use axum::extract::multipart::{MultipartError, MultipartRejection};
 use axum::extract::{Multipart, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -187,21 +187,25 @@ fn meta_field(msg: &str) -> String {
 
 /// What an import stores, prepared off the runtime from the spooled files.
 pub struct Prepared {
-    pub set: RecordingSet,
+    /// meta.json of the stored (standard) layout.
     pub meta: Meta,
-    pub pre: codec::Stored,
-    pub main: codec::Stored,
-    pub analysis: Result<identify::Report, identify::AnalyzeError>,
+    pub pre: (Streamed, Spool),
+    pub main: (Streamed, Spool),
+    pub analysis: Result<identify::Report, String>,
 }
 
-/// Reads, checks and encodes an import: the meta.json text, the two WAV
-/// files; per-field errors. The stored recordings decode to exactly what was
-/// read ([`codec::encode_lossless`]).
+/// Reads, checks and stores an import block by block: the meta.json text and
+/// the two spooled WAV files become stored recordings (files under `dir`,
+/// [`crate::recording::stream`]); per-field errors. The analysis runs on
+/// recordings of at most `max_frames` frames (it holds them in memory);
+/// longer ones are stored with the reason in `analysis`.
 pub fn prepare(
     meta_json: &[u8],
     pre_wav: &Path,
     main_wav: &Path,
+    dir: &Path,
     opts: &AnalyzeOptions,
+    max_frames: u64,
 ) -> Result<Prepared, FieldError> {
     let fe = |field: &str, message: String| FieldError {
         field: field.into(),
@@ -209,49 +213,55 @@ pub fn prepare(
     };
     let text = std::str::from_utf8(meta_json).map_err(|_| fe("meta", "not UTF-8 text".into()))?;
     let meta = crate::recording::parse_meta(text).map_err(|m| fe(&meta_field(&m), m))?;
-    let read = |field: &str, p: &Path| {
-        let bytes = std::fs::read(p).map_err(|e| fe(field, format!("spooled file: {e}")))?;
-        let format = codec::wav_format(&bytes).map_err(|e| fe(field, e.to_string()))?;
-        let s = crate::recording::read_signals_bytes(&bytes, &meta)
-            .map_err(|e| fe(field, e.to_string()))?;
-        Ok::<_, FieldError>((s, format))
+    let store = |field: &str, wav: &Path| {
+        let out = Spool(dir.join(format!("stored-{}-{field}", new_id())));
+        let scratch = Spool(dir.join(format!("scratch-{}-{field}", new_id())));
+        stream::store_wav(wav, &meta, out.path(), scratch.path())
+            .map(|s| (s, out))
+            .map_err(|e| fe(field, e.to_string()))
     };
-    let (pre, pre_format) = read("pre", pre_wav)?;
-    let (main, main_format) = read("main", main_wav)?;
-    let set = RecordingSet::settled(meta, pre, main)
-        .map_err(|e| fe("meta.sample_rate_hz", e.to_string()))?;
-    let mut meta = Meta {
+    let pre = store("pre", pre_wav)?;
+    let main = store("main", main_wav)?;
+    if pre.0.sample_rate_hz != main.0.sample_rate_hz {
+        return Err(fe(
+            "meta.sample_rate_hz",
+            format!(
+                "pre.wav is sampled at {} Hz, main.wav at {} Hz",
+                pre.0.sample_rate_hz, main.0.sample_rate_hz
+            ),
+        ));
+    }
+    let mut stored_meta = Meta {
         channel_scale: None,
-        ..Meta::standard(set.meta.moving_mass_kg, set.meta.sample_rate_hz)
+        ..Meta::standard(meta.moving_mass_kg, main.0.sample_rate_hz)
     };
-    meta.extra = set.meta.extra.clone();
-    meta.channels.drive = match (&set.pre.drive_v, &set.main.drive_v) {
-        (Some(_), Some(_)) => Some(2),
-        _ => None,
-    };
-    // Without a drive channel in both files, both are stored without one (same layout).
-    let drop_drive = meta.channels.drive.is_none();
-    let scale: ChannelScale = set.meta.channel_scale.unwrap_or_default();
-    let keep = |field: &str, s: &Signals, f: SampleFormat| {
-        let stored = if drop_drive && s.drive_v.is_some() {
-            let s = Signals {
-                drive_v: None,
-                ..s.clone()
-            };
-            codec::encode_lossless(&s, f, &scale)
-        } else {
-            codec::encode_lossless(s, f, &scale)
+    stored_meta.extra = meta.extra.clone();
+    stored_meta.channels.drive = meta.channels.drive.map(|_| 2);
+    let longest = [("pre", pre.0.frames), ("main", main.0.frames)]
+        .into_iter()
+        .max_by_key(|x| x.1)
+        .unwrap_or(("main", 0));
+    let analysis = if longest.1 > max_frames {
+        Err(format!(
+            "not analysed: {} has {} frames, more than max_analysis_frames = {max_frames} (configuration); the recordings are stored",
+            longest.0, longest.1
+        ))
+    } else {
+        let read = |p: &Path| {
+            let f = std::fs::File::open(p).map_err(|e| e.to_string())?;
+            crate::recording::read_signals(std::io::BufReader::new(f), &meta)
+                .map_err(|e| e.to_string())
         };
-        stored.map_err(|e| fe(field, e.to_string()))
+        (|| {
+            let set = RecordingSet::settled(meta.clone(), read(pre_wav)?, read(main_wav)?)
+                .map_err(|e| e.to_string())?;
+            identify::analyze(&set, opts).map_err(|e| e.to_string())
+        })()
     };
-    let pre_st = keep("pre", &set.pre, pre_format)?;
-    let main_st = keep("main", &set.main, main_format)?;
-    let analysis = identify::analyze(&set, opts);
     Ok(Prepared {
-        set,
-        meta,
-        pre: pre_st,
-        main: main_st,
+        meta: stored_meta,
+        pre,
+        main,
         analysis,
     })
 }
@@ -355,32 +365,33 @@ pub async fn import(
     let slots = super::derived::expensive_slots(st.cfg.http.max_expensive);
     let _slot = slots.acquire().await.map_err(Problem::internal)?;
     let opts2 = opts.clone();
+    let max_frames = st.cfg.max_analysis_frames;
     let p = tokio::task::spawn_blocking(move || {
-        let p = prepare(&meta_json, pre.path(), main.path(), &opts2);
+        let p = prepare(
+            &meta_json,
+            pre.path(),
+            main.path(),
+            &dir,
+            &opts2,
+            max_frames,
+        );
         drop((pre, main));
         p
     })
     .await
     .map_err(Problem::internal)?
     .map_err(|e| Problem::validation(vec![e]))?;
-    let (result, analysis_error) = match p.analysis.map_err(|e| e.to_string()).and_then(|r| {
+    let (result, analysis_error) = match p.analysis.and_then(|r| {
         crate::store::finite::to_value(&r).map_err(|e| format!("result refused: {e}"))
     }) {
         Ok(v) => (Some(v), None),
         Err(e) => (None, Some(e)),
     };
     let id = new_id();
-    let rec = |kind, s: &Signals, stored| NewRecording {
-        kind,
-        sample_rate_hz: s.sample_rate_hz,
-        frames: s.len() as i64,
-        stored,
-    };
     let recordings = vec![
-        rec("pre", &p.set.pre, p.pre),
-        rec("main", &p.set.main, p.main),
+        recording_file("pre", &p.pre),
+        recording_file("main", &p.main),
     ];
-    drop(p.set);
     let inserted = st
         .store
         .insert_import(
@@ -421,6 +432,16 @@ pub async fn import(
         )
         .await;
     document_response(&st, &id, StatusCode::CREATED, false).await
+}
+
+fn recording_file<'a>(kind: &'static str, (s, f): &'a (Streamed, Spool)) -> RecordingFile<'a> {
+    RecordingFile {
+        kind,
+        sample_rate_hz: s.sample_rate_hz,
+        frames: s.frames as i64,
+        path: f.path(),
+        channel_scale: s.channel_scale,
+    }
 }
 
 /// The answer to a known key: the stored measurement (same fields) or 409.

@@ -164,6 +164,17 @@ async fn load_set(st: &AppState, id: &str) -> ApiResult<(RecordingSet, AnalyzeOp
         .ok_or_else(|| Problem::not_found("measurement", id))?;
     let pre = stored_recording(st, id, "pre").await?;
     let main = stored_recording(st, id, "main").await?;
+    // The analysis holds the recording in memory several times over.
+    let max = st.cfg.max_analysis_frames;
+    if let Some(r) = [&pre, &main].iter().find(|r| r.frames as u64 > max) {
+        return Err(numeric_failure(
+            "Recording too long to analyse",
+            format!(
+                "the recording has {} frames, more than max_analysis_frames = {max} (configuration)",
+                r.frames
+            ),
+        ));
+    }
     let opts: AnalyzeOptions = info
         .config
         .get("analysis")

@@ -1,7 +1,19 @@
 //! Imports with an idempotency key (migration `0190_import_idempotency.sql`).
 
-use super::{insert_results, now, NewMeasurement, NewRecording, Store, StoreResult};
+use super::{insert_measurement_rows, now, NewMeasurement, Store, StoreResult};
+use crate::recording::ChannelScale;
 use sqlx::Row;
+use std::path::Path;
+
+/// A recording to store whose bytes (FLAC or WAV, standard layout) are in a
+/// file: written into the database in chunks ([`super::blob`]).
+pub struct RecordingFile<'a> {
+    pub kind: &'static str,
+    pub sample_rate_hz: f64,
+    pub frames: i64,
+    pub path: &'a Path,
+    pub channel_scale: ChannelScale,
+}
 
 /// What an import with a key stored (or found stored before).
 #[derive(Debug, Clone, PartialEq)]
@@ -31,7 +43,7 @@ impl Store {
     pub async fn insert_import(
         &self,
         part: (&str, Option<&str>, Option<&str>),
-        recordings: Vec<NewRecording>,
+        recordings: Vec<RecordingFile<'_>>,
         measurement: NewMeasurement,
         key: Option<(&str, &str)>,
     ) -> StoreResult<ImportInserted> {
@@ -48,7 +60,34 @@ impl Store {
         self.upsert_part(part.0, part.1, part.2).await?;
         let mut tx = self.pool.begin().await?;
         let mid = measurement.id.clone();
-        insert_results(&mut tx, recordings, vec![measurement]).await?;
+        let mut rec_ids = vec![];
+        for r in recordings {
+            let len = std::fs::metadata(r.path)
+                .map_err(|e| super::StoreError::Corrupt(format!("recording file: {e}")))?
+                .len() as i64;
+            let row = sqlx::query(
+                "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, channel_scale_json, created_at) \
+                 VALUES (?, ?, ?, X'', ?, ?) RETURNING id",
+            )
+            .bind(r.kind)
+            .bind(r.sample_rate_hz)
+            .bind(r.frames)
+            .bind(serde_json::to_string(&r.channel_scale).unwrap_or_default())
+            .bind(now())
+            .fetch_one(&mut *tx)
+            .await?;
+            let id: i64 = row.get(0);
+            sqlx::query(
+                "INSERT INTO recording_blobs (recording_id, bytes) VALUES (?, zeroblob(?))",
+            )
+            .bind(id)
+            .bind(len)
+            .execute(&mut *tx)
+            .await?;
+            super::blob::fill_recording(&mut *tx, id, r.path).await?;
+            rec_ids.push(id);
+        }
+        insert_measurement_rows(&mut tx, vec![measurement], &rec_ids).await?;
         if let Some((k, sha)) = key {
             let r = sqlx::query(
                 "INSERT INTO import_keys (idempotency_key, request_sha256, measurement_id, created_at) VALUES (?, ?, ?, ?)",

@@ -22,9 +22,10 @@ use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
+mod blob;
 pub mod finite;
 mod imports;
-pub use imports::ImportInserted;
+pub use imports::{ImportInserted, RecordingFile};
 pub mod qc;
 mod raw;
 pub use raw::{dir_bytes, RetentionReport, StoredRecording};
@@ -921,6 +922,17 @@ async fn insert_results(
         .await?;
         rec_ids.push(row.get::<i64, _>(0));
     }
+    insert_measurement_rows(tx, measurements, &rec_ids).await?;
+    Ok(rec_ids)
+}
+
+/// The measurement rows; `pre` / `main` index into `rec_ids`.
+async fn insert_measurement_rows(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    measurements: Vec<NewMeasurement>,
+    rec_ids: &[i64],
+) -> StoreResult<()> {
+    let t = now();
     for m in measurements {
         let pre = *rec_ids.get(m.pre).ok_or_else(|| {
             StoreError::Corrupt("measurement names a missing pre recording".into())
@@ -952,7 +964,7 @@ async fn insert_results(
         .execute(&mut **tx)
         .await?;
     }
-    Ok(rec_ids)
+    Ok(())
 }
 
 fn replay_or_conflict(j: Job, sha: &str) -> Inserted {

@@ -52,10 +52,10 @@ impl Store {
         macro_rules! sel {
             ($col:literal) => {
                 concat!(
-                    "SELECT r.wav, r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
+                    "SELECT COALESCE(b.bytes, r.wav) AS wav, r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
                      FROM measurements m JOIN recordings r ON r.id = m.",
                     $col,
-                    " WHERE m.id = ?"
+                    " LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE m.id = ?"
                 )
             };
         }
@@ -104,7 +104,8 @@ impl Store {
         let keep_last = policy.raw_keep_last_per_part.map(i64::from);
         let mut tx = self.pool.begin().await?;
         let row = sqlx::query(concat!(
-            "SELECT COUNT(*), COALESCE(SUM(length(wav)), 0) FROM recordings WHERE id IN (",
+            "SELECT COUNT(*), COALESCE(SUM(length(wav) + COALESCE((SELECT length(bytes) FROM recording_blobs \
+             WHERE recording_id = recordings.id), 0)), 0) FROM recordings WHERE id IN (",
             prunable!(),
             ")"
         ))
@@ -116,6 +117,15 @@ impl Store {
             recordings_pruned: row.get(0),
             bytes_freed: row.get(1),
         };
+        sqlx::query(concat!(
+            "DELETE FROM recording_blobs WHERE recording_id IN (",
+            prunable!(),
+            ")"
+        ))
+        .bind(keep_last)
+        .bind(cutoff.clone())
+        .execute(&mut *tx)
+        .await?;
         sqlx::query(concat!(
             "UPDATE recordings SET wav = X'', pruned_at = ?3 WHERE id IN (",
             prunable!(),
@@ -133,7 +143,7 @@ impl Store {
     /// (bytes of raw signals held, recordings held, recordings pruned).
     pub async fn raw_usage(&self) -> StoreResult<(i64, i64, i64)> {
         let r = sqlx::query(
-            "SELECT COALESCE(SUM(length(wav)), 0), \
+            "SELECT COALESCE(SUM(length(wav)), 0) + (SELECT COALESCE(SUM(length(bytes)), 0) FROM recording_blobs), \
                     COALESCE(SUM(pruned_at IS NULL), 0), COALESCE(SUM(pruned_at IS NOT NULL), 0) \
              FROM recordings",
         )

@@ -1,0 +1,88 @@
+//! Recording blobs written from a file in chunks (SQLite incremental blob
+//! I/O), so storing a large import does not hold its bytes in memory
+//! (issue 11, decision 0021a). sqlx binds a blob as one buffer (and SQLite
+//! copies it); `zeroblob(N)` reserves the space and `sqlite3_blob_write`
+//! fills it 1 MiB at a time inside the caller's transaction.
+
+use super::{StoreError, StoreResult};
+use libsqlite3_sys as ffi;
+use std::ffi::CStr;
+use std::io::Read;
+use std::path::Path;
+
+/// Bytes per `sqlite3_blob_write`.
+const CHUNK: usize = 1 << 20;
+
+fn err(m: impl Into<String>) -> StoreError {
+    StoreError::Corrupt(m.into())
+}
+
+/// Copies the file at `path` into `recording_blobs.bytes` of recording
+/// `rowid`, which holds a `zeroblob` of exactly the file's length (the row's
+/// only stored field, so SQLite does not expand it), on `conn` (the
+/// transaction's connection).
+pub(super) async fn fill_recording(
+    conn: &mut sqlx::SqliteConnection,
+    rowid: i64,
+    path: &Path,
+) -> StoreResult<()> {
+    let mut file = std::fs::File::open(path)
+        .map_err(|e| err(format!("recording file {}: {e}", path.display())))?;
+    let mut handle = conn.lock_handle().await?;
+    let db = handle.as_raw_handle().as_ptr();
+    let mut blob: *mut ffi::sqlite3_blob = std::ptr::null_mut();
+    // SAFETY: `db` is the live connection held locked by `handle` for this
+    // whole function; the names are NUL-terminated; `blob` is closed below
+    // on every path after a successful open.
+    let rc = unsafe {
+        ffi::sqlite3_blob_open(
+            db,
+            c"main".as_ptr(),
+            c"recording_blobs".as_ptr(),
+            c"bytes".as_ptr(),
+            rowid,
+            1,
+            &mut blob,
+        )
+    };
+    if rc != ffi::SQLITE_OK {
+        return Err(err(format!("opening the recording blob: {}", message(db))));
+    }
+    let mut buf = vec![0u8; CHUNK];
+    let mut offset: usize = 0;
+    let res = loop {
+        let n = match file.read(&mut buf) {
+            Ok(0) => break Ok(()),
+            Ok(n) => n,
+            Err(e) => break Err(err(format!("recording file: {e}"))),
+        };
+        let Ok(off) = i32::try_from(offset) else {
+            break Err(err("recording larger than 2 GiB"));
+        };
+        // SAFETY: `blob` is open; `buf[..n]` is initialised and outlives the call.
+        let rc = unsafe { ffi::sqlite3_blob_write(blob, buf.as_ptr().cast(), n as i32, off) };
+        if rc != ffi::SQLITE_OK {
+            break Err(err(format!("writing the recording blob: {}", message(db))));
+        }
+        offset += n;
+    };
+    // SAFETY: opened above, closed exactly once.
+    let rc = unsafe { ffi::sqlite3_blob_close(blob) };
+    res?;
+    if rc != ffi::SQLITE_OK {
+        return Err(err(format!("closing the recording blob: {}", message(db))));
+    }
+    Ok(())
+}
+
+fn message(db: *mut ffi::sqlite3) -> String {
+    // SAFETY: sqlite3_errmsg returns a NUL-terminated string owned by the connection.
+    unsafe {
+        let p = ffi::sqlite3_errmsg(db);
+        if p.is_null() {
+            "unknown error".into()
+        } else {
+            CStr::from_ptr(p).to_string_lossy().into_owned()
+        }
+    }
+}
