@@ -211,6 +211,38 @@ fn target_multipart(data: &[u8]) {
     else {
         return;
     };
+    // The daemon's import path (spooled files, stored block by block) agrees
+    // with reading the whole set: the same verdict, the same samples stored.
+    thread_local! {
+        static DIR: tempfile::TempDir = tempfile::tempdir().unwrap();
+    }
+    let streamed = DIR.with(|d| {
+        let (pp, mp) = (d.path().join("pre.wav"), d.path().join("main.wav"));
+        std::fs::write(&pp, pre).unwrap();
+        std::fs::write(&mp, main).unwrap();
+        springbench::api::import::prepare(meta, &pp, &mp, d.path(), &Default::default(), 0).map(
+            |p| {
+                let back = |(s, f): &(
+                    springbench::recording::stream::Streamed,
+                    springbench::api::import::Spool,
+                )| {
+                    codec::decode(&std::fs::read(f.path()).unwrap(), Some(&s.channel_scale))
+                        .unwrap()
+                };
+                (back(&p.pre), back(&p.main))
+            },
+        )
+    });
+    match rec::RecordingSet::from_bytes(meta, pre, main) {
+        Ok(set) if !set.pre.is_empty() && !set.main.is_empty() => {
+            let (a, b) = streamed.expect("what reads is stored by the import path");
+            assert_eq!((&a, &b), (&set.pre, &set.main));
+        }
+        _ => assert!(
+            streamed.is_err(),
+            "the import path stored what does not read"
+        ),
+    }
     if let Ok(set) = rec::RecordingSet::from_bytes(meta, pre, main) {
         if set.pre.is_empty() || set.main.is_empty() {
             // Refused at storage ("no samples"), not stored.

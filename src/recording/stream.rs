@@ -65,6 +65,8 @@ struct Input {
     nch_file: usize,
     frames: u64,
     rate: u32,
+    /// Frames read so far.
+    done: u64,
 }
 
 impl Input {
@@ -116,6 +118,7 @@ impl Input {
             nch_file,
             frames,
             rate: spec.sample_rate,
+            done: 0,
         })
     }
 
@@ -142,12 +145,24 @@ impl Input {
         for v in self.reader.samples::<f32>().take(BLOCK * self.nch_file) {
             raw.push(v.map_err(wav_err)?);
         }
-        Ok(self.lay_out(raw, out))
+        let n = self.lay_out(raw, out);
+        // As read_signals: a NaN or infinity in a used channel is refused
+        // (found by tests/fuzz.rs: it was stored).
+        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
+            let names = ["displacement", "microphone", "drive"];
+            return Err(invalid(format!(
+                "recording: {} channel has a non-finite sample (NaN or infinity) at sample {}",
+                names[i % self.pick.len()],
+                self.done - n as u64 + (i / self.pick.len()) as u64
+            )));
+        }
+        Ok(n)
     }
 
-    fn lay_out<T: Copy>(&self, raw: &[T], out: &mut Vec<T>) -> usize {
+    fn lay_out<T: Copy>(&mut self, raw: &[T], out: &mut Vec<T>) -> usize {
         out.clear();
         let n = raw.len() / self.nch_file;
+        self.done += n as u64;
         for f in raw.chunks_exact(self.nch_file) {
             out.extend(self.pick.iter().map(|&c| f[c]));
         }
