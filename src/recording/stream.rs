@@ -445,6 +445,7 @@ mod tests {
         w.finalize().unwrap();
     }
 
+    #[allow(clippy::type_complexity)]
     /// The stored file decodes to exactly what `read_signals` reads, for
     /// PCM 16/24 (FLAC), float on and off the 24-bit grid, int32 (WAV),
     /// another channel order, lengths around the block size.
@@ -518,7 +519,7 @@ mod tests {
                 spec(24, hound::SampleFormat::Int),
                 &pcm_meta,
                 5,
-                Box::new(move |k, c| noise(k, c)),
+                Box::new(noise),
                 true,
             ),
         ];

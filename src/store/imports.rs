@@ -84,7 +84,7 @@ impl Store {
             .bind(len)
             .execute(&mut *tx)
             .await?;
-            super::blob::fill_recording(&mut *tx, id, r.path).await?;
+            super::blob::fill_recording(&mut tx, id, r.path).await?;
             rec_ids.push(id);
         }
         insert_measurement_rows(&mut tx, vec![measurement], &rec_ids).await?;
