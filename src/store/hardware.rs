@@ -47,7 +47,7 @@ fn calibration_row(r: &sqlx::sqlite::SqliteRow) -> CalibrationRecord {
 impl Store {
     /// Stores a self-check; a passing one clears the bench's open faults (one transaction).
     pub async fn insert_calibration(&self, rec: &CalibrationRecord) -> StoreResult<()> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         sqlx::query(
             "INSERT INTO calibrations (id, bench_id, job_id, passed, calibration_json, sensors_json, result_json, created_at) \
              VALUES (?, ?, ?, ?, ?, ?, ?, ?)",

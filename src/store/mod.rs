@@ -262,6 +262,12 @@ impl Store {
             .journal_mode(SqliteJournalMode::Wal)
             .synchronous(SqliteSynchronous::Full)
             .foreign_keys(true)
+            // Every write transaction starts with BEGIN IMMEDIATE (the write
+            // lock first, waiting up to this timeout): a deferred transaction
+            // that reads and then writes fails at once with "database is
+            // locked" when another connection wrote in between (WAL snapshot
+            // upgrade), whatever the timeout; seen approving a limit proposal
+            // while jobs finished.
             .busy_timeout(Duration::from_secs(10));
         // Created here only: the pool never creates a file by itself, so a
         // lost database is not silently replaced by an empty one (health.rs).
@@ -449,7 +455,7 @@ impl Store {
                 return Ok(replay_or_conflict(j, request_sha256));
             }
         }
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let t = now();
         sqlx::query(
             "INSERT INTO parts (serial, kind, notes, created_at, updated_at) VALUES (?, ?, ?, ?, ?) \
@@ -652,7 +658,7 @@ impl Store {
         measurements: Vec<NewMeasurement>,
         records: &qc::JobRecords,
     ) -> StoreResult<()> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let ids = insert_results(&mut tx, recordings, measurements).await?;
         let _ = ids;
         qc::insert_job_records(&mut tx, records).await?;
@@ -688,7 +694,7 @@ impl Store {
         measurements: Vec<NewMeasurement>,
     ) -> StoreResult<()> {
         self.upsert_part(part.0, part.1, part.2).await?;
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         insert_results(&mut tx, recordings, measurements).await?;
         tx.commit().await?;
         Ok(())

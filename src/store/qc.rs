@@ -266,7 +266,7 @@ impl Store {
         proposal_id: Option<&str>,
         created_by: Option<&str>,
     ) -> StoreResult<RecipeRow> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let row =
             insert_recipe_tx(&mut tx, name, sha256, body, origin, proposal_id, created_by).await?;
         tx.commit().await?;
@@ -375,7 +375,7 @@ impl Store {
         recipe: &Value,
         by: Option<&str>,
     ) -> StoreResult<Option<RecipeRow>> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let Some(p) = sqlx::query(
             "SELECT recipe_name FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'",
         )
