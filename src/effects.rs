@@ -13,7 +13,19 @@
 use serde::{Deserialize, Serialize};
 
 /// Identifier of an effect, as used in JSON and on the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Serialize,
+    Deserialize,
+    utoipa::ToSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum EffectId {
     CoulombFriction,
@@ -135,7 +147,7 @@ impl std::fmt::Display for EffectId {
 }
 
 /// Dry friction of the slide, smoothed: `F = force_n tanh(v / v_eps_m_per_s)`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CoulombFriction {
     pub force_n: f64,
@@ -149,14 +161,14 @@ fn default_v_eps() -> f64 {
 }
 
 /// `F = coeff_ns2_per_m2 v |v|`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct QuadraticDamping {
     pub coeff_ns2_per_m2: f64,
 }
 
 /// `F = (r1_ns_per_m2 x + r2_ns_per_m3 x^2) v`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DampingVsDisplacement {
     #[serde(default)]
@@ -166,7 +178,7 @@ pub struct DampingVsDisplacement {
 }
 
 /// Standard linear solid: `F = k_n_per_m (x - xr)`, `xr' = (x - xr) / tau_s`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Creep {
     pub k_n_per_m: f64,
@@ -174,14 +186,14 @@ pub struct Creep {
 }
 
 /// `F = dk0_dt_n_per_m_s t x` (K(0) changes linearly with time).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StiffnessDrift {
     pub dk0_dt_n_per_m_s: f64,
 }
 
 /// Microphone later than the laser by `delay_s`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ChannelDelay {
     pub delay_s: f64,
@@ -189,7 +201,7 @@ pub struct ChannelDelay {
 
 /// A set of effects, at most one of each kind. Serialises as a JSON object
 /// keyed by effect id; absent effects are omitted.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Effects {
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -23,6 +23,8 @@ enum Command {
     Simulate(cli::simulate::SimulateArgs),
     /// List audio devices (channels, rates) and serial ports (feature `hardware`).
     Devices(cli::devices::DevicesArgs),
+    /// Print the API's OpenAPI document (YAML, or JSON with --json).
+    Openapi(cli::openapi::OpenapiArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -33,6 +35,7 @@ fn main() -> std::process::ExitCode {
         Some(Command::Analyze(a)) => cli::analyze::run(a),
         Some(Command::Simulate(a)) => cli::simulate::run(a),
         Some(Command::Devices(a)) => cli::devices::run(a),
+        Some(Command::Openapi(a)) => cli::openapi::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -23,6 +23,7 @@ pub fn required_role(method: &Method, path: &str) -> Option<Role> {
     if path == "/healthz"
         || path == "/readyz"
         || path == "/api/v1/session"
+        || path == "/api/openapi.json"
         || crate::ui::is_public(path)
     {
         return None;

@@ -13,6 +13,14 @@ use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
 /// `POST /api/v1/benches/{id}/self-check`: queue a self-check job (202 + Location).
+#[utoipa::path(post, path = "/api/v1/benches/{id}/self-check", tag = "operations",
+    summary = "Queue a self-check of a hardware bench (latency, noise floors, laser at rest, microphone at silence); a pass stores a calibration record and clears a fault.",
+    params(("id" = String, Path, description = "Bench id")),
+    responses(
+        (status = 202, description = "Queued (a job; its log names the calibration record)", body = crate::store::Job,
+            headers(("Location" = String, description = "The job"))),
+        (status = 404, description = "No such bench"),
+        (status = 409, description = "The bench is virtual")))]
 pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
     let Some(b) = st.cfg.benches.iter().find(|b| b.id == id) else {
         return Err(Problem::not_found("bench", &id));
@@ -65,6 +73,12 @@ pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> A
 }
 
 /// `GET /api/v1/benches/{id}/calibrations`: the bench's self-checks, newest first.
+#[utoipa::path(get, path = "/api/v1/benches/{id}/calibrations", tag = "operations",
+    summary = "The bench's calibration records (self-checks), newest first (at most 100).",
+    params(("id" = String, Path, description = "Bench id")),
+    responses(
+        (status = 200, description = "Calibration records", body = super::openapi::CalibrationList),
+        (status = 404, description = "No such bench")))]
 pub async fn calibrations(
     State(st): State<AppState>,
     Path(id): Path<String>,
@@ -77,6 +91,12 @@ pub async fn calibrations(
 }
 
 /// `GET /api/v1/calibrations/{id}`: one calibration record.
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}", tag = "operations",
+    summary = "One calibration record; measurements reference it (`calibration_id`, `config.hardware`).",
+    params(("id" = String, Path, description = "Calibration record id")),
+    responses(
+        (status = 200, description = "The record", body = crate::store::hardware::CalibrationRecord),
+        (status = 404, description = "Not found")))]
 pub async fn calibration(
     State(st): State<AppState>,
     Path(id): Path<String>,

@@ -12,13 +12,24 @@ use axum::response::Response;
 use serde::Deserialize;
 use tokio::sync::broadcast::error::RecvError;
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct EventsQuery {
+    /// Replay the stored events after this sequence number (>= 0), then stream.
     after: Option<i64>,
+    /// The bearer token, for browsers (which cannot set headers on a websocket).
     #[allow(dead_code)]
     token: Option<String>,
 }
 
+#[utoipa::path(get, path = "/api/v1/events", tag = "events",
+    summary = "Websocket event stream. Replays stored events after `after`, then streams new ones.",
+    description = "Each text message is one event `{\"seq\", \"time\", \"type\", \"job_id\", \"data\"}`. Types: `job.state` (`data.state`, `problem`, `measurement_ids`), `job.progress` (`step`, `progress`, `eta_s`), `measurement.created`, and `job.samples` (live decimated `x_m` and `microphone_v` with `t0_s`, `dt_s`; `\"live\": true`, not stored, not replayed). Without `after` only new events are sent.",
+    params(EventsQuery),
+    responses(
+        (status = 101, description = "Switching to the websocket protocol"),
+        (status = 426, description = "Not a websocket upgrade request (header `Upgrade: websocket`)"),
+        (status = 422, description = "`after` below 0")))]
 pub async fn events(
     State(st): State<AppState>,
     Q(q): Q<EventsQuery>,

@@ -266,6 +266,24 @@ pub fn prepare(
     })
 }
 
+#[utoipa::path(post, path = "/api/v1/measurements", tag = "measurements",
+    summary = "Import an external recording set (meta.json, pre.wav, main.wav); analysed and stored like a bench measurement.",
+    params(("Idempotency-Key" = Option<String>, Header, max_length = 255,
+        description = "Same key and same fields give the stored measurement (200, header `Idempotent-Replayed`); other fields give 409.")),
+    request_body(content = super::openapi::ImportForm, content_type = "multipart/form-data"),
+    responses(
+        (status = 201, description = "Stored (an analysis that failed is kept with `measurement.analysis_error`)",
+            body = super::openapi::MeasurementDocumentSchema,
+            headers(("Location" = String, description = "The measurement"))),
+        (status = 200, description = "Replayed (same Idempotency-Key and fields)",
+            body = super::openapi::MeasurementDocumentSchema,
+            headers(("Location" = String, description = "The measurement"),
+                ("Idempotent-Replayed" = String, description = "`true`"))),
+        (status = 400, description = "Unreadable multipart body or Idempotency-Key"),
+        (status = 409, description = "Idempotency-Key used before with other fields (`measurement_id` names its measurement)"),
+        (status = 413, description = "Upload too large"),
+        (status = 422, description = "Invalid fields or recordings, one message each in `errors`"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
 /// `POST /api/v1/measurements` (multipart): fields `meta` (meta.json), `pre`
 /// and `main` (WAV), `serial` (or `"part_serial"` in meta), optional `kind`,
 /// `notes`, `method`, `order`. Analysed and stored like a bench measurement;

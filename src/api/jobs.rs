@@ -25,6 +25,22 @@ fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
     r
 }
 
+#[utoipa::path(post, path = "/api/v1/jobs", tag = "jobs",
+    summary = "Submit a measurement job (queued; runs when its bench is free, priority first, then FIFO).",
+    params(("Idempotency-Key" = Option<String>, Header, max_length = 255,
+        description = "Same key and same body give the same job (200, header `Idempotent-Replayed`); another body gives 409.")),
+    request_body(content = super::openapi::JobRequest, content_type = "application/json",
+        example = json!({"part": {"serial": "SN-0001", "kind": "spider"}, "target_xpeak_m": 0.008})),
+    responses(
+        (status = 202, description = "Queued", body = crate::store::Job,
+            headers(("Location" = String, description = "The job"))),
+        (status = 200, description = "Replayed (same Idempotency-Key and body)", body = crate::store::Job,
+            headers(("Idempotent-Replayed" = String, description = "`true`"))),
+        (status = 400, description = "Unreadable body or Idempotency-Key"),
+        (status = 409, description = "Idempotency-Key used before with another body (`job_id` names its job)"),
+        (status = 413, description = "Body too large"),
+        (status = 422, description = "Invalid fields, one message each in `errors`"),
+        (status = 503, description = "Storage unavailable or the disk is full: not acknowledged, retry later")))]
 /// `POST /api/v1/jobs`: validate, store as queued, wake the bench. 202 + Location.
 pub async fn submit(
     State(st): State<AppState>,
@@ -99,16 +115,29 @@ fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct JobQuery {
+    /// queued, running, succeeded, failed, cancelled or interrupted.
+    #[param(value_type = Option<crate::store::JobState>)]
     state: Option<String>,
+    /// Part serial.
     part: Option<String>,
     /// Only jobs created at or after this time (RFC 3339).
+    #[param(format = DateTime)]
     since: Option<String>,
+    /// Page size (1-500, default 50).
     limit: Option<i64>,
+    /// `next_cursor` of the previous page.
     cursor: Option<String>,
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs", tag = "jobs",
+    summary = "Jobs, newest first.",
+    params(JobQuery),
+    responses(
+        (status = 200, description = "A page of jobs", body = super::openapi::JobPage),
+        (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/jobs?state=&part=&limit=&cursor=`: newest first.
 pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Json<Value>> {
     let state = match q.state.as_deref() {
@@ -138,6 +167,12 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Js
     Ok(Json(json!({"items": items, "next_cursor": next})))
 }
 
+#[utoipa::path(get, path = "/api/v1/jobs/{id}", tag = "jobs",
+    summary = "One job (state, step, progress, eta, problem, measurements) with its QC verdict.",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "The job", body = super::openapi::JobWithVerdict),
+        (status = 404, description = "No such job")))]
 /// `GET /api/v1/jobs/{id}`: the job, with `verdict` (pass / fail / invalid /
 /// no_limits, or null without a recipe; details at `/api/v1/jobs/{id}/verdict`).
 pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
@@ -155,6 +190,14 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     Ok(Json(v))
 }
 
+#[utoipa::path(post, path = "/api/v1/jobs/{id}/cancel", tag = "jobs",
+    summary = "Cancel a job. A queued job is cancelled at once (200); a running one is told to stop, the bench ramps down (202, then always state `cancelled`); 409 once it has finished or is storing its results.",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Cancelled", body = crate::store::Job),
+        (status = 202, description = "Stopping", body = crate::store::Job),
+        (status = 404, description = "No such job"),
+        (status = 409, description = "Finished or storing its results (`state` names its state)")))]
 /// `POST /api/v1/jobs/{id}/cancel`: 200 when a queued job is cancelled, 202
 /// when a running job is told to stop, 409 when it has finished.
 pub async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
@@ -183,12 +226,21 @@ pub async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> ApiRe
     }
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct PageQuery {
+    /// Page size (1-500, default 50).
     limit: Option<i64>,
+    /// `next_cursor` of the previous page.
     cursor: Option<String>,
 }
 
+#[utoipa::path(get, path = "/api/v1/parts", tag = "parts",
+    summary = "Parts, by serial.",
+    params(PageQuery),
+    responses(
+        (status = 200, description = "A page of parts", body = super::openapi::PartPage),
+        (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/parts`: by serial.
 pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiResult<Json<Value>> {
     let limit = page_limit(q.limit)?;
@@ -202,6 +254,12 @@ pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiRe
     Ok(Json(json!({"items": items, "next_cursor": next})))
 }
 
+#[utoipa::path(get, path = "/api/v1/parts/{serial}", tag = "parts",
+    summary = "One part.",
+    params(("serial" = String, Path, description = "Part serial")),
+    responses(
+        (status = 200, description = "The part", body = super::openapi::PartDocument),
+        (status = 404, description = "No such part")))]
 pub async fn get_part(
     State(st): State<AppState>,
     Path(serial): Path<String>,
@@ -216,6 +274,13 @@ pub async fn get_part(
     Ok(Json(v))
 }
 
+#[utoipa::path(get, path = "/api/v1/parts/{serial}/measurements", tag = "parts",
+    summary = "Measurements of a part, newest first.",
+    params(("serial" = String, Path, description = "Part serial"), PageQuery),
+    responses(
+        (status = 200, description = "A page of measurements", body = super::openapi::MeasurementPage),
+        (status = 404, description = "No such part"),
+        (status = 422, description = "A bad query parameter")))]
 pub async fn part_measurements(
     State(st): State<AppState>,
     Path(serial): Path<String>,

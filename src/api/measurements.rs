@@ -18,13 +18,19 @@ use axum::Json;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct MeasQuery {
+    /// Part serial.
     part: Option<String>,
+    /// Job id.
     job: Option<String>,
     /// Only measurements stored at or after this time (RFC 3339).
+    #[param(format = DateTime)]
     since: Option<String>,
+    /// Page size (1-500, default 50).
     limit: Option<i64>,
+    /// `next_cursor` of the previous page.
     cursor: Option<String>,
 }
 
@@ -49,6 +55,12 @@ pub async fn list_page(
     Ok(Json(json!({"items": items, "next_cursor": next})))
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements", tag = "measurements",
+    summary = "Measurements, newest first.",
+    params(MeasQuery),
+    responses(
+        (status = 200, description = "A page of measurements", body = super::openapi::MeasurementPage),
+        (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/measurements?part=&job=&limit=&cursor=`: newest first.
 pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<Json<Value>> {
     list_page(
@@ -79,6 +91,12 @@ pub(super) fn document(info: &MeasurementInfo, result: Option<Value>, meta: Valu
     doc
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements/{id}", tag = "measurements",
+    summary = "The result document (the same as `springbench analyze --json`) plus the measurement record and its QC verdict.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "The result", body = super::openapi::MeasurementDocumentSchema),
+        (status = 404, description = "No such measurement")))]
 pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
     let (info, result, meta) = st
         .store
@@ -121,6 +139,14 @@ async fn stored_recording(
     Ok(rec)
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/recordings/{file}", tag = "measurements",
+    summary = "A raw recording, float32 WAV (channel 0 displacement m, 1 microphone V, 2 drive V when present), decoded from the stored lossless copy while it is sent.",
+    params(("id" = String, Path, description = "Measurement id"),
+        ("file" = String, Path, pattern = "^(pre|main)\\.wav$", description = "`pre.wav` or `main.wav`")),
+    responses(
+        (status = 200, description = "WAV", content_type = "audio/wav", body = Vec<u8>),
+        (status = 404, description = "No such measurement or file"),
+        (status = 410, description = "The retention policy removed the raw signals (the results are kept)")))]
 /// `GET /api/v1/measurements/{id}/recordings/{pre|main}.wav`: float32 WAV,
 /// channels 0 displacement (m), 1 microphone (V), 2 drive (V) when present,
 /// decoded from the stored FLAC block by block while it is sent.
@@ -297,6 +323,16 @@ pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
     })
 }
 
+#[utoipa::path(post, path = "/api/v1/measurements/{id}/fits", tag = "measurements",
+    summary = "Fit the stored recordings again with the given effects and order; every fit is kept.",
+    params(("id" = String, Path, description = "Measurement id")),
+    request_body(content = super::openapi::FitBody, content_type = "application/json"),
+    responses(
+        (status = 201, description = "The fit", body = crate::store::Fit,
+            headers(("Location" = String, description = "The measurement's fits"))),
+        (status = 404, description = "No such measurement"),
+        (status = 410, description = "The retention policy removed the raw signals"),
+        (status = 422, description = "Invalid fields, or the fit failed on this data")))]
 /// `POST /api/v1/measurements/{id}/fits` `{"effects": [...], "order": N, "method": "..."}`:
 /// fits the stored recordings again with the given effects; every fit is kept.
 pub async fn fit(
@@ -340,6 +376,12 @@ pub async fn fit(
     Ok(r)
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/fits", tag = "measurements",
+    summary = "The fits of a measurement, oldest first.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "Fits", body = super::openapi::FitList),
+        (status = 404, description = "No such measurement")))]
 pub async fn list_fits(
     State(st): State<AppState>,
     Path(id): Path<String>,
@@ -370,6 +412,14 @@ pub(super) async fn diagnose_stored(
     .map_err(|e| numeric_failure("Diagnostics failed", e))
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/diagnostics", tag = "measurements",
+    summary = "Model diagnostics of the stored recordings (candidate effects, model ladder, plot data and links); computed once, then served from the store.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "Diagnostics", body = super::openapi::DiagnosticsDocument),
+        (status = 404, description = "No such measurement"),
+        (status = 410, description = "The retention policy removed the raw signals"),
+        (status = 422, description = "The diagnosis fails on this data")))]
 /// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the
 /// base model (computed once, then served from the store: [`super::derived`]).
 pub async fn diagnostics(
@@ -379,6 +429,15 @@ pub async fn diagnostics(
     super::derived::answer(&st, &id, super::derived::DIAGNOSTICS).await
 }
 
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/plots/{file}", tag = "measurements",
+    summary = "A diagnostic plot as SVG (`{name}.svg`, names listed by the diagnostics).",
+    params(("id" = String, Path, description = "Measurement id"),
+        ("file" = String, Path, pattern = "^[a-z0-9_]+\\.svg$", description = "Plot file name")),
+    responses(
+        (status = 200, description = "SVG", content_type = "image/svg+xml", body = String),
+        (status = 404, description = "No such measurement or plot"),
+        (status = 410, description = "The retention policy removed the raw signals"),
+        (status = 422, description = "The diagnosis fails on this data")))]
 /// `GET /api/v1/measurements/{id}/plots/{name}.svg` (stored like the diagnostics).
 pub async fn plot(
     State(st): State<AppState>,

@@ -9,11 +9,19 @@ use axum::Json;
 use serde_json::{json, Value};
 use std::fmt::Write;
 
+#[utoipa::path(get, path = "/healthz", tag = "operations",
+    summary = "Liveness (always 200 while the process serves).",
+    responses((status = 200, description = "Serving", body = super::openapi::Health)))]
 pub async fn healthz() -> Json<Value> {
     Json(json!({"status": "ok", "version": crate::VERSION}))
 }
 
 /// Ready when the database answers and no bench has stopped.
+#[utoipa::path(get, path = "/readyz", tag = "operations",
+    summary = "Readiness: the database takes a committed write, the disk has room, no bench stopped, not shutting down.",
+    responses(
+        (status = 200, description = "Ready", body = super::openapi::Ready),
+        (status = 503, description = "Not ready (database lost or full disk, shutting down, a bench stopped)", body = super::openapi::Ready)))]
 pub async fn readyz(State(st): State<AppState>) -> Response {
     // A committed write: a full disk or a lost database file is not ready.
     let db = match st.store.ping().await {
@@ -39,10 +47,16 @@ pub async fn readyz(State(st): State<AppState>) -> Response {
     (code, Json(body)).into_response()
 }
 
+#[utoipa::path(get, path = "/api/v1/benches", tag = "operations",
+    summary = "The benches and what they are doing.",
+    responses((status = 200, description = "Benches", body = super::openapi::BenchList)))]
 pub async fn benches(State(st): State<AppState>) -> Json<Value> {
     Json(json!({"items": st.runner.bench_statuses()}))
 }
 
+#[utoipa::path(get, path = "/metrics", tag = "operations",
+    summary = "Prometheus text exposition: jobs by state, MES outbox, parts, measurements, data directory and recording bytes, bench busy, request counts and latency histograms.",
+    responses((status = 200, description = "Metrics", content_type = "text/plain", body = String)))]
 pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
     let mut out = String::new();
     out.push_str("# HELP springbench_jobs Jobs by state.\n# TYPE springbench_jobs gauge\n");
@@ -100,6 +114,9 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
     Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response())
 }
 
+#[utoipa::path(get, path = "/api/v1/config", tag = "operations",
+    summary = "The configuration in effect (token secrets redacted).",
+    responses((status = 200, description = "The configuration (the TOML file's structure as JSON)", body = Object)))]
 /// The configuration in effect, token secrets left out (admin only).
 pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     let mut v = serde_json::to_value(&*st.cfg).map_err(Problem::internal)?;

@@ -60,6 +60,14 @@ fn located(status: StatusCode, loc: String, body: Value) -> Response {
     r
 }
 
+#[utoipa::path(post, path = "/api/v1/recipes", tag = "qc",
+    summary = "Create a QC recipe (version 1). 409 when the name exists (use PUT for a new version).",
+    request_body(content = crate::qc::Recipe, content_type = "application/json"),
+    responses(
+        (status = 201, description = "Created", body = super::openapi::RecipeDocument,
+            headers(("Location" = String, description = "The recipe"))),
+        (status = 409, description = "A recipe of this name exists"),
+        (status = 422, description = "Invalid fields")))]
 /// `POST /api/v1/recipes`: version 1 of a new recipe (409 when the name exists).
 pub async fn create(
     State(st): State<AppState>,
@@ -97,6 +105,15 @@ pub async fn create(
     ))
 }
 
+#[utoipa::path(put, path = "/api/v1/recipes/{name}", tag = "qc",
+    summary = "Change a recipe. A changed content makes a new version (201) with a new hash; the same content returns the current version (200).",
+    params(("name" = String, Path, description = "Recipe name")),
+    request_body(content = crate::qc::Recipe, content_type = "application/json"),
+    responses(
+        (status = 200, description = "Unchanged", body = super::openapi::RecipeDocument),
+        (status = 201, description = "New version", body = super::openapi::RecipeDocument,
+            headers(("Location" = String, description = "The new version"))),
+        (status = 422, description = "Invalid fields, or `name` differs from the path")))]
 /// `PUT /api/v1/recipes/{name}`: a new version (200 with the current one when nothing changed).
 pub async fn update(
     State(st): State<AppState>,
@@ -125,6 +142,9 @@ pub async fn update(
     ))
 }
 
+#[utoipa::path(get, path = "/api/v1/recipes", tag = "qc",
+    summary = "The newest version of every recipe.",
+    responses((status = 200, description = "Recipes", body = super::openapi::RecipeList)))]
 pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     let items: Vec<Value> = st
         .store
@@ -136,6 +156,12 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     Ok(Json(json!({"items": items})))
 }
 
+#[utoipa::path(get, path = "/api/v1/recipes/{name}", tag = "qc",
+    summary = "The newest version of a recipe.",
+    params(("name" = String, Path, description = "Recipe name")),
+    responses(
+        (status = 200, description = "Recipe", body = super::openapi::RecipeDocument),
+        (status = 404, description = "No such recipe")))]
 pub async fn get_one(
     State(st): State<AppState>,
     Path(name): Path<String>,
@@ -148,6 +174,12 @@ pub async fn get_one(
     Ok(Json(recipe_doc(&r)))
 }
 
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/versions", tag = "qc",
+    summary = "Every version of a recipe, oldest first (origin created / edited / limits_approved, who, when, hash).",
+    params(("name" = String, Path, description = "Recipe name")),
+    responses(
+        (status = 200, description = "Versions", body = super::openapi::RecipeList),
+        (status = 404, description = "No such recipe")))]
 pub async fn versions(
     State(st): State<AppState>,
     Path(name): Path<String>,
@@ -160,6 +192,12 @@ pub async fn versions(
     Ok(Json(json!({"items": items})))
 }
 
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/versions/{version}", tag = "qc",
+    summary = "One version of a recipe.",
+    params(("name" = String, Path, description = "Recipe name"), ("version" = i64, Path, description = "Version number (from 1)")),
+    responses(
+        (status = 200, description = "Recipe version", body = super::openapi::RecipeDocument),
+        (status = 404, description = "No such recipe version")))]
 pub async fn version(
     State(st): State<AppState>,
     Path((name, version)): Path<(String, i64)>,
@@ -172,6 +210,12 @@ pub async fn version(
     Ok(Json(recipe_doc(&r)))
 }
 
+#[utoipa::path(delete, path = "/api/v1/recipes/{name}", tag = "qc",
+    summary = "Retire a recipe (no new jobs; versions and verdicts stay). A later PUT revives it as a new version.",
+    params(("name" = String, Path, description = "Recipe name")),
+    responses(
+        (status = 204, description = "Retired"),
+        (status = 404, description = "No such recipe")))]
 /// `DELETE /api/v1/recipes/{name}`: retires the recipe (no new jobs; every
 /// version and verdict stays for traceability). 204.
 pub async fn retire(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<StatusCode> {
@@ -251,7 +295,7 @@ pub async fn apply_recipe(
     }))
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::ToSchema)]
 pub struct ProposalBody {
     /// Serials of the golden units (each measured with the recipe, valid).
     serials: Vec<String>,
@@ -281,6 +325,16 @@ fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
 
 /// `POST /api/v1/recipes/{name}/limit-proposals`: limits from golden units
 /// (their newest valid job under this recipe), stored as `proposed`.
+#[utoipa::path(post, path = "/api/v1/recipes/{name}/limit-proposals", tag = "qc",
+    summary = "Propose limits from N >= 5 golden units (their newest valid job under this recipe): per parameter mean +- k sigma or +- tolerance_percent of the mean, and a K(x) mask. Stored as `proposed` until an admin approves.",
+    params(("name" = String, Path, description = "Recipe name")),
+    request_body(content = ProposalBody, content_type = "application/json",
+        example = json!({"serials": ["G-01", "G-02", "G-03", "G-04", "G-05"], "method": "k_sigma", "k": 6})),
+    responses(
+        (status = 201, description = "Proposed", body = crate::store::qc::ProposalRow,
+            headers(("Location" = String, description = "The proposal"))),
+        (status = 404, description = "No such recipe"),
+        (status = 422, description = "Invalid fields, or a serial without a valid measurement under this recipe")))]
 pub async fn propose(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
@@ -327,6 +381,12 @@ pub async fn propose(
     ))
 }
 
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/limit-proposals", tag = "qc",
+    summary = "The recipe's newest 50 limit proposals (all states), newest first.",
+    params(("name" = String, Path, description = "Recipe name")),
+    responses(
+        (status = 200, description = "Proposals", body = super::openapi::ProposalList),
+        (status = 404, description = "No such recipe")))]
 /// `GET /api/v1/recipes/{name}/limit-proposals`: the recipe's newest 50
 /// proposals (all states), newest first.
 pub async fn list_proposals(
@@ -340,6 +400,12 @@ pub async fn list_proposals(
     Ok(Json(json!({"items": items})))
 }
 
+#[utoipa::path(get, path = "/api/v1/limit-proposals/{id}", tag = "qc",
+    summary = "A limit proposal (statistics per parameter, the mask, the recipe it would make, state, who decided).",
+    params(("id" = String, Path, description = "Proposal id")),
+    responses(
+        (status = 200, description = "Proposal", body = crate::store::qc::ProposalRow),
+        (status = 404, description = "No such proposal")))]
 pub async fn get_proposal(
     State(st): State<AppState>,
     Path(id): Path<String>,
@@ -363,6 +429,14 @@ fn decided(p: &crate::store::qc::ProposalRow) -> Problem {
 
 /// `POST /api/v1/limit-proposals/{id}/approve` (admin): a new recipe version
 /// with the proposed limits; the approver and time are recorded.
+#[utoipa::path(post, path = "/api/v1/limit-proposals/{id}/approve", tag = "qc",
+    summary = "Approve a proposal: a new recipe version with its limits (origin limits_approved); approver and time are recorded on the proposal.",
+    params(("id" = String, Path, description = "Proposal id")),
+    responses(
+        (status = 201, description = "The new recipe version", body = super::openapi::RecipeDocument,
+            headers(("Location" = String, description = "The new version"))),
+        (status = 404, description = "No such proposal"),
+        (status = 409, description = "Decided already")))]
 pub async fn approve(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
@@ -393,6 +467,13 @@ pub async fn approve(
     }
 }
 
+#[utoipa::path(post, path = "/api/v1/limit-proposals/{id}/reject", tag = "qc",
+    summary = "Reject a proposal.",
+    params(("id" = String, Path, description = "Proposal id")),
+    responses(
+        (status = 200, description = "Rejected", body = crate::store::qc::ProposalRow),
+        (status = 404, description = "No such proposal"),
+        (status = 409, description = "Decided already")))]
 pub async fn reject(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
@@ -415,6 +496,12 @@ pub async fn reject(
 }
 
 /// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
+#[utoipa::path(get, path = "/api/v1/parts/{serial}/verdict", tag = "qc",
+    summary = "The newest job verdict of a part (what a station shows).",
+    params(("serial" = String, Path, description = "Part serial")),
+    responses(
+        (status = 200, description = "Verdict", body = crate::store::qc::VerdictRow),
+        (status = 404, description = "No verdict for this part")))]
 pub async fn part_verdict(
     State(st): State<AppState>,
     Path(serial): Path<String>,
@@ -428,6 +515,12 @@ pub async fn part_verdict(
 }
 
 /// `GET /api/v1/jobs/{id}/verdict`: the job's verdict and its measurements'.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/verdict", tag = "qc",
+    summary = "A job's verdict and, under `measurements`, the verdict of each of its measurements.",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Verdicts", body = super::openapi::JobVerdict),
+        (status = 404, description = "No verdict for this job")))]
 pub async fn job_verdict(
     State(st): State<AppState>,
     Path(id): Path<String>,
@@ -446,12 +539,19 @@ pub async fn job_verdict(
     Ok(Json(doc))
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct SpcQuery {
+    /// The recipe parameter's name (required).
     parameter: Option<String>,
+    /// The newest N verdicts (1-100000; default 100 without since/until).
     last: Option<i64>,
+    #[param(format = DateTime)]
     since: Option<String>,
+    #[param(format = DateTime)]
     until: Option<String>,
+    /// `json` (default) or `csv` (the chart points).
+    #[param(pattern = "^(json|csv)$")]
     format: Option<String>,
 }
 
@@ -471,6 +571,15 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
 }
 
 /// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/spc", tag = "qc",
+    summary = "SPC of one parameter over a window of valid measurement verdicts: n, mean, sigma (overall), sigma_within (average moving range / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
+    params(("name" = String, Path, description = "Recipe name"), SpcQuery),
+    responses(
+        (status = 200, description = "SPC", content(
+            (super::openapi::SpcDocument = "application/json"),
+            (String = "text/csv"))),
+        (status = 404, description = "No such recipe"),
+        (status = 422, description = "A bad or missing query parameter")))]
 pub async fn spc(
     State(st): State<AppState>,
     Path(name): Path<String>,
@@ -560,12 +669,22 @@ pub async fn spc(
     Ok(Json(doc).into_response())
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 pub struct OutboxQuery {
+    /// pending, failed, delivered or dropped (default: pending and failed).
+    #[param(pattern = "^(pending|failed|delivered|dropped)$")]
     state: Option<String>,
+    /// Page size (1-500, default 50).
     limit: Option<i64>,
 }
 
+#[utoipa::path(get, path = "/api/v1/outbox", tag = "mes",
+    summary = "MES outbox deliveries, oldest first (default pending and failed), with the totals.",
+    params(OutboxQuery),
+    responses(
+        (status = 200, description = "Outbox", body = super::openapi::Outbox),
+        (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/outbox?state=`: deliveries (default: pending and failed), oldest first.
 pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResult<Json<Value>> {
     let state = match q.state.as_deref() {
@@ -593,6 +712,13 @@ fn delivery_id(id: &str) -> ApiResult<i64> {
 }
 
 /// `POST /api/v1/outbox/{id}/retry` (admin): a pending or failed delivery is tried now.
+#[utoipa::path(post, path = "/api/v1/outbox/{id}/retry", tag = "mes",
+    summary = "Retry a failed delivery now (attempts start again).",
+    params(("id" = i64, Path, description = "Delivery id")),
+    responses(
+        (status = 200, description = "The delivery, pending again", body = crate::store::qc::DeliveryRow),
+        (status = 404, description = "No such delivery"),
+        (status = 409, description = "Delivered or dropped")))]
 pub async fn outbox_retry(
     State(st): State<AppState>,
     Path(id): Path<String>,
@@ -621,6 +747,13 @@ pub async fn outbox_retry(
 }
 
 /// `DELETE /api/v1/outbox/{id}` (admin): the delivery is dropped (the message stays stored).
+#[utoipa::path(delete, path = "/api/v1/outbox/{id}", tag = "mes",
+    summary = "Drop a delivery (it is kept, state dropped, never sent).",
+    params(("id" = i64, Path, description = "Delivery id")),
+    responses(
+        (status = 200, description = "The delivery, dropped", body = crate::store::qc::DeliveryRow),
+        (status = 404, description = "No such delivery"),
+        (status = 409, description = "Delivered or dropped already")))]
 pub async fn outbox_drop(
     State(st): State<AppState>,
     Path(id): Path<String>,

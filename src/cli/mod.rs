@@ -3,5 +3,6 @@
 pub mod analyze;
 pub mod devices;
 pub mod diagnose;
+pub mod openapi;
 pub mod serve;
 pub mod simulate;

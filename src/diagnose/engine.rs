@@ -142,7 +142,7 @@ pub struct FittedModel {
 }
 
 /// One candidate, ranked against the model it would extend.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct CandidateResult {
     pub effect: String,
     /// Reduction of the held-out model error (structured part) when added (%).
@@ -173,7 +173,7 @@ pub struct CandidateResult {
 }
 
 /// One step of the ladder.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct LadderStep {
     pub effects: Vec<String>,
     pub order: usize,

@@ -8,7 +8,7 @@
 use crate::recording::RecordingSet;
 use serde::{Deserialize, Serialize};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     #[default]
@@ -26,7 +26,7 @@ pub struct AnalyzeOptions {
 /// The result document (same JSON as `springbench analyze --json` and the API).
 /// Field names are fixed by issues 2 and 5, with the unit in every name since
 /// issue 12 (old names are read as aliases); more fields may be added.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Report {
     /// Small-signal fit of the pre-measurement; None when the set has no usable pre sweep.
     pub small_signal: Option<SmallSignal>,
@@ -41,7 +41,7 @@ pub struct Report {
 }
 
 /// Small-signal parameters from the pre-measurement (SI), with standard errors.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SmallSignal {
     pub f0_hz: f64,
     pub k0_n_per_m: f64,
@@ -70,11 +70,12 @@ pub struct SmallSignal {
     /// The linear resonator's values when the model above has effects
     /// (what a plain analysis reports), for comparison.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
     pub base: Option<Box<SmallSignal>>,
 }
 
 /// Large-signal results from the main (narrow) sweep (SI).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct LargeSignal {
     /// fR: where the fundamental of x lags the driving force (Ss p, the
     /// microphone) by 90 degrees; the displacement peak when the phase never
@@ -130,7 +131,7 @@ pub struct LargeSignal {
 }
 
 /// Nonlinear stiffness K(x) = sum k_i x^i (x in m, K in N/m).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Stiffness {
     /// "two-signal" or "one-signal".
     pub method: String,
@@ -165,6 +166,7 @@ pub struct Stiffness {
     /// The base model's K(x) and R when the model the values above come
     /// from has effects (chosen by the diagnostics or asked for).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
     pub base: Option<Box<Stiffness>>,
     /// Change from the base model to this one: K at both ends of the range,
     /// K(0) and R (%).
@@ -173,7 +175,7 @@ pub struct Stiffness {
 }
 
 /// How much the headline K(x) and R differ from the base model's (%).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct StiffnessChange {
     /// 100 (K(x)/K_base(x) - 1) at the lower and upper end of the valid range.
     pub k_at_range_ends_percent: [f64; 2],
@@ -182,7 +184,7 @@ pub struct StiffnessChange {
 }
 
 /// How well the force-balance model explains the measurement (issue 5 names).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Model {
     /// Effects included in the fitted model, with their fitted parameters.
     #[serde(default)]

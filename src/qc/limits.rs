@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 pub const MIN_GOLDEN: usize = 5;
 
 /// How the limits are spread around the golden mean.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(tag = "method", rename_all = "snake_case")]
 pub enum Spread {
     /// mean +- k * sigma (sample standard deviation of the golden units).
@@ -41,7 +41,7 @@ impl Spread {
 }
 
 /// Options of a proposal.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ProposalOptions {
     #[serde(flatten)]
     pub spread: Spread,
@@ -68,7 +68,7 @@ pub struct GoldenUnit {
 }
 
 /// Statistics and proposed limits of one parameter.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ProposedLimit {
     pub name: String,
     pub unit: String,
@@ -82,7 +82,7 @@ pub struct ProposedLimit {
 }
 
 /// A proposal: statistics per parameter and the recipe with these limits.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Proposal {
     pub serials: Vec<String>,
     pub options: ProposalOptions,

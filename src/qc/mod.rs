@@ -24,7 +24,7 @@ pub const MAX_PARAMETERS: usize = 64;
 pub const MAX_MASK_POINTS: usize = 201;
 
 /// Procedure settings of a recipe (what a job posted with `"recipe"` runs).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProcedureSettings {
     /// Target peak displacement of each narrow sweep (m): one value, or a level series.
@@ -47,7 +47,7 @@ fn one() -> u32 {
 }
 
 /// What a judged parameter measures.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Quantity {
     /// Small-signal stiffness k0 (N/m), from the pre-measurement.
@@ -80,7 +80,7 @@ impl Quantity {
 }
 
 /// One judged parameter. Limits are in the parameter's `unit` (SI).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ParamSpec {
     /// Unique within the recipe, e.g. `k0`, `k_at_4mm`, `friction`.
@@ -155,7 +155,7 @@ fn unit_of_suffix(name: &str) -> String {
 }
 
 /// Bounds beyond which a measurement cannot be trusted (it is then `invalid`, never judged).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Validity {
     /// Measured Xpeak / target Xpeak below this: the target was not reached.
@@ -183,7 +183,7 @@ impl Default for Validity {
 }
 
 /// Band on K(x): at each `x_m`, K must lie within `[lower_n_per_m, upper_n_per_m]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct KxMask {
     pub x_m: Vec<f64>,
@@ -195,7 +195,7 @@ pub struct KxMask {
 }
 
 /// A recipe: what to run and what to judge for one part type.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Recipe {
     /// 1-64 characters: letters, digits, `-`, `_`, `.`.
@@ -433,7 +433,9 @@ pub const KX_MASK: &str = "kx_mask";
 
 /// Overall verdict. `invalid` outranks everything: a measurement that cannot
 /// be trusted is never judged.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, utoipa::ToSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum VerdictKind {
     Pass,
@@ -455,7 +457,7 @@ impl VerdictKind {
 }
 
 /// Result of one parameter.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ParamResult {
     Pass,
@@ -465,7 +467,7 @@ pub enum ParamResult {
 }
 
 /// One parameter's value against its limits.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ParamOutcome {
     pub name: String,
     pub quantity: Option<Quantity>,
@@ -480,7 +482,7 @@ pub struct ParamOutcome {
 }
 
 /// Why a measurement cannot be trusted.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct InvalidReason {
     /// `analysis_failed`, `target_not_reached`, `small_signal_unreliable`,
     /// `model_error_high`, `noise_high`, `clipping`, `alignment`,
@@ -497,7 +499,7 @@ fn reason(code: &str, detail: String) -> InvalidReason {
 }
 
 /// The verdict of one measurement (or, combined, of a job).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Verdict {
     pub verdict: VerdictKind,
     /// The failing parameters (value and limits), when `fail`.

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 pub const D2: f64 = 1.128;
 
 /// One value of the parameter (a valid, judged measurement).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SpcPoint {
     /// When the verdict was made (RFC 3339 UTC).
     pub time: String,
@@ -21,7 +21,7 @@ pub struct SpcPoint {
 }
 
 /// The statistics of a window.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Spc {
     pub parameter: String,
     pub unit: String,

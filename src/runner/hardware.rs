@@ -17,7 +17,7 @@ use std::time::Instant;
 pub const BENCH_FAULT: &str = "bench-fault";
 
 /// Why a bench is faulted.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct FaultInfo {
     pub detail: String,
     pub job_id: Option<String>,

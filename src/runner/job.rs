@@ -84,7 +84,7 @@ pub struct ProductionPart {
 }
 
 /// One message per bad field (`field` is a JSON path like `levels_m[1]`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct FieldError {
     pub field: String,
     pub message: String,

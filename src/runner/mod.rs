@@ -37,11 +37,12 @@ const CANCEL: u8 = 1;
 const COMMIT: u8 = 2;
 
 /// What a bench is doing (for `/readyz`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct BenchStatus {
     pub id: String,
     pub kind: BenchKind,
     /// "idle", "running", "faulted" (hardware: until a self-check passes) or "stopped".
+    #[schema(value_type = String, pattern = "^(idle|running|faulted|stopped)$")]
     pub state: &'static str,
     pub job_id: Option<String>,
     /// The preset mounted when a job names none.

@@ -6,7 +6,7 @@ use serde_json::Value;
 use sqlx::Row;
 
 /// A stored self-check.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct CalibrationRecord {
     pub id: String,
     pub bench_id: String,

@@ -74,7 +74,7 @@ pub fn now() -> String {
 }
 
 /// Job states; the terminal ones never change again.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
     Queued,
@@ -112,7 +112,7 @@ impl JobState {
     }
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct Part {
     pub serial: String,
     pub kind: Option<String>,
@@ -122,7 +122,7 @@ pub struct Part {
     pub measurement_count: i64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct Job {
     pub id: String,
     pub state: JobState,
@@ -157,7 +157,7 @@ pub struct Job {
 }
 
 /// A measurement's listing entry (the result document itself is `result`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct MeasurementInfo {
     pub id: String,
     pub part_serial: String,
@@ -221,13 +221,14 @@ pub struct Event {
 }
 
 /// A fit of a stored measurement.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct Fit {
     pub id: String,
     pub measurement_id: String,
     /// `{"effects": [...], "order": ..., "method": ...}` as accepted.
     pub request: Value,
     /// The refitted result document (with `model` and `diagnostics`).
+    #[schema(value_type = crate::identify::Report)]
     pub result: Value,
     pub software_version: String,
     pub created_at: String,

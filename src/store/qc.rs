@@ -10,12 +10,13 @@ use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
 /// A stored recipe version.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct RecipeRow {
     pub name: String,
     pub version: i64,
     pub sha256: String,
     /// The recipe document ([`crate::qc::Recipe`]).
+    #[schema(value_type = crate::qc::Recipe)]
     pub recipe: Value,
     /// `created`, `edited` or `limits_approved`.
     pub origin: String,
@@ -26,12 +27,13 @@ pub struct RecipeRow {
 }
 
 /// A golden-unit limit proposal.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct ProposalRow {
     pub id: String,
     pub recipe_name: String,
     pub recipe_version: i64,
     /// [`crate::qc::limits::Proposal`].
+    #[schema(value_type = crate::qc::limits::Proposal)]
     pub proposal: Value,
     /// `proposed`, `approved` or `rejected`.
     pub state: String,
@@ -59,7 +61,7 @@ pub struct NewVerdict {
 }
 
 /// A stored verdict.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct VerdictRow {
     pub id: String,
     pub job_id: Option<String>,
@@ -72,6 +74,7 @@ pub struct VerdictRow {
     /// `pass`, `fail`, `invalid` or `no_limits`.
     pub verdict: String,
     /// Failures, invalid reasons, every parameter's value / limits / result.
+    #[schema(value_type = crate::qc::Verdict)]
     pub detail: Value,
     /// Software version, recipe, bench, calibration, sensors, submitter, timestamps.
     pub traceability: Value,
@@ -91,7 +94,7 @@ pub struct NewMessage {
 }
 
 /// One delivery of a message to one webhook.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct DeliveryRow {
     /// Delivery id (for retry / drop).
     pub id: i64,

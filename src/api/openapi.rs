@@ -1,0 +1,723 @@
+//! The OpenAPI 3.1 document of the API, generated from the Rust types
+//! (`#[derive(serde::Serialize, ToSchema)]`) and the handlers' `#[utoipa::path]` annotations
+//! (decision 0020). Served at `GET /api/openapi.json`; `api/openapi.yaml` is
+//! the same document checked into the repository (a test regenerates it and
+//! fails on a difference; `SPRINGBENCH_WRITE_OPENAPI=1 cargo test --lib
+//! api::openapi` or `springbench openapi` writes it).
+//!
+//! What is described by hand lives here: the envelopes the handlers build
+//! with `json!` around typed values (pages, lists, a job with its verdict,
+//! the measurement document), the diagnostics document of
+//! `diagnose::engine::EngineResult::diagnostics_json`, and the request
+//! bodies the handlers validate field by field (job, fit, import). The API
+//! tests (`tests/contract.rs`) validate every route's real responses against
+//! these schemas with unknown members refused, so a hand-described schema
+//! that drifts from the code fails there.
+
+use super::auth;
+use crate::config::Role;
+use crate::identify::{Model, Report};
+use crate::qc::VerdictKind;
+use crate::runner::{BenchStatus, FieldError};
+use crate::store::hardware::CalibrationRecord;
+use crate::store::qc::{DeliveryRow, RecipeRow, VerdictRow};
+use crate::store::{Fit, Job, MeasurementInfo, Part};
+use axum::http::{header, HeaderValue, Method};
+use axum::response::{IntoResponse, Response};
+use serde_json::Value;
+use std::sync::OnceLock;
+use utoipa::openapi::security::{Http, HttpAuthScheme, SecurityRequirement, SecurityScheme};
+use utoipa::openapi::{Content, Ref, RefOr, Response as OaResponse, Schema};
+use utoipa::{Modify, OpenApi, ToSchema};
+
+// ---------------------------------------------------------------------------
+// Envelopes built with `json!` around typed values (hand-described).
+
+/// `GET /healthz`.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Health {
+    /// Always `ok` while the process serves.
+    pub status: String,
+    /// The daemon's software version.
+    pub version: String,
+}
+
+/// `GET /readyz`.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Ready {
+    /// `ready` or `not_ready`.
+    #[schema(pattern = "^(ready|not_ready)$")]
+    pub status: String,
+    /// `ok`, or why the database is not usable (lost file, full disk, ...).
+    pub database: String,
+    pub benches: Vec<BenchStatus>,
+}
+
+/// A list of benches.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct BenchList {
+    pub items: Vec<BenchStatus>,
+}
+
+/// `GET /api/v1/session`: who the caller is.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Session {
+    /// The token's label; null without a known token (and with open access).
+    pub name: Option<String>,
+    /// The caller's role; `admin` with open access (no tokens configured),
+    /// null when no known token was sent.
+    pub role: Option<Role>,
+    /// False with open access.
+    pub auth_required: bool,
+}
+
+/// A job with its QC verdict (`GET /api/v1/jobs/{id}`).
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct JobWithVerdict {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub job: Job,
+    /// QC verdict of a job with a recipe (details at `/api/v1/jobs/{id}/verdict`), null without one.
+    pub verdict: Option<VerdictKind>,
+}
+
+/// A page of jobs, newest first.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct JobPage {
+    pub items: Vec<Job>,
+    /// Pass as `cursor` for the next page; null on the last page.
+    pub next_cursor: Option<String>,
+}
+
+/// A part with the link to its measurements.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct PartDocument {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub part: Part,
+    /// `/api/v1/parts/{serial}/measurements`.
+    pub measurements: String,
+}
+
+/// A page of parts, by serial.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct PartPage {
+    pub items: Vec<Part>,
+    /// The last serial of this page (pass as `cursor`); null on the last page.
+    pub next_cursor: Option<String>,
+}
+
+/// A page of measurements, newest first.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct MeasurementPage {
+    pub items: Vec<MeasurementInfo>,
+    pub next_cursor: Option<String>,
+}
+
+/// Links to a measurement's raw recordings.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct RecordingLinks {
+    /// `/api/v1/measurements/{id}/recordings/pre.wav`.
+    pub pre: String,
+    /// `/api/v1/measurements/{id}/recordings/main.wav`.
+    pub main: String,
+}
+
+/// The measurement's record inside its document.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct MeasurementRecord {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub info: MeasurementInfo,
+    /// The recording set's meta.json as stored.
+    pub meta: Value,
+    pub recordings: RecordingLinks,
+    /// The QC verdict of this measurement (`GET /api/v1/measurements/{id}`
+    /// only; null without a recipe).
+    #[schema(required = false)]
+    pub verdict: Option<VerdictRow>,
+}
+
+/// The measurement's record alone: the document of a measurement whose
+/// analysis failed (`measurement.analysis_error`; the recordings are kept).
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct MeasurementRecordOnly {
+    pub measurement: MeasurementRecord,
+}
+
+/// A fit's list.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct FitList {
+    pub items: Vec<Fit>,
+}
+
+/// The calibration records of a bench.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct CalibrationList {
+    pub items: Vec<CalibrationRecord>,
+}
+
+/// A recipe version with whether it has limits.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct RecipeDocument {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub row: RecipeRow,
+    /// True when any parameter has a limit or the recipe has a K(x) mask.
+    pub has_limits: bool,
+}
+
+/// A list of recipe versions.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct RecipeList {
+    pub items: Vec<RecipeDocument>,
+}
+
+/// A recipe's limit proposals.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct ProposalList {
+    pub items: Vec<crate::store::qc::ProposalRow>,
+}
+
+/// A job's verdict with its measurements' verdicts.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct JobVerdict {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub verdict: VerdictRow,
+    pub measurements: Vec<VerdictRow>,
+}
+
+/// The recipe version an SPC window was judged by.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct RecipeVersionRef {
+    pub name: String,
+    pub version: i64,
+    pub sha256: String,
+}
+
+/// SPC of one parameter with the recipe version.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct SpcDocument {
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub spc: crate::qc::spc::Spc,
+    pub recipe: RecipeVersionRef,
+}
+
+/// The MES outbox: deliveries and totals.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Outbox {
+    pub items: Vec<DeliveryRow>,
+    pub pending: i64,
+    pub failed: i64,
+    /// Failed delivery attempts since the database was created.
+    pub failed_attempts_total: i64,
+}
+
+/// `GET /api/v1/measurements/{id}/diagnostics`.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct DiagnosticsDocument {
+    pub measurement_id: String,
+    /// The chosen model (effects with their parameters, residual, noise floor, model error).
+    pub model: Model,
+    pub diagnostics: Diagnostics,
+    /// Links to the SVG plots.
+    pub plots: Vec<String>,
+}
+
+/// A fitted model in the diagnostics (base or final).
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct ModelSummary {
+    /// Effect ids in the order they were added.
+    pub effects: Vec<String>,
+    /// Fitted effect parameters (names of effects.rs, SI units in the names).
+    pub parameters: crate::effects::Effects,
+    /// Block-robust standard errors of the parameters (same names).
+    pub parameters_se: Value,
+    pub order: usize,
+    pub stiffness_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
+    pub r_ns_per_m: f64,
+    pub force_per_mic_n_per_v: f64,
+    pub residual_percent: f64,
+    pub cv_residual_percent: f64,
+    pub model_error_percent: f64,
+}
+
+/// The diagnostics document (`diagnostics` of a diagnosed report).
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Diagnostics {
+    /// Every candidate effect, ranked against the model it would extend.
+    pub candidates: Vec<crate::diagnose::engine::CandidateResult>,
+    /// The model ladder, base model first.
+    pub ladder: Vec<crate::diagnose::engine::LadderStep>,
+    pub base_model: ModelSummary,
+    pub final_model: ModelSummary,
+    pub noise_floor_percent: f64,
+    /// How the base model's K(x) order was chosen.
+    pub order_note: String,
+    /// How the statistics were done, one sentence per aspect.
+    pub method: std::collections::BTreeMap<String, String>,
+    /// The data the plots draw (detail, envelope, residual vs x and v,
+    /// spectrum, small-signal comparison), arrays with units in their names.
+    pub comparison: std::collections::BTreeMap<String, Value>,
+    /// The small-signal model's ladder and choice (when the set has a pre sweep).
+    #[schema(required = false)]
+    pub small_signal_model: Option<Value>,
+}
+
+/// An RFC 9457 problem document (`application/problem+json`). Some problems
+/// carry more members (e.g. `job_id` of an idempotency conflict, `state` of
+/// a job that cannot be cancelled).
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct Problem {
+    /// `/problems/{kind}`.
+    #[schema(rename = "type", pattern = "^/problems/[a-z0-9-]+$")]
+    pub kind: String,
+    pub title: String,
+    /// The HTTP status code.
+    pub status: u16,
+    pub detail: String,
+    /// One message per bad field (422 validation problems).
+    #[schema(required = false)]
+    pub errors: Vec<FieldError>,
+    /// The job an Idempotency-Key was first used for (409 `idempotency-conflict` of a job).
+    pub job_id: Option<String>,
+    /// The measurement an Idempotency-Key was first used for (409 `idempotency-conflict` of an import).
+    pub measurement_id: Option<String>,
+    /// The state of a job that cannot be cancelled (409 `job-finished`, `job-finishing`).
+    pub state: Option<crate::store::JobState>,
+}
+
+// ---------------------------------------------------------------------------
+// Request bodies validated field by field by the handlers (hand-described).
+
+/// The part a job measures.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct JobPart {
+    /// Part serial (letters, digits and `._-`, not `.` or `..`).
+    pub serial: String,
+    pub kind: Option<String>,
+    pub notes: Option<String>,
+}
+
+/// `POST /api/v1/jobs`: a measurement job. Defaults come from the bench and
+/// the recipe; `runner::job::validate` checks every field.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct JobRequest {
+    pub part: JobPart,
+    /// Bench id (default: the first bench).
+    pub bench: Option<String>,
+    /// Higher runs first (default 0).
+    pub priority: Option<i64>,
+    /// Target peak displacement (m); or `levels_m` for a level series.
+    pub target_xpeak_m: Option<f64>,
+    pub levels_m: Option<Vec<f64>>,
+    /// `two-signal` (default) or `one-signal`.
+    pub method: Option<crate::identify::Method>,
+    /// Order of K(x) (1-12; chosen from the data when absent).
+    pub order: Option<usize>,
+    /// Measurements per level (1-10).
+    pub repeats: Option<u32>,
+    pub moving_mass_kg: Option<f64>,
+    /// Virtual bench: a preset name (`presets/*.toml`).
+    pub preset: Option<String>,
+    /// Virtual bench: the part's parameters in full.
+    pub part_spec: Option<Value>,
+    /// Virtual bench: one part of a production lot (`preset`, `seed`, optional `defect`).
+    pub production: Option<Value>,
+    /// QC recipe name: its newest version's procedure settings are filled in and the job ends with a verdict.
+    pub recipe: Option<String>,
+    /// Tighter limits than the bench's (`max_displacement_m`, `max_drive_v`).
+    pub limits: Option<Value>,
+}
+
+/// `POST /api/v1/measurements/{id}/fits`.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct FitBody {
+    /// A list of effect ids fits exactly that model; `"auto"` or absent lets the ladder choose.
+    pub effects: Option<Value>,
+    /// Order of K(x) (1-12).
+    pub order: Option<usize>,
+    pub method: Option<crate::identify::Method>,
+}
+
+/// `POST /api/v1/measurements` (multipart/form-data): an external recording set.
+#[derive(serde::Serialize, ToSchema)]
+#[allow(dead_code)]
+pub struct ImportForm {
+    /// meta.json of the set (may hold `part_serial`).
+    pub meta: String,
+    #[schema(format = Binary, content_media_type = "application/octet-stream")]
+    pub pre: Vec<u8>,
+    #[schema(format = Binary, content_media_type = "application/octet-stream")]
+    pub main: Vec<u8>,
+    /// Part serial (required unless meta.json has `part_serial`).
+    pub serial: Option<String>,
+    pub kind: Option<String>,
+    pub notes: Option<String>,
+    pub method: Option<crate::identify::Method>,
+    pub order: Option<usize>,
+}
+
+
+// ---------------------------------------------------------------------------
+
+#[derive(OpenApi)]
+#[openapi(
+    paths(
+        super::ops::healthz,
+        super::ops::readyz,
+        super::ops::metrics,
+        super::ops::config,
+        super::ops::benches,
+        openapi_json,
+        super::benches::self_check,
+        super::benches::calibrations,
+        super::benches::calibration,
+        super::session::session,
+        super::jobs::submit,
+        super::jobs::list,
+        super::jobs::get_one,
+        super::jobs::cancel,
+        super::jobs::list_parts,
+        super::jobs::get_part,
+        super::jobs::part_measurements,
+        super::measurements::list,
+        super::import::import,
+        super::measurements::get_one,
+        super::measurements::recording,
+        super::measurements::fit,
+        super::measurements::list_fits,
+        super::measurements::diagnostics,
+        super::measurements::plot,
+        super::events::events,
+        super::qc::create,
+        super::qc::list,
+        super::qc::get_one,
+        super::qc::update,
+        super::qc::retire,
+        super::qc::versions,
+        super::qc::version,
+        super::qc::propose,
+        super::qc::list_proposals,
+        super::qc::spc,
+        super::qc::get_proposal,
+        super::qc::approve,
+        super::qc::reject,
+        super::qc::part_verdict,
+        super::qc::job_verdict,
+        super::qc::outbox,
+        super::qc::outbox_retry,
+        super::qc::outbox_drop,
+    ),
+    components(schemas(Problem, MeasurementDocumentSchema)),
+    modifiers(&Conventions),
+    tags(
+        (name = "operations", description = "Health, readiness, metrics, configuration, benches, calibration records"),
+        (name = "jobs", description = "Measurement jobs"),
+        (name = "parts", description = "Parts and their measurements"),
+        (name = "measurements", description = "Results, recordings, fits, diagnostics"),
+        (name = "events", description = "Websocket event stream"),
+        (name = "qc", description = "Recipes, limits, verdicts, SPC"),
+        (name = "mes", description = "MES outbox"),
+    )
+)]
+struct ApiDoc;
+
+/// The measurement document: the `identify::Report` (as `springbench analyze
+/// --json` prints it) with the record under `measurement`; only the record
+/// when the analysis failed.
+pub struct MeasurementDocumentSchema;
+
+impl utoipa::PartialSchema for MeasurementDocumentSchema {
+    fn schema() -> RefOr<Schema> {
+        schema_from_json(serde_json::json!({
+            "description": "The identify::Report (small_signal, large_signal, stiffness, model, warnings; diagnostics after a fit) with the measurement's record under `measurement`; only `measurement` when the analysis failed (`measurement.analysis_error`).",
+            "oneOf": [
+                {"allOf": [
+                    {"$ref": "#/components/schemas/Report"},
+                    {"type": "object", "required": ["measurement"],
+                     "properties": {"measurement": {"$ref": "#/components/schemas/MeasurementRecord"}}}
+                ]},
+                {"$ref": "#/components/schemas/MeasurementRecordOnly"}
+            ]
+        }))
+    }
+}
+
+impl ToSchema for MeasurementDocumentSchema {
+    fn name() -> std::borrow::Cow<'static, str> {
+        "MeasurementDocument".into()
+    }
+    fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
+        schemas.push((
+            Report::name().into(),
+            <Report as utoipa::PartialSchema>::schema(),
+        ));
+        <Report as ToSchema>::schemas(schemas);
+        schemas.push((
+            MeasurementRecord::name().into(),
+            <MeasurementRecord as utoipa::PartialSchema>::schema(),
+        ));
+        <MeasurementRecord as ToSchema>::schemas(schemas);
+        schemas.push((
+            MeasurementRecordOnly::name().into(),
+            <MeasurementRecordOnly as utoipa::PartialSchema>::schema(),
+        ));
+    }
+}
+
+/// A schema written as JSON (what the derive cannot express, e.g. `oneOf` of `allOf`).
+fn schema_from_json(v: Value) -> RefOr<Schema> {
+    serde_json::from_value(v).expect("a valid schema literal")
+}
+
+/// What every operation shares: problem documents for errors, the bearer
+/// scheme, which routes need no token (from [`auth::required_role`]).
+struct Conventions;
+
+impl Modify for Conventions {
+    fn modify(&self, doc: &mut utoipa::openapi::OpenApi) {
+        let components = doc.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(Http::new(HttpAuthScheme::Bearer)),
+        );
+        doc.security = Some(vec![SecurityRequirement::new(
+            "bearer",
+            Vec::<String>::new(),
+        )]);
+        let problem = || Content::new(Some(RefOr::<Schema>::Ref(Ref::from_schema_name("Problem"))));
+        for (path, item) in doc.paths.paths.iter_mut() {
+            let ops = [
+                (Method::GET, item.get.as_mut()),
+                (Method::POST, item.post.as_mut()),
+                (Method::PUT, item.put.as_mut()),
+                (Method::DELETE, item.delete.as_mut()),
+            ];
+            for (method, op) in ops {
+                let Some(op) = op else { continue };
+                let role = auth::required_role(&method, path);
+                if role.is_none() {
+                    op.security = Some(vec![]);
+                } else {
+                    let who = match role {
+                        Some(Role::Admin) => "admin",
+                        Some(Role::Operator) => "operator or admin",
+                        _ => "any role",
+                    };
+                    let d = format!(
+                        "{}\n\nRole: {who}.",
+                        op.description.as_deref().unwrap_or("")
+                    );
+                    op.description = Some(d.trim_start().to_string());
+                    op.responses
+                        .responses
+                        .entry("401".into())
+                        .or_insert_with(|| {
+                            RefOr::T(OaResponse::new("No token or an unknown token"))
+                        });
+                    op.responses
+                        .responses
+                        .entry("403".into())
+                        .or_insert_with(|| {
+                            RefOr::T(OaResponse::new("The token's role may not do this"))
+                        });
+                }
+                op.responses.responses.entry("default".into()).or_insert_with(|| {
+                    RefOr::T(OaResponse::new(
+                        "Any other error: 400 unreadable request, 405, 413 too large, 415 not JSON, \
+                         503 storage unavailable, 500",
+                    ))
+                });
+                for (code, r) in op.responses.responses.iter_mut() {
+                    let error = code == "default" || code.starts_with('4') || code.starts_with('5');
+                    if let RefOr::T(r) = r {
+                        if error && r.content.is_empty() {
+                            r.content
+                                .insert("application/problem+json".into(), problem());
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The document, built once.
+pub fn document() -> &'static utoipa::openapi::OpenApi {
+    static DOC: OnceLock<utoipa::openapi::OpenApi> = OnceLock::new();
+    DOC.get_or_init(|| {
+        let mut d = ApiDoc::openapi();
+        d.info.title = "Springbench bench daemon".into();
+        d.info.description = Some(INTRO.into());
+        d.servers = Some(vec![utoipa::openapi::Server::new("http://127.0.0.1:8750")]);
+        d
+    })
+}
+
+const INTRO: &str = "Measurement jobs for loudspeaker suspension parts (Klippel's dynamic method), results per part.\n\n\
+All physical values are SI; the unit is part of every field name (`_m`, `_hz`, `_n_per_m`, ...).\n\
+Every 4xx/5xx response is an RFC 9457 problem document (`application/problem+json`);\n\
+validation errors (422) list one message per bad field in `errors`.\n\
+Authentication: `Authorization: Bearer <token>` with roles viewer (reads), operator\n\
+(also submits, cancels, imports, fits) and admin (also reads the configuration, edits recipes,\n\
+approves limits, retries and drops MES deliveries). Without configured tokens the daemon listens\n\
+on loopback only and needs no token.\n\
+Lists are paginated: `limit` (1-500, default 50) and `cursor` (the `next_cursor` of the previous page).\n\n\
+This document is generated from the code (src/api/openapi.rs, decision 0020).";
+
+/// The document as pretty JSON (what `GET /api/openapi.json` serves).
+pub fn json() -> &'static str {
+    static JSON: OnceLock<String> = OnceLock::new();
+    JSON.get_or_init(|| {
+        document()
+            .to_pretty_json()
+            .expect("the document serializes")
+    })
+}
+
+/// The document as YAML (`api/openapi.yaml`).
+pub fn yaml() -> String {
+    document().to_yaml().expect("the document serializes")
+}
+
+/// `GET /api/openapi.json`: the API contract (public, like `/healthz`).
+#[utoipa::path(
+    get,
+    path = "/api/openapi.json",
+    tag = "operations",
+    summary = "This document (OpenAPI 3.1, generated from the code; equals api/openapi.yaml).",
+    responses((status = 200, description = "The OpenAPI document", content_type = "application/json", body = Object))
+)]
+pub async fn openapi_json() -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        json(),
+    )
+        .into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    /// `api/openapi.yaml` is this document; `SPRINGBENCH_WRITE_OPENAPI=1` rewrites it.
+    #[test]
+    fn openapi_yaml_is_the_generated_document() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("api/openapi.yaml");
+        let want = yaml();
+        if std::env::var_os("SPRINGBENCH_WRITE_OPENAPI").is_some() {
+            std::fs::write(&path, &want).expect("write api/openapi.yaml");
+        }
+        let have = std::fs::read_to_string(&path).unwrap_or_default();
+        if have != want {
+            let line = have
+                .lines()
+                .zip(want.lines())
+                .position(|(a, b)| a != b)
+                .unwrap_or(have.lines().count().min(want.lines().count()));
+            panic!(
+                "api/openapi.yaml differs from the generated document from line {}: \
+                 regenerate it with `SPRINGBENCH_WRITE_OPENAPI=1 cargo test --lib api::openapi` \
+                 (or `springbench openapi > api/openapi.yaml`) and commit it",
+                line + 1
+            );
+        }
+    }
+
+    /// The served JSON and the YAML are one document.
+    #[test]
+    fn json_and_yaml_are_the_same_document() {
+        let from_yaml: Value = serde_norway::from_str(&yaml()).expect("yaml parses");
+        let from_json: Value = serde_json::from_str(json()).expect("json parses");
+        assert_eq!(from_yaml, from_json);
+    }
+
+    /// The router and the document list the same (method, path) pairs.
+    #[test]
+    fn document_lists_exactly_the_routes_of_the_router() {
+        let doc: Value = serde_json::from_str(json()).unwrap();
+        let mut documented = BTreeSet::new();
+        for (path, item) in doc["paths"].as_object().unwrap() {
+            for m in item.as_object().unwrap().keys() {
+                if ["get", "post", "put", "patch", "delete", "head"].contains(&m.as_str()) {
+                    documented.insert((m.clone(), path.clone()));
+                }
+            }
+        }
+        let (_, list) = super::super::routes(&crate::config::Config::default());
+        let served: BTreeSet<(String, String)> = list
+            .iter()
+            .map(|(m, p)| (m.to_string(), p.to_string()))
+            .collect();
+        assert_eq!(served.len(), list.len(), "a route is registered twice");
+        let missing: Vec<_> = served.difference(&documented).collect();
+        let extra: Vec<_> = documented.difference(&served).collect();
+        assert!(
+            missing.is_empty() && extra.is_empty(),
+            "routes without an operation in the document: {missing:?}; \
+             operations without a route: {extra:?}"
+        );
+        assert!(served.len() >= 40, "{}", served.len());
+    }
+
+    /// Every operation answers errors with problem documents and names a success.
+    #[test]
+    fn every_operation_has_a_success_and_problem_errors() {
+        let doc: Value = serde_json::from_str(json()).unwrap();
+        for (path, item) in doc["paths"].as_object().unwrap() {
+            for (m, op) in item.as_object().unwrap() {
+                let rs = op["responses"].as_object().unwrap();
+                assert!(
+                    rs.keys().any(|k| k.starts_with('2') || k == "101"),
+                    "{m} {path}: no success response"
+                );
+                for (code, r) in rs {
+                    // /readyz answers 503 with its own document (a probe reads it).
+                    let own = path == "/readyz" && code == "503";
+                    if !own && (code == "default" || code.starts_with('4') || code.starts_with('5'))
+                    {
+                        assert!(
+                            r["content"]["application/problem+json"].is_object(),
+                            "{m} {path} {code}: not a problem document"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,1145 @@
+//! The API contract: every route of the router is exercised against the
+//! real daemon, and every response (successes and problem documents) is
+//! validated against the schema the served `/api/openapi.json` gives for
+//! its (method, path, status, content type). Object schemas are made strict
+//! here (members the schema does not name are refused), so a hand-described
+//! schema that misses a field the code sends fails. The test fails when a
+//! route of the router was not exercised with a validated response.
+//! The served document must also equal `api/openapi.yaml`.
+
+mod common;
+
+use common::{client, Daemon};
+use serde_json::{json, Map, Value};
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::{Duration, Instant};
+
+const VIEWER: &str = "contract-viewer-0123456789";
+const OPERATOR: &str = "contract-operator-0123456789";
+const ADMIN: &str = "contract-admin-0123456789";
+
+/// Turns a schema into one that refuses unnamed members: every object
+/// schema with `properties` gets `additionalProperties: false`; an `allOf`
+/// of object schemas (serde `flatten`) is merged into one object first.
+struct Strict<'a> {
+    schemas: &'a Map<String, Value>,
+}
+
+impl Strict<'_> {
+    fn resolve<'b>(&'b self, v: &'b Value) -> &'b Value {
+        match v.get("$ref").and_then(Value::as_str) {
+            Some(r) => {
+                let name = r
+                    .strip_prefix("#/components/schemas/")
+                    .expect("a component reference");
+                self.schemas
+                    .get(name)
+                    .unwrap_or_else(|| panic!("no schema {name}"))
+            }
+            None => v,
+        }
+    }
+
+    /// The object shapes a schema allows, each as (properties, required);
+    /// None when it is not made of plain object schemas. An `allOf` is the
+    /// product of its members' shapes, a `oneOf` / `anyOf` their union (a
+    /// serde-flattened tagged enum).
+    fn shapes(&self, v: &Value) -> Option<Vec<(Map<String, Value>, Vec<Value>)>> {
+        let v = self.resolve(v);
+        if v.get("additionalProperties").is_some() {
+            return None;
+        }
+        let mut own = (Map::new(), vec![]);
+        if let Some(p) = v.get("properties").and_then(Value::as_object) {
+            own.0 = p.clone();
+        }
+        if let Some(r) = v.get("required").and_then(Value::as_array) {
+            own.1 = r.clone();
+        }
+        let mut out = vec![own];
+        if let Some(all) = v.get("allOf").and_then(Value::as_array) {
+            for m in all {
+                let ms = self.shapes(m)?;
+                let mut next = vec![];
+                for (p, r) in &out {
+                    for (mp, mr) in &ms {
+                        let mut p = p.clone();
+                        p.extend(mp.iter().map(|(k, x)| (k.clone(), x.clone())));
+                        let mut r = r.clone();
+                        r.extend(mr.iter().cloned());
+                        next.push((p, r));
+                    }
+                }
+                out = next;
+            }
+        }
+        if let Some(one) = v
+            .get("oneOf")
+            .or_else(|| v.get("anyOf"))
+            .and_then(Value::as_array)
+        {
+            let mut alts = vec![];
+            for m in one {
+                alts.extend(self.shapes(m)?);
+            }
+            let mut next = vec![];
+            for (p, r) in &out {
+                for (mp, mr) in &alts {
+                    let mut p = p.clone();
+                    p.extend(mp.iter().map(|(k, x)| (k.clone(), x.clone())));
+                    let mut r = r.clone();
+                    r.extend(mr.iter().cloned());
+                    next.push((p, r));
+                }
+            }
+            out = next;
+        }
+        Some(out)
+    }
+
+    fn apply(&self, v: &Value) -> Value {
+        match v {
+            Value::Object(o) => {
+                if o.get("allOf").is_some() {
+                    if let Some(shapes) = self.shapes(v) {
+                        let objects: Vec<Value> = shapes
+                            .into_iter()
+                            .map(|(props, req)| {
+                                let props: Map<String, Value> = props
+                                    .iter()
+                                    .map(|(k, s)| (k.clone(), self.apply(s)))
+                                    .collect();
+                                json!({"type": "object", "properties": props, "required": req,
+                                       "additionalProperties": false})
+                            })
+                            .collect();
+                        return if objects.len() == 1 {
+                            objects.into_iter().next().unwrap()
+                        } else {
+                            json!({"anyOf": objects})
+                        };
+                    }
+                }
+                let mut out: Map<String, Value> =
+                    o.iter().map(|(k, x)| (k.clone(), self.apply(x))).collect();
+                if o.get("properties").is_some() && o.get("additionalProperties").is_none() {
+                    out.insert("additionalProperties".into(), json!(false));
+                }
+                Value::Object(out)
+            }
+            Value::Array(a) => Value::Array(a.iter().map(|x| self.apply(x)).collect()),
+            x => x.clone(),
+        }
+    }
+}
+
+/// Validates responses against the served document and records which
+/// (method, path) pairs and statuses were seen.
+struct Contract {
+    doc: Value,
+    strict_schemas: Value,
+    seen: BTreeMap<(String, String), BTreeSet<u16>>,
+}
+
+impl Contract {
+    fn new(doc: Value) -> Contract {
+        let schemas = doc["components"]["schemas"]
+            .as_object()
+            .expect("components.schemas")
+            .clone();
+        let strict = Strict { schemas: &schemas };
+        let strict_schemas: Map<String, Value> = schemas
+            .iter()
+            .map(|(k, v)| (k.clone(), strict.apply(v)))
+            .collect();
+        Contract {
+            doc,
+            strict_schemas: Value::Object(strict_schemas),
+            seen: BTreeMap::new(),
+        }
+    }
+
+    /// Checks one response; returns the body as JSON (Null for other types).
+    fn check(
+        &mut self,
+        method: &str,
+        path: &str,
+        status: u16,
+        content_type: &str,
+        body: &[u8],
+    ) -> Value {
+        let op = &self.doc["paths"][path][method];
+        assert!(op.is_object(), "{method} {path}: not in the document");
+        let responses = &op["responses"];
+        let resp = if responses[status.to_string()].is_object() {
+            &responses[status.to_string()]
+        } else if status >= 400 && responses["default"].is_object() {
+            &responses["default"]
+        } else {
+            panic!(
+                "{method} {path}: status {status} is not documented: {}",
+                String::from_utf8_lossy(body)
+            )
+        };
+        let what = format!("{method} {path} {status}");
+        let ct = content_type
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_string();
+        let content = &resp["content"];
+        let mut out = Value::Null;
+        if status == 101 || status == 204 {
+            assert!(body.is_empty(), "{what}: a body");
+            assert!(content.is_null(), "{what}: documents a body");
+        } else {
+            let media = &content[&ct];
+            assert!(
+                media.is_object(),
+                "{what}: content type {ct:?} not documented ({:?})",
+                content.as_object().map(|o| o.keys().collect::<Vec<_>>())
+            );
+            if ct == "application/json" || ct == "application/problem+json" {
+                let v: Value = serde_json::from_slice(body)
+                    .unwrap_or_else(|e| panic!("{what}: not JSON: {e}"));
+                self.validate(&what, &media["schema"], &v);
+                out = v;
+            } else {
+                assert!(!body.is_empty(), "{what}: empty body");
+                match ct.as_str() {
+                    "audio/wav" => assert_eq!(&body[..4], b"RIFF", "{what}"),
+                    "image/svg+xml" => {
+                        assert!(String::from_utf8_lossy(body).contains("<svg"), "{what}")
+                    }
+                    _ => {
+                        assert!(std::str::from_utf8(body).is_ok(), "{what}: not text")
+                    }
+                }
+            }
+        }
+        self.seen
+            .entry((method.to_string(), path.to_string()))
+            .or_default()
+            .insert(status);
+        out
+    }
+
+    fn validate(&self, what: &str, schema: &Value, v: &Value) {
+        let errors = self.errors(what, schema, v);
+        assert!(
+            errors.is_empty(),
+            "{what}: the response does not match its schema:\n  {}\nschema: {schema}\nbody: {}",
+            errors.join("\n  "),
+            short(v)
+        );
+    }
+
+    fn errors(&self, what: &str, schema: &Value, v: &Value) -> Vec<String> {
+        let strict = Strict {
+            schemas: self.doc["components"]["schemas"].as_object().unwrap(),
+        };
+        let root = json!({
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "components": {"schemas": self.strict_schemas},
+            "allOf": [strict.apply(schema)],
+        });
+        let validator = jsonschema::draft202012::new(&root)
+            .unwrap_or_else(|e| panic!("{what}: the schema does not compile: {e}"));
+        validator
+            .iter_errors(v)
+            .map(|e| format!("at {}: {e}", e.instance_path()))
+            .take(8)
+            .collect()
+    }
+}
+
+/// The strict validation refuses a member the schema does not name, a
+/// missing required member, a wrong type, and a flattened member of the
+/// wrong variant; it accepts the documents the daemon sends.
+#[test]
+fn strict_schemas_refuse_what_the_document_does_not_describe() {
+    let doc: Value = serde_json::from_str(springbench::api::openapi::json()).unwrap();
+    let k = Contract::new(doc);
+    let job = json!({"id": "j", "state": "queued", "bench_id": "virtual-1", "part_serial": "S",
+        "priority": 0, "step": null, "progress": 0.0, "eta_s": null, "request": {}, "problem": null,
+        "bench_time_s": null, "log": [], "warnings": [], "measurement_ids": [],
+        "created_at": "2026-01-01T00:00:00Z", "started_at": null, "finished_at": null});
+    let s = json!({"$ref": "#/components/schemas/Job"});
+    assert_eq!(k.errors("job", &s, &job), Vec::<String>::new());
+    let mut extra = job.clone();
+    extra["colour"] = json!("red");
+    assert_eq!(k.errors("job", &s, &extra).len(), 1);
+    let mut missing = job.clone();
+    missing.as_object_mut().unwrap().remove("id");
+    assert_eq!(k.errors("job", &s, &missing).len(), 1);
+    let mut wrong = job.clone();
+    wrong["state"] = json!("exploded");
+    assert!(!k.errors("job", &s, &wrong).is_empty());
+    // A job with its verdict (allOf of the job and `verdict`, merged).
+    let s = json!({"$ref": "#/components/schemas/JobWithVerdict"});
+    let mut jv = job.clone();
+    jv["verdict"] = json!("pass");
+    assert_eq!(k.errors("jv", &s, &jv), Vec::<String>::new());
+    jv["verdicts"] = json!("pass");
+    assert_eq!(k.errors("jv", &s, &jv).len(), 1);
+    // Proposal options: a flattened tagged enum.
+    let s = json!({"$ref": "#/components/schemas/ProposalOptions"});
+    let o = json!({"method": "k_sigma", "k": 6.0, "mask_points": 21, "mask_range_fraction": 0.9});
+    assert_eq!(k.errors("o", &s, &o), Vec::<String>::new());
+    let bad = json!({"method": "k_sigma", "tolerance_percent": 6.0, "mask_points": 21, "mask_range_fraction": 0.9});
+    assert!(!k.errors("o", &s, &bad).is_empty());
+}
+
+fn short(v: &Value) -> String {
+    let s = v.to_string();
+    if s.len() > 3000 {
+        format!("{}...", &s[..3000])
+    } else {
+        s
+    }
+}
+
+/// One request and its validation.
+struct Api<'a> {
+    c: reqwest::Client,
+    d: &'a Daemon,
+    k: Contract,
+}
+
+impl Api<'_> {
+    /// Sends `method url` (the route's template is `path`) and validates the answer.
+    async fn call(
+        &mut self,
+        method: &str,
+        path: &str,
+        url: &str,
+        token: Option<&str>,
+        body: Option<Value>,
+    ) -> (u16, Value) {
+        let m = reqwest::Method::from_bytes(method.to_uppercase().as_bytes()).unwrap();
+        let mut r = self.c.request(m, self.d.url(url));
+        if let Some(t) = token {
+            r = r.bearer_auth(t);
+        }
+        if let Some(b) = body {
+            r = r
+                .header("content-type", "application/json")
+                .body(b.to_string());
+        }
+        let resp = r.send().await.unwrap();
+        self.take(method, path, resp).await
+    }
+
+    async fn take(&mut self, method: &str, path: &str, resp: reqwest::Response) -> (u16, Value) {
+        let status = resp.status().as_u16();
+        let ct = resp
+            .headers()
+            .get("content-type")
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default();
+        let bytes = resp.bytes().await.unwrap();
+        let v = self.k.check(method, path, status, &ct, &bytes);
+        (status, v)
+    }
+
+    /// GET with the viewer token, expecting `status`.
+    async fn get(&mut self, path: &str, url: &str, status: u16) -> Value {
+        let (s, v) = self.call("get", path, url, Some(VIEWER), None).await;
+        assert_eq!(s, status, "GET {url}: {v}");
+        v
+    }
+
+    async fn wait_job(&mut self, id: &str) -> Value {
+        let t = Instant::now();
+        loop {
+            let j = self
+                .get("/api/v1/jobs/{id}", &format!("/api/v1/jobs/{id}"), 200)
+                .await;
+            if common::terminal(j["state"].as_str().unwrap()) {
+                return j;
+            }
+            assert!(
+                t.elapsed() < Duration::from_secs(600),
+                "job {id} did not finish"
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+}
+
+fn config(hook_port: u16) -> String {
+    format!(
+        "[[auth.tokens]]\nname = \"viewer\"\ntoken = \"{VIEWER}\"\nrole = \"viewer\"\n\
+         [[auth.tokens]]\nname = \"station\"\ntoken = \"{OPERATOR}\"\nrole = \"operator\"\n\
+         [[auth.tokens]]\nname = \"engineer\"\ntoken = \"{ADMIN}\"\nrole = \"admin\"\n\
+         [[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n\
+         [mes]\nsource = \"line-3\"\ninitial_backoff_s = 30.0\nmax_backoff_s = 60.0\n\
+         [[mes.webhooks]]\nname = \"mes\"\nurl = \"http://127.0.0.1:{hook_port}/cfx\"\nsecret = \"contract-hook-secret-0123456789\"\n"
+    )
+}
+
+fn recipe() -> Value {
+    json!({
+        "name": "contract-spider",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.006], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0"},
+            {"name": "keff", "quantity": "keff"},
+            {"name": "k_at_3mm", "quantity": "k_at_x", "x_m": 0.003},
+            {"name": "model_error", "quantity": "model_error", "upper": 10.0}
+        ]
+    })
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_route_answers_as_its_schema_says() {
+    // The MES receiver is down (a free port): deliveries stay pending.
+    let hook_port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let d = Daemon::start(&config(hook_port));
+    let c = client();
+    let served: Value = c
+        .get(d.url("/api/openapi.json"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let file = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("api/openapi.yaml"),
+    )
+    .unwrap();
+    let from_file: Value = serde_norway::from_str(&file).expect("api/openapi.yaml parses");
+    assert!(
+        served == from_file,
+        "GET /api/openapi.json differs from api/openapi.yaml (regenerate: SPRINGBENCH_WRITE_OPENAPI=1 cargo test --lib api::openapi)"
+    );
+    let mut a = Api {
+        c: c.clone(),
+        d: &d,
+        k: Contract::new(served),
+    };
+
+    // Operations, open routes, auth problems.
+    a.call("get", "/api/openapi.json", "/api/openapi.json", None, None)
+        .await;
+    assert_eq!(
+        a.call("get", "/healthz", "/healthz", None, None).await.0,
+        200
+    );
+    assert_eq!(a.call("get", "/readyz", "/readyz", None, None).await.0, 200);
+    let s = a
+        .call("get", "/api/v1/session", "/api/v1/session", None, None)
+        .await
+        .1;
+    assert_eq!(s["auth_required"], true);
+    let s = a
+        .call(
+            "get",
+            "/api/v1/session",
+            "/api/v1/session",
+            Some(OPERATOR),
+            None,
+        )
+        .await
+        .1;
+    assert_eq!(s["role"], "operator");
+    a.get("/metrics", "/metrics", 200).await;
+    assert_eq!(
+        a.call("get", "/metrics", "/metrics", None, None).await.0,
+        401
+    );
+    a.get("/api/v1/config", "/api/v1/config", 403).await;
+    let (s, _) = a
+        .call("get", "/api/v1/config", "/api/v1/config", Some(ADMIN), None)
+        .await;
+    assert_eq!(s, 200);
+    let b = a.get("/api/v1/benches", "/api/v1/benches", 200).await;
+    assert_eq!(b["items"].as_array().unwrap().len(), 2);
+    // Hardware-only routes on a virtual bench.
+    let p = "/api/v1/benches/{id}/self-check";
+    assert_eq!(
+        a.call(
+            "post",
+            p,
+            "/api/v1/benches/virtual-1/self-check",
+            Some(OPERATOR),
+            None
+        )
+        .await
+        .0,
+        409
+    );
+    assert_eq!(
+        a.call(
+            "post",
+            p,
+            "/api/v1/benches/nope/self-check",
+            Some(OPERATOR),
+            None
+        )
+        .await
+        .0,
+        404
+    );
+    let p = "/api/v1/benches/{id}/calibrations";
+    let cal = a
+        .get(p, "/api/v1/benches/virtual-1/calibrations", 200)
+        .await;
+    assert_eq!(cal["items"], json!([]));
+    a.get(p, "/api/v1/benches/nope/calibrations", 404).await;
+    a.get(
+        "/api/v1/calibrations/{id}",
+        "/api/v1/calibrations/nope",
+        404,
+    )
+    .await;
+    // A plain GET on the websocket route, then a websocket.
+    a.get("/api/v1/events", "/api/v1/events", 426).await;
+    {
+        use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+        let mut req = d
+            .ws_url("/api/v1/events?after=0")
+            .into_client_request()
+            .unwrap();
+        req.headers_mut()
+            .insert("authorization", format!("Bearer {VIEWER}").parse().unwrap());
+        let (_ws, resp) = tokio_tungstenite::connect_async(req).await.unwrap();
+        a.k.check("get", "/api/v1/events", resp.status().as_u16(), "", b"");
+    }
+
+    // Recipes.
+    let (s, r) = a
+        .call(
+            "post",
+            "/api/v1/recipes",
+            "/api/v1/recipes",
+            Some(ADMIN),
+            Some(recipe()),
+        )
+        .await;
+    assert_eq!(s, 201, "{r}");
+    assert_eq!(r["version"], 1);
+    assert_eq!(
+        a.call(
+            "post",
+            "/api/v1/recipes",
+            "/api/v1/recipes",
+            Some(ADMIN),
+            Some(recipe())
+        )
+        .await
+        .0,
+        409
+    );
+    let (s, p) = a
+        .call(
+            "post",
+            "/api/v1/recipes",
+            "/api/v1/recipes",
+            Some(ADMIN),
+            Some(json!({"name": "x", "procedure": {"levels_m": [-1.0]}, "parameters": []})),
+        )
+        .await;
+    assert_eq!(s, 422, "{p}");
+    assert_eq!(
+        a.call(
+            "post",
+            "/api/v1/recipes",
+            "/api/v1/recipes",
+            Some(OPERATOR),
+            Some(recipe())
+        )
+        .await
+        .0,
+        403
+    );
+    a.get("/api/v1/recipes", "/api/v1/recipes", 200).await;
+    let rn = "/api/v1/recipes/contract-spider";
+    a.get("/api/v1/recipes/{name}", rn, 200).await;
+    a.get("/api/v1/recipes/{name}", "/api/v1/recipes/nope", 404)
+        .await;
+    let (s, _) = a
+        .call(
+            "put",
+            "/api/v1/recipes/{name}",
+            rn,
+            Some(ADMIN),
+            Some(recipe()),
+        )
+        .await;
+    assert_eq!(s, 200, "unchanged");
+    let mut r2 = recipe();
+    r2["description"] = json!("golden-unit limits to come");
+    let (s, v2) = a
+        .call("put", "/api/v1/recipes/{name}", rn, Some(ADMIN), Some(r2))
+        .await;
+    assert_eq!((s, v2["version"].as_i64()), (201, Some(2)), "{v2}");
+    let mut bad = recipe();
+    bad["name"] = json!("other");
+    assert_eq!(
+        a.call("put", "/api/v1/recipes/{name}", rn, Some(ADMIN), Some(bad))
+            .await
+            .0,
+        422
+    );
+    let v = a
+        .get(
+            "/api/v1/recipes/{name}/versions",
+            &format!("{rn}/versions"),
+            200,
+        )
+        .await;
+    assert_eq!(v["items"].as_array().unwrap().len(), 2);
+    a.get(
+        "/api/v1/recipes/{name}/versions",
+        "/api/v1/recipes/nope/versions",
+        404,
+    )
+    .await;
+    a.get(
+        "/api/v1/recipes/{name}/versions/{version}",
+        &format!("{rn}/versions/1"),
+        200,
+    )
+    .await;
+    a.get(
+        "/api/v1/recipes/{name}/versions/{version}",
+        &format!("{rn}/versions/9"),
+        404,
+    )
+    .await;
+
+    // Jobs: five golden units under the recipe, a job that cannot be measured.
+    let mut ids = vec![];
+    for i in 0..5 {
+        let body = json!({"part": {"serial": format!("G-{i}"), "kind": "spider"},
+            "recipe": "contract-spider", "production": {"preset": "spider_4in", "seed": 100 + i}});
+        let (s, j) = a
+            .call(
+                "post",
+                "/api/v1/jobs",
+                "/api/v1/jobs",
+                Some(OPERATOR),
+                Some(body),
+            )
+            .await;
+        assert_eq!(s, 202, "{j}");
+        ids.push(j["id"].as_str().unwrap().to_string());
+    }
+    // A queued job cancelled (or stopping, if its bench took it already).
+    let (s, q) = a
+        .call(
+            "post",
+            "/api/v1/jobs",
+            "/api/v1/jobs",
+            Some(OPERATOR),
+            Some(json!({"part": {"serial": "C-1"}, "preset": "spider_4in", "target_xpeak_m": 0.006, "priority": -5})),
+        )
+        .await;
+    assert_eq!(s, 202, "{q}");
+    let qid = q["id"].as_str().unwrap().to_string();
+    let (s, _) = a
+        .call(
+            "post",
+            "/api/v1/jobs/{id}/cancel",
+            &format!("/api/v1/jobs/{qid}/cancel"),
+            Some(OPERATOR),
+            None,
+        )
+        .await;
+    assert!(s == 200 || s == 202, "{s}");
+    // Idempotency: replay and conflict.
+    let body = json!({"part": {"serial": "I-1"}, "preset": "spider_4in", "target_xpeak_m": 0.006, "priority": -9});
+    let send = |b: Value| {
+        c.post(d.url("/api/v1/jobs"))
+            .bearer_auth(OPERATOR)
+            .header("idempotency-key", "contract-key-1")
+            .json(&b)
+            .send()
+    };
+    let r = send(body.clone()).await.unwrap();
+    let (s, first) = a.take("post", "/api/v1/jobs", r).await;
+    assert_eq!(s, 202);
+    let r = send(body.clone()).await.unwrap();
+    let (s, again) = a.take("post", "/api/v1/jobs", r).await;
+    assert_eq!((s, &again["id"]), (200, &first["id"]));
+    let mut other = body.clone();
+    other["priority"] = json!(-8);
+    let r = send(other).await.unwrap();
+    let (s, p) = a.take("post", "/api/v1/jobs", r).await;
+    assert_eq!((s, &p["job_id"]), (409, &first["id"]), "{p}");
+    let iid = first["id"].as_str().unwrap().to_string();
+    a.call(
+        "post",
+        "/api/v1/jobs/{id}/cancel",
+        &format!("/api/v1/jobs/{iid}/cancel"),
+        Some(OPERATOR),
+        None,
+    )
+    .await;
+    let (s, p) = a
+        .call(
+            "post",
+            "/api/v1/jobs",
+            "/api/v1/jobs",
+            Some(OPERATOR),
+            Some(json!({"part": {"serial": ""}, "target_xpeak_m": -1, "colour": "red"})),
+        )
+        .await;
+    assert_eq!(s, 422, "{p}");
+    assert!(p["errors"].as_array().unwrap().len() >= 2, "{p}");
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .bearer_auth(OPERATOR)
+        .header("content-type", "application/json")
+        .body("{not json")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(a.take("post", "/api/v1/jobs", r).await.0, 400);
+    let mut golden = vec![];
+    for id in &ids {
+        let j = a.wait_job(id).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        golden.push(j);
+    }
+    let jid = ids[0].clone();
+    let (s, _) = a
+        .call(
+            "post",
+            "/api/v1/jobs/{id}/cancel",
+            &format!("/api/v1/jobs/{jid}/cancel"),
+            Some(OPERATOR),
+            None,
+        )
+        .await;
+    assert_eq!(s, 409);
+    a.call(
+        "post",
+        "/api/v1/jobs/{id}/cancel",
+        "/api/v1/jobs/nope/cancel",
+        Some(OPERATOR),
+        None,
+    )
+    .await;
+    a.get("/api/v1/jobs/{id}", "/api/v1/jobs/nope", 404).await;
+    let page = a.get("/api/v1/jobs", "/api/v1/jobs?limit=3", 200).await;
+    assert!(page["next_cursor"].is_string(), "{page}");
+    let cur = page["next_cursor"].as_str().unwrap().to_string();
+    a.get(
+        "/api/v1/jobs",
+        &format!("/api/v1/jobs?limit=3&cursor={cur}"),
+        200,
+    )
+    .await;
+    a.get("/api/v1/jobs", "/api/v1/jobs?state=succeeded&part=G-1", 200)
+        .await;
+    a.get("/api/v1/jobs", "/api/v1/jobs?state=bogus", 422).await;
+    let v = a
+        .get(
+            "/api/v1/jobs/{id}/verdict",
+            &format!("/api/v1/jobs/{jid}/verdict"),
+            200,
+        )
+        .await;
+    assert_eq!(v["measurements"].as_array().unwrap().len(), 1, "{v}");
+    a.get(
+        "/api/v1/jobs/{id}/verdict",
+        "/api/v1/jobs/nope/verdict",
+        404,
+    )
+    .await;
+
+    // Parts.
+    a.get("/api/v1/parts", "/api/v1/parts?limit=2", 200).await;
+    a.get("/api/v1/parts", "/api/v1/parts?limit=0", 422).await;
+    a.get("/api/v1/parts/{serial}", "/api/v1/parts/G-0", 200)
+        .await;
+    a.get("/api/v1/parts/{serial}", "/api/v1/parts/nope", 404)
+        .await;
+    a.get(
+        "/api/v1/parts/{serial}/measurements",
+        "/api/v1/parts/G-0/measurements",
+        200,
+    )
+    .await;
+    a.get(
+        "/api/v1/parts/{serial}/measurements",
+        "/api/v1/parts/nope/measurements",
+        404,
+    )
+    .await;
+    a.get(
+        "/api/v1/parts/{serial}/verdict",
+        "/api/v1/parts/G-0/verdict",
+        200,
+    )
+    .await;
+    a.get(
+        "/api/v1/parts/{serial}/verdict",
+        "/api/v1/parts/nope/verdict",
+        404,
+    )
+    .await;
+
+    // Measurements of a bench job.
+    let mid = golden[0]["measurement_ids"][0]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let ms = a
+        .get("/api/v1/measurements", "/api/v1/measurements?part=G-0", 200)
+        .await;
+    assert_eq!(ms["items"][0]["id"], mid.as_str());
+    a.get(
+        "/api/v1/measurements",
+        "/api/v1/measurements?since=yesterday",
+        422,
+    )
+    .await;
+    let m = a
+        .get(
+            "/api/v1/measurements/{id}",
+            &format!("/api/v1/measurements/{mid}"),
+            200,
+        )
+        .await;
+    assert!(m["measurement"]["verdict"].is_object(), "{}", short(&m));
+    a.get(
+        "/api/v1/measurements/{id}",
+        "/api/v1/measurements/nope",
+        404,
+    )
+    .await;
+    let rp = "/api/v1/measurements/{id}/recordings/{file}";
+    a.get(
+        rp,
+        &format!("/api/v1/measurements/{mid}/recordings/pre.wav"),
+        200,
+    )
+    .await;
+    a.get(
+        rp,
+        &format!("/api/v1/measurements/{mid}/recordings/main.wav"),
+        200,
+    )
+    .await;
+    a.get(
+        rp,
+        &format!("/api/v1/measurements/{mid}/recordings/x.wav"),
+        404,
+    )
+    .await;
+    let dp = "/api/v1/measurements/{id}/diagnostics";
+    let dg = a
+        .get(dp, &format!("/api/v1/measurements/{mid}/diagnostics"), 200)
+        .await;
+    a.get(dp, "/api/v1/measurements/nope/diagnostics", 404)
+        .await;
+    let plot = dg["plots"][0].as_str().unwrap().to_string();
+    let pp = "/api/v1/measurements/{id}/plots/{file}";
+    a.get(pp, &plot, 200).await;
+    a.get(
+        pp,
+        &format!("/api/v1/measurements/{mid}/plots/nope.svg"),
+        404,
+    )
+    .await;
+    let fp = "/api/v1/measurements/{id}/fits";
+    let furl = format!("/api/v1/measurements/{mid}/fits");
+    let (s, f) = a
+        .call(
+            "post",
+            fp,
+            &furl,
+            Some(OPERATOR),
+            Some(json!({"effects": ["coulomb_friction"], "order": 4})),
+        )
+        .await;
+    assert_eq!(s, 201, "{}", short(&f));
+    let (s, _) = a
+        .call(
+            "post",
+            fp,
+            &furl,
+            Some(OPERATOR),
+            Some(json!({"effects": ["nope"]})),
+        )
+        .await;
+    assert_eq!(s, 422);
+    let (s, _) = a
+        .call(
+            "post",
+            fp,
+            "/api/v1/measurements/nope/fits",
+            Some(OPERATOR),
+            Some(json!({})),
+        )
+        .await;
+    assert_eq!(s, 404);
+    let fl = a.get(fp, &furl, 200).await;
+    assert_eq!(fl["items"].as_array().unwrap().len(), 1);
+    a.get(fp, "/api/v1/measurements/nope/fits", 404).await;
+
+    // An imported recording set.
+    let dir = common::reference_dir("p1_spider");
+    let part = |name: &str| reqwest::multipart::Part::bytes(std::fs::read(dir.join(name)).unwrap());
+    let form = |serial: &str| {
+        reqwest::multipart::Form::new()
+            .part("meta", part("meta.json").file_name("meta.json"))
+            .part("pre", part("pre.wav").file_name("pre.wav"))
+            .part("main", part("main.wav").file_name("main.wav"))
+            .text("serial", serial.to_string())
+    };
+    let import = |serial: &str| {
+        c.post(d.url("/api/v1/measurements"))
+            .bearer_auth(OPERATOR)
+            .header("idempotency-key", "contract-import-1")
+            .multipart(form(serial))
+            .send()
+    };
+    let r = import("IMP-1").await.unwrap();
+    let (s, imp) = a.take("post", "/api/v1/measurements", r).await;
+    assert_eq!(s, 201, "{}", short(&imp));
+    let r = import("IMP-1").await.unwrap();
+    let (s, again) = a.take("post", "/api/v1/measurements", r).await;
+    assert_eq!(s, 200, "{}", short(&again));
+    assert_eq!(again["measurement"]["id"], imp["measurement"]["id"]);
+    let r = import("IMP-9").await.unwrap();
+    let (s, p) = a.take("post", "/api/v1/measurements", r).await;
+    assert_eq!((s, &p["measurement_id"]), (409, &imp["measurement"]["id"]), "{p}");
+    let form = reqwest::multipart::Form::new()
+        .part("meta", part("meta.json").file_name("meta.json"))
+        .part(
+            "pre",
+            reqwest::multipart::Part::bytes(b"RIFF nonsense".to_vec()),
+        )
+        .part("main", part("main.wav").file_name("main.wav"))
+        .text("serial", "IMP-2");
+    let r = c
+        .post(d.url("/api/v1/measurements"))
+        .bearer_auth(OPERATOR)
+        .multipart(form)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(a.take("post", "/api/v1/measurements", r).await.0, 422);
+
+    // Limit proposals: one rejected, one approved.
+    let serials: Vec<String> = (0..5).map(|i| format!("G-{i}")).collect();
+    let lp = "/api/v1/recipes/{name}/limit-proposals";
+    let lurl = format!("{rn}/limit-proposals");
+    let pbody = json!({"serials": serials, "method": "k_sigma", "k": 6});
+    let mut proposals = vec![];
+    for _ in 0..2 {
+        let (s, p) = a
+            .call("post", lp, &lurl, Some(OPERATOR), Some(pbody.clone()))
+            .await;
+        assert_eq!(s, 201, "{}", short(&p));
+        proposals.push(p["id"].as_str().unwrap().to_string());
+    }
+    let (s, _) = a
+        .call(
+            "post",
+            lp,
+            &lurl,
+            Some(OPERATOR),
+            Some(json!({"serials": ["G-0", "nope", "G-1", "G-2", "G-3"], "method": "k_sigma", "k": 6})),
+        )
+        .await;
+    assert_eq!(s, 422);
+    let (s, _) = a
+        .call(
+            "post",
+            lp,
+            "/api/v1/recipes/nope/limit-proposals",
+            Some(OPERATOR),
+            Some(pbody.clone()),
+        )
+        .await;
+    assert_eq!(s, 404);
+    a.get(
+        "/api/v1/limit-proposals/{id}",
+        &format!("/api/v1/limit-proposals/{}", proposals[0]),
+        200,
+    )
+    .await;
+    a.get(
+        "/api/v1/limit-proposals/{id}",
+        "/api/v1/limit-proposals/nope",
+        404,
+    )
+    .await;
+    let pl = a.get(lp, &lurl, 200).await;
+    assert_eq!(pl["items"].as_array().unwrap().len(), 2);
+    a.get(lp, "/api/v1/recipes/nope/limit-proposals", 404).await;
+    let rj = "/api/v1/limit-proposals/{id}/reject";
+    let rurl = format!("/api/v1/limit-proposals/{}/reject", proposals[0]);
+    assert_eq!(a.call("post", rj, &rurl, Some(ADMIN), None).await.0, 200);
+    assert_eq!(a.call("post", rj, &rurl, Some(ADMIN), None).await.0, 409);
+    assert_eq!(
+        a.call(
+            "post",
+            rj,
+            "/api/v1/limit-proposals/nope/reject",
+            Some(ADMIN),
+            None
+        )
+        .await
+        .0,
+        404
+    );
+    let ap = "/api/v1/limit-proposals/{id}/approve";
+    let aurl = format!("/api/v1/limit-proposals/{}/approve", proposals[1]);
+    let (s, v3) = a.call("post", ap, &aurl, Some(ADMIN), None).await;
+    assert_eq!((s, v3["version"].as_i64()), (201, Some(3)), "{v3}");
+    assert_eq!(a.call("post", ap, &aurl, Some(ADMIN), None).await.0, 409);
+    let aurl0 = format!("/api/v1/limit-proposals/{}/approve", proposals[0]);
+    assert_eq!(a.call("post", ap, &aurl0, Some(ADMIN), None).await.0, 409);
+    assert_eq!(
+        a.call(
+            "post",
+            ap,
+            "/api/v1/limit-proposals/nope/approve",
+            Some(ADMIN),
+            None
+        )
+        .await
+        .0,
+        404
+    );
+
+    // SPC (JSON and CSV).
+    let sp = "/api/v1/recipes/{name}/spc";
+    let spc = a.get(sp, &format!("{rn}/spc?parameter=k0"), 200).await;
+    assert_eq!(spc["n"], 5, "{spc}");
+    a.get(sp, &format!("{rn}/spc?parameter=k0&format=csv"), 200)
+        .await;
+    a.get(sp, &format!("{rn}/spc"), 422).await;
+    a.get(sp, "/api/v1/recipes/nope/spc?parameter=k0", 404)
+        .await;
+
+    // MES outbox: the receiver is down, so every message is pending.
+    let ob = a
+        .get("/api/v1/outbox", "/api/v1/outbox?limit=500", 200)
+        .await;
+    assert!(ob["pending"].as_i64().unwrap() >= 15, "{ob}");
+    a.get("/api/v1/outbox", "/api/v1/outbox?state=lost", 422)
+        .await;
+    let first = ob["items"][0]["id"].as_i64().unwrap();
+    let rt = "/api/v1/outbox/{id}/retry";
+    let (s, r) = a
+        .call(
+            "post",
+            rt,
+            &format!("/api/v1/outbox/{first}/retry"),
+            Some(ADMIN),
+            None,
+        )
+        .await;
+    assert_eq!(s, 200, "{r}");
+    assert_eq!(
+        a.call("post", rt, "/api/v1/outbox/999999/retry", Some(ADMIN), None)
+            .await
+            .0,
+        404
+    );
+    let dr = "/api/v1/outbox/{id}";
+    let (s, r) = a
+        .call(
+            "delete",
+            dr,
+            &format!("/api/v1/outbox/{first}"),
+            Some(ADMIN),
+            None,
+        )
+        .await;
+    assert_eq!((s, r["state"].as_str()), (200, Some("dropped")));
+    assert_eq!(
+        a.call(
+            "delete",
+            dr,
+            &format!("/api/v1/outbox/{first}"),
+            Some(ADMIN),
+            None
+        )
+        .await
+        .0,
+        409
+    );
+    assert_eq!(
+        a.call(
+            "post",
+            rt,
+            &format!("/api/v1/outbox/{first}/retry"),
+            Some(ADMIN),
+            None
+        )
+        .await
+        .0,
+        409
+    );
+    assert_eq!(
+        a.call("delete", dr, "/api/v1/outbox/nope", Some(ADMIN), None)
+            .await
+            .0,
+        404
+    );
+
+    // Retiring the recipe last (jobs above still name it).
+    let (s, _) = a
+        .call("delete", "/api/v1/recipes/{name}", rn, Some(ADMIN), None)
+        .await;
+    assert_eq!(s, 204);
+    assert_eq!(
+        a.call(
+            "delete",
+            "/api/v1/recipes/{name}",
+            "/api/v1/recipes/nope",
+            Some(ADMIN),
+            None
+        )
+        .await
+        .0,
+        404
+    );
+
+    // Every route of the router was answered and validated, with a success
+    // except where a success needs a hardware bench (feature `hardware`).
+    const HARDWARE_ONLY: [&str; 2] = [
+        "post /api/v1/benches/{id}/self-check",
+        "get /api/v1/calibrations/{id}",
+    ];
+    let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
+    let mut missing = vec![];
+    let mut no_success = vec![];
+    for (m, p) in &routes {
+        match a.k.seen.get(&(m.to_string(), p.to_string())) {
+            None => missing.push(format!("{m} {p}")),
+            Some(st)
+                if !st.iter().any(|s| *s < 300)
+                    && !HARDWARE_ONLY.contains(&format!("{m} {p}").as_str()) =>
+            {
+                no_success.push(format!("{m} {p}"))
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        missing.is_empty() && no_success.is_empty(),
+        "routes not exercised: {missing:?}; without a validated success: {no_success:?}"
+    );
+    let statuses: usize = a.k.seen.values().map(|s| s.len()).sum();
+    eprintln!(
+        "contract: {} routes, {} (route, status) pairs validated",
+        routes.len(),
+        statuses
+    );
+}
