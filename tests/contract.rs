@@ -914,7 +914,11 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!(again["measurement"]["id"], imp["measurement"]["id"]);
     let r = import("IMP-9").await.unwrap();
     let (s, p) = a.take("post", "/api/v1/measurements", r).await;
-    assert_eq!((s, &p["measurement_id"]), (409, &imp["measurement"]["id"]), "{p}");
+    assert_eq!(
+        (s, &p["measurement_id"]),
+        (409, &imp["measurement"]["id"]),
+        "{p}"
+    );
     let form = reqwest::multipart::Form::new()
         .part("meta", part("meta.json").file_name("meta.json"))
         .part(

@@ -388,7 +388,6 @@ pub struct ImportForm {
     pub order: Option<usize>,
 }
 
-
 // ---------------------------------------------------------------------------
 
 #[derive(OpenApi)]
