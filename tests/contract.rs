@@ -18,6 +18,9 @@ const VIEWER: &str = "contract-viewer-0123456789";
 const OPERATOR: &str = "contract-operator-0123456789";
 const ADMIN: &str = "contract-admin-0123456789";
 
+/// An object shape: its properties and its required member names.
+type Shape = (Map<String, Value>, Vec<Value>);
+
 /// Turns a schema into one that refuses unnamed members: every object
 /// schema with `properties` gets `additionalProperties: false`; an `allOf`
 /// of object schemas (serde `flatten`) is merged into one object first.
@@ -44,7 +47,7 @@ impl Strict<'_> {
     /// None when it is not made of plain object schemas. An `allOf` is the
     /// product of its members' shapes, a `oneOf` / `anyOf` their union (a
     /// serde-flattened tagged enum).
-    fn shapes(&self, v: &Value) -> Option<Vec<(Map<String, Value>, Vec<Value>)>> {
+    fn shapes(&self, v: &Value) -> Option<Vec<Shape>> {
         let v = self.resolve(v);
         if v.get("additionalProperties").is_some() {
             return None;
