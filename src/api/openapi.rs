@@ -13,6 +13,10 @@
 //! tests (`tests/contract.rs`) validate every route's real responses against
 //! these schemas with unknown members refused, so a hand-described schema
 //! that drifts from the code fails there.
+//!
+//! A type that contains itself (e.g. `base: Option<Box<Stiffness>>`) needs
+//! `#[schema(no_recursion)]` on that field: without it, collecting the
+//! schemas recurses until the stack overflows (the tests abort).
 
 use super::auth;
 use crate::config::Role;

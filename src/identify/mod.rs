@@ -127,6 +127,7 @@ pub struct LargeSignal {
     /// With effects in the chosen model: the identification's values (phase
     /// method, no effects) in the same layout.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
     pub base: Option<Box<LargeSignal>>,
 }
 
