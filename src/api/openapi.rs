@@ -289,6 +289,12 @@ pub struct Diagnostics {
     /// The data the plots draw (detail, envelope, residual vs x and v,
     /// spectrum, small-signal comparison), arrays with units in their names.
     pub comparison: std::collections::BTreeMap<String, Value>,
+    /// Pairs of effects the data cannot tell apart (swap test; issue 12).
+    #[schema(required = false)]
+    pub ambiguities: Option<Vec<Value>>,
+    /// What the chosen model leaves unexplained (issue 12).
+    #[schema(required = false)]
+    pub unexplained: Option<Value>,
     /// The small-signal model's ladder and choice (when the set has a pre sweep).
     #[schema(required = false)]
     pub small_signal_model: Option<Value>,
