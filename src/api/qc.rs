@@ -723,27 +723,7 @@ pub async fn outbox_retry(
     State(st): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
-    let n = delivery_id(&id)?;
-    let d = st
-        .store
-        .get_delivery(n)
-        .await?
-        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
-    if !st.store.retry_delivery(n).await? {
-        return Err(Problem::new(
-            StatusCode::CONFLICT,
-            "delivery-final",
-            "Delivery final",
-            format!("delivery {id} is {}", d.state),
-        ));
-    }
-    st.runner.outbox_wake().notify_one();
-    let d = st
-        .store
-        .get_delivery(n)
-        .await?
-        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
-    Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
+    change_delivery(&st, &id, DeliveryChange::Retry).await
 }
 
 /// `DELETE /api/v1/outbox/{id}` (admin): the delivery is dropped (the message stays stored).
@@ -758,13 +738,33 @@ pub async fn outbox_drop(
     State(st): State<AppState>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
-    let n = delivery_id(&id)?;
+    change_delivery(&st, &id, DeliveryChange::Drop).await
+}
+
+enum DeliveryChange {
+    Retry,
+    Drop,
+}
+
+/// Retries or drops a pending or failed delivery and wakes the worker;
+/// 404 when there is none, 409 when it is final already; the delivery after
+/// the change.
+async fn change_delivery(
+    st: &AppState,
+    id: &str,
+    change: DeliveryChange,
+) -> ApiResult<Json<Value>> {
+    let n = delivery_id(id)?;
     let d = st
         .store
         .get_delivery(n)
         .await?
-        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
-    if !st.store.drop_delivery(n).await? {
+        .ok_or_else(|| Problem::not_found("outbox delivery", id))?;
+    let changed = match change {
+        DeliveryChange::Retry => st.store.retry_delivery(n).await?,
+        DeliveryChange::Drop => st.store.drop_delivery(n).await?,
+    };
+    if !changed {
         return Err(Problem::new(
             StatusCode::CONFLICT,
             "delivery-final",
@@ -777,6 +777,6 @@ pub async fn outbox_drop(
         .store
         .get_delivery(n)
         .await?
-        .ok_or_else(|| Problem::not_found("outbox delivery", &id))?;
+        .ok_or_else(|| Problem::not_found("outbox delivery", id))?;
     Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
 }
