@@ -572,7 +572,16 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
         assert_eq!(want.len(), 6);
         assert_eq!(first.get(&part), Some(&want), "order of {part}");
     }
-    let ob = get(&c, &d2, "/api/v1/outbox").await;
+    // The receiver records a message before it answers 200, so the daemon
+    // marks the last one delivered a moment after it was seen: wait for it.
+    let t = Instant::now();
+    let ob = loop {
+        let ob = get(&c, &d2, "/api/v1/outbox").await;
+        if ob["pending"] == 0 || t.elapsed() > Duration::from_secs(30) {
+            break ob;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
     assert_eq!(
         (ob["pending"].as_i64(), ob["failed"].as_i64()),
         (Some(0), Some(0)),
