@@ -172,29 +172,6 @@ pub fn alignment_invalid(record: &Value) -> Option<String> {
 }
 
 impl Runner {
-    pub(super) async fn finish_failed(&self, job: &Job, p: Value) -> StoreResult<()> {
-        self.store
-            .finish_job(
-                &job.id,
-                JobState::Failed,
-                Some(&p),
-                None,
-                &[],
-                &[],
-                vec![],
-                vec![],
-            )
-            .await?;
-        self.events
-            .publish(
-                "job.state",
-                Some(&job.id),
-                json!({"state": "failed", "problem": p}),
-            )
-            .await?;
-        Ok(())
-    }
-
     /// Marks the bench faulted (stored: it stays faulted across restarts).
     pub(super) async fn fault_bench(
         &self,

@@ -442,26 +442,9 @@ impl Runner {
                 "Results not stored",
                 &format!("writing the results failed: {e}"),
             );
-            self.store
-                .finish_job(
-                    &job.id,
-                    JobState::Failed,
-                    Some(&p),
-                    bench_time,
-                    &log,
-                    &warnings,
-                    vec![],
-                    vec![],
-                )
-                .await?;
-            self.events
-                .publish(
-                    "job.state",
-                    Some(&job.id),
-                    json!({"state": "failed", "problem": p}),
-                )
-                .await?;
-            return Ok(());
+            return self
+                .finish_failed_after(job, &p, bench_time, &log, &warnings)
+                .await;
         }
         if let (Some(c), JobState::Succeeded) = (&calibration, state) {
             self.store
@@ -1121,4 +1104,43 @@ fn recording(
 /// A fresh id (UUID v4, text).
 pub fn new_id() -> String {
     uuid::Uuid::new_v4().to_string()
+}
+
+impl Runner {
+    pub(super) async fn finish_failed(&self, job: &Job, p: Value) -> StoreResult<()> {
+        self.finish_failed_after(job, &p, None, &[], &[]).await
+    }
+
+    /// Ends a job `failed` with problem `p`, keeping what the bench did before
+    /// (its time, log and warnings), and announces it. The one way every
+    /// runner path fails a job.
+    pub(super) async fn finish_failed_after(
+        &self,
+        job: &Job,
+        p: &Value,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+    ) -> StoreResult<()> {
+        self.store
+            .finish_job(
+                &job.id,
+                JobState::Failed,
+                Some(p),
+                bench_time_s,
+                log,
+                warnings,
+                vec![],
+                vec![],
+            )
+            .await?;
+        self.events
+            .publish(
+                "job.state",
+                Some(&job.id),
+                json!({"state": "failed", "problem": p}),
+            )
+            .await?;
+        Ok(())
+    }
 }
