@@ -1118,6 +1118,41 @@ async fn every_route_answers_as_its_schema_says() {
         404
     );
 
+    // A level series (issue 12): the joint fit in the document of each
+    // level, Keff at the target beside the measured one, both validated.
+    let (s, sj) = a
+        .call(
+            "post",
+            "/api/v1/jobs",
+            "/api/v1/jobs",
+            Some(OPERATOR),
+            Some(json!({"part": {"serial": "S-1"}, "preset": "spider_4in", "levels_m": [0.004, 0.007]})),
+        )
+        .await;
+    assert_eq!(s, 202, "{sj}");
+    let sj = a.wait_job(sj["id"].as_str().unwrap()).await;
+    assert_eq!(sj["state"], "succeeded", "{sj}");
+    for id in sj["measurement_ids"].as_array().unwrap() {
+        let sm = a
+            .get(
+                "/api/v1/measurements/{id}",
+                &format!("/api/v1/measurements/{}", id.as_str().unwrap()),
+                200,
+            )
+            .await;
+        assert_eq!(
+            sm["series"]["levels"].as_array().map(|l| l.len()),
+            Some(2),
+            "{}",
+            short(&sm)
+        );
+        assert!(
+            sm["large_signal"]["keff_at_target_n_per_m"].is_number(),
+            "{}",
+            short(&sm)
+        );
+    }
+
     // Every route of the router was answered and validated, with a success
     // except where a success needs a hardware bench (feature `hardware`).
     const HARDWARE_ONLY: [&str; 2] = [

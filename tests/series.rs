@@ -2,6 +2,10 @@
 //! levels of a series (`diagnose::series`), against the part's truth on the
 //! virtual bench, beside each level's own fit. Three levels (3, 6, 9 mm
 //! targets) of the 4" spider with an effect that changes with amplitude.
+mod common;
+
+use common::{client, get, submit, terminal, wait_job, Daemon};
+use serde_json::{json, Value};
 use springbench::diagnose::engine::EngineOptions;
 use springbench::diagnose::series::{fit_series_sets, SeriesFit};
 use springbench::diagnose::{diagnose, DiagnoseOptions};
@@ -127,4 +131,131 @@ fn joint_fit_with_friction() {
     assert_eq!(s.joint.effects.ids(), vec![EffectId::CoulombFriction]);
     let f = s.joint.effects.coulomb_friction.unwrap().force_n;
     assert!((f / 0.2 - 1.0).abs() < 0.02, "{f}");
+}
+
+/// K(x) coefficients (N/m^(i+1)) of a JSON array.
+fn coefs(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap_or_else(|| panic!("no coefficients: {v}"))
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect()
+}
+
+fn range_of(v: &Value) -> [f64; 2] {
+    [v[0].as_f64().unwrap(), v[1].as_f64().unwrap()]
+}
+
+/// A daemon job with three levels ends with the joint fit in the result
+/// document of each level (`series`), against the part's truth: the joint
+/// K(x) holds over the whole series' range, where the lowest level's own
+/// fit (and its plain headline K(x)) does not.
+#[tokio::test]
+async fn daemon_job_with_levels_ends_with_the_joint_fit() {
+    let d = Daemon::start("");
+    let c = client();
+    let mut part = preset("spider_4in").unwrap();
+    part.effects = Effects {
+        coulomb_friction: Some(CoulombFriction {
+            force_n: 0.2,
+            v_eps_m_per_s: 2e-3,
+        }),
+        ..Default::default()
+    };
+    let t = std::time::Instant::now();
+    let id = submit(
+        &c,
+        &d,
+        json!({"part": {"serial": "SN-SERIES"}, "part_spec": part,
+               "levels_m": [0.003, 0.006, 0.009]}),
+    )
+    .await;
+    let j = wait_job(&c, &d, &id, std::time::Duration::from_secs(600), terminal).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    eprintln!(
+        "job: {:.1} s wall; log {}",
+        t.elapsed().as_secs_f64(),
+        j["log"]
+    );
+    let ids: Vec<String> = j["measurement_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(ids.len(), 3);
+    let docs: Vec<Value> = {
+        let mut v = vec![];
+        for m in &ids {
+            v.push(get(&c, &d, &format!("/api/v1/measurements/{m}")).await);
+        }
+        v
+    };
+    // The same joint fit in every level's document, naming the levels.
+    let s = &docs[0]["series"];
+    assert!(s.is_object(), "no series in {}", docs[0]);
+    for doc in &docs[1..] {
+        assert_eq!(&doc["series"], s);
+    }
+    let levels = s["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), 3);
+    for (i, l) in levels.iter().enumerate() {
+        assert_eq!(l["measurement_id"], json!(ids[i]));
+        assert_eq!(
+            l["target_xpeak_m"],
+            docs[i]["measurement"]["target_xpeak_m"]
+        );
+    }
+    let joint = &s["joint"];
+    let union = range_of(&joint["valid_range_m"]);
+    let e_joint = k_rms(
+        &part,
+        &coefs(&joint["stiffness_coefficients_n_per_m_pow_i_plus_1"]),
+        union,
+    );
+    // The lowest level alone: its own fit in the series (engine, effects
+    // chosen by its ladder) and its document's headline (plain analysis).
+    let low = &levels[0];
+    let low_range = range_of(&low["range_m"]);
+    let own = coefs(&low["stiffness_coefficients_n_per_m_pow_i_plus_1"]);
+    let headline = coefs(&docs[0]["stiffness"]["coefficients_n_per_m_pow_i_plus_1"]);
+    let (e_own_union, e_own_range) = (k_rms(&part, &own, union), k_rms(&part, &own, low_range));
+    let e_joint_low = k_rms(
+        &part,
+        &coefs(&joint["stiffness_coefficients_n_per_m_pow_i_plus_1"]),
+        low_range,
+    );
+    let (e_head_union, e_head_range) = (
+        k_rms(&part, &headline, union),
+        k_rms(&part, &headline, low_range),
+    );
+    eprintln!(
+        "series over {:.2}..{:.2} mm, joint effects {}, R {} (true {}): K(x) RMS error over the series' range: joint {e_joint:.4} %, lowest level's own fit {e_own_union:.3} %, its headline (plain) {e_head_union:.3} %; over the lowest level's range ({:.2}..{:.2} mm): joint {e_joint_low:.4} %, own {e_own_range:.4} %, headline {e_head_range:.4} %",
+        union[0] * 1e3,
+        union[1] * 1e3,
+        joint["effects"],
+        joint["r_ns_per_m"],
+        part.r_ns_per_m,
+        low_range[0] * 1e3,
+        low_range[1] * 1e3,
+    );
+    assert!(e_joint <= 0.05, "{e_joint}");
+    assert!(e_own_union > 10.0 * e_joint, "{e_own_union} vs {e_joint}");
+    assert!(
+        joint["effects"]["coulomb_friction"].is_object(),
+        "{}",
+        joint["effects"]
+    );
+    let f = joint["effects"]["coulomb_friction"]["force_n"]
+        .as_f64()
+        .unwrap();
+    assert!((f / 0.2 - 1.0).abs() < 0.02, "{f}");
+    let r = joint["r_ns_per_m"].as_f64().unwrap();
+    assert!((r / part.r_ns_per_m - 1.0).abs() < 0.01, "{r}");
+    // Keff at the level's target beside the one at the reached Xpeak.
+    for doc in &docs {
+        let ls = &doc["large_signal"];
+        assert_eq!(ls["target_xpeak_m"], doc["measurement"]["target_xpeak_m"]);
+        assert!(ls["keff_at_target_n_per_m"].as_f64().unwrap() > 0.0, "{ls}");
+    }
 }

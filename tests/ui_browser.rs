@@ -310,6 +310,48 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
     }
     b.screenshot("measurement").await;
     b.assert_no_console_errors("on the measurement view").await;
+
+    // A level series: the joint fit over its levels and Keff at the target.
+    let r = common::client()
+        .post(d.url("/api/v1/jobs"))
+        .bearer_auth(OPERATOR)
+        .json(&json!({"part": {"serial": "SN-UI-SERIES"}, "levels_m": [0.004, 0.007]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202);
+    let sid = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let t = std::time::Instant::now();
+    let sj = loop {
+        let j = get(&d, &format!("/api/v1/jobs/{sid}")).await;
+        if common::terminal(j["state"].as_str().unwrap_or("")) || t.elapsed() > LONG {
+            break j;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    assert_eq!(sj["state"], "succeeded", "{sj}");
+    let smid = sj["measurement_ids"][1].as_str().unwrap().to_string();
+    b.goto(&format!("{}/#/measurement/{smid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#series-levels tbody tr') && document.querySelector('#keff-at-target') && document.querySelector('#plot-kx canvas')",
+        LONG,
+        "the level series' joint fit and Keff at the target",
+    )
+    .await;
+    let rows = b
+        .wait_js(
+            "document.querySelectorAll('#series-levels tbody tr').length",
+            SHORT,
+            "level rows",
+        )
+        .await;
+    assert_eq!(rows, json!(2));
+    b.screenshot("measurement-series").await;
+    b.assert_no_console_errors("on a level series' measurement")
+        .await;
     b.quit().await;
 }
 

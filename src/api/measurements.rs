@@ -181,8 +181,12 @@ pub async fn recording(
         .into_response())
 }
 
-/// Loads a stored measurement's recording set and its analysis options.
-async fn load_set(st: &AppState, id: &str) -> ApiResult<(RecordingSet, AnalyzeOptions)> {
+/// Loads a stored measurement's recording set, its analysis options and its
+/// target peak displacement (bench measurements).
+async fn load_set(
+    st: &AppState,
+    id: &str,
+) -> ApiResult<(RecordingSet, AnalyzeOptions, Option<f64>)> {
     let (info, _, meta) = st
         .store
         .get_measurement(id)
@@ -216,7 +220,7 @@ async fn load_set(st: &AppState, id: &str) -> ApiResult<(RecordingSet, AnalyzeOp
     .await
     .map_err(Problem::internal)?
     .map_err(|e| Problem::internal(format!("stored recordings unreadable: {e}")))?;
-    Ok((set, opts))
+    Ok((set, opts, info.target_xpeak_m))
 }
 
 fn numeric_failure(title: &'static str, e: impl std::fmt::Display) -> Problem {
@@ -346,7 +350,7 @@ pub async fn fit(
         method,
         exact,
     } = fit_request(&body).map_err(Problem::validation)?;
-    let (set, mut analyze) = load_set(&st, &id).await?;
+    let (set, mut analyze, target) = load_set(&st, &id).await?;
     if let Some(m) = method {
         analyze.method = m;
     }
@@ -359,10 +363,12 @@ pub async fn fit(
         exact,
     };
     let request = serde_json::to_value(&opts).map_err(Problem::internal)?;
-    let d = tokio::task::spawn_blocking(move || diagnose::diagnose(&set, &opts))
+    let mut d = tokio::task::spawn_blocking(move || diagnose::diagnose(&set, &opts))
         .await
         .map_err(Problem::internal)?
         .map_err(|e| numeric_failure("Fit failed", e))?;
+    // Keff at the target amplitude from this fit's K(x), as the job's result has it.
+    crate::qc::set_keff_at_target(&mut d.report, target);
     let result = crate::store::finite::to_value(&d.report)
         .map_err(|e| numeric_failure("Fit failed", format!("result refused: {e}")))?;
     let fit = st
@@ -397,7 +403,7 @@ pub(super) async fn diagnose_stored(
     st: &AppState,
     id: &str,
 ) -> ApiResult<(RecordingSet, diagnose::Diagnosis)> {
-    let (set, analyze) = load_set(st, id).await?;
+    let (set, analyze, _) = load_set(st, id).await?;
     let opts = DiagnoseOptions {
         analyze,
         effects: vec![],

@@ -14,8 +14,14 @@ use crate::identify::ForceBalanceData;
 use serde::{Deserialize, Serialize};
 
 /// One level's own fit (the engine on that level alone).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct LevelFit {
+    /// The measurement of this level (daemon jobs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measurement_id: Option<String>,
+    /// The level's target peak displacement (m), when it had one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_xpeak_m: Option<f64>,
     /// Largest |x| of the level's analysed data (m).
     pub x_abs_max_m: f64,
     /// Smallest and largest x of the level's analysed data (m).
@@ -28,7 +34,7 @@ pub struct LevelFit {
 }
 
 /// The joint fit over all levels.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct JointFit {
     pub effects: Effects,
     pub order: usize,
@@ -52,7 +58,7 @@ pub struct JointFit {
 }
 
 /// What a series fit returns.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SeriesFit {
     pub levels: Vec<LevelFit>,
     pub joint: JointFit,
@@ -109,6 +115,8 @@ fn range(d: &ForceBalanceData) -> [f64; 2] {
 fn level_fit(d: &ForceBalanceData, r: &EngineResult) -> LevelFit {
     let [lo, hi] = range(d);
     LevelFit {
+        measurement_id: None,
+        target_xpeak_m: None,
         x_abs_max_m: lo.abs().max(hi.abs()),
         range_m: [lo, hi],
         effects: r.model.effects,

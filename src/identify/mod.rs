@@ -38,6 +38,12 @@ pub struct Report {
     /// Filled by `diagnose` (candidates, ladder, ...); None from a plain analysis.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub diagnostics: Option<serde_json::Value>,
+    /// Level series (a daemon job with two or more `levels_m`): K(x), R and
+    /// the effects fitted jointly over all levels of the measurement's
+    /// repeat, beside each level's own fit (`diagnose::series`). The same
+    /// object in the document of every level of that repeat.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub series: Option<crate::diagnose::series::SeriesFit>,
 }
 
 /// Small-signal parameters from the pre-measurement (SI), with standard errors.
@@ -124,6 +130,18 @@ pub struct LargeSignal {
     /// model's K(x) over the excursion at resonance, fR = sqrt(Keff/m)/2 pi).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub keff_method: Option<String>,
+    /// The target peak displacement of the level this measurement was made
+    /// for (m), when it had one (daemon jobs); the level control stops near,
+    /// not at, it (`xpeak_m` is what was reached).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_xpeak_m: Option<f64>,
+    /// Keff at the target amplitude (N/m): the first-harmonic describing
+    /// function of the headline K(x) over c +- `target_xpeak_m` (c the
+    /// measured centre of the excursion at resonance), the value QC judges
+    /// as `keff` (`qc::keff_at_target`). `keff_n_per_m` is Keff at the
+    /// reached Xpeak.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_at_target_n_per_m: Option<f64>,
     /// With effects in the chosen model: the identification's values (phase
     /// method, no effects) in the same layout.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -332,6 +350,7 @@ fn analyze_prepared(
         model,
         warnings,
         diagnostics: None,
+        series: None,
     })
 }
 
@@ -452,6 +471,8 @@ fn large_signal(
         resonance_time_s: 0.5 * (period.start + period.end) / p.fs_hz,
         keff_se_n_per_m: None,
         keff_method: Some("phase".into()),
+        target_xpeak_m: None,
+        keff_at_target_n_per_m: None,
         base: None,
     })
 }

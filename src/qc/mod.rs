@@ -685,6 +685,21 @@ pub fn keff_at_target(r: &crate::identify::Report, target_xpeak_m: Option<f64>) 
     }
 }
 
+/// Puts the Keff QC judges beside the measured one: with a target level,
+/// `large_signal.target_xpeak_m` and `large_signal.keff_at_target_n_per_m`
+/// = [`keff_at_target`] (the same function, so an operator reads the
+/// number QC judged). Nothing without a target or without a fitted K(x).
+pub fn set_keff_at_target(r: &mut crate::identify::Report, target_xpeak_m: Option<f64>) {
+    let Some(xt) = target_xpeak_m.filter(|x| x.is_finite() && *x > 0.0) else {
+        return;
+    };
+    r.large_signal.target_xpeak_m = Some(xt);
+    r.large_signal.keff_at_target_n_per_m =
+        (!r.stiffness.coefficients_n_per_m_pow_i_plus_1.is_empty())
+            .then(|| keff_at_target(r, Some(xt)))
+            .filter(|v| v.is_finite());
+}
+
 /// The verdict of one measurement under a recipe.
 pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
     let mut invalid = validity_problems(recipe, facts);

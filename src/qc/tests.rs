@@ -441,3 +441,47 @@ fn keff_is_judged_at_the_target_amplitude_not_the_reached_one() {
     // Without a target: the measured Keff.
     assert_eq!(keff_at_target(&r, None), r.large_signal.keff_n_per_m);
 }
+
+#[test]
+fn keff_at_target_is_put_beside_the_measured_keff() {
+    // K(x) = k0 + k1 x + k2 x^2 + k3 x^3 around a centre c, amplitude X: the
+    // first harmonic of K(x) x over x = c + X cos(theta) gives
+    // Keff = k0 + 2 k1 c + k2 (3 c^2 + 3/4 X^2) + k3 (4 c^3 + 3 c X^2).
+    let (k0, k1, k2, k3) = (2400.0, -4.0e4, 3.0e7, 2.0e8);
+    let mut r = report(k0, k1, k2, 6.0);
+    r.stiffness.coefficients_n_per_m_pow_i_plus_1 = vec![k0, k1, k2, k3];
+    r.large_signal.xpeak_m = 0.0085;
+    r.large_signal.x_min_at_resonance_m = -0.0075;
+    r.large_signal.x_max_at_resonance_m = 0.0085;
+    let (c, x) = (0.0005f64, 0.008f64);
+    let want = k0
+        + 2.0 * k1 * c
+        + k2 * (3.0 * c * c + 0.75 * x * x)
+        + k3 * (4.0 * c.powi(3) + 3.0 * c * x * x);
+    let measured = r.large_signal.keff_n_per_m;
+    set_keff_at_target(&mut r, Some(x));
+    let got = r.large_signal.keff_at_target_n_per_m.unwrap();
+    assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+    assert_eq!(r.large_signal.target_xpeak_m, Some(x));
+    // The number QC judges, and the measured Keff left as it was.
+    assert_eq!(got, keff_at_target(&r, Some(x)));
+    assert_eq!(r.large_signal.keff_n_per_m, measured);
+    // Serialized with the unit in the name.
+    let v = serde_json::to_value(&r).unwrap();
+    assert_eq!(
+        v["large_signal"]["keff_at_target_n_per_m"],
+        serde_json::json!(got)
+    );
+    assert_eq!(v["large_signal"]["target_xpeak_m"], serde_json::json!(x));
+    // No target: nothing added (and nothing in the JSON).
+    let mut r2 = report(k0, k1, k2, 6.0);
+    set_keff_at_target(&mut r2, None);
+    assert!(r2.large_signal.keff_at_target_n_per_m.is_none());
+    let v = serde_json::to_value(&r2).unwrap();
+    assert!(v["large_signal"].get("keff_at_target_n_per_m").is_none());
+    // No fitted K(x): the target is stated, no Keff invented.
+    r2.stiffness.coefficients_n_per_m_pow_i_plus_1.clear();
+    set_keff_at_target(&mut r2, Some(x));
+    assert_eq!(r2.large_signal.target_xpeak_m, Some(x));
+    assert!(r2.large_signal.keff_at_target_n_per_m.is_none());
+}

@@ -12,6 +12,7 @@
 pub mod events;
 pub mod hardware;
 pub mod job;
+mod series;
 
 use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind, Config};
@@ -953,6 +954,11 @@ fn execute(
         done.recordings
             .push(recording("pre", &outcome.pre, res.as_ref())?);
         let n = outcome.narrow.len().max(1);
+        // A level series (two or more levels) ends with the joint fit over
+        // its levels (`series`): each analysed level's force-balance data.
+        let want_series = outcome.narrow.len() >= 2;
+        let first_measurement = done.measurements.len();
+        let mut series_in: Vec<series::Level> = vec![];
         for (li, sweep) in outcome.narrow.iter().enumerate() {
             let fit_p = obs.proc_share + (1.0 - obs.proc_share) * li as f64 / n as f64;
             let p = obs.overall(fit_p);
@@ -981,6 +987,7 @@ fn execute(
                 )
             });
             let not_aligned = hw_record.as_ref().and_then(hardware::alignment_invalid);
+            let mut fb = None;
             let analysed = if let Some(why) = &not_aligned {
                 // Never a fit of a displacement not on the audio clock.
                 done.log.push(format!(
@@ -996,10 +1003,20 @@ fn execute(
                     effects: vec![],
                     ..Default::default()
                 };
+                if want_series {
+                    fb = identify::force_balance_data(&set, &opts).ok();
+                }
                 crate::diagnose::diagnose(&set, &dopts)
                     .map(|d| identify::Report {
                         diagnostics: None,
                         ..d.report
+                    })
+                    .map_err(|e| e.to_string())
+            } else if want_series {
+                identify::analyze_with_force_balance(&set, &opts)
+                    .map(|(rep, d)| {
+                        fb = Some(d);
+                        rep
                     })
                     .map_err(|e| e.to_string())
             } else {
@@ -1007,6 +1024,8 @@ fn execute(
             }
             .map(|mut rep| {
                 rep.warnings.extend(sweep.warning.iter().cloned());
+                // The Keff QC judges, beside the one measured at the reached Xpeak.
+                crate::qc::set_keff_at_target(&mut rep, Some(sweep.target_xpeak_m));
                 rep
             });
             let mid = new_id();
@@ -1048,6 +1067,14 @@ fn execute(
                     (None, Some(e))
                 }
             };
+            if let (Some(data), Some(_)) = (fb, &result) {
+                series_in.push(series::Level {
+                    measurement: done.measurements.len(),
+                    measurement_id: mid.clone(),
+                    target_xpeak_m: sweep.target_xpeak_m,
+                    data,
+                });
+            }
             let main_index = done.recordings.len();
             done.recordings
                 .push(recording("main", &sweep.signals, res.as_ref())?);
@@ -1073,6 +1100,22 @@ fn execute(
                 pre: pre_index,
                 main: main_index,
             });
+        }
+        if want_series {
+            obs.send_progress(Step::Fit, obs.overall(0.99), 0.0);
+            let log = series::attach(
+                &mut done.measurements[first_measurement..],
+                first_measurement,
+                series_in,
+                spec.order,
+            );
+            done.log.extend(log.into_iter().map(|l| {
+                if spec.repeats > 1 {
+                    format!("repeat {}: {l}", r + 1)
+                } else {
+                    l
+                }
+            }));
         }
         obs.flush_samples();
     }

@@ -1,6 +1,7 @@
 // One measurement: headline figures, K(x), C(x), F(x) (valid range marked,
-// hover values with units), the level series Keff(Xpeak) of its job, the
-// coefficients, warnings, and the recordings to download.
+// hover values with units), the level series Keff(Xpeak) of its job and
+// its joint fit (K(x), R and effects over all levels), the coefficients,
+// warnings, and the recordings to download.
 
 import { api, download } from './api.js';
 import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row } from './util.js';
@@ -43,6 +44,9 @@ export async function render(main, ctx) {
     }, file);
   const figures = h('table', { class: 'kv', id: 'figures' },
     row('Keff at Xpeak', q(ls.keff_n_per_m, 'N/mm', 1e-3)),
+    Number.isFinite(ls.keff_at_target_n_per_m)
+      ? row(`Keff at the target ${q(ls.target_xpeak_m, 'mm', 1e3)} (judged by QC)`, h('span', { id: 'keff-at-target' }, q(ls.keff_at_target_n_per_m, 'N/mm', 1e-3)))
+      : null,
     row('Ceff at Xpeak', q(ls.ceff_m_per_n, 'mm/N', 1e3)),
     row('Xpeak', q(ls.xpeak_m, 'mm', 1e3)),
     row('x range', `${q(ls.x_min_m, 'mm', 1e3)} \u2026 ${q(ls.x_max_m, 'mm', 1e3)}`),
@@ -74,6 +78,7 @@ export async function render(main, ctx) {
       h('div', { class: 'two' }, figures, coefTable),
     ),
     h('section', { class: 'card' }, h('h2', {}, 'Stiffness, compliance and force (shaded: outside the measured, valid range)'), plotsEl),
+    seriesCard(doc.series, id),
   );
   if (!c.length || !Number.isFinite(lo)) {
     put(plotsEl, h('p', { class: 'muted' }, 'No stiffness result.'));
@@ -81,10 +86,18 @@ export async function render(main, ctx) {
   }
   const xs = xGrid(lo, hi);
   const k = xs.map((x) => poly(c, x));
+  // With a level series: the joint K(x) beside this level's (inside the series' range).
+  const jc = seriesKmm(doc.series);
+  const kSeries = [{ label: 'K(x)', unit: 'N/mm' }];
+  const kData = [xs, k];
+  if (jc) {
+    kSeries.push({ label: 'K(x), joint fit of the level series', unit: 'N/mm', dash: true, color: '#ff7f0e' });
+    kData.push(xs.map((x) => (x >= jc.lo && x <= jc.hi ? poly(jc.c, x) : null)));
+  }
   chart(kx, {
     title: 'Stiffness K(x)', kind: 'K(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: 'stiffness K', unit: 'N/mm' },
-    series: [{ label: 'K(x)', unit: 'N/mm' }], data: [xs, k], validRange: [lo, hi],
+    series: kSeries, data: kData, validRange: [lo, hi],
   });
   chart(cx, {
     title: 'Compliance C(x) = 1/K(x)', kind: 'C(x)',
@@ -123,4 +136,45 @@ export async function render(main, ctx) {
     data: [lx, ly, here],
     xRange: lx.length === 1 ? [0, lx[0] * 1.5] : undefined,
   });
+}
+
+/** The joint K(x) of a level series in N/mm over mm, with its range (mm). */
+function seriesKmm(series) {
+  const j = series && series.joint;
+  const c = j && j.stiffness_coefficients_n_per_m_pow_i_plus_1;
+  if (!c || !c.length || !j.valid_range_m) return null;
+  return { c: c.map((k, i) => k * 1e-3 ** (i + 1)), lo: j.valid_range_m[0] * 1e3, hi: j.valid_range_m[1] * 1e3 };
+}
+
+/** Effects with their parameters, one line ("coulomb_friction: force_n 0.2008, ..."). */
+function effectsText(e) {
+  const parts = Object.entries(e || {}).filter(([, v]) => v).map(([name, p]) =>
+    `${name}: ${Object.entries(p).map(([k, v]) => `${k} ${num(v)}`).join(', ')}`);
+  return parts.length ? parts.join('; ') : 'none';
+}
+
+/** The joint fit over the levels of the measurement's series (absent: nothing). */
+function seriesCard(series, id) {
+  if (!series || !series.joint || !Array.isArray(series.levels)) return null;
+  const j = series.joint;
+  const r = j.valid_range_m || [NaN, NaN];
+  return h('section', { class: 'card', id: 'level-series' },
+    h('h2', {}, `Level series: one K(x), R and effects fitted jointly over ${series.levels.length} levels`),
+    h('p', { class: 'muted' }, 'Effects that change with amplitude (friction, v|v| damping) separate from K(x) only over several levels; the joint K(x) holds over the whole series\' range, each level\'s own fit only over its own.'),
+    h('table', { class: 'kv', id: 'series-joint' },
+      row('effects (joint)', effectsText(j.effects)),
+      row('x range', `${q(r[0], 'mm', 1e3)} \u2026 ${q(r[1], 'mm', 1e3)}`),
+      row('K(0) (joint)', q((j.stiffness_coefficients_n_per_m_pow_i_plus_1 || [])[0], 'N/mm', 1e-3)),
+      row('R (joint)', `${q(j.r_ns_per_m, 'N\u00b7s/m')} \u00b1 ${num(j.r_se_ns_per_m, 2)}`),
+      row('model error, noise floor', `${q(j.model_error_percent, '%', 1, 3)}, ${q(j.noise_floor_percent, '%', 1, 3)}`),
+      row('K(x) order', String(j.order ?? '\u2013'))),
+    h('table', { class: 'list', id: 'series-levels' },
+      h('thead', {}, h('tr', {}, h('th', {}, 'level'), h('th', {}, 'target'), h('th', {}, 'x range'), h('th', {}, 'K(0), own fit'), h('th', {}, 'R, own fit'), h('th', {}, 'effects, own fit'))),
+      h('tbody', {}, series.levels.map((l, i) => h('tr', { class: l.measurement_id === id ? 'current' : null },
+        h('td', {}, l.measurement_id && l.measurement_id !== id ? h('a', { href: `#/measurement/${encodeURIComponent(l.measurement_id)}` }, String(i + 1)) : `${i + 1} (this)`),
+        h('td', {}, q(l.target_xpeak_m, 'mm', 1e3)),
+        h('td', {}, `${q((l.range_m || [])[0], 'mm', 1e3)} \u2026 ${q((l.range_m || [])[1], 'mm', 1e3)}`),
+        h('td', {}, q((l.stiffness_coefficients_n_per_m_pow_i_plus_1 || [])[0], 'N/mm', 1e-3)),
+        h('td', {}, q(l.r_ns_per_m, 'N\u00b7s/m')),
+        h('td', {}, effectsText(l.effects)))))));
 }
