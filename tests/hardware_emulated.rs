@@ -67,6 +67,12 @@ async fn analog_laser_job_recovers_k_and_reports_latency_and_calibration() {
     let cl = cal["result"]["latency_s"].as_f64().unwrap();
     assert!((cl - 0.005).abs() < 0.5 / 48000.0, "{cal}");
     assert_eq!(cal["sensors"]["laser"]["serial"], "EMU-0001");
+    // An analog sensor cannot be asked: its identity is the configuration's.
+    let li = &cal["result"]["laser"];
+    assert_eq!(li["protocol"], "analog", "{cal}");
+    assert_eq!(li["model"], "emulated analog laser", "{cal}");
+    assert_eq!(li["serial"], "EMU-0001", "{cal}");
+    assert_eq!(li["read_from_sensor"], false, "{cal}");
     assert_eq!(cal["sensors"]["microphone"]["calibrated_on"], "2026-10-01");
     // Noise floors as emulated: laser 1 um RMS, microphone 0.3 Pa RMS.
     let ln = cal["result"]["noise"]["laser_m"].as_f64().unwrap();

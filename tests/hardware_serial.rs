@@ -50,8 +50,8 @@ fn config(trace_dir: &Path, laser: &str, faults: &str) -> String {
     hw::config(trace_dir, laser, faults)
 }
 
-/// Runs one spider job; returns (job, first measurement).
-async fn job(laser: &str) -> (Value, Value) {
+/// Runs one spider job; returns (daemon, job, first measurement).
+async fn job(laser: &str) -> (Daemon, Value, Value) {
     let traces = tempfile::tempdir().unwrap();
     let d = Daemon::start(&config(traces.path(), laser, ""));
     let c = client();
@@ -65,13 +65,13 @@ async fn job(laser: &str) -> (Value, Value) {
     assert_eq!(j["state"], "succeeded", "{j}");
     let mid = j["measurement_ids"][0].as_str().unwrap();
     let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
-    (j, m)
+    (d, j, m)
 }
 
 /// A streamed protocol with a device clock: K(x) within 0.5 % RMS, the
 /// residual below 10 us, the clock ratio within 10 ppm of the truth.
 async fn streamed(name: &str, protocol: &str) {
-    let (_j, m) = job(&serial_laser(protocol, 4000.0)).await;
+    let (d, _j, m) = job(&serial_laser(protocol, 4000.0)).await;
     let hwr = &m["measurement"]["config"]["hardware"];
     let al = &hwr["alignment"];
     let (err, range) = hw::k_error_of(&m);
@@ -102,6 +102,19 @@ async fn streamed(name: &str, protocol: &str) {
         assert_eq!(al["sensor"]["model"], "ILD1420-40 (emulated)");
         assert_eq!(al["sensor"]["read_from_sensor"], true);
     }
+    // The calibration record the measurement references holds the laser as
+    // the self-check identified it: from the sensor where it can answer.
+    let cal_id = hwr["calibration_id"]
+        .as_str()
+        .expect("a calibration record");
+    let cal = get(&client(), &d, &format!("/api/v1/calibrations/{cal_id}")).await;
+    let li = &cal["result"]["laser"];
+    assert_eq!(li, &al["sensor"], "{cal}");
+    let from_sensor = name == "optoncdt";
+    assert_eq!(li["read_from_sensor"], from_sensor, "{cal}");
+    if !from_sensor {
+        assert_eq!(li["model"], "configured model", "{cal}");
+    }
 }
 
 #[tokio::test]
@@ -119,7 +132,7 @@ async fn streamed_ascii_recovers_k_and_the_clock() {
 /// misaligned fit).
 #[tokio::test]
 async fn polled_keyence_measurement_is_marked_invalid_and_not_fitted() {
-    let (j, m) = job(&serial_laser(KEYENCE, 1000.0)).await;
+    let (_d, j, m) = job(&serial_laser(KEYENCE, 1000.0)).await;
     let hwr = &m["measurement"]["config"]["hardware"];
     let al = &hwr["alignment"];
     println!("keyence: alignment {al}; measurement {}", m["measurement"]);

@@ -14,6 +14,7 @@ use super::audio::{AudioError, AudioIo};
 use super::drive::DriveSource;
 use super::latency::{estimate_latency, LatencyEstimate};
 use super::serial_rig::SerialRig;
+use crate::bench::laser::LaserIdentity;
 use crate::bench::settings::{HardwareConfig, LaserConfig};
 use crate::bench::{Bench, BenchError, Block, Control, Limits};
 use crate::recording::Signals;
@@ -465,6 +466,9 @@ pub struct SelfCheck {
     /// Sample rate and the devices used.
     pub sample_rate_hz: f64,
     pub devices: String,
+    /// The laser as identified at the self-check: model, serial and range
+    /// read from the sensor where its protocol allows, else the configuration's.
+    pub laser: LaserIdentity,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -557,6 +561,31 @@ impl HardwareBench {
             mic_at_silence_pa: mic_pa,
             sample_rate_hz: fs,
             devices: self.audio.describe(),
+            laser: self.laser_identity(),
         })
+    }
+
+    /// The laser's identity: what a serial sensor answered at start, or for
+    /// an analog sensor (which cannot be asked) the configured model/serial.
+    fn laser_identity(&self) -> LaserIdentity {
+        match (&self.serial, &self.hw.laser) {
+            (Some(rig), _) => rig.identity().clone(),
+            (None, LaserConfig::Analog { model, serial, .. }) => LaserIdentity {
+                protocol: "analog".into(),
+                model: model.clone(),
+                serial: serial.clone(),
+                firmware: String::new(),
+                range_m: Some(self.hw.laser.range_m()),
+                read_from_sensor: false,
+            },
+            (None, LaserConfig::Serial(c)) => LaserIdentity {
+                protocol: "serial (not open)".into(),
+                model: c.model.clone(),
+                serial: c.serial.clone(),
+                firmware: String::new(),
+                range_m: None,
+                read_from_sensor: false,
+            },
+        }
     }
 }
