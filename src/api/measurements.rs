@@ -164,12 +164,51 @@ pub async fn recording(
             ))
         }
     };
-    let rec = stored_recording(&st, &id, which).await?;
-    let stream = WavStream::new(rec.bytes, rec.channel_scale)
+    let info = st
+        .store
+        .recording_info(&id, which)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", &id))?;
+    if let Some(at) = &info.pruned_at {
+        return Err(pruned(&id, at));
+    }
+    // Read from the store in chunks while it is sent (issue 11: the blob was
+    // read whole, +173 MB for a 200 MB import): memory per connection is the
+    // reader's buffer, one FLAC block and one batch of output.
+    let reader: codec::BlobRead = Box::new(std::io::BufReader::with_capacity(
+        DOWNLOAD_READ_BYTES,
+        st.store.blob_reader(info.blob),
+    ));
+    let scale = info.channel_scale;
+    let stream = tokio::task::spawn_blocking(move || WavStream::from_reader(reader, scale))
+        .await
+        .map_err(Problem::internal)?
         .map_err(|e| Problem::internal(format!("stored recording unreadable: {e}")))?;
     let len = stream.wav_len();
-    let body = axum::body::Body::from_stream(futures_util::stream::iter(
-        stream.map(|c| c.map_err(std::io::Error::other)),
+    // Pulled by the connection: one batch is decoded (off the async workers)
+    // when the previous one was taken, so a slow client holds no thread.
+    let body = axum::body::Body::from_stream(futures_util::stream::unfold(
+        Some(stream),
+        |st| async move {
+            let mut stream = st?;
+            let (batch, stream) = tokio::task::spawn_blocking(move || {
+                let mut out: Vec<u8> = Vec::new();
+                while out.len() < DOWNLOAD_BATCH_BYTES {
+                    match stream.next() {
+                        Some(Ok(c)) => out.extend_from_slice(&c),
+                        // The response is cut (its length was announced).
+                        Some(Err(e)) => return (Some(Err(e)), stream),
+                        None => break,
+                    }
+                }
+                ((!out.is_empty()).then_some(Ok(out)), stream)
+            })
+            .await
+            .ok()?;
+            let failed = matches!(batch, Some(Err(_)));
+            let item = batch?.map_err(std::io::Error::other);
+            Some((item, (!failed).then_some(stream)))
+        },
     ));
     Ok((
         [
@@ -180,6 +219,11 @@ pub async fn recording(
     )
         .into_response())
 }
+
+/// Bytes read from the store per query while a recording is downloaded.
+const DOWNLOAD_READ_BYTES: usize = 1 << 20;
+/// Bytes of WAV decoded per pull of the response body.
+const DOWNLOAD_BATCH_BYTES: usize = 256 << 10;
 
 /// Loads a stored measurement's recording set, its analysis options and its
 /// target peak displacement (bench measurements).
@@ -192,11 +236,16 @@ async fn load_set(
         .get_measurement(id)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", id))?;
-    let pre = stored_recording(st, id, "pre").await?;
-    let main = stored_recording(st, id, "main").await?;
-    // The analysis holds the recording in memory several times over.
+    // The analysis holds the recording in memory several times over: the
+    // length is checked before the bytes are read.
     let max = st.cfg.max_analysis_frames;
-    if let Some(r) = [&pre, &main].iter().find(|r| r.frames as u64 > max) {
+    for which in ["pre", "main"] {
+        let Some(r) = st.store.recording_info(id, which).await? else {
+            continue;
+        };
+        if r.frames as u64 <= max {
+            continue;
+        }
         return Err(numeric_failure(
             "Recording too long to analyse",
             format!(
@@ -205,6 +254,8 @@ async fn load_set(
             ),
         ));
     }
+    let pre = stored_recording(st, id, "pre").await?;
+    let main = stored_recording(st, id, "main").await?;
     let opts: AnalyzeOptions = info
         .config
         .get("analysis")
@@ -242,6 +293,9 @@ pub struct FitRequest {
     pub exact: bool,
 }
 
+/// The members a fit body may have (anything else is refused).
+pub const FIT_FIELDS: [&str; 3] = ["effects", "order", "method"];
+
 /// Validates a fit body: `{"effects": [...], "order": N, "method": "..."}`,
 /// one error per bad field.
 pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
@@ -253,7 +307,7 @@ pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
     };
     let mut errors = vec![];
     for k in obj.keys() {
-        if !["effects", "order", "method"].contains(&k.as_str()) {
+        if !FIT_FIELDS.contains(&k.as_str()) {
             errors.push(FieldError {
                 field: k.clone(),
                 message: "unknown field".into(),

@@ -311,14 +311,18 @@ pub fn decode(bytes: &[u8], scale: Option<&ChannelScale>) -> Result<Signals, Rec
     Ok(s)
 }
 
+/// Where a [`WavStream`] reads the stored bytes from: a blob in memory or a
+/// reader over the store (`GET .../recordings/*.wav` streams from SQLite).
+pub type BlobRead = Box<dyn std::io::Read + Send>;
+
 enum Source {
     Flac {
-        frames: claxon::frame::FrameReader<std::io::Cursor<Vec<u8>>>,
+        frames: claxon::frame::FrameReader<claxon::input::BufferedReader<BlobRead>>,
         buf: Vec<i32>,
         full: f64,
     },
     Wav {
-        reader: hound::WavReader<std::io::Cursor<Vec<u8>>>,
+        reader: hound::WavReader<BlobRead>,
         full: Option<f64>,
     },
 }
@@ -341,21 +345,28 @@ pub struct WavStream {
 /// Frames per chunk read from a WAV blob.
 const WAV_CHUNK: usize = 4096;
 
-/// Byte offset of the first FLAC frame (after the metadata blocks).
-fn flac_audio_offset(b: &[u8]) -> Result<usize, RecordingError> {
-    let mut pos = 4;
+/// Largest FLAC metadata accepted before the first frame (a stored
+/// recording has STREAMINFO only; claxon's own limits are of the same order).
+const FLAC_METADATA_MAX: usize = 16 << 20;
+
+/// The FLAC metadata blocks after the `fLaC` marker (read from `r`, which is
+/// left at the first frame), with the marker in front.
+fn flac_metadata(r: &mut BlobRead) -> Result<Vec<u8>, RecordingError> {
+    let truncated = |_| wav_err("FLAC metadata truncated");
+    let mut head = b"fLaC".to_vec();
     loop {
-        let h = b
-            .get(pos..pos + 4)
-            .ok_or_else(|| wav_err("FLAC metadata truncated"))?;
+        let mut h = [0u8; 4];
+        r.read_exact(&mut h).map_err(truncated)?;
         let len = ((h[1] as usize) << 16) | ((h[2] as usize) << 8) | h[3] as usize;
-        pos += 4 + len;
+        if head.len() + 4 + len > FLAC_METADATA_MAX {
+            return Err(wav_err("FLAC metadata too large"));
+        }
+        head.extend_from_slice(&h);
+        let at = head.len();
+        head.resize(at + len, 0);
+        r.read_exact(&mut head[at..]).map_err(truncated)?;
         if h[0] & 0x80 != 0 {
-            return if pos <= b.len() {
-                Ok(pos)
-            } else {
-                Err(wav_err("FLAC metadata truncated"))
-            };
+            return Ok(head);
         }
     }
 }
@@ -363,8 +374,24 @@ fn flac_audio_offset(b: &[u8]) -> Result<usize, RecordingError> {
 impl WavStream {
     /// Opens a stored blob; `scale` as stored with it.
     pub fn new(bytes: Vec<u8>, scale: Option<ChannelScale>) -> Result<WavStream, RecordingError> {
-        let (src, channels, frames, rate) = if bytes.starts_with(b"fLaC") {
-            let info = claxon::FlacReader::new(std::io::Cursor::new(&bytes[..]))
+        WavStream::from_reader(Box::new(std::io::Cursor::new(bytes)), scale)
+    }
+
+    /// Opens a stored recording read from `r` (the blob's bytes from the
+    /// start); only the FLAC metadata or the WAV header is read here.
+    pub fn from_reader(
+        mut r: BlobRead,
+        scale: Option<ChannelScale>,
+    ) -> Result<WavStream, RecordingError> {
+        use std::io::Read;
+        let mut magic = Vec::with_capacity(4);
+        (&mut r)
+            .take(4)
+            .read_to_end(&mut magic)
+            .map_err(|e| wav_err(format!("stored recording: {e}")))?;
+        let (src, channels, frames, rate) = if magic == b"fLaC" {
+            let head = flac_metadata(&mut r)?;
+            let info = claxon::FlacReader::new(std::io::Cursor::new(&head[..]))
                 .map_err(|e| wav_err(format!("FLAC: {e}")))?
                 .streaminfo();
             if !(8..=24).contains(&info.bits_per_sample) {
@@ -376,12 +403,9 @@ impl WavStream {
             let frames = info
                 .samples
                 .ok_or_else(|| wav_err("FLAC without a sample count"))?;
-            let off = flac_audio_offset(&bytes)?;
-            let mut cur = std::io::Cursor::new(bytes);
-            cur.set_position(off as u64);
             (
                 Source::Flac {
-                    frames: claxon::frame::FrameReader::new(cur),
+                    frames: claxon::frame::FrameReader::new(claxon::input::BufferedReader::new(r)),
                     buf: Vec::new(),
                     full: (1u64 << (info.bits_per_sample - 1)) as f64,
                 },
@@ -390,7 +414,8 @@ impl WavStream {
                 info.sample_rate as f64,
             )
         } else {
-            let reader = hound::WavReader::new(std::io::Cursor::new(bytes)).map_err(wav_err)?;
+            let r: BlobRead = Box::new(std::io::Cursor::new(magic).chain(r));
+            let reader = hound::WavReader::new(r).map_err(wav_err)?;
             let spec = reader.spec();
             let full = match (spec.sample_format, spec.bits_per_sample) {
                 (hound::SampleFormat::Float, 32) => None,

@@ -86,3 +86,74 @@ fn message(db: *mut ffi::sqlite3) -> String {
         }
     }
 }
+
+/// A stored recording's bytes, read in chunks: `recording_blobs.bytes` (large
+/// imports) or `recordings.wav` of recording `rowid`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BlobRef {
+    pub(super) in_blobs: bool,
+    pub(super) rowid: i64,
+    /// Bytes.
+    pub len: u64,
+}
+
+/// Reads up to `buf.len()` bytes of `blob` from `offset` on `conn`, with a
+/// blob handle opened and closed for this call (no read transaction stays
+/// open between chunks; a blob removed meanwhile, e.g. by the retention
+/// policy, is an error, not a stale read). Returns 0 at the end.
+pub(super) async fn read_chunk(
+    conn: &mut sqlx::SqliteConnection,
+    blob_ref: &BlobRef,
+    offset: u64,
+    buf: &mut [u8],
+) -> StoreResult<usize> {
+    let (table, column) = if blob_ref.in_blobs {
+        (c"recording_blobs", c"bytes")
+    } else {
+        (c"recordings", c"wav")
+    };
+    let mut handle = conn.lock_handle().await?;
+    let db = handle.as_raw_handle().as_ptr();
+    let mut blob: *mut ffi::sqlite3_blob = std::ptr::null_mut();
+    // SAFETY: as in `fill_recording` (read-only: flags 0).
+    let rc = unsafe {
+        ffi::sqlite3_blob_open(
+            db,
+            c"main".as_ptr(),
+            table.as_ptr(),
+            column.as_ptr(),
+            blob_ref.rowid,
+            0,
+            &mut blob,
+        )
+    };
+    if rc != ffi::SQLITE_OK {
+        return Err(err(format!("opening the recording blob: {}", message(db))));
+    }
+    // SAFETY: `blob` is open.
+    let size = unsafe { ffi::sqlite3_blob_bytes(blob) }.max(0) as u64;
+    let res = if size != blob_ref.len {
+        Err(err(format!(
+            "the recording changed while it was read ({} bytes, now {size})",
+            blob_ref.len
+        )))
+    } else {
+        let n = (buf.len() as u64).min(size.saturating_sub(offset)) as usize;
+        if n == 0 {
+            Ok(0)
+        } else {
+            // SAFETY: `blob` is open; `buf[..n]` is writable; offset + n <= size < 2^31.
+            let rc = unsafe {
+                ffi::sqlite3_blob_read(blob, buf.as_mut_ptr().cast(), n as i32, offset as i32)
+            };
+            if rc == ffi::SQLITE_OK {
+                Ok(n)
+            } else {
+                Err(err(format!("reading the recording blob: {}", message(db))))
+            }
+        }
+    };
+    // SAFETY: opened above, closed exactly once.
+    unsafe { ffi::sqlite3_blob_close(blob) };
+    res
+}

@@ -23,12 +23,13 @@ use std::str::FromStr;
 use std::time::Duration;
 
 mod blob;
+pub use blob::BlobRef;
 pub mod finite;
 mod imports;
 pub use imports::{ImportInserted, RecordingFile};
 pub mod qc;
 mod raw;
-pub use raw::{dir_bytes, RetentionReport, StoredRecording};
+pub use raw::{dir_bytes, BlobReader, RecordingInfo, RetentionReport, StoredRecording};
 
 macro_rules! job_select {
     () => {

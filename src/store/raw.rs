@@ -20,6 +20,50 @@ pub struct StoredRecording {
     pub pruned_at: Option<String>,
 }
 
+/// A stored recording without its bytes ([`Store::recording_info`]); the
+/// bytes are read in chunks by a [`BlobReader`].
+#[derive(Debug, Clone)]
+pub struct RecordingInfo {
+    pub blob: super::blob::BlobRef,
+    pub channel_scale: Option<ChannelScale>,
+    pub frames: i64,
+    pub sample_rate_hz: f64,
+    pub pruned_at: Option<String>,
+}
+
+/// `std::io::Read` over a stored recording's bytes, one chunk of the blob
+/// per call (SQLite incremental blob I/O on a pooled connection taken for
+/// the call). Blocking: call it off the async workers (`spawn_blocking`);
+/// wrap it in a `BufReader` (each call is a query).
+pub struct BlobReader {
+    store: Store,
+    blob: super::blob::BlobRef,
+    pos: u64,
+    rt: tokio::runtime::Handle,
+}
+
+/// Largest read per call (one blob open, walk and read in SQLite).
+const READ_CHUNK: usize = 1 << 20;
+
+impl std::io::Read for BlobReader {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.pos >= self.blob.len || buf.is_empty() {
+            return Ok(0);
+        }
+        let n = buf.len().min(READ_CHUNK);
+        let (store, blob, pos) = (&self.store, &self.blob, self.pos);
+        let got = self
+            .rt
+            .block_on(async move {
+                let mut conn = store.pool.acquire().await?;
+                super::blob::read_chunk(&mut conn, blob, pos, &mut buf[..n]).await
+            })
+            .map_err(std::io::Error::other)?;
+        self.pos += got as u64;
+        Ok(got)
+    }
+}
+
 /// What one retention pass removed.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct RetentionReport {
@@ -69,23 +113,69 @@ impl Store {
             .fetch_optional(&self.pool)
             .await?;
         row.map(|r| {
-            let scale = r
-                .get::<Option<String>, _>(1)
-                .map(|s| {
-                    serde_json::from_str(&s).map_err(|e| {
-                        StoreError::Corrupt(format!("stored channel scale unreadable: {e}"))
-                    })
-                })
-                .transpose()?;
             Ok(StoredRecording {
                 bytes: r.get(0),
-                channel_scale: scale,
+                channel_scale: scale_of(r.get(1))?,
                 frames: r.get(2),
                 sample_rate_hz: r.get(3),
                 pruned_at: r.get(4),
             })
         })
         .transpose()
+    }
+
+    /// A measurement's `pre` or `main` recording without its bytes (their
+    /// length only: SQLite does not load a blob for `length()`).
+    pub async fn recording_info(
+        &self,
+        measurement_id: &str,
+        which: &str,
+    ) -> StoreResult<Option<RecordingInfo>> {
+        macro_rules! sel {
+            ($col:literal) => {
+                concat!(
+                    "SELECT r.id, b.recording_id IS NOT NULL, COALESCE(length(b.bytes), length(r.wav)), \
+                     r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
+                     FROM measurements m JOIN recordings r ON r.id = m.",
+                    $col,
+                    " LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE m.id = ?"
+                )
+            };
+        }
+        let sql = match which {
+            "pre" => sel!("pre_recording_id"),
+            "main" => sel!("main_recording_id"),
+            _ => return Ok(None),
+        };
+        let row = sqlx::query(sql)
+            .bind(measurement_id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(|r| {
+            Ok(RecordingInfo {
+                blob: super::blob::BlobRef {
+                    rowid: r.get(0),
+                    in_blobs: r.get(1),
+                    len: r.get::<i64, _>(2).max(0) as u64,
+                },
+                channel_scale: scale_of(r.get(3))?,
+                frames: r.get(4),
+                sample_rate_hz: r.get(5),
+                pruned_at: r.get(6),
+            })
+        })
+        .transpose()
+    }
+
+    /// A reader of a stored recording's bytes (see [`BlobReader`]); call it
+    /// inside the runtime, read it outside (`spawn_blocking`).
+    pub fn blob_reader(&self, blob: super::blob::BlobRef) -> BlobReader {
+        BlobReader {
+            store: self.clone(),
+            blob,
+            pos: 0,
+            rt: tokio::runtime::Handle::current(),
+        }
     }
 
     /// Applies the retention policy once: the raw signals of recordings the
@@ -151,6 +241,14 @@ impl Store {
         .await?;
         Ok((r.get(0), r.get(1), r.get(2)))
     }
+}
+
+fn scale_of(json: Option<String>) -> StoreResult<Option<ChannelScale>> {
+    json.map(|s| {
+        serde_json::from_str(&s)
+            .map_err(|e| StoreError::Corrupt(format!("stored channel scale unreadable: {e}")))
+    })
+    .transpose()
 }
 
 /// Bytes of the files under `dir` (the database, its WAL and anything else
