@@ -36,12 +36,18 @@ fn force(t: f64, f1: f64, f2: f64, dur: f64, amp: f64) -> f64 {
     amp * env * (2.0 * PI * f1 * l * ((t / l).exp() - 1.0)).sin()
 }
 
+thread_local! {
+    /// The part's damping R (N s/m) in this test's thread.
+    static DAMPING: std::cell::Cell<f64> = const { std::cell::Cell::new(R) };
+}
+
 /// m x'' + R x' + K(x) x = F(t), RK4 with 4 steps per sample.
 fn simulate(f1: f64, f2: f64, dur: f64, amp: f64, noise: Option<(u64, f64, f64)>) -> Signals {
     let n = ((dur + 0.5) * FS) as usize;
+    let r = DAMPING.with(|d| d.get());
     let sub = 4;
     let h = 1.0 / (FS * sub as f64);
-    let acc = |t: f64, x: f64, v: f64| (force(t, f1, f2, dur, amp) - R * v - k_of(x) * x) / M;
+    let acc = |t: f64, x: f64, v: f64| (force(t, f1, f2, dur, amp) - r * v - k_of(x) * x) / M;
     let (mut x, mut v) = (0.0f64, 0.0f64);
     let mut sig = Signals {
         sample_rate_hz: FS,
@@ -159,7 +165,7 @@ fn noise_free_polynomial_spring_is_recovered_exactly() {
     assert!((ss.r_ns_per_m / R - 1.0).abs() < 5e-3, "{}", ss.r_ns_per_m);
     let f0 = (K[0] / M).sqrt() / (2.0 * PI);
     assert!((ss.f0_hz / f0 - 1.0).abs() < 5e-4);
-    assert!((ss.q / ((K[0] * M).sqrt() / R) - 1.0).abs() < 5e-3);
+    assert!((ss.q.unwrap() / ((K[0] * M).sqrt() / R) - 1.0).abs() < 5e-3);
     assert!((ss.force_per_mic_v_n_per_v.unwrap() / SCALE - 1.0).abs() < 1e-3);
 
     // Keff = wR^2 m is the stiffness at the resonance: compare with the force
@@ -238,4 +244,41 @@ fn sensor_noise_sets_the_floor() {
         "{}",
         fb.laser_noise_m
     );
+}
+
+/// Issue 11: a fit with R <= 0 has no finite positive Q = sqrt(k0 m) / R
+/// (infinite or negative): Q and its error are null with the reason, never
+/// an infinity, and the whole result passes the store's finite check.
+#[test]
+fn an_undamped_fit_has_q_null_with_a_reason() {
+    // A pre-measurement whose fit finds no positive damping. A part with
+    // R = 0 is not enough: the sweep through its resonance fits R = 0.02
+    // N s/m (Q 452, finite); a microphone phase error, or here a simulated
+    // R = -0.2 N s/m, fits R < 0. The main sweep is damped (an undamped one
+    // never lags the force by 90 degrees: no fR).
+    DAMPING.with(|d| d.set(-0.2));
+    let pre = simulate(5.0, 100.0, 12.0, 0.005, None);
+    DAMPING.with(|d| d.set(R));
+    let main = simulate(30.0, 75.0, 8.0, 2.0, None);
+    let s = RecordingSet {
+        meta: Meta::standard(M, FS),
+        pre,
+        main,
+    };
+    let rep = analyze(&s, &AnalyzeOptions::default()).unwrap();
+    let ss = rep.small_signal.as_ref().unwrap();
+    println!(
+        "undamped: R = {:e} +- {:e} N s/m, Q {:?}, reason {:?}",
+        ss.r_ns_per_m, ss.r_se_ns_per_m, ss.q, ss.q_null_reason
+    );
+    assert!(ss.r_ns_per_m <= 0.0, "R = {}", ss.r_ns_per_m);
+    assert_eq!((ss.q, ss.q_se), (None, None));
+    assert!(ss.q_null_reason.as_deref().unwrap().contains("no damping"));
+    let v = springbench::store::finite::to_value(&rep).expect("a finite result document");
+    assert!(v["small_signal"]["q"].is_null());
+    assert!(v["small_signal"]["q_se"].is_null());
+    assert!(v["small_signal"]["q_null_reason"].is_string());
+    // The document reads back as it was.
+    let back: springbench::identify::Report = serde_json::from_value(v).unwrap();
+    assert_eq!(back.small_signal.unwrap().q, None);
 }

@@ -119,7 +119,22 @@ pub fn table(r: &Report) -> String {
             "  R       {:>10.4} N s/m      ± {:.4}",
             s.r_ns_per_m, s.r_se_ns_per_m
         );
-        let _ = writeln!(o, "  Q       {:>10.3}            ± {:.3}", s.q, s.q_se);
+        match (s.q, s.q_se) {
+            (Some(q), Some(se)) => {
+                let _ = writeln!(o, "  Q       {q:>10.3}            ± {se:.3}");
+            }
+            (Some(q), None) => {
+                let _ = writeln!(o, "  Q       {q:>10.3}");
+            }
+            (None, _) => {
+                let _ = writeln!(
+                    o,
+                    "  Q       {:>10}            ({})",
+                    "-",
+                    s.q_null_reason.as_deref().unwrap_or("undefined")
+                );
+            }
+        }
         if let Some(a) = s.force_per_mic_v_n_per_v {
             let _ = writeln!(o, "  Ss/mic  {a:>10.5} N/V (m^2 Pa/V)");
         }

@@ -180,11 +180,6 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
     let r = m.r_ns_per_m;
     let w0 = (k0.max(0.0) / mass_kg).sqrt();
     let f0 = w0 / (2.0 * std::f64::consts::PI);
-    let q = if r > 0.0 {
-        (k0.max(0.0) * mass_kg).sqrt() / r
-    } else {
-        f64::INFINITY
-    };
     let rel_k = if k0 > 0.0 { k0_se / k0 } else { f64::NAN };
     let rel_r = if r > 0.0 {
         m.r_se_ns_per_m / r
@@ -193,6 +188,7 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
     };
     // Reliable: a physical resonator whose k0 and R the data determine
     // (relative standard errors below 5 %, the block-robust ones).
+    let (q, q_se, q_null_reason) = crate::identify::quality_factor(k0, mass_kg, r, rel_k, rel_r);
     let reliable = k0 > 0.0 && r > 0.0 && rel_k < 0.05 && rel_r < 0.05;
     let mut base = plain.clone();
     base.base = None;
@@ -204,7 +200,8 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
         f0_se_hz: 0.5 * f0 * rel_k,
         k0_se_n_per_m: k0_se,
         r_se_ns_per_m: m.r_se_ns_per_m,
-        q_se: q.abs() * ((0.5 * rel_k).powi(2) + rel_r.powi(2)).sqrt(),
+        q_se,
+        q_null_reason,
         force_per_mic_v_n_per_v: Some(m.force_per_mic_n_per_v),
         misfit_percent: plain.misfit_percent,
         reliable,

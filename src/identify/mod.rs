@@ -52,12 +52,19 @@ pub struct SmallSignal {
     pub f0_hz: f64,
     pub k0_n_per_m: f64,
     pub r_ns_per_m: f64,
-    pub q: f64,
-    /// Standard errors of the above (same units).
+    /// Quality factor sqrt(k0 m) / R; null when the fit found no positive
+    /// damping (R <= 0: Q infinite or undefined), `q_null_reason` says so.
+    /// Never a non-finite number.
+    pub q: Option<f64>,
+    /// Standard errors of the above (same units); `q_se` is null with `q`,
+    /// or when it is undefined (k0 <= 0).
     pub f0_se_hz: f64,
     pub k0_se_n_per_m: f64,
     pub r_se_ns_per_m: f64,
-    pub q_se: f64,
+    pub q_se: Option<f64>,
+    /// Why `q` is null.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q_null_reason: Option<String>,
     /// Force per microphone volt A = Sd / mic sensitivity (N/V, i.e. m^2 Pa/V); None without a mic model.
     #[serde(default, alias = "area_per_mic_unit_m2_per_v")]
     pub force_per_mic_v_n_per_v: Option<f64>,
@@ -78,6 +85,31 @@ pub struct SmallSignal {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(no_recursion)]
     pub base: Option<Box<SmallSignal>>,
+}
+
+/// Q = sqrt(k0 m) / R and its standard error from the relative errors of
+/// k0 and R: (Q, its error, why Q is null). An undamped fit (R <= 0) has no
+/// finite positive Q: null with the reason, never an infinity (which JSON
+/// cannot carry and the store refuses, issue 11).
+pub fn quality_factor(
+    k0_n_per_m: f64,
+    mass_kg: f64,
+    r_ns_per_m: f64,
+    rel_k: f64,
+    rel_r: f64,
+) -> (Option<f64>, Option<f64>, Option<String>) {
+    let q = (k0_n_per_m.max(0.0) * mass_kg).sqrt() / r_ns_per_m;
+    if !(r_ns_per_m > 0.0 && q.is_finite()) {
+        return (
+            None,
+            None,
+            Some(format!(
+                "the fit found no damping (R = {r_ns_per_m:.3e} N s/m): Q = sqrt(k0 m) / R is infinite or undefined"
+            )),
+        );
+    }
+    let se = q * ((0.5 * rel_k).powi(2) + rel_r.powi(2)).sqrt();
+    (Some(q), se.is_finite().then_some(se), None)
 }
 
 /// Large-signal results from the main (narrow) sweep (SI).

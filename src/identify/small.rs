@@ -149,12 +149,8 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     }
     let w0 = (k0.max(0.0) / mass_kg).sqrt();
     let f0 = w0 / (2.0 * PI);
-    let q = if rr != 0.0 {
-        (k0.max(0.0) * mass_kg).sqrt() / rr
-    } else {
-        f64::INFINITY
-    };
     let rel_k = if k0 > 0.0 { sk / k0 } else { f64::NAN };
+    let (q, q_se, q_null_reason) = super::quality_factor(k0, mass_kg, rr, rel_k, sr / rr);
     let result = SmallSignal {
         f0_hz: f0,
         k0_n_per_m: k0,
@@ -163,7 +159,8 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
         f0_se_hz: 0.5 * f0 * rel_k,
         k0_se_n_per_m: sk,
         r_se_ns_per_m: sr,
-        q_se: q.abs() * ((0.5 * rel_k).powi(2) + (sr / rr).powi(2)).sqrt(),
+        q_se,
+        q_null_reason,
         force_per_mic_v_n_per_v: Some(aa),
         misfit_percent,
         reliable,

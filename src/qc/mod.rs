@@ -486,7 +486,8 @@ pub struct ParamOutcome {
 pub struct InvalidReason {
     /// `analysis_failed`, `target_not_reached`, `small_signal_unreliable`,
     /// `model_error_high`, `noise_high`, `clipping`, `alignment`,
-    /// `outside_measured_range`, `mask_coverage`, `job_failed`, `hardware_fault`.
+    /// `outside_measured_range`, `mask_coverage`, `job_failed`, `hardware_fault`,
+    /// `non_finite_value`.
     pub code: String,
     pub detail: String,
 }
@@ -702,6 +703,25 @@ pub fn set_keff_at_target(r: &mut crate::identify::Report, target_xpeak_m: Optio
 
 /// The verdict of one measurement under a recipe.
 pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
+    finite_verdict(judge_values(recipe, facts))
+}
+
+/// A verdict is stored and sent to the MES as JSON, where a NaN or an
+/// infinity would be written as `null` silently (issue 11): one with a
+/// non-finite number (e.g. K(x) overflowing at a mask point) becomes an
+/// `invalid` verdict (`non_finite_value`) that names the value, as
+/// `store::finite` refuses a result document.
+pub fn finite_verdict(v: Verdict) -> Verdict {
+    match crate::store::finite::check(&v) {
+        Ok(()) => v,
+        Err(e) => invalid_job(
+            "non_finite_value",
+            format!("the measurement cannot be judged: the verdict held a {e}"),
+        ),
+    }
+}
+
+fn judge_values(recipe: &Recipe, facts: &RunFacts) -> Verdict {
     let mut invalid = validity_problems(recipe, facts);
     let Some(r) = &facts.report else {
         return Verdict {
@@ -722,7 +742,7 @@ pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
         let value = match p.quantity {
             Quantity::K0 => ss.map(|s| s.k0_n_per_m),
             Quantity::F0 => ss.map(|s| s.f0_hz),
-            Quantity::Q => ss.map(|s| s.q),
+            Quantity::Q => ss.and_then(|s| s.q),
             Quantity::R => ss.map(|s| s.r_ns_per_m),
             Quantity::Keff => Some(keff_at_target(r, facts.target_xpeak_m)),
             Quantity::KAtX | Quantity::KAsymmetry => {

@@ -10,7 +10,7 @@ fn report(k0: f64, k1: f64, k2: f64, q: f64) -> Report {
             f0_hz: 35.0,
             k0_n_per_m: k0,
             r_ns_per_m: (k0 * 0.05f64).sqrt() / q,
-            q,
+            q: Some(q),
             reliable: true,
             misfit_percent: 0.5,
             ..Default::default()
@@ -484,4 +484,37 @@ fn keff_at_target_is_put_beside_the_measured_keff() {
     set_keff_at_target(&mut r2, Some(x));
     assert_eq!(r2.large_signal.target_xpeak_m, Some(x));
     assert!(r2.large_signal.keff_at_target_n_per_m.is_none());
+}
+
+/// Issue 11: a result with a non-finite stiffness coefficient (an
+/// ill-conditioned fit; the store refuses such a result, QC judges it first)
+/// against a K(x) mask was a `fail` whose value was stored as null. The
+/// verdict is `invalid` and names the value; it passes the store's check.
+#[test]
+fn a_non_finite_value_makes_the_verdict_invalid_not_null() {
+    let mut r = recipe();
+    r.parameters.clear();
+    r.kx_mask = Some(KxMask {
+        x_m: vec![-0.004, 0.0, 0.004],
+        lower_n_per_m: vec![1000.0; 3],
+        upper_n_per_m: vec![1.0e5; 3],
+        level_index: None,
+    });
+    let good = judge(&r, &facts(report(2400.0, 1.2e5, 3.6e7, 6.0)));
+    assert_eq!(good.verdict, VerdictKind::Pass, "{good:?}");
+    let mut rep = report(2400.0, 1.2e5, 3.6e7, 6.0);
+    rep.stiffness.coefficients_n_per_m_pow_i_plus_1[2] = f64::NAN;
+    let raw = judge_values(&r, &facts(rep.clone()));
+    assert!(raw.parameters[0].value.is_nan(), "{raw:?}");
+    let v = judge(&r, &facts(rep));
+    assert_eq!(v.verdict, VerdictKind::Invalid, "{v:?}");
+    assert_eq!(v.invalid_reasons[0].code, "non_finite_value");
+    assert!(
+        v.invalid_reasons[0]
+            .detail
+            .contains("NaN at failures[0].value"),
+        "{v:?}"
+    );
+    let doc = crate::store::finite::to_value(&v).unwrap();
+    assert_eq!(doc["verdict"], "invalid");
 }

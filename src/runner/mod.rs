@@ -585,7 +585,7 @@ impl Runner {
                     recipe_version: r.version,
                     recipe_sha256: r.sha256.clone(),
                     verdict: v.verdict.as_str(),
-                    detail: serde_json::to_value(v).unwrap_or(Value::Null),
+                    detail: verdict_json(v),
                     trace: trace(m),
                 });
             }
@@ -598,7 +598,7 @@ impl Runner {
                 recipe_version: r.version,
                 recipe_sha256: r.sha256.clone(),
                 verdict: jv.verdict.as_str(),
-                detail: serde_json::to_value(jv).unwrap_or(Value::Null),
+                detail: verdict_json(jv),
                 trace: trace(meas.first()),
             });
         }
@@ -1186,4 +1186,12 @@ impl Runner {
             .await?;
         Ok(())
     }
+}
+
+/// A verdict as stored: through the store's finite check (issue 11; `judge`
+/// already turns a non-finite verdict into an invalid one, this is the last
+/// guard before the database).
+fn verdict_json(v: &crate::qc::Verdict) -> Value {
+    let v = crate::qc::finite_verdict(v.clone());
+    crate::store::finite::to_value(&v).unwrap_or(Value::Null)
 }
