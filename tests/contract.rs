@@ -1185,3 +1185,213 @@ async fn every_route_answers_as_its_schema_says() {
         statuses
     );
 }
+
+/// Request bodies (issue 11): the described schemas of the job, fit and
+/// import bodies agree with the validators field by field: the same member
+/// names, unknown members refused by both, a value of each member's type
+/// accepted by both, null taken alike, and a value the schema refuses for
+/// its type refused by the validator naming that member.
+#[test]
+fn request_body_schemas_agree_with_the_validators() {
+    use springbench::api::{import, measurements};
+    use springbench::runner::job;
+    let doc: Value = serde_json::from_str(springbench::api::openapi::json()).unwrap();
+    let schemas = doc["components"]["schemas"].clone();
+    let schema_errors = |name: &str, v: &Value| -> Vec<String> {
+        let root = json!({
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "components": {"schemas": schemas},
+            "$ref": format!("#/components/schemas/{name}"),
+        });
+        let validator = jsonschema::draft202012::new(&root).unwrap();
+        validator
+            .iter_errors(v)
+            .map(|e| format!("at {}: {e}", e.instance_path()))
+            .collect()
+    };
+    let names = |name: &str| -> BTreeSet<String> {
+        let s = &doc["components"]["schemas"][name];
+        assert_eq!(
+            s["additionalProperties"],
+            json!(false),
+            "{name}: unknown members are refused"
+        );
+        s["properties"]
+            .as_object()
+            .unwrap()
+            .keys()
+            .cloned()
+            .collect()
+    };
+    let set = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<BTreeSet<_>>();
+    let names_field = |errs: &[job::FieldError], f: &str| {
+        errs.iter().any(|e| {
+            e.field == f
+                || e.field.starts_with(&format!("{f}."))
+                || e.field.starts_with(&format!("{f}["))
+        })
+    };
+    let wrong_types = [
+        json!(true),
+        json!("x"),
+        json!(1.5),
+        json!(-3),
+        json!([]),
+        json!({}),
+    ];
+
+    // The job body.
+    let cfg = springbench::config::Config::default();
+    assert_eq!(names("JobRequest"), set(job::FIELDS));
+    assert_eq!(names("JobPart"), set(&["serial", "kind", "notes"]));
+    assert_eq!(
+        names("JobLimits"),
+        set(&["max_displacement_m", "max_drive_v"])
+    );
+    assert_eq!(names("JobProduction"), set(&["preset", "seed", "defect"]));
+    let preset = springbench::physics::preset_names()[0];
+    let base = json!({"part": {"serial": "SN-1"}});
+    let samples: Vec<(&str, Value)> = vec![
+        ("bench", json!(cfg.benches[0].id)),
+        ("priority", json!(5)),
+        ("target_xpeak_m", json!(0.004)),
+        ("levels_m", json!([0.003, 0.004])),
+        ("method", json!("one-signal")),
+        ("order", json!(3)),
+        ("repeats", json!(2)),
+        ("moving_mass_kg", json!(0.01)),
+        ("preset", json!(preset)),
+        (
+            "part_spec",
+            serde_json::to_value(springbench::physics::preset(preset).unwrap()).unwrap(),
+        ),
+        ("production", json!({"preset": preset, "seed": 7})),
+        ("recipe", json!("spider-4in")),
+        (
+            "limits",
+            json!({"max_displacement_m": 0.012, "max_drive_v": 50.0}),
+        ),
+        (
+            "part",
+            json!({"serial": "SN-2", "kind": "spider", "notes": "n"}),
+        ),
+    ];
+    assert_eq!(
+        samples.iter().map(|s| s.0).collect::<BTreeSet<_>>(),
+        job::FIELDS.iter().copied().collect::<BTreeSet<_>>(),
+        "a sample per member"
+    );
+    let job_case = |b: &Value| {
+        (
+            schema_errors("JobRequest", b),
+            job::validate(b, &cfg).err().unwrap_or_default(),
+        )
+    };
+    for (f, v) in &samples {
+        let mut b = base.clone();
+        b[*f] = v.clone();
+        let (s, val) = job_case(&b);
+        assert!(
+            s.is_empty() && val.is_empty(),
+            "{f} = {v}: schema {s:?}, validator {val:?}"
+        );
+        b[*f] = Value::Null;
+        let (s, val) = job_case(&b);
+        assert_eq!(
+            s.is_empty(),
+            val.is_empty(),
+            "{f} = null: schema {s:?}, validator {val:?}"
+        );
+        for w in &wrong_types {
+            b[*f] = w.clone();
+            let (s, val) = job_case(&b);
+            if !s.is_empty() {
+                assert!(
+                    names_field(&val, f),
+                    "{f} = {w}: the schema refuses it ({s:?}), the validator says {val:?}"
+                );
+            }
+        }
+    }
+    for (path, v) in [
+        (
+            "colour",
+            json!({"part": {"serial": "SN-1"}, "colour": "red"}),
+        ),
+        (
+            "part.colour",
+            json!({"part": {"serial": "SN-1", "colour": "red"}}),
+        ),
+        (
+            "limits.max_force_n",
+            json!({"part": {"serial": "SN-1"}, "limits": {"max_force_n": 1.0}}),
+        ),
+        (
+            "production",
+            json!({"part": {"serial": "SN-1"}, "production": {"preset": preset, "seed": 1, "colour": 1}}),
+        ),
+        ("part.serial", json!({"part": {"serial": ".."}})),
+        ("part", json!({})),
+    ] {
+        let (s, val) = job_case(&v);
+        assert!(!s.is_empty(), "{v}: the schema accepts it");
+        assert!(names_field(&val, path), "{v}: the validator says {val:?}");
+    }
+
+    // The fit body.
+    assert_eq!(names("FitBody"), set(&measurements::FIT_FIELDS));
+    let fit_case = |b: &Value| {
+        (
+            schema_errors("FitBody", b),
+            measurements::fit_request(b).err().unwrap_or_default(),
+        )
+    };
+    let effect = springbench::effects::EffectId::ALL[0].as_str();
+    for (f, v) in [
+        ("effects", json!([effect])),
+        ("effects", json!("auto")),
+        ("effects", json!([])),
+        ("order", json!(4)),
+        ("method", json!("two-signal")),
+    ] {
+        let mut b = json!({});
+        b[f] = v.clone();
+        let (s, val) = fit_case(&b);
+        assert!(
+            s.is_empty() && val.is_empty(),
+            "{f} = {v}: schema {s:?}, validator {val:?}"
+        );
+        b[f] = Value::Null;
+        let (s, val) = fit_case(&b);
+        assert_eq!(
+            s.is_empty(),
+            val.is_empty(),
+            "{f} = null: schema {s:?}, validator {val:?}"
+        );
+        for w in wrong_types
+            .iter()
+            .chain([&json!(["no_such_effect"]), &json!(13)])
+        {
+            b[f] = w.clone();
+            let (s, val) = fit_case(&b);
+            if !s.is_empty() {
+                assert!(
+                    names_field(&val, f),
+                    "{f} = {w}: the schema refuses it ({s:?}), the validator says {val:?}"
+                );
+            }
+        }
+    }
+    let (s, val) = fit_case(&json!({"colour": 1}));
+    assert!(!s.is_empty() && names_field(&val, "colour"));
+
+    // The import form: the same field names, the files and meta required.
+    assert_eq!(names("ImportForm"), set(&import::FIELDS));
+    let req: BTreeSet<String> = doc["components"]["schemas"]["ImportForm"]["required"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(req, set(&["meta", "pre", "main"]));
+}

@@ -28,7 +28,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use tokio::io::AsyncWriteExt;
 
-const FIELDS: [&str; 8] = [
+/// The form fields an import may have (anything else is refused).
+pub const FIELDS: [&str; 8] = [
     "meta", "pre", "main", "serial", "kind", "notes", "method", "order",
 ];
 /// Fields spooled to disk; the others are kept in memory (capped).

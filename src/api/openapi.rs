@@ -325,63 +325,119 @@ pub struct Problem {
 }
 
 // ---------------------------------------------------------------------------
-// Request bodies validated field by field by the handlers (hand-described).
+// Request bodies validated field by field by the handlers (hand-described;
+// tests/contract.rs checks each field against the validators: the names, a
+// value of the schema's type accepted, null and other types as the
+// validator takes them, unknown members refused by both).
 
 /// The part a job measures.
 #[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[allow(dead_code)]
 pub struct JobPart {
     /// Part serial (letters, digits and `._-`, not `.` or `..`).
+    #[schema(pattern = "^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")]
     pub serial: String,
     pub kind: Option<String>,
     pub notes: Option<String>,
 }
 
+/// Tighter limits than the bench's.
+#[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[allow(dead_code)]
+pub struct JobLimits {
+    /// At most the bench's (m).
+    pub max_displacement_m: Option<f64>,
+    /// At most the bench's (V).
+    pub max_drive_v: Option<f64>,
+}
+
+/// One part of a production lot on the virtual bench.
+#[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[allow(dead_code)]
+pub struct JobProduction {
+    /// The lot's nominal preset.
+    pub preset: String,
+    /// Draws the part's spread.
+    pub seed: u64,
+    /// A defect of this part (`physics::production::Defect`).
+    #[schema(value_type = Option<Object>)]
+    pub defect: Option<Value>,
+}
+
 /// `POST /api/v1/jobs`: a measurement job. Defaults come from the bench and
 /// the recipe; `runner::job::validate` checks every field.
 #[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[allow(dead_code)]
 pub struct JobRequest {
     pub part: JobPart,
     /// Bench id (default: the first bench).
     pub bench: Option<String>,
-    /// Higher runs first (default 0).
+    /// Higher runs first (default 0; -1000..1000).
+    #[schema(minimum = -1000, maximum = 1000)]
     pub priority: Option<i64>,
     /// Target peak displacement (m); or `levels_m` for a level series.
     pub target_xpeak_m: Option<f64>,
+    /// 1 to 16 target peak displacements (m).
     pub levels_m: Option<Vec<f64>>,
     /// `two-signal` (default) or `one-signal`.
     pub method: Option<crate::identify::Method>,
     /// Order of K(x) (1-12; chosen from the data when absent).
+    #[schema(minimum = 1, maximum = 12)]
     pub order: Option<usize>,
     /// Measurements per level (1-10).
+    #[schema(minimum = 1, maximum = 10)]
     pub repeats: Option<u32>,
     pub moving_mass_kg: Option<f64>,
     /// Virtual bench: a preset name (`presets/*.toml`).
     pub preset: Option<String>,
-    /// Virtual bench: the part's parameters in full.
+    /// Virtual bench: the part's parameters in full (`physics::PartSpec`).
+    #[schema(value_type = Option<Object>)]
     pub part_spec: Option<Value>,
-    /// Virtual bench: one part of a production lot (`preset`, `seed`, optional `defect`).
-    pub production: Option<Value>,
+    /// Virtual bench: one part of a production lot.
+    pub production: Option<JobProduction>,
     /// QC recipe name: its newest version's procedure settings are filled in and the job ends with a verdict.
     pub recipe: Option<String>,
-    /// Tighter limits than the bench's (`max_displacement_m`, `max_drive_v`).
-    pub limits: Option<Value>,
+    /// Tighter limits than the bench's.
+    pub limits: Option<JobLimits>,
+}
+
+/// `"auto"`: the diagnostics' ladder chooses the model.
+#[derive(serde::Serialize, ToSchema)]
+#[serde(rename_all = "lowercase")]
+#[allow(dead_code)]
+pub enum FitAuto {
+    Auto,
+}
+
+/// The effects of a refit: a list fits exactly that model.
+#[derive(serde::Serialize, ToSchema)]
+#[serde(untagged)]
+#[allow(dead_code)]
+pub enum FitEffects {
+    List(Vec<crate::effects::EffectId>),
+    Auto(FitAuto),
 }
 
 /// `POST /api/v1/measurements/{id}/fits`.
 #[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[allow(dead_code)]
 pub struct FitBody {
     /// A list of effect ids fits exactly that model; `"auto"` or absent lets the ladder choose.
-    pub effects: Option<Value>,
+    pub effects: Option<FitEffects>,
     /// Order of K(x) (1-12).
+    #[schema(minimum = 1, maximum = 12)]
     pub order: Option<usize>,
     pub method: Option<crate::identify::Method>,
 }
 
 /// `POST /api/v1/measurements` (multipart/form-data): an external recording set.
 #[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 #[allow(dead_code)]
 pub struct ImportForm {
     /// meta.json of the set (may hold `part_serial`).

@@ -97,7 +97,8 @@ fn err(field: &str, message: impl Into<String>) -> FieldError {
     }
 }
 
-const FIELDS: &[&str] = &[
+/// The members a job body may have (anything else is refused).
+pub const FIELDS: &[&str] = &[
     "part",
     "bench",
     "moving_mass_kg",
@@ -250,7 +251,9 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
 
     // limits: the bench's, or tighter
     let mut limits = bench.map(|b| b.limits);
-    if let (Some(v), Some(bl)) = (obj.get("limits"), bench.map(|b| b.limits)) {
+    // null is absent, for every optional member (as the schema says).
+    let given = |k: &str| obj.get(k).filter(|v| !v.is_null());
+    if let (Some(v), Some(bl)) = (given("limits"), bench.map(|b| b.limits)) {
         match v.as_object() {
             Some(l) => {
                 let mut out = bl;
@@ -297,7 +300,7 @@ pub fn validate(body: &Value, cfg: &Config) -> Result<JobSpec, Vec<FieldError>> 
 
     // levels
     let mut levels = Vec::new();
-    match (obj.get("target_xpeak_m"), obj.get("levels_m")) {
+    match (given("target_xpeak_m"), given("levels_m")) {
         (Some(_), Some(_)) => errors.push(err(
             "levels_m",
             "give either target_xpeak_m or levels_m, not both",
