@@ -147,18 +147,41 @@ fn run(part: &PartSpec, seed: u64) -> Diagnosis {
     diagnose(&set, &DiagnoseOptions::default()).unwrap()
 }
 
+/// Runs the seeds of one effect, prints every seed's figures (with the
+/// part's true effect) and fails at the end with every seed out of bounds.
 fn check_effect(id: EffectId) {
     let seeds = env_usize("SPRINGBENCH_TRUST_SEEDS", 1) as u64;
+    let mut failed = vec![];
     for seed in 0..seeds {
+        if let Err(e) = std::panic::catch_unwind(|| check_seed(id, seed)) {
+            let msg = e
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_default();
+            failed.push(msg);
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "{} of {seeds} seeds out of bounds: {failed:#?}",
+        failed.len()
+    );
+}
+
+fn check_seed(id: EffectId, seed: u64) {
+    {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7000 + 100 * id as u64 + seed);
         let part = part_with(random_effect(id, &mut rng));
         let d = run(&part, 40 + seed);
         let e = errors(&part, &d.report);
         eprintln!(
-            "{id} seed {seed}: {:?}; model {:?}; small-signal effects {:?}",
+            "{id} seed {seed}: true {:?}; {:?}; model {:?} {:?}; small-signal effects {:?}",
+            part.effects,
             e,
             d.report.model.effects.ids(),
-            d.report.small_signal.as_ref().map(|s| s.effects.ids())
+            d.report.model.effects,
+            d.report.small_signal.as_ref().map(|s| &s.effects)
         );
         // A part with library effects only: nothing unexplained (no false
         // alarm of tests/beyond_library.rs's report).

@@ -40,6 +40,7 @@ pub fn attach(
         order,
         ..Default::default()
     };
+    let t = std::time::Instant::now();
     let mut fit = match fit_series(&data, &opts) {
         Ok(f) => f,
         Err(e) => return vec![format!("level series: the joint fit failed: {e}")],
@@ -62,7 +63,7 @@ pub fn attach(
     }
     let j = &fit.joint;
     vec![format!(
-        "level series: joint fit over {} levels ({:.2}..{:.2} mm): effects [{}], K(x) order {}, R {:.4} N s/m, model error {:.3} %",
+        "level series: joint fit over {} levels ({:.2}..{:.2} mm): effects [{}], K(x) order {}, R {:.4} N s/m, model error {:.3} % ({:.2} s)",
         levels.len(),
         j.valid_range_m[0] * 1e3,
         j.valid_range_m[1] * 1e3,
@@ -74,6 +75,7 @@ pub fn attach(
             .join(", "),
         j.order,
         j.r_ns_per_m,
-        j.model_error_percent
+        j.model_error_percent,
+        t.elapsed().as_secs_f64()
     )]
 }
