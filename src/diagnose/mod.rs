@@ -240,9 +240,14 @@ fn small_signal_comparison(set: &RecordingSet, report: &Report) -> Option<serde_
         return None;
     }
     let fs = pre.sample_rate_hz;
-    let mut planner = realfft::RealFftPlanner::<f64>::new();
-    let sx = crate::dsp::Spectrum::with_planner(&pre.displacement_m, fs, 0, &mut planner);
-    let sm = crate::dsp::Spectrum::with_planner(&pre.microphone_v, fs, 0, &mut planner);
+    // The thread's planner: the identification planned this size already
+    // (a fresh planner recomputed the 2^20 FFT's twiddles, ~15 ms).
+    let (sx, sm) = crate::dsp::spectrum::with_thread_planner(|planner| {
+        (
+            crate::dsp::Spectrum::low_band(&pre.displacement_m, fs, 0, 110.0, planner),
+            crate::dsp::Spectrum::low_band(&pre.microphone_v, fs, 0, 110.0, planner),
+        )
+    });
     let tf = crate::dsp::transfer_function(&sm, &sx, 0.5, 110.0);
     let m = set.meta.moving_mass_kg;
     let (mut f, mut meas, mut fit, mut coh) = (vec![], vec![], vec![], vec![]);

@@ -10,8 +10,6 @@
 //! noise floor. The lines are never averaged across segments before the
 //! quantile, so the sweep does not smear them into a broadband floor.
 
-use realfft::RealFftPlanner;
-
 /// The running quantile taken over frequency: low, so that lines may cover
 /// up to 80 % of the window without lifting the floor.
 const QUANTILE: f64 = 0.2;
@@ -68,8 +66,7 @@ pub fn residual_spectrum(e: &[f64], fs_hz: f64, segment_s: f64) -> ResidualSpect
         .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / len as f64).cos())
         .collect();
     let w2: f64 = window.iter().map(|w| w * w).sum();
-    let mut planner = RealFftPlanner::<f64>::new();
-    let fft = planner.plan_fft_forward(len);
+    let fft = crate::dsp::spectrum::with_thread_planner(|p| p.plan_fft_forward(len));
     let mut input = fft.make_input_vec();
     let mut output = fft.make_output_vec();
     let nb = len / 2 + 1;

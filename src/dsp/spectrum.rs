@@ -18,11 +18,31 @@ thread_local! {
     /// Reused scratch and input buffers of the FFTs (multi-megabyte buffers
     /// allocated afresh cost page faults on every call).
     static SCRATCH: RefCell<(Vec<f64>, Vec<Complex64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
+    /// Reused output of the forward FFTs whose callers keep only the low bins.
+    static BINS: RefCell<Vec<Complex64>> = const { RefCell::new(Vec::new()) };
 }
 
 /// Runs `f` with this thread's cached FFT planner (plans are kept between calls).
 pub fn with_thread_planner<R>(f: impl FnOnce(&mut RealFftPlanner<f64>) -> R) -> R {
     PLANNER.with(|p| f(&mut p.borrow_mut()))
+}
+
+/// Sizes this thread's FFT buffers once for the largest record of a set
+/// (`len` samples plus at least `min_pad`), before its first FFT: growing
+/// them from the main sweep's size to the pre-measurement's copied and
+/// page-faulted some 12 MB more per analysis.
+pub fn reserve_for(len: usize, min_pad: usize) {
+    let n_fft = (len + min_pad).max(2).next_power_of_two();
+    let scratch_len = with_thread_planner(|p| p.plan_fft_forward(n_fft).get_scratch_len());
+    SCRATCH.with(|sc| {
+        let (buf, scratch) = &mut *sc.borrow_mut();
+        if buf.capacity() < n_fft {
+            *buf = Vec::with_capacity(n_fft);
+        }
+        if scratch.capacity() < scratch_len {
+            *scratch = Vec::with_capacity(scratch_len);
+        }
+    });
 }
 
 /// Smooth low-pass: 1 up to `pass_hz`, raised-cosine to 0 at `stop_hz`, 0 above.
@@ -70,10 +90,60 @@ impl Spectrum {
         min_pad: usize,
         planner: &mut RealFftPlanner<f64>,
     ) -> Spectrum {
+        let n_fft = (signal.len() + min_pad).max(2).next_power_of_two();
+        let mut bins = vec![Complex64::new(0.0, 0.0); n_fft / 2 + 1];
+        Self::forward(signal, n_fft, &mut bins, planner);
+        Spectrum {
+            sample_rate_hz,
+            len: signal.len(),
+            n_fft,
+            bins,
+        }
+    }
+
+    /// [`Spectrum::with_planner`] keeping only the bins up to `max_hz` (and
+    /// two more): the same values, without holding (and page-faulting) the
+    /// whole spectrum of a long record when only its low band is used.
+    /// `white_noise_std` and the derivatives above `max_hz` are not
+    /// available on it.
+    pub fn low_band(
+        signal: &[f64],
+        sample_rate_hz: f64,
+        min_pad: usize,
+        max_hz: f64,
+        planner: &mut RealFftPlanner<f64>,
+    ) -> Spectrum {
+        let n_fft = (signal.len() + min_pad).max(2).next_power_of_two();
+        let df = sample_rate_hz / n_fft as f64;
+        let keep = if max_hz.is_finite() && max_hz >= 0.0 {
+            ((max_hz / df).ceil() as usize).saturating_add(3)
+        } else {
+            usize::MAX
+        }
+        .min(n_fft / 2 + 1);
+        let bins = BINS.with(|b| {
+            let out = &mut *b.borrow_mut();
+            out.resize(n_fft / 2 + 1, Complex64::new(0.0, 0.0));
+            Self::forward(signal, n_fft, out, planner);
+            out[..keep].to_vec()
+        });
+        Spectrum {
+            sample_rate_hz,
+            len: signal.len(),
+            n_fft,
+            bins,
+        }
+    }
+
+    /// The padded record's real FFT into `bins` (`n_fft / 2 + 1` long).
+    fn forward(
+        signal: &[f64],
+        n_fft: usize,
+        bins: &mut [Complex64],
+        planner: &mut RealFftPlanner<f64>,
+    ) {
         let len = signal.len();
-        let n_fft = (len + min_pad).max(2).next_power_of_two();
         let fft = planner.plan_fft_forward(n_fft);
-        let mut bins = fft.make_output_vec();
         SCRATCH.with(|sc| {
             let (buf, scratch) = &mut *sc.borrow_mut();
             buf.clear();
@@ -93,15 +163,9 @@ impl Spectrum {
                 buf.resize(n_fft, 0.0);
             }
             scratch.resize(fft.get_scratch_len(), Complex64::new(0.0, 0.0));
-            fft.process_with_scratch(buf, &mut bins, scratch)
+            fft.process_with_scratch(buf, bins, scratch)
                 .expect("buffer sizes come from the plan");
         });
-        Spectrum {
-            sample_rate_hz,
-            len,
-            n_fft,
-            bins,
-        }
     }
 
     /// Frequency of bin `k` (Hz).

@@ -268,6 +268,7 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
+    reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     analyze_prepared(set, &p, opts)
 }
@@ -278,9 +279,15 @@ pub fn analyze_with_force_balance(
     set: &RecordingSet,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
+    reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     let report = analyze_prepared(set, &p, opts)?;
     Ok((report, force_balance_of(&p)))
+}
+
+/// The FFT buffers sized once for both sweeps (the FFTs pad by 64 samples).
+fn reserve_fft_buffers(set: &RecordingSet) {
+    crate::dsp::spectrum::reserve_for(set.pre.len().max(set.main.len()), 64);
 }
 
 fn analyze_prepared(

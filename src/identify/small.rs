@@ -25,13 +25,14 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check_signals(pre, "pre", 1.0)?;
     let fs = pre.sample_rate_hz;
     let lp = lowpass_for(fs);
+    let fmax = lp.pass_hz.min(0.45 * fs);
+    // Only the bins up to fmax are used below.
     let (sx, sm) = dsp::spectrum::with_thread_planner(|planner| {
         (
-            Spectrum::with_planner(&pre.displacement_m, fs, 64, planner),
-            Spectrum::with_planner(&pre.microphone_v, fs, 64, planner),
+            Spectrum::low_band(&pre.displacement_m, fs, 64, fmax, planner),
+            Spectrum::low_band(&pre.microphone_v, fs, 64, fmax, planner),
         )
     });
-    let fmax = lp.pass_hz.min(0.45 * fs);
     let tf = dsp::transfer_function(&sm, &sx, sx.df_hz(), fmax);
     // Where the stimulus has energy: the frequency range of the drive's periods
     // when the drive is recorded, else where the microphone has power.

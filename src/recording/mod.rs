@@ -166,7 +166,7 @@ impl Signals {
             ("drive", self.drive_v.as_ref()),
         ];
         for (name, c) in chans {
-            if let Some(c) = c {
+            if let Some(c) = c.filter(|c| !all_finite(c)) {
                 if let Some(i) = c.iter().position(|v| !v.is_finite()) {
                     return Err(RecordingError::Invalid(format!(
                         "{what}: {name} channel has a non-finite sample (NaN or infinity) at sample {i} (t = {:.4} s)",
@@ -177,6 +177,13 @@ impl Signals {
         }
         Ok(())
     }
+}
+
+/// Every sample finite; blocks without an early exit, so that the check
+/// vectorises (it runs on every channel of every sweep read and analysed).
+fn all_finite(c: &[f64]) -> bool {
+    c.chunks(1024)
+        .all(|b| b.iter().fold(true, |ok, v| ok & v.is_finite()))
 }
 
 /// A complete recording set: small-signal pre-measurement and large-signal main sweep.
@@ -200,25 +207,24 @@ impl RecordingSet {
             path: meta_path.display().to_string(),
             reason,
         })?;
-        let open = |name: &str| {
+        // Each file is decoded straight from the file in blocks: holding the
+        // 15 MB of WAV bytes first cost as many page faults as the analysis.
+        let read = |name: &str| {
             let p = dir.join(name);
             let f = std::fs::File::open(&p).map_err(|source| RecordingError::Io {
                 path: p.display().to_string(),
                 source,
             })?;
-            let mut buf = Vec::new();
-            std::io::BufReader::new(f)
-                .read_to_end(&mut buf)
-                .map_err(|source| RecordingError::Io {
+            read_signals_seek(std::io::BufReader::new(f), &meta).map_err(|e| match e {
+                RecordingError::Io { source, .. } => RecordingError::Io {
                     path: p.display().to_string(),
                     source,
-                })?;
-            Ok::<_, RecordingError>((p, buf))
+                },
+                e => e.with_path(&p),
+            })
         };
-        let (pp, pre) = open("pre.wav")?;
-        let pre = read_signals_bytes(&pre, &meta).map_err(|e| e.with_path(&pp))?;
-        let (mp, main) = open("main.wav")?;
-        let main = read_signals_bytes(&main, &meta).map_err(|e| e.with_path(&mp))?;
+        let pre = read("pre.wav")?;
+        let main = read("main.wav")?;
         RecordingSet::settled(meta, pre, main)
     }
 
@@ -328,12 +334,33 @@ pub fn read_signals<R: Read>(mut reader: R, meta: &Meta) -> Result<Signals, Reco
 
 /// [`read_signals`] on the bytes of a whole WAV file.
 pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingError> {
+    read_signals_seek(std::io::Cursor::new(wav), meta).map_err(|e| match e {
+        // In memory, a failed read is a short file.
+        RecordingError::Io { source, .. } => RecordingError::Wav {
+            path: String::new(),
+            reason: source.to_string(),
+        },
+        e => e,
+    })
+}
+
+/// [`read_signals`] on a seekable source (a file, bytes): the samples are
+/// decoded block by block straight into the channels, so the WAV bytes are
+/// never held whole. `RecordingError::Io` (empty path) when reading fails.
+pub fn read_signals_seek<R: Read + Seek>(
+    mut src: R,
+    meta: &Meta,
+) -> Result<Signals, RecordingError> {
+    use std::io::SeekFrom;
     let wav_err = |reason: String| RecordingError::Wav {
         path: String::new(),
         reason,
     };
-    let mut cur = std::io::Cursor::new(wav);
-    let r = hound::WavReader::new(&mut cur).map_err(|e| wav_err(e.to_string()))?;
+    let io_err = |source: std::io::Error| RecordingError::Io {
+        path: String::new(),
+        source,
+    };
+    let r = hound::WavReader::new(&mut src).map_err(|e| wav_err(e.to_string()))?;
     let spec = r.spec();
     let nch = spec.channels as usize;
     if (spec.sample_rate as f64 - meta.sample_rate_hz).abs() > 1e-6 * meta.sample_rate_hz {
@@ -364,7 +391,7 @@ pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingE
         ));
     }
     // hound parses the header and stops at the data chunk; the samples are
-    // read in one go and converted frame by frame straight into the channels
+    // read in blocks and converted frame by frame straight into the channels
     // (hound's per-sample iterator was most of the time of `analyze`).
     let bytes = match (spec.sample_format, spec.bits_per_sample) {
         (hound::SampleFormat::Float, 32) => 4,
@@ -377,28 +404,33 @@ pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingE
     };
     let samples = r.len() as usize;
     let frames = r.duration() as usize;
-    let start = r.into_inner().position() as usize;
+    drop(r);
+    let start = src.stream_position().map_err(io_err)?;
     // The data chunk starts where hound stopped; its header (b"data", u32
     // length) precedes it and gives the container size of a sample.
-    let container = (start >= 8 && &wav[start - 8..start - 4] == b"data")
-        .then(|| {
-            u32::from_le_bytes([
-                wav[start - 4],
-                wav[start - 3],
-                wav[start - 2],
-                wav[start - 1],
-            ]) as usize
-        })
-        .and_then(|len| len.checked_div(samples));
+    let mut head = [0u8; 8];
+    let container = if start >= 8 {
+        src.seek(SeekFrom::Start(start - 8)).map_err(io_err)?;
+        src.read_exact(&mut head).map_err(io_err)?;
+        (&head[..4] == b"data")
+            .then(|| u32::from_le_bytes([head[4], head[5], head[6], head[7]]) as usize)
+            .and_then(|len| len.checked_div(samples))
+    } else {
+        None
+    };
     if spec.bits_per_sample == 8 || container != Some(bytes) {
         // Unusual layouts (8-bit unsigned, padded containers): hound's reader.
-        let r =
-            hound::WavReader::new(std::io::Cursor::new(wav)).map_err(|e| wav_err(e.to_string()))?;
+        src.seek(SeekFrom::Start(0)).map_err(io_err)?;
+        let r = hound::WavReader::new(src).map_err(|e| wav_err(e.to_string()))?;
         return read_with_hound(r, meta, nch, is_pcm, scale);
     }
-    let data = wav
-        .get(start..start + frames * nch * bytes)
-        .ok_or_else(|| wav_err("data chunk shorter than its header says".into()))?;
+    let frame = nch * bytes;
+    let end = src.seek(SeekFrom::End(0)).map_err(io_err)?;
+    let need = frames as u64 * frame as u64;
+    if end.saturating_sub(start) < need {
+        return Err(wav_err("data chunk shorter than its header says".into()));
+    }
+    src.seek(SeekFrom::Start(start)).map_err(io_err)?;
     let full = if is_pcm {
         (1u64 << (spec.bits_per_sample - 1)) as f64
     } else {
@@ -412,21 +444,50 @@ pub fn read_signals_bytes(wav: &[u8], meta: &Meta) -> Result<Signals, RecordingE
             (true, _) => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
         }
     };
-    let frame = nch * bytes;
-    let pick = |c: usize, s: Option<f64>| -> Vec<f64> {
-        let g = s.unwrap_or(1.0) / full;
-        data.chunks_exact(frame)
-            .map(|f| decode(&f[c * bytes..(c + 1) * bytes]) * g)
-            .collect()
-    };
+    // (byte offset in a frame, gain, samples) of each channel read.
+    let gain = |s: Option<f64>| s.unwrap_or(1.0) / full;
+    let mut picks: Vec<(usize, f64, Vec<f64>)> = [
+        Some((ch.displacement, scale.displacement)),
+        Some((ch.microphone, scale.microphone)),
+        ch.drive.map(|c| (c, scale.drive)),
+    ]
+    .into_iter()
+    .flatten()
+    .map(|(c, s)| (c * bytes, gain(s), Vec::with_capacity(frames)))
+    .collect();
+    // About 1 MiB per block (at least one frame).
+    let per_block = ((1usize << 20) / frame).max(1);
+    let mut block = vec![0u8; per_block.min(frames) * frame];
+    let mut left = frames;
+    while left > 0 {
+        let n = per_block.min(left);
+        let buf = &mut block[..n * frame];
+        src.read_exact(buf).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                wav_err("data chunk shorter than its header says".into())
+            } else {
+                io_err(e)
+            }
+        })?;
+        for (off, g, out) in picks.iter_mut() {
+            out.extend(
+                buf.chunks_exact(frame)
+                    .map(|f| decode(&f[*off..*off + bytes]) * *g),
+            );
+        }
+        left -= n;
+    }
+    let mut it = picks.into_iter().map(|p| p.2);
+    let displacement_m = it.next().unwrap_or_default();
+    let microphone_v = it.next().unwrap_or_default();
     let sig = Signals {
         // The file's rate: meta.json may state it within 1e-6 (checked above),
         // the samples were taken at the WAV's integer rate (tests/fuzz.rs found
         // 8000.0000001 read here and refused by storage at 8000).
         sample_rate_hz: spec.sample_rate as f64,
-        displacement_m: pick(ch.displacement, scale.displacement),
-        microphone_v: pick(ch.microphone, scale.microphone),
-        drive_v: ch.drive.map(|c| pick(c, scale.drive)),
+        displacement_m,
+        microphone_v,
+        drive_v: it.next(),
     };
     sig.validate("recording")?;
     Ok(sig)
