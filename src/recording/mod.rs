@@ -360,8 +360,10 @@ pub fn read_signals_seek<R: Read + Seek>(
         path: String::new(),
         source,
     };
-    let r = hound::WavReader::new(&mut src).map_err(|e| wav_err(e.to_string()))?;
-    let spec = r.spec();
+    let (spec, samples, frames) = {
+        let r = hound::WavReader::new(&mut src).map_err(|e| wav_err(e.to_string()))?;
+        (r.spec(), r.len() as usize, r.duration() as usize)
+    };
     let nch = spec.channels as usize;
     if (spec.sample_rate as f64 - meta.sample_rate_hz).abs() > 1e-6 * meta.sample_rate_hz {
         return Err(RecordingError::Invalid(format!(
@@ -402,9 +404,6 @@ pub fn read_signals_seek<R: Read + Seek>(
             )))
         }
     };
-    let samples = r.len() as usize;
-    let frames = r.duration() as usize;
-    drop(r);
     let start = src.stream_position().map_err(io_err)?;
     // The data chunk starts where hound stopped; its header (b"data", u32
     // length) precedes it and gives the container size of a sample.
