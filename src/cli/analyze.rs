@@ -121,8 +121,10 @@ pub fn table(r: &Report) -> String {
         );
         let _ = writeln!(
             o,
-            "  f0      {:>10.3} Hz         ± {:.3}",
-            s.f0_hz, s.f0_se_hz
+            "  f0      {:>10.3} Hz         ± {}",
+            s.f0_hz,
+            s.f0_se_hz
+                .map_or("undefined (k0 <= 0)".to_string(), |v| format!("{v:.3}"))
         );
         let _ = writeln!(
             o,

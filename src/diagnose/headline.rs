@@ -197,7 +197,7 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
         k0_n_per_m: k0,
         r_ns_per_m: r,
         q,
-        f0_se_hz: 0.5 * f0 * rel_k,
+        f0_se_hz: crate::identify::f0_standard_error(f0, rel_k),
         k0_se_n_per_m: k0_se,
         r_se_ns_per_m: m.r_se_ns_per_m,
         q_se,

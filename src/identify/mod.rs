@@ -56,9 +56,10 @@ pub struct SmallSignal {
     /// damping (R <= 0: Q infinite or undefined), `q_null_reason` says so.
     /// Never a non-finite number.
     pub q: Option<f64>,
-    /// Standard errors of the above (same units); `q_se` is null with `q`,
-    /// or when it is undefined (k0 <= 0).
-    pub f0_se_hz: f64,
+    /// Standard errors of the above (same units); `f0_se_hz` is null when
+    /// the fitted k0 <= 0 (f0 = 0: its error is undefined), `q_se` with `q`
+    /// or when it is undefined.
+    pub f0_se_hz: Option<f64>,
     pub k0_se_n_per_m: f64,
     pub r_se_ns_per_m: f64,
     pub q_se: Option<f64>,
@@ -85,6 +86,15 @@ pub struct SmallSignal {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(no_recursion)]
     pub base: Option<Box<SmallSignal>>,
+}
+
+/// The standard error of f0 = sqrt(k0 / m) / (2 pi) from k0's relative
+/// error: f0 rel_k / 2; None when it is undefined (k0 <= 0 gives f0 = 0 and
+/// no relative error), never a NaN, which the store refuses with the whole
+/// result.
+pub fn f0_standard_error(f0_hz: f64, rel_k: f64) -> Option<f64> {
+    let se = 0.5 * f0_hz * rel_k;
+    (f0_hz > 0.0 && se.is_finite()).then_some(se)
 }
 
 /// Q = sqrt(k0 m) / R and its standard error from the relative errors of
@@ -619,4 +629,24 @@ pub struct ForceBalanceData {
     pub laser_noise_m: f64,
     /// Standard deviation of the microphone noise estimated from the data (V).
     pub mic_noise_v: f64,
+}
+
+#[cfg(test)]
+mod f0_se_tests {
+    use super::f0_standard_error;
+
+    #[test]
+    fn f0_error_follows_k0_and_is_null_without_a_stiffness() {
+        // k0 = 2500 N/m, m = 20 g: f0 = sqrt(2500 / 0.02) / 2 pi = 56.27 Hz;
+        // 1 % on k0 is 0.5 % on f0.
+        let f0 = (2500.0f64 / 0.02).sqrt() / (2.0 * std::f64::consts::PI);
+        let se = f0_standard_error(f0, 0.01).unwrap();
+        assert!(
+            (se - 0.005 * f0).abs() < 1e-12 && (se - 0.28135).abs() < 1e-4,
+            "{se}"
+        );
+        // k0 <= 0: f0 is 0 and rel_k NaN (k0 = 0) or negative; no error, no NaN.
+        assert_eq!(f0_standard_error(0.0, f64::NAN), None);
+        assert_eq!(f0_standard_error(0.0, -0.3), None);
+    }
 }

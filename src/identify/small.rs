@@ -157,7 +157,7 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
         k0_n_per_m: k0,
         r_ns_per_m: rr,
         q,
-        f0_se_hz: 0.5 * f0 * rel_k,
+        f0_se_hz: super::f0_standard_error(f0, rel_k),
         k0_se_n_per_m: sk,
         r_se_ns_per_m: sr,
         q_se,
