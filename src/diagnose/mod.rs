@@ -50,7 +50,8 @@ pub enum DiagnoseError {
 /// the forced ones) and `diagnostics` filled.
 pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis, DiagnoseError> {
     let mut warnings = Vec::new();
-    let (mut report, data) = crate::identify::analyze_with_force_balance(set, &opts.analyze)?;
+    let (mut report, data, pre_spectra) =
+        crate::identify::analyze_for_diagnosis(set, &opts.analyze)?;
     let engine_opts = engine::EngineOptions {
         order: opts.analyze.order,
         forced: opts.effects.clone(),
@@ -102,7 +103,8 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
                 pre_opts.forced.push(*e);
             }
         }
-        match crate::identify::pre_force_balance_data(set)
+        match pre_spectra
+            .force_balance_data(set)
             .map_err(|e| e.to_string())
             .and_then(|d| engine::run(&d, &pre_opts))
         {
@@ -150,7 +152,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         unexplained.parameters_not_claimed = ids;
     }
     diagnostics["unexplained"] = serde_json::to_value(&unexplained).unwrap_or_default();
-    if let Some(ss) = small_signal_comparison(set, &report) {
+    if let Some(ss) = small_signal_comparison(set, &report, &pre_spectra) {
         diagnostics["comparison"]["small_signal"] = ss;
     }
     report.diagnostics = Some(diagnostics);
@@ -232,7 +234,11 @@ pub fn ambiguities(
 /// The small-signal transfer function `Hx = X / Mic` of the pre-measurement
 /// against the identification's linear-resonator fit
 /// `(Ss/g) / (k0 - w^2 m + j w R)`, magnitude (m/V). None without a fit.
-fn small_signal_comparison(set: &RecordingSet, report: &Report) -> Option<serde_json::Value> {
+fn small_signal_comparison(
+    set: &RecordingSet,
+    report: &Report,
+    pre_spectra: &crate::identify::PreSpectra,
+) -> Option<serde_json::Value> {
     let ss = report.small_signal.as_ref()?;
     let area = ss.force_per_mic_v_n_per_v?;
     let pre = &set.pre;
@@ -240,15 +246,22 @@ fn small_signal_comparison(set: &RecordingSet, report: &Report) -> Option<serde_
         return None;
     }
     let fs = pre.sample_rate_hz;
-    // The thread's planner: the identification planned this size already
-    // (a fresh planner recomputed the 2^20 FFT's twiddles, ~15 ms).
-    let (sx, sm) = crate::dsp::spectrum::with_thread_planner(|planner| {
-        (
-            crate::dsp::Spectrum::low_band(&pre.displacement_m, fs, 0, 110.0, planner),
-            crate::dsp::Spectrum::low_band(&pre.microphone_v, fs, 0, 110.0, planner),
-        )
-    });
-    let tf = crate::dsp::transfer_function(&sm, &sx, 0.5, 110.0);
+    // The identification's spectra when their FFT size is this one's
+    // (unpadded: it differs only when the record ends within 64 samples
+    // of a power of two).
+    let own;
+    let (sx, sm) = if pre_spectra.spectra().0.n_fft == pre.len().max(2).next_power_of_two() {
+        pre_spectra.spectra()
+    } else {
+        own = crate::dsp::spectrum::with_thread_planner(|planner| {
+            (
+                crate::dsp::Spectrum::low_band(&pre.displacement_m, fs, 0, 110.0, planner),
+                crate::dsp::Spectrum::low_band(&pre.microphone_v, fs, 0, 110.0, planner),
+            )
+        });
+        (&own.0, &own.1)
+    };
+    let tf = crate::dsp::transfer_function(sm, sx, 0.5, 110.0);
     let m = set.meta.moving_mass_kg;
     let (mut f, mut meas, mut fit, mut coh) = (vec![], vec![], vec![], vec![]);
     for (i, &fr) in tf.freq_hz.iter().enumerate() {

@@ -280,7 +280,7 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
     reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
-    analyze_prepared(set, &p, opts)
+    analyze_prepared(set, &p, opts, None)
 }
 
 /// [`analyze`] and [`force_balance_data`] from one preparation of the main
@@ -291,7 +291,7 @@ pub fn analyze_with_force_balance(
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
     reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
-    let report = analyze_prepared(set, &p, opts)?;
+    let report = analyze_prepared(set, &p, opts, None)?;
     Ok((report, force_balance_of(&p)))
 }
 
@@ -300,14 +300,56 @@ fn reserve_fft_buffers(set: &RecordingSet) {
     crate::dsp::spectrum::reserve_for(set.pre.len().max(set.main.len()), 64);
 }
 
+/// The pre-measurement's spectra, transformed once for the diagnostics: the
+/// small-signal fit, the pre-measurement's force balance and the comparison
+/// plot each took its own two 2^20-point FFTs before.
+#[derive(Debug, Clone)]
+pub struct PreSpectra {
+    sx: crate::dsp::Spectrum,
+    sm: crate::dsp::Spectrum,
+}
+
+impl PreSpectra {
+    /// [`pre_force_balance_data`] from these spectra.
+    pub fn force_balance_data(&self, set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
+        let p = prep::prepare_shared(&set.pre, set.meta.moving_mass_kg, "pre", &self.sx, &self.sm)?;
+        Ok(force_balance_of(&p))
+    }
+
+    /// Displacement and microphone spectra of the whole pre-measurement
+    /// (FFT size: the record plus at least 64 samples, to a power of two).
+    pub fn spectra(&self) -> (&crate::dsp::Spectrum, &crate::dsp::Spectrum) {
+        (&self.sx, &self.sm)
+    }
+}
+
+/// [`analyze_with_force_balance`] plus the pre-measurement's spectra (the
+/// same report: the small-signal fit runs on those spectra).
+pub fn analyze_for_diagnosis(
+    set: &RecordingSet,
+    opts: &AnalyzeOptions,
+) -> Result<(Report, ForceBalanceData, PreSpectra), AnalyzeError> {
+    reserve_fft_buffers(set);
+    let p = prep::prepare(set)?;
+    small::check(&set.pre)?;
+    let (sx, sm) = prep::spectra(&set.pre);
+    let report = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
+    Ok((report, force_balance_of(&p), PreSpectra { sx, sm }))
+}
+
 fn analyze_prepared(
     set: &RecordingSet,
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
+    pre_spectra: Option<(&crate::dsp::Spectrum, &crate::dsp::Spectrum)>,
 ) -> Result<Report, AnalyzeError> {
     let mut warnings = Vec::new();
 
-    let small_signal = match small::fit(&set.pre, p.mass_kg) {
+    let fitted = match pre_spectra {
+        Some((sx, sm)) => small::fit_spectra(&set.pre, p.mass_kg, sx, sm),
+        None => small::fit(&set.pre, p.mass_kg),
+    };
+    let small_signal = match fitted {
         Ok(f) => {
             warnings.extend(f.warnings);
             Some(f.result)

@@ -138,17 +138,54 @@ pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepare
         )));
     }
     check_signals(main, what, 0.5)?;
+    let (sx, sm) = spectra(main);
+    prepare_spectra(main, mass_kg, what, &sx, &sm)
+}
+
+/// The spectra [`prepare_sweep`] works on (whole records, padded by at least 64).
+pub fn spectra(s: &Signals) -> (Spectrum, Spectrum) {
+    dsp::spectrum::with_thread_planner(|planner| {
+        (
+            Spectrum::with_planner(&s.displacement_m, s.sample_rate_hz, 64, planner),
+            Spectrum::with_planner(&s.microphone_v, s.sample_rate_hz, 64, planner),
+        )
+    })
+}
+
+/// [`prepare_sweep`] on the [`spectra`] of the sweep (the diagnostics share
+/// the pre-measurement's between the small-signal fit and its force balance).
+pub fn prepare_shared(
+    main: &Signals,
+    mass_kg: f64,
+    what: &str,
+    sx: &Spectrum,
+    sm: &Spectrum,
+) -> Result<Prepared, AnalyzeError> {
+    if !(mass_kg.is_finite() && mass_kg > 0.0) {
+        return Err(AnalyzeError::Invalid(format!(
+            "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
+        )));
+    }
+    check_signals(main, what, 0.5)?;
+    prepare_spectra(main, mass_kg, what, sx, sm)
+}
+
+fn prepare_spectra(
+    main: &Signals,
+    mass_kg: f64,
+    what: &str,
+    sx: &Spectrum,
+    sm: &Spectrum,
+) -> Result<Prepared, AnalyzeError> {
     let fs = main.sample_rate_hz;
     let lowpass = lowpass_for(fs);
-    let (sx, sm, decim, x, v, a, mic) = dsp::spectrum::with_thread_planner(|planner| {
-        let sx = Spectrum::with_planner(&main.displacement_m, fs, 64, planner);
-        let sm = Spectrum::with_planner(&main.microphone_v, fs, 64, planner);
+    let (decim, x, v, a, mic) = dsp::spectrum::with_thread_planner(|planner| {
         let decim = sx.max_decimation(lowpass.stop_hz);
         let x = sx.derivative(lowpass, 0, decim, planner);
         let v = sx.derivative(lowpass, 1, decim, planner);
         let a = sx.derivative(lowpass, 2, decim, planner);
         let mic = sm.derivative(lowpass, 0, decim, planner);
-        (sx, sm, decim, x, v, a, mic)
+        (decim, x, v, a, mic)
     });
     let fs_d = fs / decim as f64;
 

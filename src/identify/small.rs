@@ -22,17 +22,38 @@ pub struct SmallFit {
 }
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
-    check_signals(pre, "pre", 1.0)?;
-    let fs = pre.sample_rate_hz;
-    let lp = lowpass_for(fs);
-    let fmax = lp.pass_hz.min(0.45 * fs);
-    // Only the bins up to fmax are used below.
+    check(pre)?;
+    let fmax = max_hz(pre.sample_rate_hz);
+    // Only the bins up to fmax are used.
     let (sx, sm) = dsp::spectrum::with_thread_planner(|planner| {
         (
-            Spectrum::low_band(&pre.displacement_m, fs, 64, fmax, planner),
-            Spectrum::low_band(&pre.microphone_v, fs, 64, fmax, planner),
+            Spectrum::low_band(&pre.displacement_m, pre.sample_rate_hz, 64, fmax, planner),
+            Spectrum::low_band(&pre.microphone_v, pre.sample_rate_hz, 64, fmax, planner),
         )
     });
+    fit_spectra(pre, mass_kg, &sx, &sm)
+}
+
+/// The checks [`fit`] makes before it transforms the pre-measurement.
+pub fn check(pre: &Signals) -> Result<(), AnalyzeError> {
+    check_signals(pre, "pre", 1.0)
+}
+
+/// Highest frequency of the fit's bins (Hz).
+fn max_hz(fs: f64) -> f64 {
+    lowpass_for(fs).pass_hz.min(0.45 * fs)
+}
+
+/// [`fit`] on the spectra of the checked pre-measurement (FFT padded by at
+/// least 64 samples, as [`fit`] takes them; bins up to the low-pass at least).
+pub fn fit_spectra(
+    pre: &Signals,
+    mass_kg: f64,
+    sx: &Spectrum,
+    sm: &Spectrum,
+) -> Result<SmallFit, AnalyzeError> {
+    let fs = pre.sample_rate_hz;
+    let fmax = max_hz(fs);
     let tf = dsp::transfer_function(&sm, &sx, sx.df_hz(), fmax);
     // Where the stimulus has energy: the frequency range of the drive's periods
     // when the drive is recorded, else where the microphone has power.
