@@ -54,7 +54,7 @@ pub fn fit_spectra(
 ) -> Result<SmallFit, AnalyzeError> {
     let fs = pre.sample_rate_hz;
     let fmax = max_hz(fs);
-    let tf = dsp::transfer_function(&sm, &sx, sx.df_hz(), fmax);
+    let tf = dsp::transfer_function(sm, sx, sx.df_hz(), fmax);
     // Where the stimulus has energy: the frequency range of the drive's periods
     // when the drive is recorded, else where the microphone has power.
     let drive_band = pre.drive_v.as_ref().and_then(|d| {
@@ -138,7 +138,7 @@ pub fn fit_spectra(
     }
     let misfit_percent = 100.0 * (num / den.max(f64::MIN_POSITIVE)).sqrt();
     // Coherence over 1 Hz bands inside the fit band, weighted by input power.
-    let tfc = dsp::transfer_function(&sm, &sx, 1.0, band.1);
+    let tfc = dsp::transfer_function(sm, sx, 1.0, band.1);
     let (mut cs, mut ps) = (0.0, 0.0);
     for k in 0..tfc.freq_hz.len() {
         if tfc.freq_hz[k] >= band.0 && tfc.freq_hz[k] <= band.1 {
