@@ -293,11 +293,22 @@ fn legendre_monomials(order: usize) -> Vec<Vec<f64>> {
     out
 }
 
-/// First-order low-pass of x with time constant tau (exact for a piecewise
-/// constant input), started at x[0]: the relaxed position of the creep model.
-fn creep_column(x: &[f64], fs: f64, tau: f64) -> Vec<f64> {
+/// x - xr, xr the first-order low-pass of x with time constant tau (exact
+/// for a piecewise constant input): the relaxed position of the creep model.
+/// A span that starts at rest starts xr at x[0]; one that starts
+/// mid-oscillation (the main sweep) at the mean of x over its first
+/// max(5 tau, 1 s), the low-pass's own estimate of the relaxed position:
+/// started at x[0] there, the false start transient was absorbed by a too
+/// short tau and K(x) took the missing creep stiffness (up to 1.5 % off).
+fn creep_column(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> {
     let alpha = 1.0 - (-1.0 / (fs * tau)).exp();
-    let mut xr = x.first().copied().unwrap_or(0.0);
+    let mut xr = if starts_at_rest || x.is_empty() {
+        x.first().copied().unwrap_or(0.0)
+    } else {
+        let m = ((5.0 * tau).max(1.0) * fs).ceil() as usize;
+        let w = &x[..m.clamp(1, x.len())];
+        w.iter().sum::<f64>() / w.len() as f64
+    };
     x.iter()
         .map(|&xi| {
             let out = xi - xr;
@@ -402,7 +413,7 @@ impl<'a> Prepared<'a> {
                 x.iter().zip(v).map(|(x, v)| x * v).collect(),
                 x.iter().zip(v).map(|(x, v)| x * x * v).collect(),
             ],
-            EffectId::Creep => vec![creep_column(x, self.fs(), h)],
+            EffectId::Creep => vec![creep_column(x, self.fs(), h, self.d.starts_at_rest)],
             EffectId::StiffnessDrift => {
                 vec![x.iter().zip(&self.t_centered).map(|(x, t)| x * t).collect()]
             }

@@ -139,6 +139,7 @@ pub fn force_balance(spec: &SynthSpec, seed: u64) -> ForceBalanceData {
         mic_v: Vec::with_capacity(n),
         laser_noise_m: spec.laser_noise_m,
         mic_noise_v: spec.mic_noise_v,
+        starts_at_rest: true,
     };
     for i in 0..n {
         let ti = i as f64 / fs;

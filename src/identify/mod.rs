@@ -292,7 +292,7 @@ pub fn analyze_with_force_balance(
     reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     let report = analyze_prepared(set, &p, opts, None)?;
-    Ok((report, force_balance_of(&p)))
+    Ok((report, force_balance_of(&p, false)))
 }
 
 /// The FFT buffers sized once for both sweeps (the FFTs pad by 64 samples).
@@ -313,7 +313,7 @@ impl PreSpectra {
     /// [`pre_force_balance_data`] from these spectra.
     pub fn force_balance_data(&self, set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
         let p = prep::prepare_shared(&set.pre, set.meta.moving_mass_kg, "pre", &self.sx, &self.sm)?;
-        Ok(force_balance_of(&p))
+        Ok(force_balance_of(&p, true))
     }
 
     /// Displacement and microphone spectra of the whole pre-measurement
@@ -334,7 +334,7 @@ pub fn analyze_for_diagnosis(
     small::check(&set.pre)?;
     let (sx, sm) = prep::spectra(&set.pre);
     let report = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
-    Ok((report, force_balance_of(&p), PreSpectra { sx, sm }))
+    Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
 fn analyze_prepared(
@@ -452,7 +452,7 @@ pub fn force_balance_data(
     _opts: &AnalyzeOptions,
 ) -> Result<ForceBalanceData, AnalyzeError> {
     let p = prep::prepare(set)?;
-    Ok(force_balance_of(&p))
+    Ok(force_balance_of(&p, false))
 }
 
 /// The force-balance data of the pre-measurement, prepared like the main
@@ -460,11 +460,11 @@ pub fn force_balance_data(
 /// peak). The diagnostics fit the small-signal model with effects on it.
 pub fn pre_force_balance_data(set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
     let p = prep::prepare_sweep(&set.pre, set.meta.moving_mass_kg, "pre")?;
-    Ok(force_balance_of(&p))
+    Ok(force_balance_of(&p, true))
 }
 
 /// The analysed span of a prepared main sweep (the same for both methods).
-fn force_balance_of(p: &prep::Prepared) -> ForceBalanceData {
+fn force_balance_of(p: &prep::Prepared, starts_at_rest: bool) -> ForceBalanceData {
     let (s0, s1) = p.span;
     ForceBalanceData {
         sample_rate_hz: p.fs_hz,
@@ -476,6 +476,7 @@ fn force_balance_of(p: &prep::Prepared) -> ForceBalanceData {
         mic_v: p.mic[s0..s1].to_vec(),
         laser_noise_m: p.noise_x_m,
         mic_noise_v: p.noise_mic_v,
+        starts_at_rest,
     }
 }
 
@@ -671,6 +672,11 @@ pub struct ForceBalanceData {
     pub laser_noise_m: f64,
     /// Standard deviation of the microphone noise estimated from the data (V).
     pub mic_noise_v: f64,
+    /// True when the span starts with the part at rest, or near it (the
+    /// pre-measurement's slow start, a simulation from rest): a state
+    /// variable such as creep's relaxed position starts at x[0]. False for a
+    /// span that starts mid-oscillation (the main sweep).
+    pub starts_at_rest: bool,
 }
 
 #[cfg(test)]
