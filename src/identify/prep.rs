@@ -132,14 +132,20 @@ pub fn prepare(set: &RecordingSet) -> Result<Prepared, AnalyzeError> {
 /// diagnostics prepare the pre-measurement the same way for the force
 /// balance of the small-signal model.
 pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepared, AnalyzeError> {
+    check_sweep(main, mass_kg, what)?;
+    let (sx, sm) = spectra(main);
+    prepare_spectra(main, mass_kg, what, &sx, &sm)
+}
+
+/// What every preparation of a sweep checks first: a positive finite mass
+/// and usable signals.
+fn check_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<(), AnalyzeError> {
     if !(mass_kg.is_finite() && mass_kg > 0.0) {
         return Err(AnalyzeError::Invalid(format!(
             "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
         )));
     }
-    check_signals(main, what, 0.5)?;
-    let (sx, sm) = spectra(main);
-    prepare_spectra(main, mass_kg, what, &sx, &sm)
+    check_signals(main, what, 0.5)
 }
 
 /// The spectra [`prepare_sweep`] works on (whole records, padded by at least 64).
@@ -161,12 +167,7 @@ pub fn prepare_shared(
     sx: &Spectrum,
     sm: &Spectrum,
 ) -> Result<Prepared, AnalyzeError> {
-    if !(mass_kg.is_finite() && mass_kg > 0.0) {
-        return Err(AnalyzeError::Invalid(format!(
-            "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
-        )));
-    }
-    check_signals(main, what, 0.5)?;
+    check_sweep(main, mass_kg, what)?;
     prepare_spectra(main, mass_kg, what, sx, sm)
 }
 

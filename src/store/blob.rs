@@ -30,24 +30,9 @@ pub(super) async fn fill_recording(
         .map_err(|e| err(format!("recording file {}: {e}", path.display())))?;
     let mut handle = conn.lock_handle().await?;
     let db = handle.as_raw_handle().as_ptr();
-    let mut blob: *mut ffi::sqlite3_blob = std::ptr::null_mut();
-    // SAFETY: `db` is the live connection held locked by `handle` for this
-    // whole function; the names are NUL-terminated; `blob` is closed below
-    // on every path after a successful open.
-    let rc = unsafe {
-        ffi::sqlite3_blob_open(
-            db,
-            c"main".as_ptr(),
-            c"recording_blobs".as_ptr(),
-            c"bytes".as_ptr(),
-            rowid,
-            1,
-            &mut blob,
-        )
-    };
-    if rc != ffi::SQLITE_OK {
-        return Err(err(format!("opening the recording blob: {}", message(db))));
-    }
+    // `db` is the live connection held locked by `handle` for this whole
+    // function; `blob` is closed below on every path.
+    let blob = open_blob(db, c"recording_blobs", c"bytes", rowid, true)?;
     let mut buf = vec![0u8; CHUNK];
     let mut offset: usize = 0;
     let res = loop {
@@ -73,6 +58,36 @@ pub(super) async fn fill_recording(
         return Err(err(format!("closing the recording blob: {}", message(db))));
     }
     Ok(())
+}
+
+/// Opens `main.table.column` of row `rowid` on `db`, which must be a live
+/// connection held locked by the caller until the returned handle is closed
+/// with `sqlite3_blob_close` (exactly once).
+fn open_blob(
+    db: *mut ffi::sqlite3,
+    table: &CStr,
+    column: &CStr,
+    rowid: i64,
+    writable: bool,
+) -> StoreResult<*mut ffi::sqlite3_blob> {
+    let mut blob: *mut ffi::sqlite3_blob = std::ptr::null_mut();
+    // SAFETY: `db` is live and locked (the caller's contract); the names are
+    // NUL-terminated C strings that outlive the call.
+    let rc = unsafe {
+        ffi::sqlite3_blob_open(
+            db,
+            c"main".as_ptr(),
+            table.as_ptr(),
+            column.as_ptr(),
+            rowid,
+            i32::from(writable),
+            &mut blob,
+        )
+    };
+    if rc != ffi::SQLITE_OK {
+        return Err(err(format!("opening the recording blob: {}", message(db))));
+    }
+    Ok(blob)
 }
 
 fn message(db: *mut ffi::sqlite3) -> String {
@@ -114,22 +129,8 @@ pub(super) async fn read_chunk(
     };
     let mut handle = conn.lock_handle().await?;
     let db = handle.as_raw_handle().as_ptr();
-    let mut blob: *mut ffi::sqlite3_blob = std::ptr::null_mut();
-    // SAFETY: as in `fill_recording` (read-only: flags 0).
-    let rc = unsafe {
-        ffi::sqlite3_blob_open(
-            db,
-            c"main".as_ptr(),
-            table.as_ptr(),
-            column.as_ptr(),
-            blob_ref.rowid,
-            0,
-            &mut blob,
-        )
-    };
-    if rc != ffi::SQLITE_OK {
-        return Err(err(format!("opening the recording blob: {}", message(db))));
-    }
+    // As in `fill_recording`, read-only.
+    let blob = open_blob(db, table, column, blob_ref.rowid, false)?;
     // SAFETY: `blob` is open.
     let size = unsafe { ffi::sqlite3_blob_bytes(blob) }.max(0) as u64;
     let res = if size != blob_ref.len {
