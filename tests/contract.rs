@@ -21,6 +21,22 @@ const ADMIN: &str = "contract-admin-0123456789";
 /// An object shape: its properties and its required member names.
 type Shape = (Map<String, Value>, Vec<Value>);
 
+/// Every shape of `a` merged with every shape of `b` (properties and
+/// required names of both).
+fn product(a: &[Shape], b: &[Shape]) -> Vec<Shape> {
+    let mut out = vec![];
+    for (p, r) in a {
+        for (bp, br) in b {
+            let mut p = p.clone();
+            p.extend(bp.iter().map(|(k, x)| (k.clone(), x.clone())));
+            let mut r = r.clone();
+            r.extend(br.iter().cloned());
+            out.push((p, r));
+        }
+    }
+    out
+}
+
 /// Turns a schema into one that refuses unnamed members: every object
 /// schema with `properties` gets `additionalProperties: false`; an `allOf`
 /// of object schemas (serde `flatten`) is merged into one object first.
@@ -62,18 +78,7 @@ impl Strict<'_> {
         let mut out = vec![own];
         if let Some(all) = v.get("allOf").and_then(Value::as_array) {
             for m in all {
-                let ms = self.shapes(m)?;
-                let mut next = vec![];
-                for (p, r) in &out {
-                    for (mp, mr) in &ms {
-                        let mut p = p.clone();
-                        p.extend(mp.iter().map(|(k, x)| (k.clone(), x.clone())));
-                        let mut r = r.clone();
-                        r.extend(mr.iter().cloned());
-                        next.push((p, r));
-                    }
-                }
-                out = next;
+                out = product(&out, &self.shapes(m)?);
             }
         }
         if let Some(one) = v
@@ -85,17 +90,7 @@ impl Strict<'_> {
             for m in one {
                 alts.extend(self.shapes(m)?);
             }
-            let mut next = vec![];
-            for (p, r) in &out {
-                for (mp, mr) in &alts {
-                    let mut p = p.clone();
-                    p.extend(mp.iter().map(|(k, x)| (k.clone(), x.clone())));
-                    let mut r = r.clone();
-                    r.extend(mr.iter().cloned());
-                    next.push((p, r));
-                }
-            }
-            out = next;
+            out = product(&out, &alts);
         }
         Some(out)
     }
@@ -406,14 +401,7 @@ async fn every_route_answers_as_its_schema_says() {
         .port();
     let d = Daemon::start(&config(hook_port));
     let c = client();
-    let served: Value = c
-        .get(d.url("/api/openapi.json"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let served = common::get(&c, &d, "/api/openapi.json").await;
     let file = std::fs::read_to_string(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("api/openapi.yaml"),
     )
