@@ -114,32 +114,33 @@ pub fn series_table(s: &crate::diagnose::series::SeriesFit) -> String {
         "", "range mm", "K(-x) N/m", "K(0) N/m", "K(+x) N/m", "R N s/m"
     );
     let j = &s.joint;
-    for (i, l) in s.levels.iter().enumerate() {
-        let c = &l.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let mut row = |label: &str, range: [f64; 2], c: &[f64], r: f64, effects: &str| {
         let _ = writeln!(
             o,
-            "  level {:<2} {:>7.3} .. {:<6.3} {:>10.1} {:>10.1} {:>10.1} {:>10.4}  {}",
-            i + 1,
-            l.range_m[0] * 1e3,
-            l.range_m[1] * 1e3,
-            k(c, l.range_m[0]),
+            "  {label:<8} {:>7.3} .. {:<6.3} {:>10.1} {:>10.1} {:>10.1} {:>10.4}  {effects}",
+            range[0] * 1e3,
+            range[1] * 1e3,
+            k(c, range[0]),
             k(c, 0.0),
-            k(c, l.range_m[1]),
+            k(c, range[1]),
+            r,
+        );
+    };
+    for (i, l) in s.levels.iter().enumerate() {
+        row(
+            &format!("level {}", i + 1),
+            l.range_m,
+            &l.stiffness_coefficients_n_per_m_pow_i_plus_1,
             l.r_ns_per_m,
-            ids(&l.effects)
+            &ids(&l.effects),
         );
     }
-    let c = &j.stiffness_coefficients_n_per_m_pow_i_plus_1;
-    let _ = writeln!(
-        o,
-        "  joint    {:>7.3} .. {:<6.3} {:>10.1} {:>10.1} {:>10.1} {:>10.4}  {}",
-        j.valid_range_m[0] * 1e3,
-        j.valid_range_m[1] * 1e3,
-        k(c, j.valid_range_m[0]),
-        k(c, 0.0),
-        k(c, j.valid_range_m[1]),
+    row(
+        "joint",
+        j.valid_range_m,
+        &j.stiffness_coefficients_n_per_m_pow_i_plus_1,
         j.r_ns_per_m,
-        ids(&j.effects)
+        &ids(&j.effects),
     );
     let _ = writeln!(
         o,
