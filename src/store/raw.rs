@@ -86,6 +86,30 @@ macro_rules! prunable {
     };
 }
 
+/// The static SQL selecting `$cols` of a measurement's `pre` or `main`
+/// recording (`r`, joined with its large-import blob `b`), by `$which`;
+/// None for another name.
+macro_rules! recording_select {
+    ($which:expr, $cols:literal) => {{
+        macro_rules! sel {
+            ($col:literal) => {
+                concat!(
+                    "SELECT ",
+                    $cols,
+                    " FROM measurements m JOIN recordings r ON r.id = m.",
+                    $col,
+                    " LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE m.id = ?"
+                )
+            };
+        }
+        match $which {
+            "pre" => Some(sel!("pre_recording_id")),
+            "main" => Some(sel!("main_recording_id")),
+            _ => None,
+        }
+    }};
+}
+
 impl Store {
     /// A measurement's `pre` or `main` recording.
     pub async fn get_recording(
@@ -93,25 +117,11 @@ impl Store {
         measurement_id: &str,
         which: &str,
     ) -> StoreResult<Option<StoredRecording>> {
-        macro_rules! sel {
-            ($col:literal) => {
-                concat!(
-                    "SELECT COALESCE(b.bytes, r.wav) AS wav, r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
-                     FROM measurements m JOIN recordings r ON r.id = m.",
-                    $col,
-                    " LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE m.id = ?"
-                )
-            };
-        }
-        let sql = match which {
-            "pre" => sel!("pre_recording_id"),
-            "main" => sel!("main_recording_id"),
-            _ => return Ok(None),
-        };
-        let row = sqlx::query(sql)
-            .bind(measurement_id.to_string())
-            .fetch_optional(&self.pool)
-            .await?;
+        let sql = recording_select!(
+            which,
+            "COALESCE(b.bytes, r.wav) AS wav, r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at"
+        );
+        let row = self.recording_row(measurement_id, sql).await?;
         row.map(|r| {
             Ok(StoredRecording {
                 bytes: r.get(0),
@@ -131,26 +141,12 @@ impl Store {
         measurement_id: &str,
         which: &str,
     ) -> StoreResult<Option<RecordingInfo>> {
-        macro_rules! sel {
-            ($col:literal) => {
-                concat!(
-                    "SELECT r.id, b.recording_id IS NOT NULL, COALESCE(length(b.bytes), length(r.wav)), \
-                     r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
-                     FROM measurements m JOIN recordings r ON r.id = m.",
-                    $col,
-                    " LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE m.id = ?"
-                )
-            };
-        }
-        let sql = match which {
-            "pre" => sel!("pre_recording_id"),
-            "main" => sel!("main_recording_id"),
-            _ => return Ok(None),
-        };
-        let row = sqlx::query(sql)
-            .bind(measurement_id.to_string())
-            .fetch_optional(&self.pool)
-            .await?;
+        let sql = recording_select!(
+            which,
+            "r.id, b.recording_id IS NOT NULL, COALESCE(length(b.bytes), length(r.wav)), \
+             r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at"
+        );
+        let row = self.recording_row(measurement_id, sql).await?;
         row.map(|r| {
             Ok(RecordingInfo {
                 blob: super::blob::BlobRef {
@@ -165,6 +161,22 @@ impl Store {
             })
         })
         .transpose()
+    }
+
+    /// The row `sql` (from [`recording_select!`]) selects for a measurement;
+    /// None for an unknown `which` (`sql` None) or no row.
+    async fn recording_row(
+        &self,
+        measurement_id: &str,
+        sql: Option<&'static str>,
+    ) -> StoreResult<Option<sqlx::sqlite::SqliteRow>> {
+        let Some(sql) = sql else {
+            return Ok(None);
+        };
+        Ok(sqlx::query(sql)
+            .bind(measurement_id.to_string())
+            .fetch_optional(&self.pool)
+            .await?)
     }
 
     /// A reader of a stored recording's bytes (see [`BlobReader`]); call it
