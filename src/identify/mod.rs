@@ -278,7 +278,6 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
-    reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     analyze_prepared(set, &p, opts, None)
 }
@@ -289,15 +288,9 @@ pub fn analyze_with_force_balance(
     set: &RecordingSet,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
-    reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     let report = analyze_prepared(set, &p, opts, None)?;
     Ok((report, force_balance_of(&p, false)))
-}
-
-/// The FFT buffers sized once for both sweeps (the FFTs pad by 64 samples).
-fn reserve_fft_buffers(set: &RecordingSet) {
-    crate::dsp::spectrum::reserve_for(set.pre.len().max(set.main.len()), 64);
 }
 
 /// The pre-measurement's spectra, transformed once for the diagnostics: the
@@ -329,7 +322,6 @@ pub fn analyze_for_diagnosis(
     set: &RecordingSet,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData, PreSpectra), AnalyzeError> {
-    reserve_fft_buffers(set);
     let p = prep::prepare(set)?;
     small::check(&set.pre)?;
     let (sx, sm) = prep::spectra(&set.pre);

@@ -148,14 +148,22 @@ fn check_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<(), AnalyzeEr
     check_signals(main, what, 0.5)
 }
 
-/// The spectra [`prepare_sweep`] works on (whole records, padded by at least 64).
+/// The spectra [`prepare_sweep`] works on (whole records, padded by at
+/// least 64): the band up to the low-pass and the noise band above it.
 pub fn spectra(s: &Signals) -> (Spectrum, Spectrum) {
-    dsp::spectrum::with_thread_planner(|planner| {
-        (
-            Spectrum::with_planner(&s.displacement_m, s.sample_rate_hz, 64, planner),
-            Spectrum::with_planner(&s.microphone_v, s.sample_rate_hz, 64, planner),
-        )
-    })
+    let fs = s.sample_rate_hz;
+    let (low, noise) = (lowpass_for(fs).stop_hz, noise_band(fs));
+    (
+        Spectrum::bands(&s.displacement_m, fs, 64, low, Some(noise)),
+        Spectrum::bands(&s.microphone_v, fs, 64, low, Some(noise)),
+    )
+}
+
+/// The band (Hz) above the low-pass whose white noise sets the noise of the
+/// band-limited signals.
+fn noise_band(fs: f64) -> (f64, f64) {
+    let nyq = 0.5 * fs;
+    ((2.0 * lowpass_for(fs).stop_hz).min(0.5 * nyq), 0.95 * nyq)
 }
 
 /// [`prepare_sweep`] on the [`spectra`] of the sweep (the diagnostics share
@@ -221,8 +229,7 @@ fn prepare_spectra(
     let s1 = (px[last].end.floor() as usize).min(x.len());
 
     // Noise from the band above the low-pass (white noise assumed).
-    let nyq = 0.5 * fs;
-    let (lo, hi) = ((2.0 * lowpass.stop_hz).min(0.5 * nyq), 0.95 * nyq);
+    let (lo, hi) = noise_band(fs);
     let laser_noise_m = sx.white_noise_std(lo, hi).unwrap_or(0.0);
     let mic_noise_v = sm.white_noise_std(lo, hi).unwrap_or(0.0);
     Ok(Prepared {

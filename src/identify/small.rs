@@ -23,14 +23,12 @@ pub struct SmallFit {
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check(pre)?;
-    let fmax = max_hz(pre.sample_rate_hz);
+    let (fs, fmax) = (pre.sample_rate_hz, max_hz(pre.sample_rate_hz));
     // Only the bins up to fmax are used.
-    let (sx, sm) = dsp::spectrum::with_thread_planner(|planner| {
-        (
-            Spectrum::low_band(&pre.displacement_m, pre.sample_rate_hz, 64, fmax, planner),
-            Spectrum::low_band(&pre.microphone_v, pre.sample_rate_hz, 64, fmax, planner),
-        )
-    });
+    let (sx, sm) = (
+        Spectrum::bands(&pre.displacement_m, fs, 64, fmax, None),
+        Spectrum::bands(&pre.microphone_v, fs, 64, fmax, None),
+    );
     fit_spectra(pre, mass_kg, &sx, &sm)
 }
 
