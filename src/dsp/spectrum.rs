@@ -134,20 +134,33 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
         .into_iter()
         .flat_map(|w| [w, w.conj()])
         .collect();
+    // Sub-FFT bin of each (l is a power of two).
+    let zl: Vec<usize> = zi.iter().map(|&i| i & (l - 1)).collect();
     let mut pw = vec![Complex64::new(1.0, 0.0); zi.len()];
     let mut acc = vec![Complex64::new(0.0, 0.0); zi.len()];
     for r in 0..subs {
         complex_fft(
             l,
             |z| {
-                for (q, z) in z.iter_mut().enumerate() {
+                // The record's samples by chunks, then the pad's.
+                let mut filled = 0;
+                let from = signal.get(2 * r..).unwrap_or(&[]);
+                for (z, pair) in z.iter_mut().zip(from.chunks(2 * subs)) {
+                    let im = pair
+                        .get(1)
+                        .copied()
+                        .unwrap_or_else(|| y(2 * (subs * filled + r) + 1));
+                    *z = Complex64::new(pair[0], im);
+                    filled += 1;
+                }
+                for (q, z) in z.iter_mut().enumerate().skip(filled) {
                     let j = 2 * (subs * q + r);
                     *z = Complex64::new(y(j), y(j + 1));
                 }
             },
             |out| {
-                for (((a, p), s), &i) in acc.iter_mut().zip(pw.iter_mut()).zip(&step).zip(&zi) {
-                    *a += *p * out[i % l];
+                for (((a, p), s), &i) in acc.iter_mut().zip(pw.iter_mut()).zip(&step).zip(&zl) {
+                    *a += *p * out[i];
                     *p *= *s;
                 }
             },
