@@ -11,22 +11,88 @@ use nalgebra::{DMatrix, DVector};
 
 /// Dot product of two equal-length slices (four accumulators, so it vectorises).
 pub fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    let mut s = [0.0f64; 4];
-    let chunks = n / 4;
-    for k in 0..chunks {
-        let i = 4 * k;
-        s[0] += a[i] * b[i];
-        s[1] += a[i + 1] * b[i + 1];
-        s[2] += a[i + 2] * b[i + 2];
-        s[3] += a[i + 3] * b[i + 3];
+    let mut out = [0.0];
+    dots(a, &[b], &mut out);
+    out[0]
+}
+
+/// `out[j] = dot(z, others[j])` for every j, bit for bit: each product sum
+/// runs in four lanes (`lane k` sums the products `4 i + k` in order),
+/// reduced as `(s0 + s1) + (s2 + s3) + tail`. One pass over `z` serves up to
+/// four columns at a time: their sums are independent chains, so the loop is
+/// bound by throughput, not by the latency of one chain of additions.
+pub fn dots(z: &[f64], others: &[&[f64]], out: &mut [f64]) {
+    assert_eq!(others.len(), out.len(), "one output per column");
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        for (o, r) in others.chunks(4).zip(out.chunks_mut(4)) {
+            if o.iter().any(|c| c.len() != z.len()) {
+                dots_scalar(z, o, r);
+                continue;
+            }
+            // SAFETY: AVX is present (checked above); every column has z's length.
+            unsafe {
+                match o.len() {
+                    1 => dots_avx::<1>(z, o, r),
+                    2 => dots_avx::<2>(z, o, r),
+                    3 => dots_avx::<3>(z, o, r),
+                    _ => dots_avx::<4>(z, o, r),
+                }
+            }
+        }
+        return;
     }
+    dots_scalar(z, others, out);
+}
+
+/// Lane sums and the tail of one product sum, reduced in the documented order.
+fn reduce(s: [f64; 4], z: &[f64], c: &[f64], from: usize, n: usize) -> f64 {
     let mut tail = 0.0;
-    for i in 4 * chunks..n {
-        tail += a[i] * b[i];
+    for i in from..n {
+        tail += z[i] * c[i];
     }
     (s[0] + s[1]) + (s[2] + s[3]) + tail
+}
+
+fn dots_scalar(z: &[f64], others: &[&[f64]], out: &mut [f64]) {
+    for (c, o) in others.iter().zip(out.iter_mut()) {
+        let n = z.len().min(c.len());
+        let mut s = [0.0f64; 4];
+        for i in (0..n / 4).map(|k| 4 * k) {
+            for (l, sl) in s.iter_mut().enumerate() {
+                *sl += z[i + l] * c[i + l];
+            }
+        }
+        *o = reduce(s, z, c, 4 * (n / 4), n);
+    }
+}
+
+/// `K` product sums in one pass, the four lanes of each in one AVX register
+/// (multiply, then add: no fused multiply-add, so the rounding is the
+/// scalar code's). Every column has the length of `z`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn dots_avx<const K: usize>(z: &[f64], others: &[&[f64]], out: &mut [f64]) {
+    use std::arch::x86_64::*;
+    let n = z.len();
+    let chunks = n / 4;
+    let zp = z.as_ptr();
+    let cp: [*const f64; K] = std::array::from_fn(|j| others[j].as_ptr());
+    let mut acc = [_mm256_setzero_pd(); K];
+    for q in 0..chunks {
+        let i = 4 * q;
+        // SAFETY: i + 3 < n, the length of z and of every column.
+        let zv = _mm256_loadu_pd(zp.add(i));
+        for j in 0..K {
+            let cv = _mm256_loadu_pd(cp[j].add(i));
+            acc[j] = _mm256_add_pd(acc[j], _mm256_mul_pd(zv, cv));
+        }
+    }
+    for j in 0..K {
+        let mut s = [0.0f64; 4];
+        _mm256_storeu_pd(s.as_mut_ptr(), acc[j]);
+        out[j] = reduce(s, z, others[j], 4 * chunks, n);
+    }
 }
 
 /// Cross products of one block.
@@ -66,18 +132,23 @@ impl BlockGram {
     /// Builds the block cross products of `cols` against `y`.
     pub fn build(cols: &[&[f64]], y: &[f64], bounds: &[(usize, usize)]) -> BlockGram {
         let p = cols.len();
+        let mut buf = vec![0.0; p + 1];
         let blocks = bounds
             .iter()
             .map(|&(s, e)| {
                 let mut g = DMatrix::zeros(p, p);
                 let mut c = DVector::zeros(p);
                 for i in 0..p {
-                    for j in i..p {
-                        let v = dot(&cols[i][s..e], &cols[j][s..e]);
-                        g[(i, j)] = v;
-                        g[(j, i)] = v;
+                    // Column i against columns i..p and y in one pass.
+                    let mut rest: Vec<&[f64]> = cols[i..].iter().map(|col| &col[s..e]).collect();
+                    rest.push(&y[s..e]);
+                    let out = &mut buf[..rest.len()];
+                    dots(&cols[i][s..e], &rest, out);
+                    for (k, &v) in out[..p - i].iter().enumerate() {
+                        g[(i, i + k)] = v;
+                        g[(i + k, i)] = v;
                     }
-                    c[i] = dot(&cols[i][s..e], &y[s..e]);
+                    c[i] = out[p - i];
                 }
                 Block {
                     g,
@@ -118,18 +189,24 @@ impl BlockGram {
                     c[a] = blk.c[i];
                 }
                 for (u, z) in new_cols.iter().enumerate() {
+                    // The new column against the kept ones, the new ones
+                    // from itself on, and y, in one pass.
                     let zi = pk + u;
-                    for (a, &i) in keep.iter().enumerate() {
-                        let v = dot(&z[s..e], &base_cols[i][s..e]);
+                    let mut other: Vec<&[f64]> =
+                        keep.iter().map(|&i| &base_cols[i][s..e]).collect();
+                    other.extend(new_cols[u..].iter().map(|z2| &z2[s..e]));
+                    other.push(&y[s..e]);
+                    let mut out = vec![0.0; other.len()];
+                    dots(&z[s..e], &other, &mut out);
+                    for (a, &v) in out[..pk].iter().enumerate() {
                         g[(zi, a)] = v;
                         g[(a, zi)] = v;
                     }
-                    for (w, z2) in new_cols.iter().enumerate().skip(u) {
-                        let v = dot(&z[s..e], &z2[s..e]);
-                        g[(zi, pk + w)] = v;
-                        g[(pk + w, zi)] = v;
+                    for (w, &v) in out[pk..pk + q - u].iter().enumerate() {
+                        g[(zi, zi + w)] = v;
+                        g[(zi + w, zi)] = v;
                     }
-                    c[zi] = dot(&z[s..e], &y[s..e]);
+                    c[zi] = out[pk + q - u];
                 }
                 Block {
                     g,
@@ -302,6 +379,30 @@ pub fn collinearity_r2(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dots_match_the_four_lane_scalar_sum_bit_for_bit() {
+        let col = |k: usize, n: usize| -> Vec<f64> {
+            (0..n)
+                .map(|i| ((i * 7919 + k * 104_729) % 1013) as f64 / 97.0 - 5.0 + 1e-9 * i as f64)
+                .collect()
+        };
+        for n in [0, 1, 3, 4, 5, 17, 730, 733] {
+            let z = col(0, n);
+            let cols: Vec<Vec<f64>> = (1..=7).map(|k| col(k, n)).collect();
+            for k in 1..=cols.len() {
+                let refs: Vec<&[f64]> = cols[..k].iter().map(|c| c.as_slice()).collect();
+                let mut fast = vec![0.0; k];
+                let mut slow = vec![0.0; k];
+                dots(&z, &refs, &mut fast);
+                dots_scalar(&z, &refs, &mut slow);
+                for j in 0..k {
+                    assert_eq!(fast[j].to_bits(), slow[j].to_bits(), "n {n} k {k} j {j}");
+                    assert_eq!(fast[j].to_bits(), dot(&refs[j], &z).to_bits());
+                }
+            }
+        }
+    }
 
     #[test]
     fn fit_cv_and_covariance_match_direct_computation() {
