@@ -177,25 +177,54 @@ pub fn harmonics_per_period(
     sample_rate_hz: f64,
     n_harm: usize,
 ) -> Vec<PeriodHarmonics> {
+    harmonics_per_period_of(&[signal], marks, sample_rate_hz, n_harm)
+        .pop()
+        .unwrap_or_default()
+}
+
+/// [`harmonics_per_period`] of several signals of one length on the same
+/// periods: the basis and its Gram matrix are built and factored once (the
+/// displacement and the microphone of a sweep share them). Each result is
+/// the one [`harmonics_per_period`] gives for that signal alone.
+pub fn harmonics_per_period_of(
+    signals: &[&[f64]],
+    marks: &[f64],
+    sample_rate_hz: f64,
+    n_harm: usize,
+) -> Vec<Vec<PeriodHarmonics>> {
+    let len = signals.first().map_or(0, |s| s.len());
+    if signals.iter().any(|s| s.len() != len) {
+        return signals
+            .iter()
+            .map(|s| harmonics_per_period(s, marks, sample_rate_hz, n_harm))
+            .collect();
+    }
     let p = 1 + 2 * n_harm;
-    let mut out = Vec::with_capacity(marks.len().saturating_sub(1));
-    let mut g = DMatrix::<f64>::zeros(p, p);
-    let mut r = DVector::<f64>::zeros(p);
+    let cap = marks.len().saturating_sub(1);
+    let mut out: Vec<Vec<PeriodHarmonics>> =
+        signals.iter().map(|_| Vec::with_capacity(cap)).collect();
+    // Lower triangle of the Gram matrix, row by row, and one right-hand side
+    // and extremes per signal.
+    let mut g = vec![0.0; p * p];
+    let mut rs = vec![vec![0.0; p]; signals.len()];
+    let mut ext = vec![(f64::NEG_INFINITY, f64::INFINITY); signals.len()];
     let mut basis = vec![0.0; p];
     let slopes = mark_slopes(marks);
-    for k in 0..marks.len().saturating_sub(1) {
+    for k in 0..cap {
         let (ta, tb) = (marks[k], marks[k + 1]);
         let (sa, sb) = (slopes[k], slopes[k + 1]);
         let i0 = ta.ceil().max(0.0) as usize;
-        let i1 = (tb.ceil() as usize).min(signal.len());
+        let i1 = (tb.ceil() as usize).min(len);
         if i1 <= i0 + p {
             continue;
         }
         let period = tb - ta;
         g.fill(0.0);
-        r.fill(0.0);
-        let (mut mx, mut mn) = (f64::NEG_INFINITY, f64::INFINITY);
-        for (i, &s) in signal.iter().enumerate().take(i1).skip(i0) {
+        for r in rs.iter_mut() {
+            r.fill(0.0);
+        }
+        ext.fill((f64::NEG_INFINITY, f64::INFINITY));
+        for i in i0..i1 {
             let th = hermite_phase(ta, tb, sa, sb, i as f64);
             basis[0] = 1.0;
             // cos/sin of h theta by the angle-addition recurrence.
@@ -207,35 +236,39 @@ pub fn harmonics_per_period(
                 (sh, ch) = (sh * c1 + ch * s1, ch * c1 - sh * s1);
             }
             for a in 0..p {
-                r[a] += basis[a] * s;
-                for b in 0..=a {
-                    g[(a, b)] += basis[a] * basis[b];
+                let ba = basis[a];
+                for (gab, bb) in g[a * p..=a * p + a].iter_mut().zip(&basis) {
+                    *gab += ba * bb;
                 }
             }
-            mx = mx.max(s);
-            mn = mn.min(s);
-        }
-        for a in 0..p {
-            for b in 0..a {
-                g[(b, a)] = g[(a, b)];
+            for ((sig, r), (mx, mn)) in signals.iter().zip(rs.iter_mut()).zip(ext.iter_mut()) {
+                let s = sig[i];
+                for (ra, ba) in r.iter_mut().zip(&basis) {
+                    *ra += ba * s;
+                }
+                *mx = mx.max(s);
+                *mn = mn.min(s);
             }
         }
-        let Some(ch) = g.clone().cholesky() else {
+        let gm = DMatrix::<f64>::from_fn(p, p, |a, b| if b <= a { g[a * p + b] } else { g[b * p + a] });
+        let Some(ch) = gm.cholesky() else {
             continue;
         };
-        let c = ch.solve(&r);
-        out.push(PeriodHarmonics {
-            start: ta,
-            end: tb,
-            freq_hz: sample_rate_hz / period,
-            dc: c[0],
-            // a cos + b sin = Re((a - j b) e^{j theta})
-            harmonics: (1..=n_harm)
-                .map(|h| Complex64::new(c[2 * h - 1], -c[2 * h]))
-                .collect(),
-            max: mx,
-            min: mn,
-        });
+        for ((o, r), &(mx, mn)) in out.iter_mut().zip(&rs).zip(&ext) {
+            let c = ch.solve(&DVector::from_column_slice(r));
+            o.push(PeriodHarmonics {
+                start: ta,
+                end: tb,
+                freq_hz: sample_rate_hz / period,
+                dc: c[0],
+                // a cos + b sin = Re((a - j b) e^{j theta})
+                harmonics: (1..=n_harm)
+                    .map(|h| Complex64::new(c[2 * h - 1], -c[2 * h]))
+                    .collect(),
+                max: mx,
+                min: mn,
+            });
+        }
     }
     out
 }

@@ -69,23 +69,28 @@ fn padded(signal: &[f64], n_fft: usize) -> impl Iterator<Item = f64> + '_ {
 /// machine, twiddle memory with it).
 pub const SUB_FFT: usize = 1 << 16;
 
-/// One forward complex FFT of length `n` on this thread's plan and buffers:
-/// `fill` writes the input, `read` takes the output.
-fn complex_fft<R>(
-    n: usize,
+/// Complex FFTs of `subs` sequences of `l` points each, on this thread's
+/// plan and buffers: `fill` writes all inputs (sequence `r` at
+/// `[r * l, (r + 1) * l)`, so that the record is read once, in order), then
+/// `read(r, spectrum)` takes each output in turn.
+fn sub_ffts(
+    l: usize,
+    subs: usize,
     fill: impl FnOnce(&mut [Complex64]),
-    read: impl FnOnce(&[Complex64]) -> R,
-) -> R {
-    let fft = CPLANNER.with(|p| p.borrow_mut().plan_fft_forward(n));
+    mut read: impl FnMut(usize, &[Complex64]),
+) {
+    let fft = CPLANNER.with(|p| p.borrow_mut().plan_fft_forward(l));
     CBUF.with(|b| {
         let [input, output, scratch] = &mut *b.borrow_mut();
         let zero = Complex64::new(0.0, 0.0);
-        input.resize(n, zero);
-        output.resize(n, zero);
+        input.resize(l * subs, zero);
+        output.resize(l, zero);
         scratch.resize(fft.get_outofplace_scratch_len(), zero);
-        fill(&mut input[..n]);
-        fft.process_outofplace_with_scratch(&mut input[..n], &mut output[..n], scratch);
-        read(&output[..n])
+        fill(&mut input[..l * subs]);
+        for (r, z) in input[..l * subs].chunks_exact_mut(l).enumerate() {
+            fft.process_outofplace_with_scratch(z, &mut output[..l], scratch);
+            read(r, &output[..l]);
+        }
     })
 }
 
@@ -125,9 +130,6 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
     let m = n / 2;
     let l = m.min(SUB_FFT);
     let subs = m / l;
-    let len = signal.len();
-    let pad: Vec<f64> = padded(signal, n).skip(len).collect();
-    let y = |j: usize| if j < len { signal[j] } else { pad[j - len] };
     // Z at k and at m - k for every wanted bin, and its step w_m^(k) per subsequence.
     let zi: Vec<usize> = ks.iter().flat_map(|&k| [k % m, (m - k % m) % m]).collect();
     let step: Vec<Complex64> = twiddles(m, ks)
@@ -138,34 +140,26 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
     let zl: Vec<usize> = zi.iter().map(|&i| i & (l - 1)).collect();
     let mut pw = vec![Complex64::new(1.0, 0.0); zi.len()];
     let mut acc = vec![Complex64::new(0.0, 0.0); zi.len()];
-    for r in 0..subs {
-        complex_fft(
-            l,
-            |z| {
-                // The record's samples by chunks, then the pad's.
-                let mut filled = 0;
-                let from = signal.get(2 * r..).unwrap_or(&[]);
-                for (z, pair) in z.iter_mut().zip(from.chunks(2 * subs)) {
-                    let im = pair
-                        .get(1)
-                        .copied()
-                        .unwrap_or_else(|| y(2 * (subs * filled + r) + 1));
-                    *z = Complex64::new(pair[0], im);
-                    filled += 1;
+    sub_ffts(
+        l,
+        subs,
+        |z| {
+            // z[n] = y[2n] + i y[2n+1] goes to subsequence n % subs, place n / subs.
+            let mut y = padded(signal, n);
+            for q in 0..l {
+                for r in 0..subs {
+                    let re = y.next().unwrap_or(0.0);
+                    z[r * l + q] = Complex64::new(re, y.next().unwrap_or(0.0));
                 }
-                for (q, z) in z.iter_mut().enumerate().skip(filled) {
-                    let j = 2 * (subs * q + r);
-                    *z = Complex64::new(y(j), y(j + 1));
-                }
-            },
-            |out| {
-                for (((a, p), s), &i) in acc.iter_mut().zip(pw.iter_mut()).zip(&step).zip(&zl) {
-                    *a += *p * out[i];
-                    *p *= *s;
-                }
-            },
-        );
-    }
+            }
+        },
+        |_, out| {
+            for (((a, p), s), &i) in acc.iter_mut().zip(pw.iter_mut()).zip(&step).zip(&zl) {
+                *a += *p * out[i];
+                *p *= *s;
+            }
+        },
+    );
     twiddles(n, ks)
         .into_iter()
         .zip(acc.chunks_exact(2))

@@ -58,13 +58,13 @@ pub fn check_signals(s: &Signals, what: &str, min_s: f64) -> Result<(), AnalyzeE
         )));
     }
     let min_run = ((5e-4 * s.sample_rate_hz) as usize).max(8);
-    if let Some(run) = clipped_run(&s.displacement_m, min_run) {
+    let (mn, mx) = min_max(&s.displacement_m);
+    if let Some(run) = clipped_run_within(&s.displacement_m, mn, mx, min_run) {
         return Err(AnalyzeError::Invalid(format!(
             "{what}: the laser (displacement) is clipped: {run} consecutive samples stuck at its extreme value"
         )));
     }
-    let peak = s.displacement_m.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    if peak == 0.0 {
+    if mn.abs().max(mx.abs()) == 0.0 {
         return Err(AnalyzeError::Invalid(format!(
             "{what}: the displacement channel is all zero"
         )));
@@ -72,27 +72,44 @@ pub fn check_signals(s: &Signals, what: &str, min_s: f64) -> Result<(), AnalyzeE
     Ok(())
 }
 
+/// Smallest and largest sample (four lanes, so that the pass vectorises;
+/// the samples are finite here).
+fn min_max(x: &[f64]) -> (f64, f64) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 4], [f64::NEG_INFINITY; 4]);
+    let chunks = x.chunks_exact(4);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for i in 0..4 {
+            lo[i] = if c[i] < lo[i] { c[i] } else { lo[i] };
+            hi[i] = if c[i] > hi[i] { c[i] } else { hi[i] };
+        }
+    }
+    let fold = |a: [f64; 4], f: fn(f64, f64) -> f64, init: f64| {
+        a.into_iter().chain(rest.iter().copied()).fold(init, f)
+    };
+    (
+        fold(lo, f64::min, f64::INFINITY),
+        fold(hi, f64::max, f64::NEG_INFINITY),
+    )
+}
+
 /// Longest run (at least `min_run`) of samples pinned at the signal's maximum
 /// or minimum: a sensor at the end of its range. A real peak (noisy or
 /// quantised) stays at its extreme value for a few samples at most.
-pub fn clipped_run(x: &[f64], min_run: usize) -> Option<usize> {
-    let (mn, mx) = x
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
+#[cfg(test)]
+fn clipped_run(x: &[f64], min_run: usize) -> Option<usize> {
+    let (mn, mx) = min_max(x);
+    clipped_run_within(x, mn, mx, min_run)
+}
+
+/// [`clipped_run`] with the extremes known: one pass for both.
+fn clipped_run_within(x: &[f64], mn: f64, mx: f64, min_run: usize) -> Option<usize> {
     let tol = 1e-9 * (mx - mn).abs().max(f64::MIN_POSITIVE);
-    let mut best = 0;
-    for ext in [mn, mx] {
-        let mut run = 0;
-        for &v in x {
-            if (v - ext).abs() <= tol {
-                run += 1;
-                best = best.max(run);
-            } else {
-                run = 0;
-            }
-        }
+    let (mut lo, mut hi, mut best) = (0usize, 0usize, 0usize);
+    for &v in x {
+        lo = if (v - mn).abs() <= tol { lo + 1 } else { 0 };
+        hi = if (v - mx).abs() <= tol { hi + 1 } else { 0 };
+        best = best.max(lo).max(hi);
     }
     (best >= min_run).then_some(best)
 }
@@ -199,8 +216,11 @@ fn prepare_spectra(
     let fs_d = fs / decim as f64;
 
     let mk = marks(main, &x, decim);
-    let px = dsp::harmonics_per_period(&x, &mk, fs_d, N_HARM);
-    let pm = dsp::harmonics_per_period(&mic, &mk, fs_d, N_HARM);
+    let (px, pm) = {
+        let mut both = dsp::harmonics_per_period_of(&[&x, &mic], &mk, fs_d, N_HARM);
+        let pm = both.pop().unwrap_or_default();
+        (both.pop().unwrap_or_default(), pm)
+    };
     if px.len() < 20 {
         return Err(AnalyzeError::Invalid(format!(
             "{what}: too few oscillation periods found ({}): not a sweep, or too short",

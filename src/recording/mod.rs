@@ -435,14 +435,6 @@ pub fn read_signals_seek<R: Read + Seek>(
     } else {
         1.0
     };
-    let decode = |b: &[u8]| -> f64 {
-        match (is_pcm, bytes) {
-            (false, _) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-            (true, 2) => i16::from_le_bytes([b[0], b[1]]) as f64,
-            (true, 3) => (i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8) as f64,
-            (true, _) => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-        }
-    };
     // (byte offset in a frame, gain, samples) of each channel read.
     let gain = |s: Option<f64>| s.unwrap_or(1.0) / full;
     let mut picks: Vec<(usize, f64, Vec<f64>)> = [
@@ -458,6 +450,7 @@ pub fn read_signals_seek<R: Read + Seek>(
     let per_block = ((1usize << 20) / frame).max(1);
     let mut block = vec![0u8; per_block.min(frames) * frame];
     let mut left = frames;
+    let mut all_finite_so_far = true;
     while left > 0 {
         let n = per_block.min(left);
         let buf = &mut block[..n * frame];
@@ -469,10 +462,23 @@ pub fn read_signals_seek<R: Read + Seek>(
             }
         })?;
         for (off, g, out) in picks.iter_mut() {
-            out.extend(
-                buf.chunks_exact(frame)
-                    .map(|f| decode(&f[*off..*off + bytes]) * *g),
-            );
+            // One loop per sample format (the format's match hoisted out of
+            // the per-sample loop); finiteness is checked while the block is
+            // in cache.
+            let frames = buf.chunks_exact(frame).map(|f| &f[*off..]);
+            let ok = match (is_pcm, bytes) {
+                (false, _) => decode_into(out, frames, *g, |b| {
+                    f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64
+                }),
+                (true, 2) => decode_into(out, frames, *g, |b| i16::from_le_bytes([b[0], b[1]]) as f64),
+                (true, 3) => decode_into(out, frames, *g, |b| {
+                    (i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8) as f64
+                }),
+                (true, _) => decode_into(out, frames, *g, |b| {
+                    i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64
+                }),
+            };
+            all_finite_so_far &= ok;
         }
         left -= n;
     }
@@ -488,8 +494,28 @@ pub fn read_signals_seek<R: Read + Seek>(
         microphone_v,
         drive_v: it.next(),
     };
-    sig.validate("recording")?;
+    if !all_finite_so_far {
+        // The message names the channel and the sample.
+        sig.validate("recording")?;
+    }
     Ok(sig)
+}
+
+/// Appends `gain * conv(frame)` for each frame; false if any value is not
+/// finite (a float NaN or infinity, or a scale that overflows).
+fn decode_into<'a>(
+    out: &mut Vec<f64>,
+    frames: impl Iterator<Item = &'a [u8]>,
+    gain: f64,
+    conv: impl Fn(&[u8]) -> f64,
+) -> bool {
+    let mut ok = true;
+    out.extend(frames.map(|b| {
+        let v = conv(b) * gain;
+        ok &= v.is_finite();
+        v
+    }));
+    ok
 }
 
 /// Sample by sample through hound (8-bit and other unusual layouts).
