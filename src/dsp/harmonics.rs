@@ -250,7 +250,11 @@ pub fn harmonics_per_period_of(
                 *mn = mn.min(s);
             }
         }
-        let gm = DMatrix::<f64>::from_fn(p, p, |a, b| if b <= a { g[a * p + b] } else { g[b * p + a] });
+        let gm = DMatrix::<f64>::from_fn(
+            p,
+            p,
+            |a, b| if b <= a { g[a * p + b] } else { g[b * p + a] },
+        );
         let Some(ch) = gm.cholesky() else {
             continue;
         };

@@ -10,7 +10,9 @@ pub mod lstsq;
 pub mod spectrum;
 pub mod tf;
 
-pub use harmonics::{harmonics_per_period, harmonics_per_period_of, period_marks, resonance_peak, PeriodHarmonics};
+pub use harmonics::{
+    harmonics_per_period, harmonics_per_period_of, period_marks, resonance_peak, PeriodHarmonics,
+};
 pub use lstsq::{lstsq, Lstsq, LstsqError};
 pub use realfft::num_complex::Complex64;
 pub use spectrum::{LowPass, Spectrum};

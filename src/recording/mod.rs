@@ -465,17 +465,19 @@ pub fn read_signals_seek<R: Read + Seek>(
             // One loop per sample format (the format's match hoisted out of
             // the per-sample loop); finiteness is checked while the block is
             // in cache.
-            let frames = buf.chunks_exact(frame).map(|f| &f[*off..]);
+            let (o, g) = (*off, *g);
             let ok = match (is_pcm, bytes) {
-                (false, _) => decode_into(out, frames, *g, |b| {
-                    f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64
+                (false, _) => decode_into(out, buf, frame, o, g, |b: [u8; 4]| {
+                    f32::from_le_bytes(b) as f64
                 }),
-                (true, 2) => decode_into(out, frames, *g, |b| i16::from_le_bytes([b[0], b[1]]) as f64),
-                (true, 3) => decode_into(out, frames, *g, |b| {
+                (true, 2) => decode_into(out, buf, frame, o, g, |b: [u8; 2]| {
+                    i16::from_le_bytes(b) as f64
+                }),
+                (true, 3) => decode_into(out, buf, frame, o, g, |b: [u8; 3]| {
                     (i32::from_le_bytes([0, b[0], b[1], b[2]]) >> 8) as f64
                 }),
-                (true, _) => decode_into(out, frames, *g, |b| {
-                    i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64
+                (true, _) => decode_into(out, buf, frame, o, g, |b: [u8; 4]| {
+                    i32::from_le_bytes(b) as f64
                 }),
             };
             all_finite_so_far &= ok;
@@ -501,16 +503,21 @@ pub fn read_signals_seek<R: Read + Seek>(
     Ok(sig)
 }
 
-/// Appends `gain * conv(frame)` for each frame; false if any value is not
-/// finite (a float NaN or infinity, or a scale that overflows).
-fn decode_into<'a>(
+/// Appends `gain * conv(sample)` for the sample at byte `off` of each
+/// `frame`-byte frame of `buf` (a fixed-size sample: one bounds check per
+/// frame); false if any value is not finite (a float NaN or infinity, or a
+/// scale that overflows).
+fn decode_into<const B: usize>(
     out: &mut Vec<f64>,
-    frames: impl Iterator<Item = &'a [u8]>,
+    buf: &[u8],
+    frame: usize,
+    off: usize,
     gain: f64,
-    conv: impl Fn(&[u8]) -> f64,
+    conv: impl Fn([u8; B]) -> f64,
 ) -> bool {
     let mut ok = true;
-    out.extend(frames.map(|b| {
+    out.extend(buf.chunks_exact(frame).map(|f| {
+        let b: [u8; B] = f[off..off + B].try_into().expect("B bytes");
         let v = conv(b) * gain;
         ok &= v.is_finite();
         v
