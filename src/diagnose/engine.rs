@@ -15,8 +15,11 @@ use crate::effects::{
     QuadraticDamping, StiffnessDrift,
 };
 use crate::identify::ForceBalanceData;
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::rc::Rc;
 
 /// Settings of the engine. The defaults are the documented design choices
 /// (docs/diagnostics.md), not tuned to any data set.
@@ -250,6 +253,71 @@ pub struct Prepared<'a> {
     bounds: Vec<(usize, usize)>,
     rms_y: f64,
     duration_s: f64,
+    /// y . y per block.
+    yy: Vec<f64>,
+    /// Model columns and the block cross products of every pair of columns
+    /// used so far: each is computed once per data set, however many
+    /// models, folds, candidates and grid points use it.
+    cache: RefCell<Cache>,
+}
+
+/// A column of the design, named by what determines it (hyper-parameters
+/// by their bits: the same value gives the same column, bit for bit), so
+/// that its cross products are computed once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+enum Col {
+    /// The microphone, shifted by the model's channel delay (s) if it has one.
+    Mic(Option<u64>),
+    /// The time derivative of that column (the linearised delay).
+    DMic(Option<u64>),
+    Ones,
+    /// x P_i(x / x_scale), the i-th term of K(x).
+    K(usize),
+    V,
+    /// Column k of an effect at hyper-parameter h.
+    Eff(EffectId, usize, u64),
+}
+
+#[derive(Default)]
+struct Cache {
+    /// Columns of models (not of the hyper-parameter searches' trial points).
+    cols: HashMap<Col, Rc<[f64]>>,
+    /// Per block: a . b, keyed with a <= b (the product sum is symmetric bit for bit).
+    cross: HashMap<(Col, Col), Box<[f64]>>,
+    /// Per block: a . y.
+    ycross: HashMap<Col, Box<[f64]>>,
+}
+
+/// A column: kept in the cache or computed for one use.
+enum ColData {
+    Kept(Rc<[f64]>),
+    Own(Vec<f64>),
+}
+
+impl std::ops::Deref for ColData {
+    type Target = [f64];
+    fn deref(&self) -> &[f64] {
+        match self {
+            ColData::Kept(c) => c,
+            ColData::Own(c) => c,
+        }
+    }
+}
+
+/// Number of columns of an effect.
+fn effect_width(e: EffectId) -> usize {
+    match e {
+        EffectId::DampingVsDisplacement => 2,
+        EffectId::ChannelDelay => 0,
+        _ => 1,
+    }
+}
+
+/// The columns of an effect at hyper-parameter `h`.
+fn effect_ids(e: EffectId, h: f64) -> Vec<Col> {
+    (0..effect_width(e))
+        .map(|k| Col::Eff(e, k, h.to_bits()))
+        .collect()
 }
 
 fn legendre_cols(x: &[f64], u: &[f64], order: usize) -> Vec<Vec<f64>> {
@@ -384,6 +452,7 @@ impl<'a> Prepared<'a> {
         let rms_y = (y.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
         let fs = d.sample_rate_hz;
         let t_mid = (n as f64 - 1.0) / 2.0 / fs;
+        let bounds = block_bounds(n, blocks.max(4));
         Ok(Prepared {
             d,
             ones: vec![1.0; n],
@@ -392,10 +461,15 @@ impl<'a> Prepared<'a> {
             v_max,
             omega_typ,
             t_centered: (0..n).map(|i| i as f64 / fs - t_mid).collect(),
-            bounds: block_bounds(n, blocks.max(4)),
+            yy: bounds
+                .iter()
+                .map(|&(s, e)| super::regress::dot(&y[s..e], &y[s..e]))
+                .collect(),
+            bounds,
             rms_y,
             duration_s: n as f64 / fs,
             y,
+            cache: RefCell::new(Cache::default()),
         })
     }
 
@@ -421,74 +495,179 @@ impl<'a> Prepared<'a> {
         }
     }
 
-    fn mic_col(&self, spec: &Spec) -> Vec<f64> {
-        match spec
+    /// The design of `spec`: its columns in order and their roles.
+    fn design(&self, spec: &Spec) -> (Vec<Col>, Vec<Role>) {
+        let delay = spec
             .effects
             .iter()
             .find(|(e, _)| *e == EffectId::ChannelDelay)
-        {
-            Some(&(_, d)) => shifted(&self.d.mic_v, self.fs(), d),
-            None => self.d.mic_v.clone(),
-        }
-    }
-
-    fn columns(&self, spec: &Spec) -> (Vec<Vec<f64>>, Vec<Role>) {
-        let mut cols = vec![self.mic_col(spec), self.ones.clone()];
+            .map(|&(_, d)| d.to_bits());
+        let mut ids = vec![Col::Mic(delay), Col::Ones];
         let mut roles = vec![Role::Mic, Role::Intercept];
-        for (i, c) in legendre_cols(&self.d.x_m, &self.u, spec.order)
-            .into_iter()
-            .enumerate()
-        {
-            cols.push(c);
+        for i in 0..=spec.order {
+            ids.push(Col::K(i));
             roles.push(Role::K(i));
         }
-        cols.push(self.d.v_m_per_s.clone());
+        ids.push(Col::V);
         roles.push(Role::R);
         for &(e, h) in &spec.effects {
-            for (k, c) in self.effect_cols(e, h).into_iter().enumerate() {
-                cols.push(c);
+            for (k, c) in effect_ids(e, h).into_iter().enumerate() {
+                ids.push(c);
                 roles.push(Role::Eff(e, k));
             }
         }
-        (cols, roles)
+        (ids, roles)
+    }
+
+    /// Computes a column (the K(x) terms: all up to it, kept).
+    fn compute(&self, c: Col) -> Vec<f64> {
+        match c {
+            Col::Mic(None) => self.d.mic_v.clone(),
+            Col::Mic(Some(d)) => shifted(&self.d.mic_v, self.fs(), f64::from_bits(d)),
+            Col::DMic(m) => derivative(&self.column(Col::Mic(m)), self.fs()),
+            Col::Ones => self.ones.clone(),
+            Col::V => self.d.v_m_per_s.clone(),
+            Col::K(i) => {
+                let mut cols = legendre_cols(&self.d.x_m, &self.u, i);
+                let last = cols.pop().expect("order >= 0");
+                let mut cache = self.cache.borrow_mut();
+                for (j, col) in cols.into_iter().enumerate() {
+                    cache.cols.entry(Col::K(j)).or_insert_with(|| col.into());
+                }
+                last
+            }
+            Col::Eff(e, k, h) => self.effect_cols(e, f64::from_bits(h)).swap_remove(k),
+        }
+    }
+
+    /// A model column, computed once and kept.
+    fn column(&self, c: Col) -> Rc<[f64]> {
+        if let Some(col) = self.cache.borrow().cols.get(&c) {
+            return col.clone();
+        }
+        let col: Rc<[f64]> = self.compute(c).into();
+        self.cache.borrow_mut().cols.insert(c, col.clone());
+        col
+    }
+
+    /// Block Gram of the design `ids` (in this order). Cross products not
+    /// yet known are computed and kept; the columns in `trial` (a
+    /// hyper-parameter search's trial points) are computed for this use
+    /// only, and only when one of their products is missing.
+    fn gram(&self, ids: &[Col], trial: &[Col]) -> BlockGram {
+        let p = ids.len();
+        let key = |a: Col, b: Col| if a <= b { (a, b) } else { (b, a) };
+        // Missing products, by row: (row, partner columns, y too).
+        let todo: Vec<(usize, Vec<Col>, bool)> = {
+            let cache = self.cache.borrow();
+            (0..p)
+                .filter_map(|i| {
+                    let partners: Vec<Col> = ids[i..]
+                        .iter()
+                        .copied()
+                        .filter(|&b| !cache.cross.contains_key(&key(ids[i], b)))
+                        .collect();
+                    let y = !cache.ycross.contains_key(&ids[i]);
+                    (!partners.is_empty() || y).then_some((i, partners, y))
+                })
+                .collect()
+        };
+        if !todo.is_empty() {
+            let mut data: HashMap<Col, ColData> = HashMap::new();
+            let fetch = |c: Col, data: &mut HashMap<Col, ColData>| {
+                data.entry(c).or_insert_with(|| {
+                    let kept = self.cache.borrow().cols.get(&c).cloned();
+                    match kept {
+                        Some(col) => ColData::Kept(col),
+                        None if trial.contains(&c) => ColData::Own(self.compute(c)),
+                        None => ColData::Kept(self.column(c)),
+                    }
+                });
+            };
+            for (i, partners, _) in &todo {
+                fetch(ids[*i], &mut data);
+                for &b in partners {
+                    fetch(b, &mut data);
+                }
+            }
+            let nb = self.bounds.len();
+            for (i, partners, y) in todo {
+                let a = ids[i];
+                let z: &[f64] = &data[&a];
+                let mut others: Vec<&[f64]> = partners.iter().map(|b| &*data[b]).collect();
+                if y {
+                    others.push(&self.y);
+                }
+                let mut per = vec![vec![0.0; nb]; others.len()];
+                let mut out = vec![0.0; others.len()];
+                for (blk, &(s, e)) in self.bounds.iter().enumerate() {
+                    let o: Vec<&[f64]> = others.iter().map(|c| &c[s..e]).collect();
+                    super::regress::dots(&z[s..e], &o, &mut out);
+                    for (pk, &v) in per.iter_mut().zip(&out) {
+                        pk[blk] = v;
+                    }
+                }
+                let mut cache = self.cache.borrow_mut();
+                let mut per = per.into_iter();
+                for &b in &partners {
+                    let v = per.next().expect("one per partner");
+                    cache.cross.insert(key(a, b), v.into());
+                }
+                if y {
+                    cache.ycross.insert(a, per.next().expect("and y").into());
+                }
+            }
+        }
+        let cache = self.cache.borrow();
+        let cross: Vec<Vec<&[f64]>> = (0..p)
+            .map(|i| {
+                (0..p)
+                    .map(|j| &*cache.cross[&key(ids[i], ids[j])])
+                    .collect()
+            })
+            .collect();
+        let ycross: Vec<&[f64]> = ids.iter().map(|c| &*cache.ycross[c]).collect();
+        let blocks = self
+            .bounds
+            .iter()
+            .enumerate()
+            .map(|(blk, &(s, e))| super::regress::Block {
+                g: DMatrix::from_fn(p, p, |i, j| cross[i][j][blk]),
+                c: DVector::from_fn(p, |i, _| ycross[i][blk]),
+                yy: self.yy[blk],
+                n: e - s,
+            })
+            .collect();
+        BlockGram { p, blocks }
     }
 }
 
 /// A model built on the data: its columns and block Gram.
 struct Built {
     spec: Spec,
-    cols: Vec<Vec<f64>>,
+    ids: Vec<Col>,
     roles: Vec<Role>,
     gram: BlockGram,
 }
 
 impl Built {
     fn new(p: &Prepared, spec: Spec) -> Built {
-        let (cols, roles) = p.columns(&spec);
-        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let gram = BlockGram::build(&refs, &p.y, &p.bounds);
+        let (ids, roles) = p.design(&spec);
+        let gram = p.gram(&ids, &[]);
         Built {
             spec,
-            cols,
+            ids,
             roles,
             gram,
         }
     }
 
-    fn refs(&self) -> Vec<&[f64]> {
-        self.cols.iter().map(|c| c.as_slice()).collect()
-    }
-
-    /// Gram with candidate columns added (and the mic column replaced for a delay).
-    fn with(&self, p: &Prepared, drop_mic: bool, new_cols: &[Vec<f64>]) -> BlockGram {
-        let nrefs: Vec<&[f64]> = new_cols.iter().map(|c| c.as_slice()).collect();
-        self.gram.augment(
-            &self.refs(),
-            if drop_mic { Some(0) } else { None },
-            &nrefs,
-            &p.y,
-            &p.bounds,
-        )
+    /// Gram with columns `new` added (and the mic column replaced for a
+    /// delay); `trial` names those of a search's trial points (not kept).
+    fn with(&self, p: &Prepared, drop_mic: bool, new: &[Col], trial: bool) -> BlockGram {
+        let mut ids: Vec<Col> = self.ids[usize::from(drop_mic)..].to_vec();
+        ids.extend_from_slice(new);
+        p.gram(&ids, if trial { new } else { &[] })
     }
 }
 
@@ -517,6 +696,14 @@ fn golden_min(mut lo: f64, mut hi: f64, iters: usize, mut f: impl FnMut(f64) -> 
         (a, fa)
     } else {
         (b, fb)
+    }
+}
+
+/// The linearised delay column of a model: the derivative of its microphone column.
+fn dmic_of(built: &Built) -> Col {
+    match built.ids[0] {
+        Col::Mic(d) => Col::DMic(d),
+        other => unreachable!("the first column is the microphone, not {other:?}"),
     }
 }
 
@@ -587,9 +774,7 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
     match term {
         Term::StiffnessOrder => {
             let order = built.spec.order + 1;
-            let mut cols = legendre_cols(&p.d.x_m, &p.u, order);
-            let last = cols.pop().expect("order >= 0");
-            let gram = built.with(p, false, &[last]);
+            let gram = built.with(p, false, &[Col::K(order)], false);
             let fit = gram.fit();
             let (p_value, se) = wald_last(&gram, &fit.beta, 1);
             Evaluated {
@@ -604,9 +789,8 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
         }
         Term::Effect(EffectId::ChannelDelay) => {
             // Test: the linearised column d * s * mic'(t) added to the model.
-            let mic = &built.cols[0];
-            let dmic = derivative(mic, p.fs());
-            let lin = built.with(p, false, std::slice::from_ref(&dmic));
+            let dmic = dmic_of(built);
+            let lin = built.with(p, false, &[dmic], false);
             let lfit = lin.fit();
             let (p_value, lse) = wald_last(&lin, &lfit.beta, 1);
             let s = lfit.beta[0];
@@ -623,14 +807,10 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
                 .map_or(0.0, |x| x.1);
             // Refine the delay with the exact shift around the linear estimate.
             let w = d0.abs().max(2.0 / p.fs());
-            let orig = &p.d.mic_v;
-            let sse_at = |d: f64| {
-                let col = shifted(orig, p.fs(), current + d);
-                built.with(p, true, &[col]).fit().sse
-            };
+            let shifted_mic = |d: f64| Col::Mic(Some((current + d).to_bits()));
+            let sse_at = |d: f64| built.with(p, true, &[shifted_mic(d)], true).fit().sse;
             let (d_best, _) = golden_min(d0 - w, d0 + w, 18, sse_at);
-            let col = shifted(orig, p.fs(), current + d_best);
-            let gram = built.with(p, true, &[col]);
+            let gram = built.with(p, true, &[shifted_mic(d_best)], true);
             let fit = gram.fit();
             let se_d = if s != 0.0 { lse[0] / s.abs() } else { f64::NAN };
             Evaluated {
@@ -645,9 +825,9 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
         }
         Term::Effect(e) => {
             let (hyper, cols) = match hyper_grid(p, e) {
-                None => (None, p.effect_cols(e, 0.0)),
+                None => (None, effect_ids(e, 0.0)),
                 Some(grid) => {
-                    let sse_at = |h: f64| built.with(p, false, &p.effect_cols(e, h)).fit().sse;
+                    let sse_at = |h: f64| built.with(p, false, &effect_ids(e, h), true).fit().sse;
                     let sses: Vec<f64> = grid.iter().map(|&h| sse_at(h)).collect();
                     let (ib, _) = sses
                         .iter()
@@ -658,11 +838,11 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
                     let hi = grid[(ib + 1).min(grid.len() - 1)].ln();
                     let (lh, sse) = golden_min(lo, hi, 14, |l| sse_at(l.exp()));
                     let h = if sse < sses[ib] { lh.exp() } else { grid[ib] };
-                    (Some(h), p.effect_cols(e, h))
+                    (Some(h), effect_ids(e, h))
                 }
             };
             let q = cols.len();
-            let gram = built.with(p, false, &cols);
+            let gram = built.with(p, false, &cols, hyper.is_some());
             let fit = gram.fit();
             let (p_value, se) = wald_last(&gram, &fit.beta, q);
             Evaluated {
@@ -838,8 +1018,8 @@ fn describe(p: &Prepared, built: &Built, folds: usize) -> (FittedModel, DVector<
 fn residual(p: &Prepared, built: &Built, beta: &DVector<f64>) -> (Vec<f64>, Vec<f64>) {
     let n = p.y.len();
     let mut model = vec![0.0; n];
-    for (c, b) in built.cols.iter().zip(beta.iter()) {
-        for (m, v) in model.iter_mut().zip(c) {
+    for (&c, b) in built.ids.iter().zip(beta.iter()) {
+        for (m, v) in model.iter_mut().zip(p.column(c).iter()) {
             *m += b * v;
         }
     }
@@ -909,8 +1089,7 @@ fn rank(
         if ev.drop_mic {
             // The delay's linear column d s mic' against the model (mic' is
             // close to a damping force near resonance).
-            let dmic = derivative(&built.cols[0], p.fs());
-            let lin = built.with(p, false, &[dmic]);
+            let lin = built.with(p, false, &[dmic_of(built)], false);
             let g = lin.total().g;
             let j = lin.p - 1;
             let r2 = collinearity_r2(&g, j, &(0..j).collect::<Vec<_>>(), intercept);
@@ -996,21 +1175,19 @@ fn choose_order(p: &Prepared, forced: &[(EffectId, f64)], opts: &EngineOptions) 
             },
         );
         let base_cv = built.gram.cv_sse(opts.folds);
-        let mut cols = legendre_cols(&p.d.x_m, &p.u, (order + 2).min(opts.max_order));
         let mut grew = None;
         for extra in 1..=2usize {
             if order + extra > opts.max_order {
                 break;
             }
-            let new: Vec<Vec<f64>> = cols.drain(order + 1..order + 1 + extra).collect();
-            let gram = built.with(p, false, &new);
+            let new: Vec<Col> = (order + 1..order + 1 + extra).map(Col::K).collect();
+            let gram = built.with(p, false, &new, false);
             let fit = gram.fit();
             let (pv, _) = wald_last(&gram, &fit.beta, extra);
             if pv < alpha && gram.cv_sse(opts.folds) < base_cv {
                 grew = Some(order + extra);
                 break;
             }
-            cols = legendre_cols(&p.d.x_m, &p.u, (order + 2).min(opts.max_order));
         }
         match grew {
             Some(o) => order = o,
