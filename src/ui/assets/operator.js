@@ -293,6 +293,19 @@ export async function render(main, ctx) {
 
   let refreshing = false;
   let again = false;
+  // A job as read by a refresh. Its answer can be older than a progress
+  // event the websocket delivered meanwhile: a running job's progress then
+  // stays at the newer (larger) value instead of jumping back.
+  function keepJob(j) {
+    const seen = jobs.get(j.id);
+    if (seen && seen.state === j.state && j.state === 'running' && (seen.progress || 0) > (j.progress || 0)) {
+      j.progress = seen.progress;
+      j.step = seen.step;
+      j.eta_s = seen.eta_s;
+    }
+    jobs.set(j.id, j);
+  }
+
   async function refresh() {
     if (refreshing) {
       again = true;
@@ -307,11 +320,11 @@ export async function render(main, ctx) {
       ]);
       if (ctx.stale()) return;
       benches = bs.items || [];
-      for (const j of [...recent.items, ...queued.items]) jobs.set(j.id, j);
+      for (const j of [...recent.items, ...queued.items]) keepJob(j);
       const running = benches.filter((b) => b.job_id && !jobs.has(b.job_id));
       for (const b of running) {
         try {
-          jobs.set(b.job_id, await api(`/api/v1/jobs/${b.job_id}`));
+          keepJob(await api(`/api/v1/jobs/${b.job_id}`));
         } catch {
           /* finished meanwhile: the next refresh shows it */
         }
