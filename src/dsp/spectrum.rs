@@ -29,10 +29,10 @@ thread_local! {
     static SCRATCH: RefCell<(Vec<f64>, Vec<Complex64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
     /// Reused output of the forward FFTs whose callers keep only the low bins.
     static BINS: RefCell<Vec<Complex64>> = const { RefCell::new(Vec::new()) };
-    /// Complex plans of [`two_spectra`] and their reused input, output and
+    /// Complex plans of [`Spectrum::bands`] and its reused sub-FFT and
     /// scratch buffers.
     static CPLANNER: RefCell<FftPlanner<f64>> = RefCell::new(FftPlanner::new());
-    static CBUF: RefCell<[Vec<Complex64>; 3]> = const { RefCell::new([Vec::new(), Vec::new(), Vec::new()]) };
+    static CBUF: RefCell<[Vec<Complex64>; 2]> = const { RefCell::new([Vec::new(), Vec::new()]) };
 }
 
 /// Runs `f` with this thread's cached FFT planner (plans are kept between calls).
@@ -69,28 +69,25 @@ fn padded(signal: &[f64], n_fft: usize) -> impl Iterator<Item = f64> + '_ {
 /// machine, twiddle memory with it).
 pub const SUB_FFT: usize = 1 << 16;
 
-/// Complex FFTs of `subs` sequences of `l` points each, on this thread's
-/// plan and buffers: `fill` writes all inputs (sequence `r` at
+/// Complex FFTs of `subs` sequences of `l` points each, in place on this
+/// thread's plan and buffers: `fill` writes all inputs (sequence `r` at
 /// `[r * l, (r + 1) * l)`, so that the record is read once, in order), then
-/// `read(r, spectrum)` takes each output in turn.
-fn sub_ffts(
+/// `read` takes all the spectra, laid out the same way.
+fn sub_ffts<R>(
     l: usize,
     subs: usize,
     fill: impl FnOnce(&mut [Complex64]),
-    mut read: impl FnMut(usize, &[Complex64]),
-) {
+    read: impl FnOnce(&[Complex64]) -> R,
+) -> R {
     let fft = CPLANNER.with(|p| p.borrow_mut().plan_fft_forward(l));
     CBUF.with(|b| {
-        let [input, output, scratch] = &mut *b.borrow_mut();
+        let [input, scratch] = &mut *b.borrow_mut();
         let zero = Complex64::new(0.0, 0.0);
         input.resize(l * subs, zero);
-        output.resize(l, zero);
-        scratch.resize(fft.get_outofplace_scratch_len(), zero);
+        scratch.resize(fft.get_inplace_scratch_len(), zero);
         fill(&mut input[..l * subs]);
-        for (r, z) in input[..l * subs].chunks_exact_mut(l).enumerate() {
-            fft.process_outofplace_with_scratch(z, &mut output[..l], scratch);
-            read(r, &output[..l]);
-        }
+        fft.process_with_scratch(&mut input[..l * subs], scratch);
+        read(&input[..l * subs])
     })
 }
 
@@ -130,17 +127,10 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
     let m = n / 2;
     let l = m.min(SUB_FFT);
     let subs = m / l;
-    // Z at k and at m - k for every wanted bin, and its step w_m^(k) per subsequence.
-    let zi: Vec<usize> = ks.iter().flat_map(|&k| [k % m, (m - k % m) % m]).collect();
-    let step: Vec<Complex64> = twiddles(m, ks)
-        .into_iter()
-        .flat_map(|w| [w, w.conj()])
-        .collect();
-    // Sub-FFT bin of each (l is a power of two).
-    let zl: Vec<usize> = zi.iter().map(|&i| i & (l - 1)).collect();
-    let mut pw = vec![Complex64::new(1.0, 0.0); zi.len()];
-    let mut acc = vec![Complex64::new(0.0, 0.0); zi.len()];
-    sub_ffts(
+    // Z[k] = sum_r w_m^(r k) Z_r[k mod l] at k and at m - k for every wanted
+    // bin (w_m^(m-k) = conj w_m^k), by Horner's scheme over the subsequences.
+    let step = twiddles(m, ks);
+    let acc: Vec<Complex64> = sub_ffts(
         l,
         subs,
         |z| {
@@ -153,11 +143,21 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
                 }
             }
         },
-        |_, out| {
-            for (((a, p), s), &i) in acc.iter_mut().zip(pw.iter_mut()).zip(&step).zip(&zl) {
-                *a += *p * out[i];
-                *p *= *s;
+        |spectra| {
+            let mut acc = Vec::with_capacity(2 * ks.len());
+            for (&k, &w) in ks.iter().zip(&step) {
+                // Sub-FFT bins (l is a power of two).
+                let (i, j) = ((k % m) & (l - 1), ((m - k % m) % m) & (l - 1));
+                let (wc, last) = (w.conj(), (subs - 1) * l);
+                let (mut a, mut b) = (spectra[last + i], spectra[last + j]);
+                for r in (0..subs - 1).rev() {
+                    a = a * w + spectra[r * l + i];
+                    b = b * wc + spectra[r * l + j];
+                }
+                acc.push(a);
+                acc.push(b);
             }
+            acc
         },
     );
     twiddles(n, ks)
