@@ -205,6 +205,8 @@ pub struct EngineResult {
     /// Modelled inertia force m a of the final model (N).
     pub modelled_force_n: Vec<f64>,
     pub spectrum: super::spectrum::ResidualSpectrum,
+    /// Spectrum of the base model's residual.
+    pub base_spectrum: super::spectrum::ResidualSpectrum,
     /// Order chosen for the base model and how.
     pub order_note: String,
 }
@@ -286,6 +288,8 @@ struct Cache {
     cross: HashMap<(Col, Col), Box<[f64]>>,
     /// Per block: a . y.
     ycross: HashMap<Col, Box<[f64]>>,
+    /// Trial columns computed ahead for a search (together is cheaper).
+    staged: HashMap<Col, Rc<[f64]>>,
 }
 
 /// A column: kept in the cache or computed for one use.
@@ -369,14 +373,24 @@ fn legendre_monomials(order: usize) -> Vec<Vec<f64>> {
 /// started at x[0] there, the false start transient was absorbed by a too
 /// short tau and K(x) took the missing creep stiffness (up to 1.5 % off).
 fn creep_column(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> {
-    let alpha = 1.0 - (-1.0 / (fs * tau)).exp();
-    let mut xr = if starts_at_rest || x.is_empty() {
+    creep_columns(x, fs, &[tau], starts_at_rest).swap_remove(0)
+}
+
+/// The relaxed position the creep low-pass starts from (see [`creep_column`]).
+fn creep_start(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> f64 {
+    if starts_at_rest || x.is_empty() {
         x.first().copied().unwrap_or(0.0)
     } else {
         let m = ((5.0 * tau).max(1.0) * fs).ceil() as usize;
         let w = &x[..m.clamp(1, x.len())];
         w.iter().sum::<f64>() / w.len() as f64
-    };
+    }
+}
+
+#[cfg(test)]
+fn creep_column_alone(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> {
+    let alpha = 1.0 - (-1.0 / (fs * tau)).exp();
+    let mut xr = creep_start(x, fs, tau, starts_at_rest);
     x.iter()
         .map(|&xi| {
             let out = xi - xr;
@@ -384,6 +398,31 @@ fn creep_column(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> 
             out
         })
         .collect()
+}
+
+/// [`creep_column`] for several time constants in one pass over x (their
+/// recursions are independent chains; each column is computed exactly as
+/// alone).
+fn creep_columns(x: &[f64], fs: f64, taus: &[f64], starts_at_rest: bool) -> Vec<Vec<f64>> {
+    const K: usize = 8;
+    let mut cols: Vec<Vec<f64>> = Vec::with_capacity(taus.len());
+    for group in taus.chunks(K) {
+        let mut alpha = [0.0; K];
+        let mut xr = [0.0; K];
+        for (j, &tau) in group.iter().enumerate() {
+            alpha[j] = 1.0 - (-1.0 / (fs * tau)).exp();
+            xr[j] = creep_start(x, fs, tau, starts_at_rest);
+        }
+        let mut out: Vec<Vec<f64>> = vec![vec![0.0; x.len()]; group.len()];
+        for (i, &xi) in x.iter().enumerate() {
+            for j in 0..group.len() {
+                out[j][i] = xi - xr[j];
+                xr[j] += alpha[j] * (xi - xr[j]);
+            }
+        }
+        cols.extend(out);
+    }
+    cols
 }
 
 /// mic(t + d) by 4-point Lagrange interpolation (d in seconds, any sign).
@@ -400,12 +439,25 @@ fn shifted(mic: &[f64], fs: f64, d: f64) -> Vec<f64> {
         -(f + 1.0) * f * (f - 2.0) / 2.0,
         (f + 1.0) * f * (f - 1.0) / 6.0,
     );
-    (0..n)
-        .map(|i| {
-            let j = i + k;
-            c0 * at(j - 1) + c1 * at(j) + c2 * at(j + 1) + c3 * at(j + 2)
-        })
-        .collect()
+    let edge = |i: isize| {
+        let j = i + k;
+        c0 * at(j - 1) + c1 * at(j) + c2 * at(j + 1) + c3 * at(j + 2)
+    };
+    // Inside [1 - k, n - 2 - k) all four taps lie in the record: no clamping.
+    let lo = (1 - k).clamp(0, n);
+    let hi = (n - 2 - k).clamp(lo, n);
+    let mut out = Vec::with_capacity(n as usize);
+    out.extend((0..lo).map(edge));
+    if hi > lo {
+        let first = (lo + k - 1) as usize;
+        out.extend(
+            mic[first..first + (hi - lo) as usize + 3]
+                .windows(4)
+                .map(|w| c0 * w[0] + c1 * w[1] + c2 * w[2] + c3 * w[3]),
+        );
+    }
+    out.extend((hi..n).map(edge));
+    out
 }
 
 fn derivative(sig: &[f64], fs: f64) -> Vec<f64> {
@@ -540,6 +592,43 @@ impl<'a> Prepared<'a> {
         }
     }
 
+    /// True when every cross product of `col` with the columns of `built`
+    /// (and with y) is known.
+    fn knows(&self, built: &Built, col: Col) -> bool {
+        let cache = self.cache.borrow();
+        let key = |a: Col, b: Col| if a <= b { (a, b) } else { (b, a) };
+        cache.ycross.contains_key(&col)
+            && cache.cross.contains_key(&(col, col))
+            && built
+                .ids
+                .iter()
+                .all(|&b| cache.cross.contains_key(&key(col, b)))
+    }
+
+    /// Stages the creep columns of a grid whose products with `built` are
+    /// not all known (the recursions of all time constants in one pass).
+    fn stage_creep(&self, built: &Built, grid: &[f64]) {
+        let taus: Vec<f64> = grid
+            .iter()
+            .copied()
+            .filter(|&h| !self.knows(built, Col::Eff(EffectId::Creep, 0, h.to_bits())))
+            .collect();
+        if taus.len() < 2 {
+            return;
+        }
+        let cols = creep_columns(&self.d.x_m, self.fs(), &taus, self.d.starts_at_rest);
+        let mut cache = self.cache.borrow_mut();
+        for (tau, col) in taus.iter().zip(cols) {
+            cache
+                .staged
+                .insert(Col::Eff(EffectId::Creep, 0, tau.to_bits()), col.into());
+        }
+    }
+
+    fn unstage(&self) {
+        self.cache.borrow_mut().staged.clear();
+    }
+
     /// A model column, computed once and kept.
     fn column(&self, c: Col) -> Rc<[f64]> {
         if let Some(col) = self.cache.borrow().cols.get(&c) {
@@ -576,7 +665,10 @@ impl<'a> Prepared<'a> {
             let mut data: HashMap<Col, ColData> = HashMap::new();
             let fetch = |c: Col, data: &mut HashMap<Col, ColData>| {
                 data.entry(c).or_insert_with(|| {
-                    let kept = self.cache.borrow().cols.get(&c).cloned();
+                    let kept = {
+                        let cache = self.cache.borrow();
+                        cache.cols.get(&c).or_else(|| cache.staged.get(&c)).cloned()
+                    };
                     match kept {
                         Some(col) => ColData::Kept(col),
                         None if trial.contains(&c) => ColData::Own(self.compute(c)),
@@ -828,7 +920,11 @@ fn evaluate(p: &Prepared, built: &Built, term: Term) -> Evaluated {
                 None => (None, effect_ids(e, 0.0)),
                 Some(grid) => {
                     let sse_at = |h: f64| built.with(p, false, &effect_ids(e, h), true).fit().sse;
+                    if e == EffectId::Creep {
+                        p.stage_creep(built, &grid);
+                    }
                     let sses: Vec<f64> = grid.iter().map(|&h| sse_at(h)).collect();
+                    p.unstage();
                     let (ib, _) = sses
                         .iter()
                         .enumerate()
@@ -1243,13 +1339,22 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     let mut candidates: Option<Vec<CandidateResult>> = None;
     let mut ladder_names: Vec<String> = ladder[0].effects.clone();
     let mut noise_percent = f64::INFINITY;
+    // The residual, modelled force and spectrum of `built` while it is the
+    // model of the step (the final model's when the ladder stops there),
+    // and the base model's spectrum (the first step's).
+    let mut current: Option<(Vec<f64>, Vec<f64>, super::spectrum::ResidualSpectrum)> = None;
+    let mut base_spectrum = None;
     for _ in 0..opts.max_steps {
         // Noise floor of this step's residual (never rising along the ladder:
         // a big missing effect can only lift the estimate).
         let fit = built.gram.fit();
-        let (res, _) = residual(&p, &built, &fit.beta);
+        let (res, modelled) = residual(&p, &built, &fit.beta);
         let sp = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
         noise_percent = noise_percent.min(100.0 * sp.noise_variance.sqrt() / p.rms_y);
+        if base_spectrum.is_none() {
+            base_spectrum = Some(sp.clone());
+        }
+        current = Some((res, modelled, sp));
         let ranked = rank(&p, &built, opts, noise_percent);
         let best = ranked
             .iter()
@@ -1270,6 +1375,7 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
             Term::Effect(e) => spec.effects.push((e, hyper.unwrap_or(0.0))),
         }
         built = Built::new(&p, spec);
+        current = None;
         let fit = built.gram.fit();
         ladder_names.push(term.name().into());
         ladder.push(LadderStep {
@@ -1283,8 +1389,15 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         });
     }
     let (model, beta) = describe(&p, &built, opts.folds);
-    let (res, modelled) = residual(&p, &built, &beta);
-    let spectrum = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
+    // The fit of the same Gram gives the same coefficients: the step's
+    // residual and spectrum are the final model's.
+    let (res, modelled, spectrum) = current.unwrap_or_else(|| {
+        let (res, modelled) = residual(&p, &built, &beta);
+        let sp = super::spectrum::residual_spectrum(&res, p.fs(), 0.5);
+        (res, modelled, sp)
+    });
+    let base_spectrum =
+        base_spectrum.unwrap_or_else(|| super::spectrum::residual_spectrum(&base_res, p.fs(), 0.5));
     let noise_floor_percent = 100.0 * spectrum.noise_variance.sqrt() / p.rms_y;
     // Every model-error figure of the document is one formula: the in-sample
     // residual against the final model's noise floor (held-out figures are
@@ -1321,6 +1434,7 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         base_residual_n: base_res,
         modelled_force_n: modelled,
         spectrum,
+        base_spectrum,
         order_note,
     })
 }
@@ -1493,7 +1607,7 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
     };
     let noise_rms_n = r.spectrum.noise_variance.max(0.0).sqrt();
     // The base model's residual spectrum on the same bins as the final one.
-    let base_sp = super::spectrum::residual_spectrum(&r.base_residual_n, fs, 0.5);
+    let base_sp = &r.base_spectrum;
     // Spectrum on about 300 log-spaced points.
     let sp = &r.spectrum;
     let (mut f_out, mut p_out, mut n_out, mut b_out) =
@@ -1557,6 +1671,61 @@ mod tests {
         let cols = legendre_cols(&x, &u, 4);
         let p4 = |u: f64| (35.0 * u.powi(4) - 30.0 * u * u + 3.0) / 8.0;
         assert!((cols[4][1] - (-0.7) * p4(-0.7)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn creep_columns_together_equal_each_alone() {
+        let fs: f64 = 3000.0;
+        let x: Vec<f64> = (0..5000)
+            .map(|i| (2.0 * 3.1 * 7.0 * i as f64 / fs).sin() * 1e-3 + 1e-5 * (i % 13) as f64)
+            .collect();
+        let taus: Vec<f64> = (0..11).map(|k| 1e-3 * 2f64.powi(k)).collect();
+        for rest in [true, false] {
+            let all = creep_columns(&x, fs, &taus, rest);
+            for (tau, col) in taus.iter().zip(&all) {
+                let alone = creep_column_alone(&x, fs, *tau, rest);
+                assert!(col
+                    .iter()
+                    .zip(&alone)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()));
+            }
+        }
+    }
+
+    #[test]
+    fn shift_without_clamps_inside_equals_the_clamped_formula() {
+        let fs: f64 = 3000.0;
+        let mic: Vec<f64> = (0..50)
+            .map(|i| ((i * 37 % 11) as f64 - 5.0) / 3.0)
+            .collect();
+        let n = mic.len() as isize;
+        for d in [0.0f64, 1e-5, -1e-5, 2.7e-3, -2.7e-3, 0.02, -0.02, 0.5, -0.5] {
+            let s = d * fs;
+            let k = s.floor();
+            let f = s - k;
+            let k = k as isize;
+            let at = |i: isize| mic[i.clamp(0, n - 1) as usize];
+            let c = [
+                -f * (f - 1.0) * (f - 2.0) / 6.0,
+                (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0,
+                -(f + 1.0) * f * (f - 2.0) / 2.0,
+                (f + 1.0) * f * (f - 1.0) / 6.0,
+            ];
+            let want: Vec<f64> = (0..n)
+                .map(|i| {
+                    let j = i + k;
+                    c[0] * at(j - 1) + c[1] * at(j) + c[2] * at(j + 1) + c[3] * at(j + 2)
+                })
+                .collect();
+            let got = shifted(&mic, fs, d);
+            assert_eq!(got.len(), want.len());
+            assert!(
+                got.iter()
+                    .zip(&want)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "d {d}"
+            );
+        }
     }
 
     #[test]
