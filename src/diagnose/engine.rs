@@ -257,6 +257,8 @@ pub struct Prepared<'a> {
     duration_s: f64,
     /// y . y per block.
     yy: Vec<f64>,
+    /// Prefix sums of x (the creep columns' starting means).
+    x_prefix: Vec<f64>,
     /// Model columns and the block cross products of every pair of columns
     /// used so far: each is computed once per data set, however many
     /// models, folds, candidates and grid points use it.
@@ -365,18 +367,7 @@ fn legendre_monomials(order: usize) -> Vec<Vec<f64>> {
     out
 }
 
-/// x - xr, xr the first-order low-pass of x with time constant tau (exact
-/// for a piecewise constant input): the relaxed position of the creep model.
-/// A span that starts at rest starts xr at x[0]; one that starts
-/// mid-oscillation (the main sweep) at the mean of x over its first
-/// max(5 tau, 1 s), the low-pass's own estimate of the relaxed position:
-/// started at x[0] there, the false start transient was absorbed by a too
-/// short tau and K(x) took the missing creep stiffness (up to 1.5 % off).
-fn creep_column(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> {
-    creep_columns(x, fs, &[tau], starts_at_rest).swap_remove(0)
-}
-
-/// The relaxed position the creep low-pass starts from (see [`creep_column`]).
+/// The relaxed position the creep low-pass starts from (see [`creep_columns`]).
 fn creep_start(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> f64 {
     if starts_at_rest || x.is_empty() {
         x.first().copied().unwrap_or(0.0)
@@ -387,6 +378,7 @@ fn creep_start(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> f64 {
     }
 }
 
+/// One creep column the plain way (the reference of the tests).
 #[cfg(test)]
 fn creep_column_alone(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec<f64> {
     let alpha = 1.0 - (-1.0 / (fs * tau)).exp();
@@ -400,29 +392,81 @@ fn creep_column_alone(x: &[f64], fs: f64, tau: f64, starts_at_rest: bool) -> Vec
         .collect()
 }
 
-/// [`creep_column`] for several time constants in one pass over x (their
-/// recursions are independent chains; each column is computed exactly as
-/// alone).
-fn creep_columns(x: &[f64], fs: f64, taus: &[f64], starts_at_rest: bool) -> Vec<Vec<f64>> {
-    const K: usize = 8;
+/// `x[..m].iter().sum()` for every m (index m), bit for bit: the same
+/// additions from the same start, left to right.
+fn prefix_sums(x: &[f64]) -> Vec<f64> {
+    let mut s: f64 = std::iter::empty::<f64>().sum();
+    let mut out = Vec::with_capacity(x.len() + 1);
+    out.push(s);
+    for &v in x {
+        s += v;
+        out.push(s);
+    }
+    out
+}
+
+/// Creep columns: x - xr, xr the first-order low-pass of x with time
+/// constant tau (exact for a piecewise constant input): the relaxed
+/// position of the creep model. A span that starts at rest starts xr at
+/// x[0]; one that starts mid-oscillation (the main sweep) at the mean of x
+/// over its first max(5 tau, 1 s), the low-pass's own estimate of the
+/// relaxed position: started at x[0] there, the false start transient was
+/// absorbed by a too short tau and K(x) took the missing creep stiffness
+/// (up to 1.5 % off).
+///
+/// Several time constants in one pass over x: their recursions are
+/// independent chains, each column computed exactly as alone. `prefix`:
+/// [`prefix_sums`] of x, for the starting means.
+fn creep_columns(
+    x: &[f64],
+    fs: f64,
+    taus: &[f64],
+    starts_at_rest: bool,
+    prefix: Option<&[f64]>,
+) -> Vec<Vec<f64>> {
+    let start = |tau: f64| match prefix {
+        Some(pre) if !starts_at_rest && !x.is_empty() => {
+            let m = ((5.0 * tau).max(1.0) * fs).ceil() as usize;
+            let m = m.clamp(1, x.len());
+            pre[m] / m as f64
+        }
+        _ => creep_start(x, fs, tau, starts_at_rest),
+    };
     let mut cols: Vec<Vec<f64>> = Vec::with_capacity(taus.len());
-    for group in taus.chunks(K) {
-        let mut alpha = [0.0; K];
-        let mut xr = [0.0; K];
-        for (j, &tau) in group.iter().enumerate() {
-            alpha[j] = 1.0 - (-1.0 / (fs * tau)).exp();
-            xr[j] = creep_start(x, fs, tau, starts_at_rest);
+    let mut rest = taus;
+    while !rest.is_empty() {
+        let k = rest.len().min(4);
+        let (group, tail) = rest.split_at(k);
+        rest = tail;
+        let alpha: Vec<f64> = group
+            .iter()
+            .map(|&tau| 1.0 - (-1.0 / (fs * tau)).exp())
+            .collect();
+        let xr: Vec<f64> = group.iter().map(|&tau| start(tau)).collect();
+        match k {
+            1 => cols.extend(creep_chains::<1>(x, &alpha, &xr)),
+            2 => cols.extend(creep_chains::<2>(x, &alpha, &xr)),
+            3 => cols.extend(creep_chains::<3>(x, &alpha, &xr)),
+            _ => cols.extend(creep_chains::<4>(x, &alpha, &xr)),
         }
-        let mut out: Vec<Vec<f64>> = vec![vec![0.0; x.len()]; group.len()];
-        for (i, &xi) in x.iter().enumerate() {
-            for j in 0..group.len() {
-                out[j][i] = xi - xr[j];
-                xr[j] += alpha[j] * (xi - xr[j]);
-            }
-        }
-        cols.extend(out);
     }
     cols
+}
+
+/// K creep recursions side by side (registers, not memory, between samples).
+fn creep_chains<const K: usize>(x: &[f64], alpha: &[f64], xr0: &[f64]) -> Vec<Vec<f64>> {
+    let alpha: [f64; K] = std::array::from_fn(|j| alpha[j]);
+    let mut xr: [f64; K] = std::array::from_fn(|j| xr0[j]);
+    let mut rows = vec![[0.0f64; K]; x.len()];
+    for (row, &xi) in rows.iter_mut().zip(x) {
+        for j in 0..K {
+            row[j] = xi - xr[j];
+            xr[j] += alpha[j] * (xi - xr[j]);
+        }
+    }
+    (0..K)
+        .map(|j| rows.iter().map(|r| r[j]).collect())
+        .collect()
 }
 
 /// mic(t + d) by 4-point Lagrange interpolation (d in seconds, any sign).
@@ -522,6 +566,7 @@ impl<'a> Prepared<'a> {
             duration_s: n as f64 / fs,
             y,
             cache: RefCell::new(Cache::default()),
+            x_prefix: prefix_sums(&d.x_m),
         })
     }
 
@@ -539,7 +584,13 @@ impl<'a> Prepared<'a> {
                 x.iter().zip(v).map(|(x, v)| x * v).collect(),
                 x.iter().zip(v).map(|(x, v)| x * x * v).collect(),
             ],
-            EffectId::Creep => vec![creep_column(x, self.fs(), h, self.d.starts_at_rest)],
+            EffectId::Creep => creep_columns(
+                x,
+                self.fs(),
+                &[h],
+                self.d.starts_at_rest,
+                Some(&self.x_prefix),
+            ),
             EffectId::StiffnessDrift => {
                 vec![x.iter().zip(&self.t_centered).map(|(x, t)| x * t).collect()]
             }
@@ -616,7 +667,13 @@ impl<'a> Prepared<'a> {
         if taus.len() < 2 {
             return;
         }
-        let cols = creep_columns(&self.d.x_m, self.fs(), &taus, self.d.starts_at_rest);
+        let cols = creep_columns(
+            &self.d.x_m,
+            self.fs(),
+            &taus,
+            self.d.starts_at_rest,
+            Some(&self.x_prefix),
+        );
         let mut cache = self.cache.borrow_mut();
         for (tau, col) in taus.iter().zip(cols) {
             cache
@@ -1680,8 +1737,12 @@ mod tests {
             .map(|i| (2.0 * 3.1 * 7.0 * i as f64 / fs).sin() * 1e-3 + 1e-5 * (i % 13) as f64)
             .collect();
         let taus: Vec<f64> = (0..11).map(|k| 1e-3 * 2f64.powi(k)).collect();
-        for rest in [true, false] {
-            let all = creep_columns(&x, fs, &taus, rest);
+        let pre = prefix_sums(&x);
+        for m in [1, 2, 17, 4999, 5000] {
+            assert_eq!(pre[m].to_bits(), x[..m].iter().sum::<f64>().to_bits());
+        }
+        for (rest, prefix) in [(true, None), (false, None), (false, Some(pre.as_slice()))] {
+            let all = creep_columns(&x, fs, &taus, rest, prefix);
             for (tau, col) in taus.iter().zip(&all) {
                 let alone = creep_column_alone(&x, fs, *tau, rest);
                 assert!(col
