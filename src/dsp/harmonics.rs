@@ -235,9 +235,10 @@ pub fn harmonics_per_period_of(
                 basis[2 * h] = sh;
                 (sh, ch) = (sh * c1 + ch * s1, ch * c1 - sh * s1);
             }
-            for a in 0..p {
-                let ba = basis[a];
-                for (gab, bb) in g[a * p..=a * p + a].iter_mut().zip(&basis) {
+            // Whole rows (they vectorise; the upper triangle is not read):
+            // each entry sums the same products in the same order.
+            for (row, &ba) in g.chunks_exact_mut(p).zip(&basis) {
+                for (gab, bb) in row.iter_mut().zip(&basis) {
                     *gab += ba * bb;
                 }
             }

@@ -157,12 +157,17 @@ pub fn prepare_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<Prepare
 /// What every preparation of a sweep checks first: a positive finite mass
 /// and usable signals.
 fn check_sweep(main: &Signals, mass_kg: f64, what: &str) -> Result<(), AnalyzeError> {
+    check_mass(mass_kg)?;
+    check_signals(main, what, 0.5)
+}
+
+fn check_mass(mass_kg: f64) -> Result<(), AnalyzeError> {
     if !(mass_kg.is_finite() && mass_kg > 0.0) {
         return Err(AnalyzeError::Invalid(format!(
             "moving_mass_kg must be a positive number of kilograms, got {mass_kg}"
         )));
     }
-    check_signals(main, what, 0.5)
+    Ok(())
 }
 
 /// The spectra [`prepare_sweep`] works on (whole records, padded by at
@@ -184,7 +189,11 @@ fn noise_band(fs: f64) -> (f64, f64) {
 }
 
 /// [`prepare_sweep`] on the [`spectra`] of the sweep (the diagnostics share
-/// the pre-measurement's between the small-signal fit and its force balance).
+/// the pre-measurement's between the small-signal fit and its force
+/// balance). The record was checked ([`check_signals`]) before its spectra
+/// were taken, so only the mass and that the spectra are this record's
+/// (its length) are checked again: the channel checks are a pass over
+/// every sample.
 pub fn prepare_shared(
     main: &Signals,
     mass_kg: f64,
@@ -192,7 +201,15 @@ pub fn prepare_shared(
     sx: &Spectrum,
     sm: &Spectrum,
 ) -> Result<Prepared, AnalyzeError> {
-    check_sweep(main, mass_kg, what)?;
+    check_mass(mass_kg)?;
+    if sx.len != main.len() || sm.len != main.len() {
+        return Err(AnalyzeError::Invalid(format!(
+            "{what}: the spectra are not this record's ({} samples, spectra of {} and {})",
+            main.len(),
+            sx.len,
+            sm.len
+        )));
+    }
     prepare_spectra(main, mass_kg, what, sx, sm)
 }
 
