@@ -171,6 +171,18 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
         .collect()
 }
 
+/// How many bins of an `n`-point real FFT with spacing `df_hz` hold the band
+/// up to `max_hz` and three more (all of them for an infinite or negative
+/// `max_hz`).
+fn bins_up_to(max_hz: f64, df_hz: f64, n: usize) -> usize {
+    if max_hz.is_finite() && max_hz >= 0.0 {
+        ((max_hz / df_hz).ceil() as usize).saturating_add(3)
+    } else {
+        usize::MAX
+    }
+    .min(n / 2 + 1)
+}
+
 /// The bins of a noise band that [`Spectrum::white_noise_std`] takes its
 /// median of: from `ceil(from / df)` to `floor(to / df)` (at most the last
 /// bin), every `stride`-th so that at most ~32k are used.
@@ -249,12 +261,7 @@ impl Spectrum {
     ) -> Spectrum {
         let n = fft_len(signal.len(), min_pad);
         let df = sample_rate_hz / n as f64;
-        let keep = if low_hz.is_finite() && low_hz >= 0.0 {
-            ((low_hz / df).ceil() as usize).saturating_add(3)
-        } else {
-            usize::MAX
-        }
-        .min(n / 2 + 1);
+        let keep = bins_up_to(low_hz, df, n);
         let noise_ks: Vec<usize> = match noise_band {
             Some((from, to)) if !signal.is_empty() => {
                 let band = noise_bins(from, to, df, n / 2);
@@ -321,13 +328,7 @@ impl Spectrum {
         planner: &mut RealFftPlanner<f64>,
     ) -> Spectrum {
         let n_fft = fft_len(signal.len(), min_pad);
-        let df = sample_rate_hz / n_fft as f64;
-        let keep = if max_hz.is_finite() && max_hz >= 0.0 {
-            ((max_hz / df).ceil() as usize).saturating_add(3)
-        } else {
-            usize::MAX
-        }
-        .min(n_fft / 2 + 1);
+        let keep = bins_up_to(max_hz, sample_rate_hz / n_fft as f64, n_fft);
         let bins = BINS.with(|b| {
             let out = &mut *b.borrow_mut();
             out.resize(n_fft / 2 + 1, Complex64::new(0.0, 0.0));
