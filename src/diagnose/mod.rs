@@ -255,12 +255,10 @@ fn small_signal_comparison(
     let (sx, sm) = if pre_spectra.spectra().0.n_fft == pre.len().max(2).next_power_of_two() {
         pre_spectra.spectra()
     } else {
-        own = crate::dsp::spectrum::with_thread_planner(|planner| {
-            (
-                crate::dsp::Spectrum::low_band(&pre.displacement_m, fs, 0, 110.0, planner),
-                crate::dsp::Spectrum::low_band(&pre.microphone_v, fs, 0, 110.0, planner),
-            )
-        });
+        own = (
+            crate::dsp::Spectrum::bands(&pre.displacement_m, fs, 0, 110.0, None),
+            crate::dsp::Spectrum::bands(&pre.microphone_v, fs, 0, 110.0, None),
+        );
         (&own.0, &own.1)
     };
     let tf = crate::dsp::transfer_function(sm, sx, 0.5, 110.0);

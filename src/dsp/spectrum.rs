@@ -27,8 +27,6 @@ thread_local! {
     /// Reused scratch and input buffers of the FFTs (multi-megabyte buffers
     /// allocated afresh cost page faults on every call).
     static SCRATCH: RefCell<(Vec<f64>, Vec<Complex64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
-    /// Reused output of the forward FFTs whose callers keep only the low bins.
-    static BINS: RefCell<Vec<Complex64>> = const { RefCell::new(Vec::new()) };
     /// Complex plans of [`Spectrum::bands`] and its reused sub-FFT and
     /// scratch buffers.
     static CPLANNER: RefCell<FftPlanner<f64>> = RefCell::new(FftPlanner::new());
@@ -306,35 +304,6 @@ impl Spectrum {
         let n_fft = fft_len(signal.len(), min_pad);
         let mut bins = vec![Complex64::new(0.0, 0.0); n_fft / 2 + 1];
         Self::forward(signal, n_fft, &mut bins, planner);
-        Spectrum {
-            sample_rate_hz,
-            len: signal.len(),
-            n_fft,
-            bins,
-            noise: None,
-        }
-    }
-
-    /// [`Spectrum::with_planner`] keeping only the bins up to `max_hz` (and
-    /// two more): the same values, without holding (and page-faulting) the
-    /// whole spectrum of a long record when only its low band is used.
-    /// `white_noise_std` and the derivatives above `max_hz` are not
-    /// available on it.
-    pub fn low_band(
-        signal: &[f64],
-        sample_rate_hz: f64,
-        min_pad: usize,
-        max_hz: f64,
-        planner: &mut RealFftPlanner<f64>,
-    ) -> Spectrum {
-        let n_fft = fft_len(signal.len(), min_pad);
-        let keep = bins_up_to(max_hz, sample_rate_hz / n_fft as f64, n_fft);
-        let bins = BINS.with(|b| {
-            let out = &mut *b.borrow_mut();
-            out.resize(n_fft / 2 + 1, Complex64::new(0.0, 0.0));
-            Self::forward(signal, n_fft, out, planner);
-            out[..keep].to_vec()
-        });
         Spectrum {
             sample_rate_hz,
             len: signal.len(),
