@@ -1,5 +1,8 @@
 //! Bearer tokens with roles. Reads need `viewer`, submitting, cancelling,
-//! importing and fitting need `operator`, the configuration needs `admin`.
+//! importing, fitting and proposing limits need `operator`; the
+//! configuration, recipe changes, limit approval and the outbox's retry and
+//! drop need `admin`. The role is decided per matched route template and
+//! method ([`required_role`]), never from the path's text.
 //! `/healthz`, `/readyz`, `/api/v1/session` (who am I) and the UI's pages
 //! (`/`, `/ui/...`) are open. Without configured tokens everything is
 //! open (the daemon then listens on loopback only). Websocket clients that
@@ -18,34 +21,26 @@ use axum::response::{IntoResponse, Response};
 #[derive(Debug, Clone, Default)]
 pub struct Caller(pub Option<String>);
 
-/// The role a request needs; None for open routes.
-pub fn required_role(method: &Method, path: &str) -> Option<Role> {
-    if path == "/healthz"
-        || path == "/readyz"
-        || path == "/api/v1/session"
-        || path == "/api/openapi.json"
-        || crate::ui::is_public(path)
-    {
-        return None;
-    }
-    if path == "/api/v1/config" {
-        return Some(Role::Admin);
-    }
-    // QC engineering (recipes, limit approval) and the MES outbox's retry/drop.
-    let qc_admin = (path.starts_with("/api/v1/recipes")
-        && !path.ends_with("/limit-proposals")
-        && method != Method::GET
-        && method != Method::HEAD)
-        || (path.starts_with("/api/v1/limit-proposals/")
-            && (path.ends_with("/approve") || path.ends_with("/reject")))
-        || (path.starts_with("/api/v1/outbox/") && method != Method::GET);
-    if qc_admin {
-        return Some(Role::Admin);
-    }
-    if method == Method::GET || method == Method::HEAD {
-        Some(Role::Viewer)
-    } else {
-        Some(Role::Operator)
+/// The role a request needs; None for open routes. `route` is the route
+/// template the router matched (`/api/v1/recipes/{name}`, axum's
+/// `MatchedPath`), never the request's path: a recipe named
+/// `limit-proposals` or `approve` is still a recipe. Unmatched requests
+/// (404, 405) need a viewer token.
+pub fn required_role(method: &Method, route: &str) -> Option<Role> {
+    let read = method == Method::GET || method == Method::HEAD;
+    match route {
+        "/healthz" | "/readyz" | "/api/v1/session" | "/api/openapi.json" => None,
+        r if crate::ui::is_public(r) => None,
+        "/api/v1/config" => Some(Role::Admin),
+        // QC engineering: recipes and the approval of limits.
+        "/api/v1/recipes" | "/api/v1/recipes/{name}" if !read => Some(Role::Admin),
+        "/api/v1/limit-proposals/{id}/approve" | "/api/v1/limit-proposals/{id}/reject" => {
+            Some(Role::Admin)
+        }
+        // The MES outbox's retry and drop.
+        "/api/v1/outbox/{id}/retry" | "/api/v1/outbox/{id}" if !read => Some(Role::Admin),
+        _ if read => Some(Role::Viewer),
+        _ => Some(Role::Operator),
     }
 }
 
@@ -96,7 +91,12 @@ pub async fn require_role(State(st): State<AppState>, mut req: Request, next: Ne
     if st.cfg.open_access() {
         return next.run(req).await;
     }
-    let Some(need) = required_role(req.method(), req.uri().path()) else {
+    let route = req
+        .extensions()
+        .get::<axum::extract::MatchedPath>()
+        .map(|m| m.as_str().to_string())
+        .unwrap_or_else(|| "unmatched".into());
+    let Some(need) = required_role(req.method(), &route) else {
         return next.run(req).await;
     };
     let Some(tok) = token_from(&req) else {

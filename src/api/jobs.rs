@@ -67,6 +67,11 @@ pub async fn submit(
     let mut body = body;
     let recipe = super::qc::apply_recipe(&st, &mut body).await?;
     let mut spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
+    // The space the queue and this job will need (503 when it is not there).
+    let measurements = spec.levels_m.len().max(1) as u64 * u64::from(spec.repeats.max(1));
+    st.store
+        .check_admission(st.cfg.min_free_bytes, measurements)
+        .await?;
     spec.recipe = recipe;
     spec.submitted_by = caller.0;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;

@@ -323,12 +323,22 @@ mod tests {
             Some(Role::Viewer)
         );
         assert_eq!(
-            auth::required_role(&Method::POST, "/api/v1/jobs/x/cancel"),
+            auth::required_role(&Method::POST, "/api/v1/jobs/{id}/cancel"),
             Some(Role::Operator)
         );
         assert_eq!(
             auth::required_role(&Method::GET, "/api/v1/config"),
             Some(Role::Admin)
         );
+        // Decided by the matched template, whatever the recipe is called.
+        assert_eq!(
+            auth::required_role(&Method::PUT, "/api/v1/recipes/{name}"),
+            Some(Role::Admin)
+        );
+        assert_eq!(
+            auth::required_role(&Method::POST, "/api/v1/recipes/{name}/limit-proposals"),
+            Some(Role::Operator)
+        );
+        assert_eq!(auth::required_role(&Method::GET, "/ui/{*path}"), None);
     }
 }

@@ -115,14 +115,16 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
 }
 
 #[utoipa::path(get, path = "/api/v1/config", tag = "operations",
-    summary = "The configuration in effect (token secrets redacted).",
+    summary = "The configuration in effect (token and webhook secrets redacted).",
     responses((status = 200, description = "The configuration (the TOML file's structure as JSON)", body = Object)))]
-/// The configuration in effect, token secrets left out (admin only).
+/// The configuration in effect, token and webhook secrets left out (admin only).
 pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     let mut v = serde_json::to_value(&*st.cfg).map_err(Problem::internal)?;
-    if let Some(tokens) = v.pointer_mut("/auth/tokens").and_then(|t| t.as_array_mut()) {
-        for t in tokens {
-            t["token"] = json!("<redacted>");
+    for (list, secret) in [("/auth/tokens", "token"), ("/mes/webhooks", "secret")] {
+        if let Some(items) = v.pointer_mut(list).and_then(|t| t.as_array_mut()) {
+            for t in items {
+                t[secret] = json!("<redacted>");
+            }
         }
     }
     Ok(Json(v))

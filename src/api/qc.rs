@@ -8,7 +8,7 @@ use super::{AppState, JsonBody, Q};
 use crate::qc::limits::{GoldenUnit, ProposalOptions};
 use crate::qc::{Recipe, RunFacts};
 use crate::runner::FieldError;
-use crate::store::qc::RecipeRow;
+use crate::store::qc::{Approval, RecipeExpect, RecipeRow, RecipeWrite};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -60,6 +60,61 @@ fn located(status: StatusCode, loc: String, body: Value) -> Response {
     r
 }
 
+/// The strong ETag of a recipe version: its number and content hash.
+pub fn etag(r: &RecipeRow) -> String {
+    format!("\"{}-{}\"", r.version, r.sha256)
+}
+
+/// A recipe document with its version's ETag.
+fn recipe_response(status: StatusCode, loc: Option<String>, r: &RecipeRow) -> Response {
+    let mut resp = match loc {
+        Some(l) => located(status, l, recipe_doc(r)),
+        None => (status, Json(recipe_doc(r))).into_response(),
+    };
+    if let Ok(v) = HeaderValue::from_str(&etag(r)) {
+        resp.headers_mut().insert(header::ETAG, v);
+    }
+    resp
+}
+
+fn precondition_failed(detail: String) -> Problem {
+    Problem::new(
+        StatusCode::PRECONDITION_FAILED,
+        "precondition-failed",
+        "Recipe changed",
+        detail,
+    )
+}
+
+/// What `If-Match` asks of the recipe's newest version (RFC 9110 13.1.1):
+/// None without the header, Err(412) when `cur` does not match.
+fn if_match(
+    headers: &axum::http::HeaderMap,
+    name: &str,
+    cur: Option<&RecipeRow>,
+) -> ApiResult<Option<RecipeExpect>> {
+    let Some(v) = headers.get(header::IF_MATCH) else {
+        return Ok(None);
+    };
+    let v = v
+        .to_str()
+        .map_err(|_| Problem::field("If-Match", "not visible ASCII"))?;
+    let wanted: Vec<&str> = v.split(',').map(str::trim).collect();
+    match cur {
+        Some(c) if wanted.contains(&"*") || wanted.contains(&etag(c).as_str()) => {
+            Ok(Some(RecipeExpect::Version(c.version)))
+        }
+        Some(c) => Err(precondition_failed(format!(
+            "If-Match {v} does not name the newest version of recipe '{name}' (version {}, ETag {}): read it again",
+            c.version,
+            etag(c)
+        ))),
+        None => Err(precondition_failed(format!(
+            "If-Match {v}: there is no recipe '{name}'"
+        ))),
+    }
+}
+
 #[utoipa::path(post, path = "/api/v1/recipes", tag = "qc",
     summary = "Create a QC recipe (version 1). 409 when the name exists (use PUT for a new version).",
     request_body(content = crate::qc::Recipe, content_type = "application/json"),
@@ -75,8 +130,8 @@ pub async fn create(
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
     let r = parse_recipe(body, None)?;
-    if st.store.get_recipe(&r.name, None).await?.is_some() {
-        return Err(Problem::new(
+    let exists = || {
+        Problem::new(
             StatusCode::CONFLICT,
             "recipe-exists",
             "Recipe exists",
@@ -84,62 +139,78 @@ pub async fn create(
                 "recipe '{}' exists; PUT /api/v1/recipes/{} makes a new version",
                 r.name, r.name
             ),
-        ));
-    }
+        )
+    };
     let body = serde_json::to_value(&r).map_err(Problem::internal)?;
-    let row = st
+    // Checked inside the write: of two concurrent creations one gets 409.
+    match st
         .store
-        .insert_recipe(
+        .write_recipe(
             &r.name,
             &r.sha256(),
             &body,
             "created",
-            None,
             caller.0.as_deref(),
+            RecipeExpect::Absent,
         )
-        .await?;
-    Ok(located(
-        StatusCode::CREATED,
-        format!("/api/v1/recipes/{}", r.name),
-        recipe_doc(&row),
-    ))
+        .await?
+    {
+        RecipeWrite::Stored(row) => Ok(recipe_response(
+            StatusCode::CREATED,
+            Some(format!("/api/v1/recipes/{}", r.name)),
+            &row,
+        )),
+        RecipeWrite::Conflict(_) => Err(exists()),
+    }
 }
 
 #[utoipa::path(put, path = "/api/v1/recipes/{name}", tag = "qc",
     summary = "Change a recipe. A changed content makes a new version (201) with a new hash; the same content returns the current version (200).",
-    params(("name" = String, Path, description = "Recipe name")),
+    params(("name" = String, Path, description = "Recipe name"),
+        ("If-Match" = Option<String>, Header, description = "The ETag of the version this change is made on (from GET); 412 when the recipe moved on")),
     request_body(content = crate::qc::Recipe, content_type = "application/json"),
     responses(
         (status = 200, description = "Unchanged", body = super::openapi::RecipeDocument),
         (status = 201, description = "New version", body = super::openapi::RecipeDocument,
             headers(("Location" = String, description = "The new version"))),
+        (status = 412, description = "`If-Match` does not name the newest version"),
         (status = 422, description = "Invalid fields, or `name` differs from the path")))]
-/// `PUT /api/v1/recipes/{name}`: a new version (200 with the current one when nothing changed).
+/// `PUT /api/v1/recipes/{name}`: a new version (200 with the current one
+/// when nothing changed). With `If-Match`, only on top of that version (412).
 pub async fn update(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
     Path(name): Path<String>,
+    headers: axum::http::HeaderMap,
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
     let r = parse_recipe(body, Some(&name))?;
     let cur = st.store.get_recipe(&name, None).await?;
+    let expect = if_match(&headers, &name, cur.as_ref())?;
     let sha = r.sha256();
     if let Some(c) = &cur {
         if c.sha256 == sha && !c.retired {
-            return Ok((StatusCode::OK, Json(recipe_doc(c))).into_response());
+            return Ok(recipe_response(StatusCode::OK, None, c));
         }
     }
     let body = serde_json::to_value(&r).map_err(Problem::internal)?;
     let origin = if cur.is_some() { "edited" } else { "created" };
-    let row = st
+    let expect = expect.unwrap_or(RecipeExpect::Any);
+    match st
         .store
-        .insert_recipe(&name, &sha, &body, origin, None, caller.0.as_deref())
-        .await?;
-    Ok(located(
-        StatusCode::CREATED,
-        format!("/api/v1/recipes/{name}/versions/{}", row.version),
-        recipe_doc(&row),
-    ))
+        .write_recipe(&name, &sha, &body, origin, caller.0.as_deref(), expect)
+        .await?
+    {
+        RecipeWrite::Stored(row) => Ok(recipe_response(
+            StatusCode::CREATED,
+            Some(format!("/api/v1/recipes/{name}/versions/{}", row.version)),
+            &row,
+        )),
+        RecipeWrite::Conflict(c) => Err(precondition_failed(format!(
+            "recipe '{name}' changed while this request ran (now version {}): read it again",
+            c.map(|c| c.0).unwrap_or(0)
+        ))),
+    }
 }
 
 #[utoipa::path(get, path = "/api/v1/recipes", tag = "qc",
@@ -160,18 +231,16 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     summary = "The newest version of a recipe.",
     params(("name" = String, Path, description = "Recipe name")),
     responses(
-        (status = 200, description = "Recipe", body = super::openapi::RecipeDocument),
+        (status = 200, description = "Recipe", body = super::openapi::RecipeDocument,
+            headers(("ETag" = String, description = "The version's ETag, for `If-Match` on PUT"))),
         (status = 404, description = "No such recipe")))]
-pub async fn get_one(
-    State(st): State<AppState>,
-    Path(name): Path<String>,
-) -> ApiResult<Json<Value>> {
+pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Response> {
     let r = st
         .store
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
-    Ok(Json(recipe_doc(&r)))
+    Ok(recipe_response(StatusCode::OK, None, &r))
 }
 
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/versions", tag = "qc",
@@ -436,7 +505,7 @@ fn decided(p: &crate::store::qc::ProposalRow) -> Problem {
         (status = 201, description = "The new recipe version", body = super::openapi::RecipeDocument,
             headers(("Location" = String, description = "The new version"))),
         (status = 404, description = "No such proposal"),
-        (status = 409, description = "Decided already")))]
+        (status = 409, description = "Decided already, or not made on the current version of a live recipe")))]
 pub async fn approve(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
@@ -458,12 +527,21 @@ pub async fn approve(
         .approve_proposal(&id, &recipe.sha256(), &body, caller.0.as_deref())
         .await?
     {
-        Some(row) => Ok(located(
+        Approval::Approved(row) => Ok(recipe_response(
             StatusCode::CREATED,
-            format!("/api/v1/recipes/{}/versions/{}", row.name, row.version),
-            recipe_doc(&row),
+            Some(format!(
+                "/api/v1/recipes/{}/versions/{}",
+                row.name, row.version
+            )),
+            &row,
         )),
-        None => Err(decided(&p)),
+        Approval::Decided => Err(decided(&p)),
+        Approval::Stale(why) => Err(Problem::new(
+            StatusCode::CONFLICT,
+            "proposal-stale",
+            "Proposal stale",
+            why,
+        )),
     }
 }
 
@@ -572,7 +650,7 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
 
 /// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/spc", tag = "qc",
-    summary = "SPC of one parameter over a window of valid measurement verdicts: n, mean, sigma (overall), sigma_within (average moving range / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
+    summary = "SPC of one parameter over a window of valid measurement verdicts, one point per part and job (and level): a job's repeats are averaged into one point. n (points), mean, sigma (overall), sigma_within (average moving range of the points / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
     params(("name" = String, Path, description = "Recipe name"), SpcQuery),
     responses(
         (status = 200, description = "SPC", content(
@@ -644,7 +722,10 @@ pub async fn spc(
                 time: r.created_at.clone(),
                 part_serial: r.part_serial.clone(),
                 measurement_id: r.measurement_id.clone().unwrap_or_default(),
+                job_id: r.job_id.clone(),
+                level_index: r.level_index,
                 value: p.value,
+                repeats: 1,
                 verdict: v.verdict,
             });
         }

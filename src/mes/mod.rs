@@ -124,16 +124,21 @@ fn rfc3339_in(s: f64) -> String {
     t.to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
 }
 
-/// Starts the delivery worker; `wake` makes it look at the outbox at once.
+/// Starts the delivery workers: one per webhook, so a slow or hanging
+/// receiver delays only its own messages; `wake` makes every worker look at
+/// the outbox at once. The handle ends when every worker has stopped.
 pub fn start(
     store: Store,
     cfg: MesConfig,
     wake: Arc<Notify>,
-    mut shutdown: watch::Receiver<bool>,
+    shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
         let client = match reqwest::Client::builder()
             .timeout(Duration::from_secs_f64(cfg.timeout_s))
+            // A redirect is not a delivery: the body would be lost (a 303
+            // turns the POST into a GET). 3xx is a failed attempt.
+            .redirect(reqwest::redirect::Policy::none())
             .build()
         {
             Ok(c) => c,
@@ -142,42 +147,100 @@ pub fn start(
                 return;
             }
         };
-        loop {
+        let cfg = Arc::new(cfg);
+        let mut wakes = vec![];
+        let mut workers = vec![];
+        for hook in cfg
+            .webhooks
+            .iter()
+            .map(|w| Some(w.name.clone()))
+            .chain([None])
+        {
+            let w = Arc::new(Notify::new());
+            wakes.push(w.clone());
+            workers.push(tokio::spawn(worker(
+                store.clone(),
+                cfg.clone(),
+                client.clone(),
+                hook,
+                w,
+                shutdown.clone(),
+            )));
+        }
+        let mut stop = shutdown.clone();
+        let fan_out = tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = wake.notified() => wakes.iter().for_each(|w| w.notify_one()),
+                    _ = stop.changed() => break,
+                }
+            }
+        });
+        for w in workers {
+            let _ = w.await;
+        }
+        fan_out.abort();
+    })
+}
+
+/// Delivers the outbox of one webhook (`hook`), in order per part; `None`:
+/// the deliveries of webhooks no longer configured (kept, retried later).
+async fn worker(
+    store: Store,
+    cfg: Arc<MesConfig>,
+    client: reqwest::Client,
+    hook: Option<String>,
+    wake: Arc<Notify>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let configured: Vec<String> = cfg.webhooks.iter().map(|w| w.name.clone()).collect();
+    loop {
+        if *shutdown.borrow() {
+            break;
+        }
+        let due = match store
+            .due_deliveries(hook.as_deref(), &crate::store::now(), 100)
+            .await
+        {
+            Ok(d) => d,
+            Err(e) => {
+                tracing::warn!("reading the MES outbox failed: {e}");
+                vec![]
+            }
+        };
+        let due: Vec<_> = match &hook {
+            Some(_) => due,
+            None => due
+                .into_iter()
+                .filter(|d| !configured.contains(&d.webhook))
+                .collect(),
+        };
+        for d in &due {
             if *shutdown.borrow() {
                 break;
             }
-            let due = match store.due_deliveries(&crate::store::now(), 100).await {
-                Ok(d) => d,
-                Err(e) => {
-                    tracing::warn!("reading the MES outbox failed: {e}");
-                    vec![]
-                }
+            deliver(&store, &cfg, &client, d).await;
+        }
+        if due.is_empty() {
+            let wait = match (&hook, store.next_delivery_due(hook.as_deref()).await) {
+                (Some(_), Ok(Some(t))) => chrono::DateTime::parse_from_rfc3339(&t)
+                    .ok()
+                    .map(|t| {
+                        (t.with_timezone(&chrono::Utc) - chrono::Utc::now()).num_milliseconds()
+                    })
+                    .unwrap_or(1000)
+                    .clamp(10, 1000),
+                (Some(_), _) => 1000,
+                // unconfigured webhooks: looked at now and then
+                (None, _) => 10_000,
             };
-            for d in &due {
-                if *shutdown.borrow() {
-                    break;
-                }
-                deliver(&store, &cfg, &client, d).await;
-            }
-            if due.is_empty() {
-                let wait = match store.next_delivery_due().await {
-                    Ok(Some(t)) => chrono::DateTime::parse_from_rfc3339(&t)
-                        .ok()
-                        .map(|t| {
-                            (t.with_timezone(&chrono::Utc) - chrono::Utc::now()).num_milliseconds()
-                        })
-                        .unwrap_or(1000)
-                        .clamp(10, 1000),
-                    _ => 1000,
-                };
-                tokio::select! {
-                    _ = tokio::time::sleep(Duration::from_millis(wait as u64)) => {}
-                    _ = wake.notified() => {}
-                    _ = shutdown.changed() => {}
-                }
+            tokio::select! {
+                _ = tokio::time::sleep(Duration::from_millis(wait as u64)) => {}
+                _ = wake.notified() => {}
+                _ = shutdown.changed() => {}
             }
         }
-    })
+    }
 }
 
 async fn deliver(store: &Store, cfg: &MesConfig, client: &reqwest::Client, d: &DeliveryRow) {
@@ -204,6 +267,14 @@ async fn deliver(store: &Store, cfg: &MesConfig, client: &reqwest::Client, d: &D
         .await;
     let err = match res {
         Ok(r) if r.status().is_success() => None,
+        Ok(r) if r.status().is_redirection() => Some(format!(
+            "HTTP {} redirect to {} not followed: the receiver must accept the message itself (2xx)",
+            r.status().as_u16(),
+            r.headers()
+                .get(reqwest::header::LOCATION)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("(no Location)")
+        )),
         Ok(r) => Some(format!("HTTP {}", r.status().as_u16())),
         Err(e) => Some(e.to_string()),
     };

@@ -487,7 +487,7 @@ pub struct InvalidReason {
     /// `analysis_failed`, `target_not_reached`, `small_signal_unreliable`,
     /// `model_error_high`, `noise_high`, `clipping`, `alignment`,
     /// `outside_measured_range`, `mask_coverage`, `job_failed`, `hardware_fault`,
-    /// `non_finite_value`.
+    /// `interrupted`, `non_finite_value`.
     pub code: String,
     pub detail: String,
 }

@@ -1,6 +1,11 @@
 //! Statistical process control of one judged parameter: n, mean, sigma,
 //! Cp, Cpk (within: average moving range / d2), Pp, Ppk (overall sample
 //! sigma), yield and the data of an individuals control chart. Pure.
+//!
+//! One point per part and job (and level of a series): the repeats of a job
+//! are one part measured again, not more parts. Their values are averaged
+//! into one point ([`per_part`]); counting them as parts would shrink the
+//! moving ranges to the repeatability and inflate Cp/Cpk (docs/qc.md).
 
 use super::limits::mean_sigma;
 use super::VerdictKind;
@@ -9,15 +14,63 @@ use serde::{Deserialize, Serialize};
 /// d2 of a moving range of two (individuals chart).
 pub const D2: f64 = 1.128;
 
-/// One value of the parameter (a valid, judged measurement).
+/// One value of the parameter: a part measured by one job at one level
+/// (the mean of the job's repeats at that level).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SpcPoint {
-    /// When the verdict was made (RFC 3339 UTC).
+    /// When the verdict was made (RFC 3339 UTC; the first repeat's).
     pub time: String,
     pub part_serial: String,
+    /// The first of the measurements averaged into this point.
     pub measurement_id: String,
+    /// The job that measured the part (None: a measurement without a job).
+    #[serde(default)]
+    pub job_id: Option<String>,
+    /// Level of a series (index into the recipe's `levels_m`).
+    #[serde(default)]
+    pub level_index: Option<i64>,
+    /// Mean of the repeats' values.
     pub value: f64,
+    /// How many measurements (repeats) were averaged into `value`.
+    #[serde(default = "one")]
+    pub repeats: usize,
+    /// `fail` when any repeat failed, else the first repeat's verdict.
     pub verdict: VerdictKind,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// One point per (job, level): the values of a job's repeats at a level
+/// averaged (arithmetic mean), in the order of their first repeat. Points
+/// without a job stay single.
+pub fn per_part(points: Vec<SpcPoint>) -> Vec<SpcPoint> {
+    let mut out: Vec<SpcPoint> = Vec::with_capacity(points.len());
+    let mut sums: Vec<f64> = Vec::with_capacity(points.len());
+    let mut index: std::collections::HashMap<(String, Option<i64>), usize> = Default::default();
+    for p in points {
+        let key = p.job_id.clone().map(|j| (j, p.level_index));
+        match key.as_ref().and_then(|k| index.get(k)) {
+            Some(&i) => {
+                let g = &mut out[i];
+                sums[i] += p.value;
+                g.repeats += 1;
+                g.value = sums[i] / g.repeats as f64;
+                if p.verdict == VerdictKind::Fail {
+                    g.verdict = VerdictKind::Fail;
+                }
+            }
+            None => {
+                if let Some(k) = key {
+                    index.insert(k, out.len());
+                }
+                sums.push(p.value);
+                out.push(SpcPoint { repeats: 1, ..p });
+            }
+        }
+    }
+    out
 }
 
 /// The statistics of a window.
@@ -74,8 +127,9 @@ fn capability(
     (cp, k)
 }
 
-/// Statistics of `points` (time order) against the limits; `invalid` is the
-/// number of invalid verdicts in the same window (they carry no value).
+/// Statistics of `points` (one per measurement, time order) against the
+/// limits, after [`per_part`]; `invalid` is the number of invalid verdicts
+/// in the same window (they carry no value).
 pub fn compute(
     parameter: &str,
     unit: &str,
@@ -84,6 +138,7 @@ pub fn compute(
     points: Vec<SpcPoint>,
     invalid: usize,
 ) -> Spc {
+    let points = per_part(points);
     let v: Vec<f64> = points.iter().map(|p| p.value).collect();
     let n = v.len();
     let (mean, sigma) = if n > 0 {
@@ -136,11 +191,11 @@ pub fn compute(
 pub fn to_csv(s: &Spc) -> String {
     let o = |x: Option<f64>| x.map(|v| format!("{v}")).unwrap_or_default();
     let mut out = String::from(
-        "time,part_serial,measurement_id,parameter,unit,value,verdict,lower,upper,center_line,lcl,ucl\n",
+        "time,part_serial,measurement_id,parameter,unit,value,verdict,lower,upper,center_line,lcl,ucl,job_id,level_index,repeats\n",
     );
     for p in &s.points {
         out.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             p.time,
             p.part_serial,
             p.measurement_id,
@@ -152,7 +207,10 @@ pub fn to_csv(s: &Spc) -> String {
             o(s.upper),
             o(s.center_line),
             o(s.lcl),
-            o(s.ucl)
+            o(s.ucl),
+            p.job_id.as_deref().unwrap_or(""),
+            p.level_index.map(|l| l.to_string()).unwrap_or_default(),
+            p.repeats
         ));
     }
     out

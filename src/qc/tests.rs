@@ -380,7 +380,10 @@ fn spc_matches_the_closed_form() {
             time: format!("2026-01-01T00:00:0{i}Z"),
             part_serial: format!("S{i}"),
             measurement_id: format!("m{i}"),
+            job_id: Some(format!("j{i}")),
+            level_index: Some(0),
             value: v,
+            repeats: 1,
             verdict: if v < 5.0 {
                 VerdictKind::Pass
             } else {
@@ -412,6 +415,24 @@ fn spc_matches_the_closed_form() {
         csv.lines().nth(5).unwrap().contains(",5,fail,0,6,3,"),
         "{csv}"
     );
+    // Repeats: one point per job, the mean of its repeats (three repeats of
+    // each part: the moving ranges are between the parts' means).
+    let reps: Vec<SpcPoint> = s
+        .points
+        .iter()
+        .flat_map(|p| {
+            [-0.3, 0.1, 0.2].map(|d| SpcPoint {
+                value: p.value + d,
+                ..p.clone()
+            })
+        })
+        .collect();
+    let r = compute("x", "1", Some(0.0), Some(6.0), reps, 0);
+    assert_eq!(r.n, 5);
+    assert!(r.points.iter().all(|p| p.repeats == 3));
+    assert!((r.mean.unwrap() - 3.0).abs() < 1e-12);
+    assert!((r.sigma_within.unwrap() - sw).abs() < 1e-12);
+    assert!((r.cpk.unwrap() - s.cpk.unwrap()).abs() < 1e-12);
     // Empty window: no NaN anywhere.
     let e = compute("x", "1", Some(0.0), Some(6.0), vec![], 0);
     assert!(e.mean.is_none() && e.cpk.is_none() && e.yield_fraction.is_none());

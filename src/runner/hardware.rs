@@ -279,7 +279,7 @@ impl Runner {
                 "Self-check needs a hardware bench",
                 &format!("bench '{}' is virtual", slot.cfg.id),
             );
-            return self.finish_failed(job, p).await;
+            return self.finish_failed(slot, job, p).await;
         }
         match self.self_check(slot, job).await? {
             Ok(rec) => {
@@ -309,7 +309,7 @@ impl Runner {
                     .await?;
                 Ok(())
             }
-            Err(p) => self.finish_failed(job, p).await,
+            Err(p) => self.finish_failed(slot, job, p).await,
         }
     }
 

@@ -92,17 +92,6 @@ impl Runner {
         events: EventBus,
         cfg: &Config,
     ) -> StoreResult<(Arc<Runner>, Vec<JoinHandle<()>>)> {
-        for id in store.mark_interrupted().await? {
-            let problem = store.get_job(&id).await?.and_then(|j| j.problem);
-            events
-                .publish(
-                    "job.state",
-                    Some(&id),
-                    json!({"state": "interrupted", "problem": problem}),
-                )
-                .await?;
-            tracing::warn!(job = %id, "job was running when the daemon stopped: marked interrupted");
-        }
         let known: Vec<String> = cfg.benches.iter().map(|b| b.id.clone()).collect();
         for id in store.fail_queued_on_unknown_benches(&known).await? {
             let problem = store.get_job(&id).await?.and_then(|j| j.problem);
@@ -157,6 +146,7 @@ impl Runner {
             mes: cfg.mes.clone(),
             outbox: Arc::new(Notify::new()),
         });
+        runner.end_interrupted(cfg).await?;
         let tasks = runner
             .slots
             .values()
@@ -261,7 +251,25 @@ impl Runner {
             .lock()
             .unwrap()
             .insert(job.id.clone(), flag.clone());
-        let res = self.run_registered(slot, &job, flag).await;
+        let res = match self.run_registered(slot, &job, flag).await {
+            // A store error (full disk, lost file) anywhere after the job
+            // started: it ends `failed` with its verdict and MES messages as
+            // soon as the store can write, never `running` forever. A job
+            // that never started stays queued and is taken again.
+            Err(e) => {
+                tracing::error!(job = %job.id, "the store failed during the job: {e}");
+                let p = problem(
+                    "storage",
+                    "Results not stored",
+                    &format!(
+                        "the store could not write during the job ({e}); measure the part again"
+                    ),
+                );
+                self.finish_failed_after(slot, &job, &p, None, &[], &[])
+                    .await
+            }
+            ok => ok,
+        };
         self.running.lock().unwrap().remove(&job.id);
         {
             let mut st = slot.status.lock().unwrap();
@@ -304,7 +312,7 @@ impl Runner {
         // A hardware bench: faulted benches refuse, every measurement needs a calibration record.
         let calibration = match self.hardware_preflight(slot, job, &spec).await? {
             Ok(c) => c,
-            Err(p) => return self.finish_failed(job, p).await,
+            Err(p) => return self.finish_failed(slot, job, p).await,
         };
         let started_at = self
             .store
@@ -444,7 +452,7 @@ impl Runner {
                 &format!("writing the results failed: {e}"),
             );
             return self
-                .finish_failed_after(job, &p, bench_time, &log, &warnings)
+                .finish_failed_after(slot, job, &p, bench_time, &log, &warnings)
                 .await;
         }
         if let (Some(c), JobState::Succeeded) = (&calibration, state) {
@@ -534,6 +542,12 @@ impl Runner {
             (None, _) => None,
             (Some(_), JobState::Succeeded) => Some(combine(
                 &verdicts.iter().map(|v| v.1.clone()).collect::<Vec<_>>(),
+            )),
+            (Some(_), JobState::Interrupted) => Some(invalid_job(
+                "interrupted",
+                prob.and_then(|p| p["detail"].as_str())
+                    .unwrap_or("the job was interrupted")
+                    .to_string(),
             )),
             (Some(_), JobState::Failed) => {
                 let kind = prob
@@ -1150,40 +1164,160 @@ pub fn new_id() -> String {
 }
 
 impl Runner {
-    pub(super) async fn finish_failed(&self, job: &Job, p: Value) -> StoreResult<()> {
-        self.finish_failed_after(job, &p, None, &[], &[]).await
+    async fn finish_failed(&self, slot: &Slot, job: &Job, p: Value) -> StoreResult<()> {
+        self.finish_failed_after(slot, job, &p, None, &[], &[])
+            .await
     }
 
-    /// Ends a job `failed` with problem `p`, keeping what the bench did before
-    /// (its time, log and warnings), and announces it. The one way every
-    /// runner path fails a job.
-    pub(super) async fn finish_failed_after(
+    /// Ends a running job `failed` with problem `p`, keeping what the bench
+    /// did before (its time, log and warnings), with its verdict (`invalid`
+    /// under a recipe) and its MES messages, and announces it. The one way
+    /// every runner path fails a job. While the store cannot write (full
+    /// disk), tried again until it can (or the daemon stops: the restart
+    /// then ends the job `interrupted`).
+    async fn finish_failed_after(
         &self,
+        slot: &Slot,
         job: &Job,
         p: &Value,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
     ) -> StoreResult<()> {
-        self.store
-            .finish_job(
-                &job.id,
+        let ended = self
+            .end_running_until_stored(
+                &slot.cfg,
+                job,
                 JobState::Failed,
-                Some(p),
+                p,
                 bench_time_s,
                 log,
                 warnings,
-                vec![],
-                vec![],
             )
             .await?;
-        self.events
-            .publish(
-                "job.state",
-                Some(&job.id),
-                json!({"state": "failed", "problem": p}),
-            )
-            .await?;
+        if ended {
+            let _ = self
+                .events
+                .publish(
+                    "job.state",
+                    Some(&job.id),
+                    json!({"state": "failed", "problem": p}),
+                )
+                .await
+                .map_err(|e| tracing::warn!(job = %job.id, "job.state event not stored: {e}"));
+        }
+        Ok(())
+    }
+
+    /// [`Store::end_running_job`] with the job's records, tried again every
+    /// few seconds while the store cannot write. False when the job was not
+    /// running (never started, or ended before).
+    #[allow(clippy::too_many_arguments)]
+    async fn end_running_until_stored(
+        &self,
+        bench: &BenchConfig,
+        job: &Job,
+        state: JobState,
+        p: &Value,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+    ) -> StoreResult<bool> {
+        let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let mut wait = Duration::from_millis(250);
+        loop {
+            let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
+            let records = self.job_records(
+                bench,
+                job,
+                spec.as_ref(),
+                None,
+                &started_at,
+                state,
+                Some(p),
+                &[],
+                vec![],
+            );
+            match self
+                .store
+                .end_running_job(
+                    &job.id,
+                    state,
+                    Some(p),
+                    bench_time_s,
+                    log,
+                    warnings,
+                    &records,
+                )
+                .await
+            {
+                Ok(ended) => {
+                    if ended && !records.messages.is_empty() && !records.webhooks.is_empty() {
+                        self.outbox.notify_one();
+                    }
+                    return Ok(ended);
+                }
+                Err(e) if self.shutdown.load(Ordering::SeqCst) => return Err(e),
+                Err(e) => {
+                    tracing::error!(job = %job.id, "ending the job {} failed, trying again: {e}", state.as_str());
+                    tokio::time::sleep(wait).await;
+                    wait = (wait * 2).min(Duration::from_secs(2));
+                }
+            }
+        }
+    }
+
+    /// At start: every job still `running` was cut off by a crash or a kill.
+    /// Each ends `interrupted` (never re-run silently) with its verdict
+    /// (`invalid`, reason `interrupted`, under a recipe) and its MES messages.
+    async fn end_interrupted(&self, cfg: &Config) -> StoreResult<()> {
+        let p = Store::interrupted_problem();
+        for job in self.store.running_jobs().await? {
+            let bench = cfg
+                .benches
+                .iter()
+                .find(|b| b.id == job.bench_id)
+                .cloned()
+                .or_else(|| serde_json::from_value(json!({"id": job.bench_id})).ok());
+            let Some(bench) = bench else { continue };
+            let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+            let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
+            let state = JobState::Interrupted;
+            let records = self.job_records(
+                &bench,
+                &job,
+                spec.as_ref(),
+                None,
+                &started_at,
+                state,
+                Some(&p),
+                &[],
+                vec![],
+            );
+            if !self
+                .store
+                .end_running_job(&job.id, state, Some(&p), None, &[], &[], &records)
+                .await?
+            {
+                continue;
+            }
+            if !records.messages.is_empty() && !records.webhooks.is_empty() {
+                self.outbox.notify_one();
+            }
+            let verdict = records
+                .verdicts
+                .iter()
+                .find(|v| v.measurement_id.is_none())
+                .map(|v| v.verdict);
+            self.events
+                .publish(
+                    "job.state",
+                    Some(&job.id),
+                    json!({"state": "interrupted", "problem": p, "verdict": verdict}),
+                )
+                .await?;
+            tracing::warn!(job = %job.id, "job was running when the daemon stopped: marked interrupted");
+        }
         Ok(())
     }
 }

@@ -20,6 +20,7 @@
 
 use super::{now, Store, StoreResult};
 use sqlx::sqlite::SqliteConnectOptions;
+use sqlx::Row;
 use sqlx::{ConnectOptions, Connection};
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -86,6 +87,27 @@ impl FileGuard {
         self.check()
             .map_err(|m| sqlx::Error::Io(std::io::Error::other(m)))
     }
+}
+
+/// Whether a connection handed back to the pool may serve again: not when it
+/// is still inside a transaction, by sqlx's count or by SQLite's own state
+/// (a COMMIT or ROLLBACK that failed). A dropped transaction's ROLLBACK is
+/// queued on the connection's worker; the round trip first lets it run.
+pub async fn reusable(conn: &mut sqlx::SqliteConnection) -> Result<bool, sqlx::Error> {
+    conn.ping().await?;
+    if conn.is_in_transaction() {
+        tracing::warn!("a database connection is still inside a transaction (a failed COMMIT or ROLLBACK): closed, not pooled");
+        return Ok(false);
+    }
+    let mut h = conn.lock_handle().await?;
+    // SAFETY: the handle is locked for the duration of this call; the
+    // function only reads the connection's autocommit flag.
+    let autocommit = unsafe { libsqlite3_sys::sqlite3_get_autocommit(h.as_raw_handle().as_ptr()) };
+    if autocommit == 0 {
+        tracing::warn!("a database connection is inside an SQLite transaction sqlx does not know of: closed, not pooled");
+        return Ok(false);
+    }
+    Ok(true)
 }
 
 /// Writes the database a rescue connection still has open back to `path`,
@@ -202,7 +224,65 @@ pub fn free_bytes(dir: &Path) -> std::io::Result<u64> {
     Ok(s.f_bavail as u64 * s.f_frsize as u64)
 }
 
+/// Bytes a measurement is assumed to take before any is stored (pre and
+/// main recordings as FLAC and the result; measured ones are 1-3 MB).
+pub const DEFAULT_MEASUREMENT_BYTES: u64 = 8 << 20;
+
 impl Store {
+    /// Bytes one bench measurement takes in the store: the mean of the
+    /// newest 20 (pre and main recording and result), twice over (a write
+    /// goes through the WAL before the checkpoint copies it into the file).
+    pub async fn measurement_bytes(&self) -> StoreResult<u64> {
+        let r = sqlx::query(
+            "SELECT AVG(b), COUNT(*) FROM (SELECT COALESCE(length(p.wav), 0) + COALESCE(length(x.wav), 0) \
+             + COALESCE(length(m.result_json), 0) AS b FROM measurements m \
+             JOIN recordings p ON p.id = m.pre_recording_id JOIN recordings x ON x.id = m.main_recording_id \
+             WHERE m.source = 'bench' AND p.pruned_at IS NULL AND x.pruned_at IS NULL ORDER BY m.seq DESC LIMIT 20)",
+        )
+        .fetch_one(&self.pool)
+        .await?;
+        let n: i64 = r.get(1);
+        let mean: Option<f64> = r.get(0);
+        Ok(match mean {
+            Some(b) if n > 0 && b.is_finite() && b > 0.0 => 2 * b as u64,
+            _ => 2 * DEFAULT_MEASUREMENT_BYTES,
+        })
+    }
+
+    /// Measurements the queued and running jobs will still store (levels x repeats each).
+    pub async fn pending_measurements(&self) -> StoreResult<u64> {
+        let r = sqlx::query(
+            "SELECT COALESCE(SUM(MAX(1, COALESCE(json_array_length(request_json, '$.levels_m'), 1)) \
+             * MAX(1, COALESCE(json_extract(request_json, '$.repeats'), 1))), 0) FROM jobs WHERE state IN ('queued', 'running')",
+        )
+        .fetch_one(&self.pool)
+        .await?;
+        Ok(r.get::<i64, _>(0).max(0) as u64)
+    }
+
+    /// Admission of a job of `measurements` measurements: the free space
+    /// must hold `min` bytes plus what the queued and running jobs and this
+    /// one will store, so the daemon never acknowledges work it cannot keep.
+    pub async fn check_admission(&self, min: u64, measurements: u64) -> StoreResult<()> {
+        if self.dir.is_none() {
+            return Ok(());
+        }
+        let per = self.measurement_bytes().await?;
+        let queued = self.pending_measurements().await?;
+        let need = (queued + measurements).saturating_mul(per);
+        self.check_space(min.saturating_add(need)).map_err(|_| {
+            let free = self
+                .dir
+                .as_deref()
+                .and_then(|d| free_bytes(d).ok())
+                .unwrap_or(0);
+            super::StoreError::Db(sqlx::Error::Io(std::io::Error::other(format!(
+                "disk full for the queue: {free} bytes free; the {queued} measurements of the queued and running jobs \
+                 and this job's {measurements} need about {need} bytes ({per} each) besides min_free_bytes {min}"
+            ))))
+        })
+    }
+
     /// The store's directory has at least `min` bytes free (a job's results
     /// need room; refusing up front beats failing after the measurement).
     pub fn check_space(&self, min: u64) -> StoreResult<()> {

@@ -297,6 +297,11 @@ impl Store {
                 let g = g2.clone();
                 Box::pin(async move { g.usable(meta.age) })
             })
+            // A connection whose COMMIT or ROLLBACK failed (full disk, I/O
+            // error) may still be inside its transaction: pooled again, the
+            // next BEGIN fails with "begin_with at non-zero transaction
+            // depth" or writes into the stale transaction. It is closed.
+            .after_release(|conn, _| Box::pin(async move { health::reusable(conn).await }))
             .connect_with(opts.clone())
             .await?;
         sqlx::migrate!("./migrations").run(&pool).await?;
@@ -328,25 +333,27 @@ impl Store {
         Ok(())
     }
 
-    /// At start: every job still `running` was cut off by a crash or a kill.
-    /// Marks them `interrupted` (never re-run silently) and returns their ids.
-    pub async fn mark_interrupted(&self) -> StoreResult<Vec<String>> {
-        let problem = serde_json::json!({
+    /// The problem document of a job cut off by a crash, a kill or a stop.
+    pub fn interrupted_problem() -> Value {
+        serde_json::json!({
             "type": "/problems/interrupted",
             "title": "Job interrupted",
             "status": 500,
             "detail": "the daemon stopped while this job was running; it was not re-run (submit it again)",
         })
-        .to_string();
-        let rows = sqlx::query(
-            "UPDATE jobs SET state = 'interrupted', finished_at = ?, problem_json = ?, eta_s = NULL \
-             WHERE state = 'running' RETURNING id",
-        )
-        .bind(now())
-        .bind(problem)
+    }
+
+    /// At start: the jobs still `running` were cut off by a crash or a kill
+    /// (the runner ends each one `interrupted` with its verdict and MES
+    /// messages, [`Store::end_running_job`]; never re-run silently).
+    pub async fn running_jobs(&self) -> StoreResult<Vec<Job>> {
+        let rows = sqlx::query(concat!(
+            job_select!(),
+            " WHERE j.state = 'running' ORDER BY j.seq"
+        ))
         .fetch_all(&self.pool)
         .await?;
-        Ok(rows.iter().map(|r| r.get::<String, _>(0)).collect())
+        rows.iter().map(job_from_row).collect()
     }
 
     /// At start: queued jobs of benches that are no longer configured would
@@ -686,6 +693,43 @@ impl Store {
         .await?;
         tx.commit().await?;
         Ok(())
+    }
+
+    /// running -> `state` (failed or interrupted, no results) with the job's
+    /// verdicts and MES messages, in one transaction. False (nothing written)
+    /// when the job is not running: it never started, or it ended meanwhile
+    /// (a retry after a storage fault never overwrites a stored result).
+    #[allow(clippy::too_many_arguments)]
+    pub async fn end_running_job(
+        &self,
+        id: &str,
+        state: JobState,
+        problem: Option<&Value>,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+        records: &qc::JobRecords,
+    ) -> StoreResult<bool> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE jobs SET state = ?, finished_at = ?, problem_json = ?, bench_time_s = ?, log_json = ?, warnings_json = ?, eta_s = NULL \
+             WHERE id = ? AND state = 'running'",
+        )
+        .bind(state.as_str())
+        .bind(now())
+        .bind(problem.map(|p| p.to_string()))
+        .bind(bench_time_s)
+        .bind(serde_json::to_string(log).unwrap_or_else(|_| "[]".into()))
+        .bind(serde_json::to_string(warnings).unwrap_or_else(|_| "[]".into()))
+        .bind(id.to_string())
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() != 1 {
+            return Ok(false);
+        }
+        qc::insert_job_records(&mut tx, records).await?;
+        tx.commit().await?;
+        Ok(true)
     }
 
     /// Stores measurements without a job (multipart import), in one transaction.
@@ -1198,8 +1242,20 @@ mod tests {
             order.push(j.id);
         }
         assert_eq!(order, ["b", "d", "a", "c"]);
-        let ids = s.mark_interrupted().await.unwrap();
-        assert_eq!(ids.len(), 4);
+        let running = s.running_jobs().await.unwrap();
+        assert_eq!(running.len(), 4);
+        for j in &running {
+            let p = Store::interrupted_problem();
+            let rec = qc::JobRecords::default();
+            let ended =
+                s.end_running_job(&j.id, JobState::Interrupted, Some(&p), None, &[], &[], &rec);
+            assert!(ended.await.unwrap());
+        }
+        // ended once: a second end (a retry) writes nothing
+        let p = Store::interrupted_problem();
+        let rec = qc::JobRecords::default();
+        let again = s.end_running_job("a", JobState::Failed, Some(&p), None, &[], &[], &rec);
+        assert!(!again.await.unwrap());
         let j = s.get_job("a").await.unwrap().unwrap();
         assert_eq!(j.state, JobState::Interrupted);
         assert_eq!(j.problem.unwrap()["title"], json!("Job interrupted"));

@@ -81,6 +81,9 @@ pub struct VerdictRow {
     pub created_at: String,
     #[serde(skip)]
     pub seq: i64,
+    /// The measurement's level in a series (read by [`Store::recipe_verdicts`] only).
+    #[serde(skip)]
+    pub level_index: Option<i64>,
 }
 
 /// An MES message to store (IPC-CFX envelope).
@@ -166,6 +169,7 @@ fn verdict_from_row(r: &SqliteRow) -> StoreResult<VerdictRow> {
         detail: parse_json(&r.get::<String, _>("detail_json"))?,
         traceability: parse_json(&r.get::<String, _>("trace_json"))?,
         created_at: r.get("created_at"),
+        level_index: r.try_get("level_index").ok().flatten(),
     })
 }
 
@@ -259,21 +263,50 @@ impl Store {
     // ---- recipes ----
 
     /// Stores a new version of a recipe (version = last + 1, or 1).
-    #[allow(clippy::too_many_arguments)]
     pub async fn insert_recipe(
         &self,
         name: &str,
         sha256: &str,
         body: &Value,
         origin: &str,
-        proposal_id: Option<&str>,
         created_by: Option<&str>,
     ) -> StoreResult<RecipeRow> {
+        match self
+            .write_recipe(name, sha256, body, origin, created_by, RecipeExpect::Any)
+            .await?
+        {
+            RecipeWrite::Stored(r) => Ok(r),
+            RecipeWrite::Conflict(c) => Err(StoreError::Corrupt(format!(
+                "recipe '{name}': a write expecting nothing conflicted with {c:?}"
+            ))),
+        }
+    }
+
+    /// Stores a new version of a recipe if the stored one is what the caller
+    /// saw (`expect`), checked inside the write transaction: two concurrent
+    /// creations of one name, or two edits of one version, store one.
+    pub async fn write_recipe(
+        &self,
+        name: &str,
+        sha256: &str,
+        body: &Value,
+        origin: &str,
+        created_by: Option<&str>,
+        expect: RecipeExpect,
+    ) -> StoreResult<RecipeWrite> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
-        let row =
-            insert_recipe_tx(&mut tx, name, sha256, body, origin, proposal_id, created_by).await?;
+        let cur = current_version(&mut tx, name).await?;
+        let ok = match expect {
+            RecipeExpect::Any => true,
+            RecipeExpect::Absent => cur.is_none(),
+            RecipeExpect::Version(v) => cur.map(|c| c.0) == Some(v),
+        };
+        if !ok {
+            return Ok(RecipeWrite::Conflict(cur));
+        }
+        let row = insert_recipe_tx(&mut tx, name, sha256, body, origin, None, created_by).await?;
         tx.commit().await?;
-        Ok(row)
+        Ok(RecipeWrite::Stored(row))
     }
 
     /// A recipe version (the newest when `version` is None).
@@ -369,26 +402,44 @@ impl Store {
     }
 
     /// Approves a proposal: a new recipe version with its limits, recorded
-    /// with the approver, in one transaction. None when the proposal is not
-    /// `proposed` any more (decided before).
+    /// with the approver, in one transaction; only while the proposal is
+    /// `proposed` and was made on the recipe's current version, which is not
+    /// retired (approving a stale proposal would undo the edits made since;
+    /// approving one of a retired recipe would revive it).
     pub async fn approve_proposal(
         &self,
         id: &str,
         sha256: &str,
         recipe: &Value,
         by: Option<&str>,
-    ) -> StoreResult<Option<RecipeRow>> {
+    ) -> StoreResult<Approval> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let Some(p) = sqlx::query(
-            "SELECT recipe_name FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'",
+            "SELECT recipe_name, recipe_version FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'",
         )
         .bind(id.to_string())
         .fetch_optional(&mut *tx)
         .await?
         else {
-            return Ok(None);
+            return Ok(Approval::Decided);
         };
         let name: String = p.get(0);
+        let made_on: i64 = p.get(1);
+        match current_version(&mut tx, &name).await? {
+            Some((_, true)) => {
+                return Ok(Approval::Stale(format!(
+                    "recipe '{name}' is retired; a proposal is approved only for a live recipe"
+                )))
+            }
+            Some((v, false)) if v != made_on => {
+                return Ok(Approval::Stale(format!(
+                    "the proposal was made on version {made_on} of recipe '{name}', which is at version {v} now; \
+                     approving it would undo the changes since: propose again from the current version"
+                )))
+            }
+            None => return Ok(Approval::Stale(format!("recipe '{name}' is not stored"))),
+            Some(_) => {}
+        }
         let row = insert_recipe_tx(
             &mut tx,
             &name,
@@ -409,7 +460,7 @@ impl Store {
         .execute(&mut *tx)
         .await?;
         tx.commit().await?;
-        Ok(Some(row))
+        Ok(Approval::Approved(row))
     }
 
     /// Rejects a proposal; false when it was decided before.
@@ -473,7 +524,9 @@ impl Store {
         until: Option<&str>,
         last: Option<i64>,
     ) -> StoreResult<Vec<VerdictRow>> {
-        let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
+        let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), ", \
+             (SELECT m.level_index FROM measurements m WHERE m.id = qc_verdicts.measurement_id) AS level_index \
+             FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
              AND (? IS NULL OR created_at >= ?) AND (? IS NULL OR created_at < ?) ORDER BY seq DESC LIMIT ?) ORDER BY seq"))
         .bind(recipe.to_string())
         .bind(since.map(str::to_string))
@@ -532,27 +585,36 @@ impl Store {
 
     /// Deliveries that may go now: per (webhook, part) only the oldest one not
     /// yet delivered or dropped, if it is pending and due.
+    /// `webhook` None: of every webhook.
     pub async fn due_deliveries(
         &self,
+        webhook: Option<&str>,
         now_rfc3339: &str,
         limit: i64,
     ) -> StoreResult<Vec<DeliveryRow>> {
-        let rows = sqlx::query(concat!(delivery_select!(), " WHERE d.state = 'pending' AND d.next_attempt_at <= ? AND d.seq = \
+        let rows = sqlx::query(concat!(delivery_select!(), " WHERE d.state = 'pending' AND d.next_attempt_at <= ? \
+             AND (? IS NULL OR d.webhook = ?) AND d.seq = \
              (SELECT MIN(x.seq) FROM mes_deliveries x WHERE x.webhook = d.webhook AND x.part_serial = d.part_serial \
               AND x.state IN ('pending', 'failed')) ORDER BY d.seq LIMIT ?"))
         .bind(now_rfc3339.to_string())
+        .bind(webhook.map(str::to_string))
+        .bind(webhook.map(str::to_string))
         .bind(limit)
         .fetch_all(&self.pool)
         .await?;
         rows.iter().map(delivery_from_row).collect()
     }
 
-    /// The earliest time a pending delivery is due (for the worker's sleep).
-    pub async fn next_delivery_due(&self) -> StoreResult<Option<String>> {
-        let r =
-            sqlx::query("SELECT MIN(next_attempt_at) FROM mes_deliveries WHERE state = 'pending'")
-                .fetch_one(&self.pool)
-                .await?;
+    /// The earliest time a pending delivery (of `webhook`, None: any) is due
+    /// (for the worker's sleep).
+    pub async fn next_delivery_due(&self, webhook: Option<&str>) -> StoreResult<Option<String>> {
+        let r = sqlx::query(
+            "SELECT MIN(next_attempt_at) FROM mes_deliveries WHERE state = 'pending' AND (? IS NULL OR webhook = ?)",
+        )
+        .bind(webhook.map(str::to_string))
+        .bind(webhook.map(str::to_string))
+        .fetch_one(&self.pool)
+        .await?;
         Ok(r.get(0))
     }
 
@@ -651,6 +713,49 @@ impl Store {
         .await?;
         Ok((r.get(0), r.get(1), r.get(2)))
     }
+}
+
+/// What a recipe write expects of the stored recipe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RecipeExpect {
+    /// Anything (a new version on top of whatever is there).
+    Any,
+    /// No recipe of this name (creation).
+    Absent,
+    /// The newest version is this one (`If-Match`).
+    Version(i64),
+}
+
+/// The outcome of [`Store::write_recipe`].
+#[derive(Debug, Clone)]
+pub enum RecipeWrite {
+    Stored(RecipeRow),
+    /// The expectation did not hold: the newest (version, retired), if any.
+    Conflict(Option<(i64, bool)>),
+}
+
+/// The outcome of [`Store::approve_proposal`].
+#[derive(Debug, Clone)]
+pub enum Approval {
+    Approved(RecipeRow),
+    /// Approved or rejected before.
+    Decided,
+    /// Not made on the current version of a live recipe (why).
+    Stale(String),
+}
+
+/// The newest version of a recipe and whether it is retired.
+async fn current_version(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    name: &str,
+) -> StoreResult<Option<(i64, bool)>> {
+    let r = sqlx::query(
+        "SELECT version, retired FROM qc_recipes WHERE name = ? ORDER BY version DESC LIMIT 1",
+    )
+    .bind(name.to_string())
+    .fetch_optional(&mut **tx)
+    .await?;
+    Ok(r.map(|r| (r.get::<i64, _>(0), r.get::<i64, _>(1) != 0)))
 }
 
 /// A golden unit's measurement as stored.

@@ -28,6 +28,21 @@ impl Daemon {
 
     /// Starts a daemon on `dir` (config and data inside it): used again after a kill.
     pub fn start_in(dir: &Path, extra: &str) -> Daemon {
+        Daemon::start_logged(dir, extra, None)
+    }
+
+    /// [`Daemon::start_in`] with the daemon's log (stderr) appended to `log`.
+    pub fn start_logged(dir: &Path, extra: &str, log: Option<&Path>) -> Daemon {
+        let stderr = match log {
+            Some(p) => Stdio::from(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(p)
+                    .expect("log file"),
+            ),
+            None => Stdio::null(),
+        };
         let cfg = dir.join("springbench.toml");
         let text = format!(
             "bind = \"127.0.0.1:0\"\ndata_dir = \"{}\"\n{extra}\n",
@@ -40,7 +55,7 @@ impl Daemon {
             .arg(&cfg)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
+            .stderr(stderr)
             .spawn()
             .expect("start springbench");
         let out = child.stdout.take().unwrap();

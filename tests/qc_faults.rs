@@ -1,0 +1,956 @@
+//! The QC and MES paths under faults and hostile input (issue 24): a full
+//! disk on a real tmpfs, a kill -9 during a QC job, stale approvals, role
+//! checks per route, hostile MES receivers.
+//!
+//! The full-disk tests mount a tmpfs (root needed); where mounting is
+//! refused they print why and pass without running.
+
+mod common;
+
+use common::{client, Daemon};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// A tmpfs of a fixed size mounted on a fresh directory; unmounted on drop.
+struct Tmpfs {
+    dir: tempfile::TempDir,
+}
+
+impl Tmpfs {
+    /// None (with the reason printed) when the test cannot mount one.
+    fn mount(size: &str) -> Option<Tmpfs> {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir.path())
+            .output();
+        match out {
+            Ok(o) if o.status.success() => Some(Tmpfs { dir }),
+            Ok(o) => {
+                eprintln!(
+                    "SKIPPED: cannot mount a tmpfs (needs root): {}",
+                    String::from_utf8_lossy(&o.stderr).trim()
+                );
+                None
+            }
+            Err(e) => {
+                eprintln!("SKIPPED: cannot run mount: {e}");
+                None
+            }
+        }
+    }
+
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg("-l")
+            .arg(self.dir.path())
+            .status();
+    }
+}
+
+/// Fills the file system of `dir` to the last byte; returns the filler file.
+fn fill(dir: &Path) -> PathBuf {
+    let p = dir.join("filler");
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&p)
+        .expect("filler");
+    let buf = vec![0x5au8; 1 << 16];
+    for chunk in [1 << 16, 4096, 512, 1] {
+        while let Ok(n) = f.write(&buf[..chunk]) {
+            if n == 0 {
+                break;
+            }
+        }
+    }
+    let free = springbench::store::health::free_bytes(dir).unwrap();
+    assert!(free < 4096, "{free} bytes still free after filling");
+    p
+}
+
+fn recipe(name: &str) -> Value {
+    json!({
+        "name": name,
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0"},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    })
+}
+
+fn qc_job(serial: &str, recipe: &str, seed: u64) -> Value {
+    json!({"part": {"serial": serial, "kind": "spider"}, "recipe": recipe,
+           "production": {"preset": "spider_4in", "seed": seed}})
+}
+
+const WEBHOOK: &str = "[[mes.webhooks]]\nname = \"mes\"\nurl = \"http://127.0.0.1:9/cfx\"\nsecret = \"0123456789abcdef0123\"\n";
+
+async fn post(c: &reqwest::Client, d: &Daemon, path: &str, body: &Value) -> (u16, Value) {
+    let r = c.post(d.url(path)).json(body).send().await.unwrap();
+    let s = r.status().as_u16();
+    (s, r.json().await.unwrap_or(Value::Null))
+}
+
+async fn wait_state(
+    c: &reqwest::Client,
+    d: &Daemon,
+    id: &str,
+    done: impl Fn(&str) -> bool,
+) -> Value {
+    common::wait_job(c, d, id, Duration::from_secs(300), done).await
+}
+
+/// The job's MES messages in the outbox (any state), by message name.
+async fn job_messages(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<String> {
+    let mut names = vec![];
+    for state in ["pending", "failed", "delivered"] {
+        let o = common::get(c, d, &format!("/api/v1/outbox?state={state}&limit=500")).await;
+        for m in o["items"].as_array().unwrap() {
+            if m["job_id"] == job {
+                names.push(m["message_name"].as_str().unwrap().to_string());
+            }
+        }
+    }
+    names.sort();
+    names
+}
+
+const THREE: [&str; 3] = [
+    "CFX.Production.TestAndInspection.UnitsTested",
+    "CFX.Production.WorkCompleted",
+    "CFX.Production.WorkStarted",
+];
+
+/// A full disk must not poison the store's pool: a connection whose COMMIT
+/// failed goes back inside its transaction, and later transactions on it
+/// fail ("begin_with at non-zero transaction depth") after space returned.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_leaves_no_broken_connection_in_the_pool() {
+    let Some(fs) = Tmpfs::mount("6m") else { return };
+    let store = springbench::store::Store::open(fs.path()).await.unwrap();
+    let body = |i: usize| json!({"pad": "x".repeat(50_000), "i": i});
+    for i in 0..5 {
+        store
+            .insert_recipe("r", &format!("{i}"), &body(i), "created", None)
+            .await
+            .unwrap();
+    }
+    let filler = fill(fs.path());
+    let mut refused = 0;
+    for i in 0..60 {
+        if store
+            .insert_recipe("r", &format!("f{i}"), &body(i), "created", None)
+            .await
+            .is_err()
+        {
+            refused += 1;
+        }
+    }
+    assert!(
+        refused > 0,
+        "the full disk refused no write: the fault did not happen"
+    );
+    std::fs::remove_file(&filler).unwrap();
+    let mut errors = vec![];
+    for i in 0..40 {
+        if let Err(e) = store
+            .insert_recipe("r", &format!("after{i}"), &body(i), "created", None)
+            .await
+        {
+            errors.push(e.to_string());
+        }
+    }
+    assert!(
+        errors.is_empty(),
+        "{} of 40 writes failed after space returned: {errors:?}",
+        errors.len()
+    );
+}
+
+/// A QC job accepted with 202 whose results meet a full disk ends `failed`
+/// (a stored reason), with an `invalid` verdict and its three MES messages,
+/// once space returns; `/readyz` is not ready meanwhile; later submits work.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_meeting_a_full_disk_ends_failed_with_verdict_and_messages() {
+    let Some(fs) = Tmpfs::mount("96m") else {
+        return;
+    };
+    let logdir = tempfile::tempdir().unwrap();
+    let log = logdir.path().join("daemon.log");
+    let extra = format!("min_free_bytes = 1048576\n{WEBHOOK}");
+    let d = Daemon::start_logged(fs.path(), &extra, Some(&log));
+    let c = client();
+    let (s, r) = post(&c, &d, "/api/v1/recipes", &recipe("disk")).await;
+    assert_eq!(s, 201, "{r}");
+    let (s, j) = post(&c, &d, "/api/v1/jobs", &qc_job("D-1", "disk", 7)).await;
+    assert_eq!(s, 202, "{j}");
+    let id = j["id"].as_str().unwrap().to_string();
+    let j = wait_state(&c, &d, &id, |s| s != "queued").await;
+    assert_eq!(j["state"], "running", "{j}");
+    let filler = fill(&fs.path().join("data"));
+    // The measurement runs on; its results then meet the full disk.
+    let t = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
+        if text.contains("storing the results failed") {
+            break;
+        }
+        let j = common::get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
+        assert!(
+            !common::terminal(j["state"].as_str().unwrap()),
+            "the job ended before its results met the full disk: {j}"
+        );
+        assert!(
+            t.elapsed() < Duration::from_secs(300),
+            "no storage failure within 300 s"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let r = c.get(d.url("/readyz")).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 503, "ready while the disk is full");
+    std::fs::remove_file(&filler).unwrap();
+
+    let j = wait_state(&c, &d, &id, common::terminal).await;
+    assert_eq!(j["state"], "failed", "{j}");
+    assert_eq!(j["problem"]["type"], "/problems/storage", "{j}");
+    let v = common::get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    assert_eq!(v["verdict"], "invalid", "{v}");
+    assert_eq!(job_messages(&c, &d, &id).await, THREE);
+    let r = c.get(d.url("/readyz")).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200, "not ready after space returned");
+
+    // No broken connection left behind: every write after the fault works.
+    let mut ids = vec![];
+    for i in 0..12 {
+        let mut body = recipe("disk");
+        body["description"] = json!(format!("edit {i}"));
+        let r = c
+            .put(d.url("/api/v1/recipes/disk"))
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        let s = r.status().as_u16();
+        assert!(s == 201, "PUT {i}: {s} {}", r.text().await.unwrap());
+        let (s, j) = post(
+            &c,
+            &d,
+            "/api/v1/jobs",
+            &qc_job(&format!("D-{}", i + 2), "disk", 8 + i),
+        )
+        .await;
+        assert_eq!(s, 202, "submit {i}: {j}");
+        ids.push(j["id"].as_str().unwrap().to_string());
+    }
+    for id in ids.iter().take(2) {
+        let j = wait_state(&c, &d, id, common::terminal).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+    }
+    drop(d);
+    drop(fs);
+}
+
+/// A kill -9 during a QC job: at restart the job ends `interrupted` with an
+/// `invalid` verdict (reason `interrupted`) and its three MES messages.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_cut_off_by_kill_9_gets_its_verdict_and_messages_at_restart() {
+    let mut d = Daemon::start(WEBHOOK);
+    let c = client();
+    let (s, r) = post(&c, &d, "/api/v1/recipes", &recipe("kill")).await;
+    assert_eq!(s, 201, "{r}");
+    let (s, j) = post(&c, &d, "/api/v1/jobs", &qc_job("K-1", "kill", 3)).await;
+    assert_eq!(s, 202, "{j}");
+    let id = j["id"].as_str().unwrap().to_string();
+    let j = wait_state(&c, &d, &id, |s| s != "queued").await;
+    assert_eq!(j["state"], "running", "{j}");
+    d.kill9();
+    let tmp = d.take_dir().unwrap();
+    drop(d);
+    let d = Daemon::start_in(tmp.path(), WEBHOOK);
+    let j = common::get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
+    assert_eq!(j["state"], "interrupted", "{j}");
+    let v = common::get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    assert_eq!(v["verdict"], "invalid", "{v}");
+    assert_eq!(
+        v["detail"]["invalid_reasons"][0]["code"], "interrupted",
+        "{v}"
+    );
+    assert_eq!(job_messages(&c, &d, &id).await, THREE);
+}
+
+const VIEWER: &str = "viewer-secret-0123456789";
+const OPERATOR: &str = "operator-secret-0123456789";
+const ADMIN: &str = "admin-secret-0123456789";
+
+fn tokens() -> String {
+    [
+        ("screen", VIEWER, "viewer"),
+        ("station", OPERATOR, "operator"),
+        ("engineer", ADMIN, "admin"),
+    ]
+    .iter()
+    .map(|(n, t, r)| format!("[[auth.tokens]]\nname = \"{n}\"\ntoken = \"{t}\"\nrole = \"{r}\"\n"))
+    .collect()
+}
+
+async fn send(
+    c: &reqwest::Client,
+    d: &Daemon,
+    method: reqwest::Method,
+    path: &str,
+    token: Option<&str>,
+    body: Option<&Value>,
+    headers: &[(&str, &str)],
+) -> (u16, reqwest::header::HeaderMap, Value) {
+    let mut r = c
+        .request(method, d.url(path))
+        .header("content-type", "application/json");
+    if let Some(t) = token {
+        r = r.bearer_auth(t);
+    }
+    for (k, v) in headers {
+        r = r.header(*k, *v);
+    }
+    if let Some(b) = body {
+        r = r.body(b.to_string());
+    }
+    let r = r.send().await.unwrap();
+    let s = r.status().as_u16();
+    let h = r.headers().clone();
+    (s, h, r.json().await.unwrap_or(Value::Null))
+}
+
+/// The role each (method, route template) needs, written down here from the
+/// documented policy (docs/http-hardening.md), independently of the daemon.
+fn policy(method: &str, route: &str) -> Option<u8> {
+    const VIEW: u8 = 1;
+    const OPER: u8 = 2;
+    const ADM: u8 = 3;
+    if [
+        "/healthz",
+        "/readyz",
+        "/api/v1/session",
+        "/api/openapi.json",
+    ]
+    .contains(&route)
+    {
+        return None;
+    }
+    let admin_routes = [
+        ("get", "/api/v1/config"),
+        ("post", "/api/v1/recipes"),
+        ("put", "/api/v1/recipes/{name}"),
+        ("delete", "/api/v1/recipes/{name}"),
+        ("post", "/api/v1/limit-proposals/{id}/approve"),
+        ("post", "/api/v1/limit-proposals/{id}/reject"),
+        ("post", "/api/v1/outbox/{id}/retry"),
+        ("delete", "/api/v1/outbox/{id}"),
+    ];
+    Some(if admin_routes.contains(&(method, route)) {
+        ADM
+    } else if method == "get" {
+        VIEW
+    } else {
+        OPER
+    })
+}
+
+/// Every route of the OpenAPI document, with each role and without a token,
+/// with path parameters named after route words: the role decides by the
+/// route the request matched, never by the path's text.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_route_checks_the_role_of_its_matched_template() {
+    let d = Daemon::start(&tokens());
+    let c = client();
+    let doc = common::get(&c, &d, "/api/openapi.json").await;
+    let words = [
+        "limit-proposals",
+        "approve",
+        "reject",
+        "versions",
+        "spc",
+        "retry",
+        "verdict",
+        "cancel",
+    ];
+    let mut checked = 0;
+    let mut wrong = vec![];
+    for (route, item) in doc["paths"].as_object().unwrap() {
+        for method in ["get", "post", "put", "delete"] {
+            if item.get(method).is_none() || route == "/api/v1/events" {
+                continue;
+            }
+            let need = policy(method, route);
+            let paths: Vec<String> = if route.contains('{') {
+                words
+                    .iter()
+                    .map(|w| {
+                        route
+                            .replace("{name}", w)
+                            .replace("{id}", w)
+                            .replace("{serial}", w)
+                            .replace("{file}", w)
+                            .replace("{version}", "1")
+                    })
+                    .collect()
+            } else {
+                vec![route.clone()]
+            };
+            for path in &paths {
+                for (level, token) in [
+                    (0u8, None),
+                    (1, Some(VIEWER)),
+                    (2, Some(OPERATOR)),
+                    (3, Some(ADMIN)),
+                ] {
+                    let m = reqwest::Method::from_bytes(method.to_uppercase().as_bytes()).unwrap();
+                    let (s, _, _) = send(&c, &d, m, path, token, Some(&json!({})), &[]).await;
+                    let expect_refused = match need {
+                        None => None,
+                        Some(_) if level == 0 => Some(401),
+                        Some(n) if level < n => Some(403),
+                        Some(_) => None,
+                    };
+                    let ok = match expect_refused {
+                        Some(code) => s == code,
+                        None => s != 401 && s != 403,
+                    };
+                    checked += 1;
+                    if !ok {
+                        wrong.push(format!(
+                            "{method} {path} as level {level}: {s}, expected {expect_refused:?}"
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 400, "{checked} requests");
+    assert!(
+        wrong.is_empty(),
+        "{} of {checked} wrong:\n{}",
+        wrong.len(),
+        wrong.join("\n")
+    );
+
+    // The exploit of the issue: an operator creating a recipe named after a route word.
+    for name in ["limit-proposals", "spc", "versions"] {
+        let body = recipe(name);
+        let path = format!("/api/v1/recipes/{name}");
+        let (s, _, v) = send(
+            &c,
+            &d,
+            reqwest::Method::PUT,
+            &path,
+            Some(OPERATOR),
+            Some(&body),
+            &[],
+        )
+        .await;
+        assert_eq!(s, 403, "operator PUT {path}: {v}");
+        let (s, _, v) = send(
+            &c,
+            &d,
+            reqwest::Method::PUT,
+            &path,
+            Some(ADMIN),
+            Some(&body),
+            &[],
+        )
+        .await;
+        assert_eq!(s, 201, "admin PUT {path}: {v}");
+        assert_eq!(v["created_by"], "engineer");
+        let (s, _, _) = send(
+            &c,
+            &d,
+            reqwest::Method::DELETE,
+            &path,
+            Some(OPERATOR),
+            None,
+            &[],
+        )
+        .await;
+        assert_eq!(s, 403, "operator DELETE {path}");
+    }
+}
+
+/// Runs jobs one after the other and returns their documents (each terminal).
+async fn run_all(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Value> {
+    let mut ids = vec![];
+    for b in bodies {
+        let (s, j) = post(c, d, "/api/v1/jobs", b).await;
+        assert_eq!(s, 202, "{j}");
+        ids.push(j["id"].as_str().unwrap().to_string());
+    }
+    let mut out = vec![];
+    for id in ids {
+        out.push(wait_state(c, d, &id, common::terminal).await);
+    }
+    out
+}
+
+/// A limit proposal is approved only when it was made on the current
+/// version of a live recipe: a stale one would undo the engineer's later
+/// edits, one of a retired recipe would revive it. Recipe names are unique
+/// under concurrency; PUT honours If-Match.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stale_and_retired_approvals_are_refused() {
+    let d = Daemon::start("");
+    let c = client();
+    // Ten concurrent creations of one name: one 201, nine 409.
+    let mut tasks = vec![];
+    for _ in 0..10 {
+        let c = c.clone();
+        let url = d.url("/api/v1/recipes");
+        tasks.push(tokio::spawn(async move {
+            c.post(url)
+                .json(&recipe("appr"))
+                .send()
+                .await
+                .unwrap()
+                .status()
+                .as_u16()
+        }));
+    }
+    let mut codes = vec![];
+    for t in tasks {
+        codes.push(t.await.unwrap());
+    }
+    codes.sort();
+    assert_eq!(codes, [201, 409, 409, 409, 409, 409, 409, 409, 409, 409]);
+    let v = common::get(&c, &d, "/api/v1/recipes/appr/versions").await;
+    assert_eq!(v["items"].as_array().unwrap().len(), 1, "{v}");
+
+    let golden: Vec<Value> = (0..5)
+        .map(|i| qc_job(&format!("G-{i}"), "appr", 200 + i))
+        .collect();
+    for j in run_all(&c, &d, &golden).await {
+        assert_eq!(j["state"], "succeeded", "{j}");
+    }
+    let serials: Vec<String> = (0..5).map(|i| format!("G-{i}")).collect();
+    let propose = json!({"serials": serials, "method": "k_sigma", "k": 6.0});
+    let (s, p1) = post(&c, &d, "/api/v1/recipes/appr/limit-proposals", &propose).await;
+    assert_eq!(s, 201, "{p1}");
+    assert_eq!(p1["recipe_version"], 1);
+
+    // If-Match: a PUT made on an older version is refused (412).
+    let r = c.get(d.url("/api/v1/recipes/appr")).send().await.unwrap();
+    let etag1 = r.headers()["etag"].to_str().unwrap().to_string();
+    let mut v2 = recipe("appr");
+    v2["parameters"][1]["upper"] = json!(2.0);
+    v2["parameters"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"name": "f0", "quantity": "f0"}));
+    let (s, h, r2) = send(
+        &c,
+        &d,
+        reqwest::Method::PUT,
+        "/api/v1/recipes/appr",
+        None,
+        Some(&v2),
+        &[("if-match", &etag1)],
+    )
+    .await;
+    assert_eq!(s, 201, "{r2}");
+    assert_eq!(r2["version"], 2);
+    assert_ne!(h["etag"].to_str().unwrap(), etag1);
+    let mut v3 = v2.clone();
+    v3["description"] = json!("made on version 1");
+    let (s, _, r) = send(
+        &c,
+        &d,
+        reqwest::Method::PUT,
+        "/api/v1/recipes/appr",
+        None,
+        Some(&v3),
+        &[("if-match", &etag1)],
+    )
+    .await;
+    assert_eq!(s, 412, "{r}");
+
+    // The proposal made on v1 is stale now: 409, the recipe stays at v2.
+    let approve = |id: &str| format!("/api/v1/limit-proposals/{id}/approve");
+    let (s, r) = post(&c, &d, &approve(p1["id"].as_str().unwrap()), &json!({})).await;
+    assert_eq!(s, 409, "{r}");
+    assert_eq!(r["type"], "/problems/proposal-stale", "{r}");
+    let cur = common::get(&c, &d, "/api/v1/recipes/appr").await;
+    assert_eq!(cur["version"], 2);
+    assert_eq!(cur["recipe"]["parameters"][1]["upper"], 2.0);
+    assert!(cur["recipe"]["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|p| p["name"] == "f0"));
+
+    // A proposal on v2, then the recipe retired: 409, it stays retired.
+    let (s, p2) = post(&c, &d, "/api/v1/recipes/appr/limit-proposals", &propose).await;
+    assert_eq!(s, 201, "{p2}");
+    assert_eq!(p2["recipe_version"], 2);
+    let (s, _, r) = send(
+        &c,
+        &d,
+        reqwest::Method::DELETE,
+        "/api/v1/recipes/appr",
+        None,
+        None,
+        &[],
+    )
+    .await;
+    assert_eq!(s, 204, "{r}");
+    let (s, r) = post(&c, &d, &approve(p2["id"].as_str().unwrap()), &json!({})).await;
+    assert_eq!(s, 409, "{r}");
+    let cur = common::get(&c, &d, "/api/v1/recipes/appr").await;
+    assert_eq!(cur["version"], 2);
+    assert_eq!(cur["retired"], true);
+
+    // Revived (v3): a proposal on v3 is approved (v4 with its limits).
+    let (s, _, r) = send(
+        &c,
+        &d,
+        reqwest::Method::PUT,
+        "/api/v1/recipes/appr",
+        None,
+        Some(&v3),
+        &[],
+    )
+    .await;
+    assert_eq!(s, 201, "{r}");
+    assert_eq!(r["version"], 3);
+    let (s, p3) = post(&c, &d, "/api/v1/recipes/appr/limit-proposals", &propose).await;
+    assert_eq!(s, 201, "{p3}");
+    let (s, r) = post(&c, &d, &approve(p3["id"].as_str().unwrap()), &json!({})).await;
+    assert_eq!(s, 201, "{r}");
+    assert_eq!(r["version"], 4);
+    assert_eq!(r["recipe"]["description"], "made on version 1");
+}
+
+/// What a test receiver saw: (method, path, UniqueID header).
+type Seen = std::sync::Arc<std::sync::Mutex<Vec<(String, String, String)>>>;
+
+#[derive(Clone, Copy)]
+enum Receiver {
+    /// 200 to everything.
+    Healthy,
+    /// 303 to a POST (Location /other), 200 to anything else.
+    Redirect,
+    /// Accepts connections, never answers.
+    Hang,
+}
+
+/// A raw HTTP/1.1 receiver on an ephemeral port; returns its URL and what it saw.
+async fn receiver(kind: Receiver) -> (String, Seen) {
+    use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}/cfx", l.local_addr().unwrap());
+    let seen: Seen = Default::default();
+    let s2 = seen.clone();
+    tokio::spawn(async move {
+        let mut held = vec![];
+        loop {
+            let Ok((sock, _)) = l.accept().await else {
+                return;
+            };
+            if let Receiver::Hang = kind {
+                held.push(sock);
+                continue;
+            }
+            let seen = s2.clone();
+            tokio::spawn(async move {
+                let mut r = BufReader::new(sock);
+                loop {
+                    let mut line = String::new();
+                    if r.read_line(&mut line).await.unwrap_or(0) == 0 {
+                        return;
+                    }
+                    let mut parts = line.split_whitespace();
+                    let (method, path) = (
+                        parts.next().unwrap_or("").to_string(),
+                        parts.next().unwrap_or("").to_string(),
+                    );
+                    let (mut len, mut uid) = (0usize, String::new());
+                    loop {
+                        let mut h = String::new();
+                        if r.read_line(&mut h).await.unwrap_or(0) == 0 {
+                            return;
+                        }
+                        let h = h.trim_end();
+                        if h.is_empty() {
+                            break;
+                        }
+                        if let Some((k, v)) = h.split_once(':') {
+                            match k.trim().to_ascii_lowercase().as_str() {
+                                "content-length" => len = v.trim().parse().unwrap_or(0),
+                                "x-springbench-unique-id" => uid = v.trim().to_string(),
+                                _ => {}
+                            }
+                        }
+                    }
+                    let mut body = vec![0u8; len];
+                    if r.read_exact(&mut body).await.is_err() {
+                        return;
+                    }
+                    let answer: &[u8] = match (kind, method.as_str()) {
+                        (Receiver::Redirect, "POST") => b"HTTP/1.1 303 See Other\r\nLocation: /other\r\nContent-Length: 0\r\n\r\n",
+                        _ => b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n",
+                    };
+                    seen.lock().unwrap().push((method, path, uid));
+                    if r.get_mut().write_all(answer).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    (url, seen)
+}
+
+fn webhook(name: &str, url: &str) -> String {
+    format!("[[mes.webhooks]]\nname = \"{name}\"\nurl = \"{url}\"\nsecret = \"{name}-secret-0123456789\"\n")
+}
+
+fn plain_job(serial: &str) -> Value {
+    json!({"part": {"serial": serial, "kind": "spider"}, "target_xpeak_m": 0.008,
+           "production": {"preset": "spider_4in", "seed": 5}})
+}
+
+/// A receiver answering 303: the delivery is a failed attempt naming the
+/// redirect, never `delivered`, and no body-less GET follows it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_redirecting_receiver_is_a_failed_attempt() {
+    let (url, seen) = receiver(Receiver::Redirect).await;
+    let d = Daemon::start(&format!(
+        "[mes]\ninitial_backoff_s = 0.2\nmax_backoff_s = 0.5\n{}",
+        webhook("mes", &url)
+    ));
+    let c = client();
+    let j = &run_all(&c, &d, &[plain_job("R-1")]).await[0];
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let t = Instant::now();
+    loop {
+        let posts = seen
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|s| s.0 == "POST")
+            .count();
+        if posts >= 3 {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the receiver saw {posts} POSTs"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let o = common::get(&c, &d, "/api/v1/outbox?state=delivered").await;
+    assert_eq!(
+        o["items"].as_array().unwrap().len(),
+        0,
+        "delivered by a redirect: {o}"
+    );
+    let o = common::get(&c, &d, "/api/v1/outbox").await;
+    let first = &o["items"][0];
+    assert!(
+        first["last_error"].as_str().unwrap_or("").contains("303"),
+        "{first}"
+    );
+    assert!(first["attempts"].as_i64().unwrap() >= 1, "{first}");
+    let gets: Vec<_> = seen
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|s| s.0 != "POST")
+        .cloned()
+        .collect();
+    assert!(gets.is_empty(), "the redirect was followed: {gets:?}");
+    // Secrets of webhooks are redacted in the configuration's answer.
+    let cfg = common::get(&c, &d, "/api/v1/config").await;
+    assert_eq!(
+        cfg["mes"]["webhooks"][0]["secret"], "<redacted>",
+        "{}",
+        cfg["mes"]
+    );
+    assert!(!cfg.to_string().contains("mes-secret-0123456789"));
+}
+
+/// One receiver that accepts connections and never answers, beside two
+/// healthy ones: the healthy ones get every message within 10 s of the
+/// last job's end (the hanging one only delays itself).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hanging_receiver_delays_only_itself() {
+    let (hang, _) = receiver(Receiver::Hang).await;
+    let (ok1, seen1) = receiver(Receiver::Healthy).await;
+    let (ok2, seen2) = receiver(Receiver::Healthy).await;
+    let d = Daemon::start(&format!(
+        "[mes]\ntimeout_s = 60\n{}{}{}",
+        webhook("hang", &hang),
+        webhook("ok1", &ok1),
+        webhook("ok2", &ok2)
+    ));
+    let c = client();
+    let jobs: Vec<Value> = (0..4).map(|i| plain_job(&format!("H-{i}"))).collect();
+    let done = run_all(&c, &d, &jobs).await;
+    let ended = Instant::now();
+    let mut want = vec![];
+    for j in &done {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let id = j["id"].as_str().unwrap();
+        want.extend(job_messages_all(&c, &d, id).await);
+    }
+    want.sort();
+    assert_eq!(want.len(), 12);
+    loop {
+        let got = |s: &Seen| {
+            let mut v: Vec<String> = s.lock().unwrap().iter().map(|x| x.2.clone()).collect();
+            v.sort();
+            v.dedup();
+            v
+        };
+        let (g1, g2) = (got(&seen1), got(&seen2));
+        if g1 == want && g2 == want {
+            break;
+        }
+        assert!(
+            ended.elapsed() < Duration::from_secs(10),
+            "10 s after the last job: ok1 has {} and ok2 {} of {} messages",
+            g1.len(),
+            g2.len(),
+            want.len()
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// The UniqueIDs of a job's messages (one per message, any webhook).
+async fn job_messages_all(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<String> {
+    let mut ids = vec![];
+    for state in ["pending", "failed", "delivered"] {
+        let o = common::get(c, d, &format!("/api/v1/outbox?state={state}&limit=500")).await;
+        for m in o["items"].as_array().unwrap() {
+            if m["job_id"] == job {
+                ids.push(m["unique_id"].as_str().unwrap().to_string());
+            }
+        }
+    }
+    ids.sort();
+    ids.dedup();
+    ids
+}
+
+/// SPC with repeats: one point per part and job (the mean of its repeats),
+/// against an independent computation from the stored measurement verdicts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spc_takes_one_point_per_part_and_job() {
+    let d = Daemon::start("");
+    let c = client();
+    let mut r = recipe("reps");
+    r["procedure"]["repeats"] = json!(3);
+    r["parameters"][0] = json!({"name": "k0", "quantity": "k0", "lower": 1000.0, "upper": 6000.0});
+    let (s, v) = post(&c, &d, "/api/v1/recipes", &r).await;
+    assert_eq!(s, 201, "{v}");
+    let jobs: Vec<Value> = (0..5)
+        .map(|i| qc_job(&format!("P-{i}"), "reps", 300 + i))
+        .collect();
+    let done = run_all(&c, &d, &jobs).await;
+    let mut means = vec![];
+    let mut all = vec![];
+    for j in &done {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let v = common::get(
+            &c,
+            &d,
+            &format!("/api/v1/jobs/{}/verdict", j["id"].as_str().unwrap()),
+        )
+        .await;
+        let vals: Vec<f64> = v["measurements"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| {
+                let p = m["detail"]["parameters"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .find(|p| p["name"] == "k0")
+                    .unwrap();
+                p["value"].as_f64().unwrap()
+            })
+            .collect();
+        assert_eq!(vals.len(), 3, "{v}");
+        all.extend(vals.iter().copied());
+        means.push(vals.iter().sum::<f64>() / 3.0);
+    }
+    let spc = common::get(&c, &d, "/api/v1/recipes/reps/spc?parameter=k0&last=1000").await;
+    assert_eq!(spc["n"], 5, "one point per part and job: {spc}");
+    let n = means.len() as f64;
+    let mean = means.iter().sum::<f64>() / n;
+    let sd = (means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let mr = means.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (n - 1.0);
+    let sw = mr / 1.128;
+    let (lo, hi) = (1000.0, 6000.0);
+    let cpk = (hi - mean).min(mean - lo) / (3.0 * sw);
+    let ppk = (hi - mean).min(mean - lo) / (3.0 * sd);
+    let rel = |a: &Value, b: f64| (a.as_f64().unwrap() - b).abs() <= 1e-9 * b.abs();
+    assert!(rel(&spc["mean"], mean), "mean {} vs {mean}", spc["mean"]);
+    assert!(
+        rel(&spc["sigma_within"], sw),
+        "sigma_within {} vs {sw}",
+        spc["sigma_within"]
+    );
+    assert!(rel(&spc["cpk"], cpk), "Cpk {} vs {cpk}", spc["cpk"]);
+    assert!(rel(&spc["ppk"], ppk), "Ppk {} vs {ppk}", spc["ppk"]);
+    for (p, m) in spc["points"].as_array().unwrap().iter().zip(&means) {
+        assert_eq!(p["repeats"], 3);
+        assert!(rel(&p["value"], *m));
+    }
+    println!(
+        "SPC with 3 repeats of 5 parts: k0 mean {mean:.1} N/m, sigma_within {sw:.2} (per measurement it would read {:.2}), Cpk {cpk:.3}, Ppk {ppk:.3}",
+        all.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (all.len() - 1) as f64 / 1.128
+    );
+}
+
+/// A burst of 100 submits onto a small disk: the daemon acknowledges only
+/// what the disk can keep (the queue's measurements counted) and refuses
+/// the rest with 503; every acknowledged job ends `succeeded`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn admission_counts_the_space_queued_jobs_need() {
+    let Some(fs) = Tmpfs::mount("48m") else {
+        return;
+    };
+    let d = Daemon::start_in(fs.path(), "min_free_bytes = 1048576\n");
+    let c = client();
+    let (mut accepted, mut refused) = (vec![], 0);
+    for i in 0..100 {
+        let (s, j) = post(&c, &d, "/api/v1/jobs", &plain_job(&format!("B-{i}"))).await;
+        match s {
+            202 => accepted.push(j["id"].as_str().unwrap().to_string()),
+            503 => refused += 1,
+            _ => panic!("submit {i}: {s} {j}"),
+        }
+    }
+    assert!(refused > 0, "100 jobs acknowledged on a 48 MB disk");
+    assert!(!accepted.is_empty());
+    for id in &accepted {
+        let j = wait_state(&c, &d, id, common::terminal).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+    }
+    let used = 48 * 1024 * 1024 - springbench::store::health::free_bytes(fs.path()).unwrap();
+    println!(
+        "burst of 100 on a 48 MB tmpfs: {} acknowledged and all succeeded, {refused} refused with 503; {used} bytes used",
+        accepted.len()
+    );
+    drop(d);
+    drop(fs);
+}
