@@ -954,3 +954,64 @@ async fn admission_counts_the_space_queued_jobs_need() {
     drop(d);
     drop(fs);
 }
+
+/// A series of 16 levels x 10 repeats: each finished repeat is stored as it
+/// finishes (its measurements are listed while the job runs), and a cancel
+/// at 30 % keeps them. Prints the daemon's resident memory.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_series_keeps_its_finished_repeats() {
+    let d = Daemon::start("");
+    let c = client();
+    let levels: Vec<f64> = (0..16).map(|i| 0.001 + 0.0005 * i as f64).collect();
+    let body = json!({"part": {"serial": "S-1", "kind": "spider"}, "levels_m": levels, "repeats": 10,
+                      "production": {"preset": "spider_4in", "seed": 11}});
+    let (s, j) = post(&c, &d, "/api/v1/jobs", &body).await;
+    assert_eq!(s, 202, "{j}");
+    let id = j["id"].as_str().unwrap().to_string();
+    let rss0 = common::rss_kb(d.pid());
+    let mut rss_max = rss0;
+    let t = Instant::now();
+    let stored_while_running = loop {
+        let j = common::get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
+        rss_max = rss_max.max(common::rss_kb(d.pid()));
+        assert!(!common::terminal(j["state"].as_str().unwrap()), "{j}");
+        if j["progress"].as_f64().unwrap() >= 0.30 {
+            break j["measurement_ids"].as_array().unwrap().len();
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(600),
+            "30 % not reached: {j}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    let (s, _) = post(&c, &d, &format!("/api/v1/jobs/{id}/cancel"), &json!({})).await;
+    assert_eq!(s, 202);
+    let j = wait_state(&c, &d, &id, common::terminal).await;
+    assert_eq!(j["state"], "cancelled", "{j}");
+    let ids = j["measurement_ids"].as_array().unwrap();
+    assert!(
+        stored_while_running >= 32,
+        "{stored_while_running} measurements stored at 30 %"
+    );
+    assert_eq!(ids.len() % 16, 0, "whole repeats: {}", ids.len());
+    assert!(ids.len() >= stored_while_running);
+    for m in ids {
+        let m = common::get(
+            &c,
+            &d,
+            &format!("/api/v1/measurements/{}", m.as_str().unwrap()),
+        )
+        .await;
+        assert!(
+            m["large_signal"]["keff_n_per_m"].as_f64().unwrap() > 0.0,
+            "{m}"
+        );
+    }
+    println!(
+        "16 levels x 10 repeats cancelled at 30 %: {} measurements kept ({} stored while running); RSS {} MB at start, {} MB at most",
+        ids.len(),
+        stored_while_running,
+        rss0 / 1024,
+        rss_max / 1024
+    );
+}

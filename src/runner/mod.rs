@@ -1,7 +1,8 @@
 //! Runner: one task owns each bench, takes its queued jobs (priority, then
 //! FIFO), runs the measurement procedure on a blocking thread, fits the
-//! result with the identification core and stores everything in one
-//! transaction. Job state changes and step progress become stored events;
+//! result with the identification core and stores each finished repeat's
+//! recordings and measurements in one transaction as soon as it is done;
+//! the job's end (state, verdicts, MES messages) is one more transaction. Job state changes and step progress become stored events;
 //! live decimated samples are broadcast only.
 //!
 //! States: queued -> running -> succeeded | failed | cancelled | interrupted.
@@ -439,7 +440,8 @@ impl Runner {
                 &log,
                 &warnings,
                 recs,
-                meas,
+                // stored as each repeat finished (Msg::Store)
+                vec![],
                 &records,
             )
             .await
@@ -697,6 +699,17 @@ impl Runner {
                     .publish_live("job.samples", Some(job_id), data)
                     .await
             }
+            Msg::Store(batch, reply) => {
+                let r = self
+                    .store
+                    .insert_job_measurements(job_id, batch.recordings, batch.measurements)
+                    .await
+                    .map_err(|e| e.to_string());
+                if let Err(e) = &r {
+                    tracing::error!(job = %job_id, "storing a finished repeat failed: {e}");
+                }
+                let _ = reply.send(r);
+            }
         }
     }
 }
@@ -738,6 +751,16 @@ enum Msg {
         eta_s: f64,
     },
     Samples(Value),
+    /// A finished repeat's recordings and measurements, to be stored now (a
+    /// cancel, a failure or a crash later keeps them; the job holds only
+    /// their light results); the reply says whether they were.
+    Store(Batch, std::sync::mpsc::SyncSender<Result<(), String>>),
+}
+
+/// Recordings and the measurements that index into them (`pre`, `main`).
+struct Batch {
+    recordings: Vec<NewRecording>,
+    measurements: Vec<NewMeasurement>,
 }
 
 /// Live samples: about this many per second of signal, in chunks of `CHUNK`.
@@ -809,6 +832,26 @@ impl JobObserver {
                 progress,
                 eta_s: eta_s.max(0.0),
             });
+        }
+    }
+
+    /// Has a finished repeat stored (waits for the store's answer).
+    fn store(&self, batch: Batch) -> Result<(), Stop> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let failed = |e: String| {
+            Stop::Failed(problem(
+                "storage",
+                "Results not stored",
+                &format!("storing the measurements of a finished repeat failed: {e}"),
+            ))
+        };
+        self.tx
+            .send(Msg::Store(batch, tx))
+            .map_err(|_| failed("the job's task is gone".into()))?;
+        match rx.recv() {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => Err(failed(e)),
+            Err(_) => Err(failed("no answer from the store".into())),
         }
     }
 
@@ -1132,6 +1175,14 @@ fn execute(
             }));
         }
         obs.flush_samples();
+        // The repeat's recordings and measurements go to the store now: a
+        // series of 16 levels x 10 repeats no longer holds every recording
+        // until the end, and what is measured is kept.
+        let batch = Batch {
+            recordings: std::mem::take(&mut done.recordings),
+            measurements: done.measurements[first_measurement..].to_vec(),
+        };
+        obs.store(batch)?;
     }
     Ok(done)
 }

@@ -732,6 +732,28 @@ impl Store {
         Ok(true)
     }
 
+    /// Stores a running job's finished recordings and measurements (one
+    /// repeat) in one transaction; the job stays running.
+    pub async fn insert_job_measurements(
+        &self,
+        job_id: &str,
+        recordings: Vec<NewRecording>,
+        measurements: Vec<NewMeasurement>,
+    ) -> StoreResult<()> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let running: Option<i64> =
+            sqlx::query_scalar("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'")
+                .bind(job_id.to_string())
+                .fetch_optional(&mut *tx)
+                .await?;
+        if running.is_none() {
+            return Err(StoreError::Corrupt(format!("job {job_id} is not running")));
+        }
+        insert_results(&mut tx, recordings, measurements).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
     /// Stores measurements without a job (multipart import), in one transaction.
     pub async fn insert_measurements(
         &self,
