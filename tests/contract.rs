@@ -875,9 +875,85 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(s, 404);
+    // The same model again: the stored fit (200), no copy.
+    let (s, again) = a
+        .call(
+            "post",
+            fp,
+            &furl,
+            Some(OPERATOR),
+            Some(json!({"effects": ["coulomb_friction"], "order": 4})),
+        )
+        .await;
+    assert_eq!(s, 200, "{}", short(&again));
+    assert_eq!(again["id"], f["id"]);
     let fl = a.get(fp, &furl, 200).await;
     assert_eq!(fl["items"].as_array().unwrap().len(), 1);
     a.get(fp, "/api/v1/measurements/nope/fits", 404).await;
+    // The fit chosen as the headline (who chose it recorded).
+    let hp = "/api/v1/measurements/{id}/headline";
+    let hurl = format!("/api/v1/measurements/{mid}/headline");
+    let (s, hc) = a
+        .call(
+            "put",
+            hp,
+            &hurl,
+            Some(OPERATOR),
+            Some(json!({"fit_id": f["id"]})),
+        )
+        .await;
+    assert_eq!(s, 200, "{}", short(&hc));
+    assert_eq!(hc["fit_id"], f["id"]);
+    let (s, _) = a
+        .call(
+            "put",
+            hp,
+            &hurl,
+            Some(OPERATOR),
+            Some(json!({"fit_id": "nope"})),
+        )
+        .await;
+    assert_eq!(s, 422);
+    let (s, _) = a
+        .call(
+            "put",
+            hp,
+            "/api/v1/measurements/nope/headline",
+            Some(OPERATOR),
+            Some(json!({"fit_id": null})),
+        )
+        .await;
+    assert_eq!(s, 404);
+    let doc = a
+        .get(
+            "/api/v1/measurements/{id}",
+            &format!("/api/v1/measurements/{mid}"),
+            200,
+        )
+        .await;
+    assert_eq!(doc["measurement"]["headline"]["fit_id"], f["id"]);
+    // The printable report (HTML) from the headline fit.
+    let rp = "/api/v1/measurements/{id}/report";
+    let (s, _) = a
+        .call(
+            "get",
+            rp,
+            &format!("/api/v1/measurements/{mid}/report"),
+            Some(OPERATOR),
+            None,
+        )
+        .await;
+    assert_eq!(s, 200);
+    let (s, _) = a
+        .call(
+            "get",
+            rp,
+            "/api/v1/measurements/nope/report",
+            Some(OPERATOR),
+            None,
+        )
+        .await;
+    assert_eq!(s, 404);
 
     // An imported recording set.
     let dir = common::reference_dir("p1_spider");

@@ -809,3 +809,639 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     b.assert_no_console_errors("in the SPC view").await;
     b.quit().await;
 }
+
+// ---- issue 23: a verdict that cannot be misread, results on every page, exports, report ----
+
+/// Creates a recipe (admin).
+async fn create_recipe(d: &Daemon, body: Value) {
+    let r = common::client()
+        .post(d.url("/api/v1/recipes"))
+        .bearer_auth(ADMIN)
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201, "{}", r.text().await.unwrap_or_default());
+}
+
+/// Posts a job (operator); returns its id.
+async fn post_job(d: &Daemon, body: Value) -> String {
+    let r = common::client()
+        .post(d.url("/api/v1/jobs"))
+        .bearer_auth(OPERATOR)
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202, "{}", r.text().await.unwrap_or_default());
+    r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
+}
+
+/// Waits until the job has finished; returns it.
+async fn finished(d: &Daemon, id: &str) -> Value {
+    let t = std::time::Instant::now();
+    loop {
+        let j = get(d, &format!("/api/v1/jobs/{id}")).await;
+        if common::terminal(j["state"].as_str().unwrap_or("")) {
+            return j;
+        }
+        assert!(t.elapsed() < Duration::from_secs(600), "job {id}: {j}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// A recipe every spider of the virtual bench fails: k0 above 0.1 N/mm
+/// (one-sided), and the model error at most 5 %.
+fn strict_recipe() -> Value {
+    json!({
+        "name": "spider-strict",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.006], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0", "upper": 100.0},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    })
+}
+
+/// Station: while the second part runs, the verdict panel shows that part
+/// ("MEASURING", its serial), never the first part's verdict; afterwards
+/// the recent jobs show each part's verdict, not "succeeded".
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    create_recipe(&d, strict_recipe()).await;
+    let first = post_job(
+        &d,
+        json!({"part": {"serial": "SN-FIRST"}, "recipe": "spider-strict"}),
+    )
+    .await;
+    assert_eq!(finished(&d, &first).await["verdict"], "fail");
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-FIRST'",
+        LONG,
+        "the first part's FAIL",
+    )
+    .await;
+    b.screenshot_sizes("station-verdict-fail").await;
+    // Everything the panel shows from now on, as it shows it.
+    b.js(
+        "window.__panel = []; setInterval(() => { const v = document.querySelector('#verdict');
+           if (v) window.__panel.push(v.dataset.verdict + '|' + (v.dataset.serial || '')); }, 10); return true;",
+        vec![],
+    )
+    .await;
+    let second = post_job(
+        &d,
+        json!({"part": {"serial": "SN-SECOND"}, "recipe": "spider-strict"}),
+    )
+    .await;
+    // The job runs: the panel names the part on the bench.
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'running' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND' && document.querySelector('#verdict-serial').textContent === 'SN-SECOND'",
+        LONG,
+        "the panel showing SN-SECOND while it runs",
+    )
+    .await;
+    let j = get(&d, &format!("/api/v1/jobs/{second}")).await;
+    assert_eq!(
+        j["state"], "running",
+        "the panel showed the part while it ran: {j}"
+    );
+    let big = b.text("#verdict-big").await;
+    assert!(big.starts_with("MEASURING"), "{big}");
+    b.screenshot_sizes("station-measuring").await;
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND'",
+        LONG,
+        "the second part's FAIL",
+    )
+    .await;
+    assert_eq!(finished(&d, &second).await["verdict"], "fail");
+    // From the second part's start on, the panel never showed the first part's verdict.
+    let panel: Vec<String> =
+        serde_json::from_value(b.js("return window.__panel;", vec![]).await).unwrap();
+    let start = panel
+        .iter()
+        .position(|p| p == "running|SN-SECOND")
+        .expect("the running state was shown");
+    assert!(
+        panel[start..].iter().all(|p| p.ends_with("|SN-SECOND")),
+        "after SN-SECOND started the panel showed: {:?}",
+        panel[start..]
+            .iter()
+            .filter(|p| !p.ends_with("|SN-SECOND"))
+            .collect::<Vec<_>>()
+    );
+    // Recent jobs: the verdict, not the job state.
+    b.wait_js(
+        &format!("(() => {{ const r = document.querySelector('#recent tr[data-job=\"{second}\"]'); return r && r.dataset.verdict === 'fail' && r.textContent.includes('FAIL') && !r.textContent.includes('succeeded'); }})()"),
+        LONG,
+        "FAIL in the recent jobs",
+    )
+    .await;
+    let failing = b.text("#failing").await;
+    assert!(
+        failing.contains("k0") && failing.contains("\u{2264} 0.1 N/mm"),
+        "the recipe's name and a one-sided limit as '\u{2264} 0.1 N/mm': {failing}"
+    );
+    b.assert_no_console_errors("on the station with a running part")
+        .await;
+    b.quit().await;
+}
+
+/// Station: the QC recipe chosen in the form survives a reload (the next
+/// part gets a verdict, not MEASURED).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn station_recipe_choice_survives_a_reload() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    create_recipe(&d, strict_recipe()).await;
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#recipe option[value=\"spider-strict\"]')",
+        SHORT,
+        "the recipe in the form",
+    )
+    .await;
+    b.js(
+        "const s = document.querySelector('#recipe'); s.value = 'spider-strict'; s.dispatchEvent(new Event('change')); return true;",
+        vec![],
+    )
+    .await;
+    b.js("location.reload(); return true;", vec![]).await;
+    let v = b
+        .wait_js(
+            "document.querySelector('#recipe option[value=\"spider-strict\"]') && document.querySelector('#recipe').value",
+            SHORT,
+            "the recipe choice after the reload",
+        )
+        .await;
+    assert_eq!(v, json!("spider-strict"));
+    // The recipe names the part kind; the level is the recipe's.
+    let (kind, level_off) = (
+        b.js("return document.querySelector('#kind').value;", vec![])
+            .await,
+        b.js(
+            "return document.querySelector('#level-mm').disabled;",
+            vec![],
+        )
+        .await,
+    );
+    assert_eq!(kind, json!("spider"));
+    assert_eq!(level_off, json!(true));
+    b.screenshot("station-recipe-after-reload").await;
+    b.assert_no_console_errors("after the reload").await;
+    b.quit().await;
+}
+
+/// Station: an INVALID verdict at the drive limit (20 V allowed, about 50 V
+/// needed for the target) shows one primary reason (target not reached)
+/// with its action (check the clamping and the part); the knock-on reasons
+/// are folded away.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_action() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    let mut r = strict_recipe();
+    r["procedure"]["levels_m"] = json!([0.008]);
+    r["parameters"] = json!([
+        {"name": "k0", "quantity": "k0", "lower": 1000.0, "upper": 8000.0},
+        {"name": "k_at_6mm", "quantity": "k_at_x", "x_m": 0.006, "lower": 1000.0, "upper": 90000.0}
+    ]);
+    create_recipe(&d, r).await;
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#verdict')",
+        SHORT,
+        "the verdict panel",
+    )
+    .await;
+    let id = post_job(
+        &d,
+        json!({"part": {"serial": "SN-DRIVE"}, "recipe": "spider-strict", "limits": {"max_drive_v": 20.0}}),
+    )
+    .await;
+    let j = finished(&d, &id).await;
+    assert_eq!(j["verdict"], "invalid", "{j}");
+    let v = get(&d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    let codes: Vec<String> = v["detail"]["invalid_reasons"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["code"].as_str().unwrap().to_string())
+        .collect();
+    assert!(
+        codes.len() >= 2 && codes.contains(&"target_not_reached".to_string()),
+        "the drive limit and its consequences: {codes:?}"
+    );
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.verdict === 'invalid' && document.querySelector('#verdict').dataset.serial === 'SN-DRIVE'",
+        LONG,
+        "INVALID for SN-DRIVE",
+    )
+    .await;
+    let primary = b
+        .js(
+            "return [...document.querySelectorAll('#invalid-primary')].map(e => e.dataset.code);",
+            vec![],
+        )
+        .await;
+    assert_eq!(primary, json!(["target_not_reached"]), "one primary reason");
+    let action = b.text("#invalid-action").await;
+    assert!(action.contains("clamping"), "{action}");
+    // The consequences are folded away (closed), each still listed.
+    let folded = b
+        .js(
+            "const d = document.querySelector('#invalid-more'); return d ? [d.open, d.querySelectorAll('li').length] : null;",
+            vec![],
+        )
+        .await;
+    assert_eq!(folded, json!([false, codes.len() - 1]));
+    let text = b.text("#verdict").await;
+    assert!(!text.contains("Measure it again."), "{text}");
+    b.screenshot_sizes("station-verdict-invalid").await;
+    b.assert_no_console_errors("with an INVALID verdict").await;
+    b.quit().await;
+}
+
+/// Results on every page: the part page of a FAIL part shows FAIL, its
+/// failing parameters with their limits, the recipe version and the
+/// traceability; its kind comes from the recipe; the parts list filters by
+/// verdict; the measurement page shows the verdict too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    create_recipe(&d, strict_recipe()).await;
+    let id = post_job(
+        &d,
+        json!({"part": {"serial": "SN-BAD"}, "recipe": "spider-strict"}),
+    )
+    .await;
+    let j = finished(&d, &id).await;
+    assert_eq!(j["verdict"], "fail", "{j}");
+    let ok = import(&d, "p1_spider", "SN-IMPORTED").await;
+    b.login(&d.base, VIEWER, "viewer").await;
+    b.goto(&format!("{}/#/part/SN-BAD", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#part-verdict') && document.querySelector('#part-verdict').dataset.verdict",
+        LONG,
+        "the part's verdict",
+    )
+    .await;
+    assert_eq!(b.text("#part-verdict-word").await, "FAIL");
+    let failing = b.text("#part-verdict-failing").await;
+    assert!(
+        failing.contains("k0") && failing.contains("\u{2264} 0.1 N/mm"),
+        "{failing}"
+    );
+    let v = get(&d, "/api/v1/parts/SN-BAD/verdict").await;
+    let trace = b.text("#traceability").await;
+    assert!(
+        trace.contains(v["recipe_sha256"].as_str().unwrap())
+            && trace.contains("version 1")
+            && trace.contains(v["traceability"]["software_version"].as_str().unwrap()),
+        "{trace}"
+    );
+    assert!(b.text("#part-kind").await.starts_with("spider"));
+    let jobs = b.text("#part-jobs").await;
+    assert!(
+        jobs.contains("FAIL") && jobs.contains("spider-strict v1"),
+        "{jobs}"
+    );
+    b.screenshot_sizes("part-fail").await;
+    // The parts list: filter by verdict.
+    b.goto(&format!("{}/#/parts?verdict=fail", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#parts tr[data-serial]') || document.querySelector('#parts td.muted')",
+        SHORT,
+        "the filtered parts",
+    )
+    .await;
+    let shown = b
+        .js(
+            "return [...document.querySelectorAll('#parts tr[data-serial]')].map(r => r.dataset.serial);",
+            vec![],
+        )
+        .await;
+    assert_eq!(shown, json!(["SN-BAD"]), "only the failed part ({ok} not)");
+    b.screenshot_sizes("parts-filtered").await;
+    // The measurement page of the job shows the verdict as well.
+    let mid = j["measurement_ids"][0].as_str().unwrap();
+    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#measurement-verdict') && document.querySelector('#plot-kx canvas')",
+        LONG,
+        "the measurement's verdict",
+    )
+    .await;
+    assert_eq!(b.text("#measurement-verdict-word").await, "FAIL");
+    b.screenshot_sizes("measurement-fail").await;
+    b.assert_no_console_errors("on the part and measurement pages")
+        .await;
+    b.quit().await;
+}
+
+/// Stored fits are first-class: the same effect asked twice is stored once;
+/// the fit chosen on the measurement page supplies its headline (who chose
+/// it is recorded) and the workspace opens on it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stored_fit_becomes_the_measurement_pages_headline() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    let mid = import(&d, "p2_spider_friction", "P2-HEADLINE").await;
+    let c = common::client();
+    let post = || async {
+        c.post(d.url(&format!("/api/v1/measurements/{mid}/fits")))
+            .bearer_auth(OPERATOR)
+            .json(&json!({"effects": ["coulomb_friction"]}))
+            .send()
+            .await
+            .unwrap()
+    };
+    let r1 = post().await;
+    assert_eq!(r1.status(), 201);
+    let fit: Value = r1.json().await.unwrap();
+    let r2 = post().await;
+    assert_eq!(r2.status(), 200, "the same model again: the stored fit");
+    assert_eq!(r2.json::<Value>().await.unwrap()["id"], fit["id"]);
+    let fits = get(&d, &format!("/api/v1/measurements/{mid}/fits")).await;
+    assert_eq!(fits["items"].as_array().unwrap().len(), 1, "no copy stored");
+    let fid = fit["id"].as_str().unwrap().to_string();
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
+    b.wait_js(
+        &format!("document.querySelector('#headline-{fid}') && document.querySelector('#plot-kx canvas')"),
+        LONG,
+        "the stored fit listed with its choice",
+    )
+    .await;
+    let before = b.text("#fig-model-error").await;
+    b.click(&format!("#headline-{fid}")).await;
+    b.wait_js(
+        &format!("document.querySelector('#headline-source') && document.querySelector('#headline-source').dataset.fit === '{fid}' && document.querySelector('#plot-kx canvas')"),
+        LONG,
+        "the fit as the headline",
+    )
+    .await;
+    let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+    assert_eq!(m["measurement"]["headline"]["fit_id"], json!(fid));
+    assert_eq!(m["measurement"]["headline"]["chosen_by"], "station-1");
+    let want = fit["result"]["model"]["model_error_percent"]
+        .as_f64()
+        .unwrap();
+    let shown = b.text("#fig-model-error").await;
+    let shown_v: f64 = shown.split(' ').next().unwrap().parse().unwrap();
+    assert!(
+        (shown_v - want).abs() <= 0.005 * want,
+        "headline model error {shown} is the fit's {want} (before: {before})"
+    );
+    assert_ne!(shown, before, "the base model's error was shown before");
+    let effects = b.text("#figures").await;
+    assert!(effects.contains("friction force"), "{effects}");
+    b.screenshot_sizes("measurement-headline-fit").await;
+    // The workspace opens on the chosen fit.
+    b.goto(&format!("{}/#/diagnostics/{mid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '2'",
+        LONG,
+        "the workspace on the chosen fit",
+    )
+    .await;
+    let model = b.text("#model-effects").await;
+    assert!(model.contains("friction"), "{model}");
+    b.screenshot_sizes("diagnostics-opened-on-fit").await;
+    b.assert_no_console_errors("with a headline fit").await;
+    b.quit().await;
+}
+
+/// Exports: the CSV of K(x), C(x), F(x) holds the API's coefficients
+/// evaluated on its own grid (inside the valid range) to 1e-9 relative.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn csv_download_of_kx_matches_the_api_coefficients() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    let mid = import(&d, "p1_spider", "P1-CSV").await;
+    b.login(&d.base, VIEWER, "viewer").await;
+    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#export-curves-csv') && document.querySelector('#plot-kx canvas')",
+        LONG,
+        "the export buttons",
+    )
+    .await;
+    // What the page hands the browser to save.
+    b.js(
+        "window.__saved = []; const o = URL.createObjectURL;
+         URL.createObjectURL = (blob) => { window.__saved.push(blob); return o.call(URL, blob); };
+         const c = HTMLAnchorElement.prototype.click;
+         HTMLAnchorElement.prototype.click = function () { if (this.download) { window.__names = (window.__names || []).concat(this.download); return; } return c.call(this); };
+         return true;",
+        vec![],
+    )
+    .await;
+    b.click("#export-curves-csv").await;
+    let csv = b
+        .js(
+            "return window.__saved.length ? window.__saved[0].text() : null;",
+            vec![],
+        )
+        .await;
+    let csv = csv.as_str().expect("the CSV").to_string();
+    let names = b.js("return window.__names;", vec![]).await;
+    assert!(
+        names[0].as_str().unwrap().ends_with("-curves.csv"),
+        "{names}"
+    );
+    let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+    let k: Vec<f64> =
+        serde_json::from_value(m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone())
+            .unwrap();
+    let vr: Vec<f64> = serde_json::from_value(m["stiffness"]["valid_range_m"].clone()).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("x_m,k_n_per_m,c_m_per_n,f_n"));
+    let rows: Vec<Vec<f64>> = lines
+        .filter(|l| !l.is_empty())
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() >= 101, "{} rows", rows.len());
+    assert_eq!(rows[0][0], vr[0], "the grid starts at the valid range");
+    assert_eq!(rows[rows.len() - 1][0], vr[1], "and ends at its end");
+    let mut worst: f64 = 0.0;
+    for r in &rows {
+        let x = r[0];
+        assert!(x >= vr[0] && x <= vr[1], "x = {x} inside the valid range");
+        let kx: f64 = k.iter().rev().fold(0.0, |acc, c| acc * x + c);
+        let fx: f64 = x * k
+            .iter()
+            .enumerate()
+            .rev()
+            .fold(0.0, |acc, (i, c)| acc * x + c / (i as f64 + 1.0));
+        for (got, want) in [(r[1], kx), (r[2], 1.0 / kx), (r[3], fx)] {
+            let rel = (got - want).abs() / want.abs().max(1e-300);
+            let rel = if want.abs() < 1e-12 {
+                (got - want).abs()
+            } else {
+                rel
+            };
+            worst = worst.max(rel);
+        }
+    }
+    assert!(worst <= 1e-9, "worst relative difference {worst:e}");
+    eprintln!("CSV of K(x), C(x), F(x): {} rows, worst relative difference to the API's coefficients {worst:e}", rows.len());
+    // The parameter table too (CSV with units and validity).
+    b.click("#export-parameters-csv").await;
+    let p = b
+        .js(
+            "return window.__saved.length > 1 ? window.__saved[1].text() : null;",
+            vec![],
+        )
+        .await;
+    let p = p.as_str().unwrap();
+    assert!(p.starts_with("parameter,api_field,value,standard_error,unit,validity"));
+    assert!(p.contains("small_signal.k0_n_per_m"), "{p}");
+    b.assert_no_console_errors("after the exports").await;
+    b.quit().await;
+}
+
+/// The printable report of a measurement (and of a comparison): Chromium's
+/// print to PDF holds the parameter table and the four plots on at most
+/// two A4 pages (and two Letter pages).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    let mid = import(&d, "p1_spider", "P1-REPORT").await;
+    let mid2 = import(&d, "p2_spider_friction", "P2-REPORT").await;
+    b.login(&d.base, VIEWER, "viewer").await;
+    for (hash, name) in [
+        (format!("#/report/{mid}"), "report-measurement"),
+        (format!("#/report?ids={mid},{mid2}"), "report-comparison"),
+    ] {
+        b.goto(&format!("{}/{hash}", d.base)).await;
+        b.wait_js(
+            "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true'",
+            LONG,
+            name,
+        )
+        .await;
+        let plots = b
+            .js(
+                "return [...document.querySelectorAll('#report .report-grid .plot')].filter(p => p.querySelector('canvas')).map(p => p.dataset.kind);",
+                vec![],
+            )
+            .await;
+        assert_eq!(
+            plots,
+            json!(["K(x)", "C(x)", "F(x)", "Keff(Xpeak)"]),
+            "{name}"
+        );
+        let rows = b
+            .js(
+                "return document.querySelectorAll('#report-parameters tbody tr').length;",
+                vec![],
+            )
+            .await;
+        assert!(rows.as_u64().unwrap() >= 2, "{name}: parameter rows {rows}");
+        b.screenshot_sizes(name).await;
+        for letter in [false, true] {
+            let pdf = b.print_pdf(letter).await;
+            assert!(pdf.starts_with(b"%PDF"), "a PDF");
+            let pages = browser::pdf_pages(&pdf);
+            let paper = if letter { "letter" } else { "a4" };
+            std::fs::write(
+                browser::artifacts_dir().join(format!("{name}-{paper}.pdf")),
+                &pdf,
+            )
+            .unwrap();
+            eprintln!("{name} on {paper}: {pages} pages, {} bytes", pdf.len());
+            assert!((1..=2).contains(&pages), "{name} on {paper}: {pages} pages");
+        }
+    }
+    // The report a station fetches over the API (for a traveller document):
+    // one self-contained HTML page, printed by Chromium on at most 2 pages.
+    let r = common::client()
+        .get(d.url(&format!("/api/v1/measurements/{mid}/report")))
+        .bearer_auth(VIEWER)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert!(r.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/html"));
+    let html = r.text().await.unwrap();
+    assert_eq!(
+        html.matches("<svg").count(),
+        4,
+        "K(x), C(x), F(x), Keff(Xpeak)"
+    );
+    assert!(html.contains("P1-REPORT") && html.contains("stiffness k0 (small signal)"));
+    let file = browser::artifacts_dir().join("report-api.html");
+    std::fs::write(&file, &html).unwrap();
+    b.goto(&format!("file://{}", file.display())).await;
+    b.wait_js(
+        "document.querySelector('#plots svg')",
+        SHORT,
+        "the API's report",
+    )
+    .await;
+    b.screenshot("report-api").await;
+    for letter in [false, true] {
+        let pdf = b.print_pdf(letter).await;
+        let pages = browser::pdf_pages(&pdf);
+        let paper = if letter { "letter" } else { "a4" };
+        std::fs::write(
+            browser::artifacts_dir().join(format!("report-api-{paper}.pdf")),
+            &pdf,
+        )
+        .unwrap();
+        eprintln!("report over the API on {paper}: {pages} pages");
+        assert!(
+            (1..=2).contains(&pages),
+            "API report on {paper}: {pages} pages"
+        );
+    }
+    b.assert_no_console_errors("on the API's report").await;
+    // The measurement's report: its identity, the parameters with units.
+    b.goto(&format!("{}/#/report/{mid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true'",
+        LONG,
+        "the report again",
+    )
+    .await;
+    let text = b.text("#report").await;
+    assert!(text.contains("P1-REPORT") && text.contains(&mid), "{text}");
+    assert!(text.contains("N/mm") && text.contains("\u{00b1}"), "{text}");
+    b.assert_no_console_errors("on the reports").await;
+    b.quit().await;
+}

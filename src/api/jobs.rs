@@ -72,6 +72,12 @@ pub async fn submit(
     st.store
         .check_admission(st.cfg.min_free_bytes, measurements)
         .await?;
+    // A part measured under a recipe is of the recipe's kind unless the job says otherwise.
+    if let (None, Some(r)) = (&spec.part.kind, &recipe) {
+        if let Some(row) = st.store.get_recipe(&r.name, Some(r.version)).await? {
+            spec.part.kind = row.recipe["part_kind"].as_str().map(str::to_string);
+        }
+    }
     spec.recipe = recipe;
     spec.submitted_by = caller.0;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
@@ -186,13 +192,7 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
         .get_job(&id)
         .await?
         .ok_or_else(|| Problem::not_found("job", &id))?;
-    let mut v = serde_json::to_value(&j).map_err(Problem::internal)?;
-    let verdicts = st.store.job_verdicts(&id).await?;
-    v["verdict"] = json!(verdicts
-        .iter()
-        .find(|x| x.measurement_id.is_none())
-        .map(|x| x.verdict.clone()));
-    Ok(Json(v))
+    Ok(Json(serde_json::to_value(&j).map_err(Problem::internal)?))
 }
 
 #[utoipa::path(post, path = "/api/v1/jobs/{id}/cancel", tag = "jobs",

@@ -107,6 +107,9 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     // The QC verdict of this measurement (with its traceability), null without a recipe.
     doc["measurement"]["verdict"] =
         serde_json::to_value(st.store.measurement_verdict(&id).await?).unwrap_or(Value::Null);
+    // Which stored fit supplies the headline (chosen by a person), null: this result.
+    doc["measurement"]["headline"] =
+        serde_json::to_value(st.store.headline_choice(&id).await?).unwrap_or(Value::Null);
     Ok(Json(doc))
 }
 
@@ -382,11 +385,13 @@ pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
 }
 
 #[utoipa::path(post, path = "/api/v1/measurements/{id}/fits", tag = "measurements",
-    summary = "Fit the stored recordings again with the given effects and order; every fit is kept.",
+    summary = "Fit the stored recordings again with the given effects and order; every fit is kept, the same fit asked again is returned (200) instead of stored twice.",
     params(("id" = String, Path, description = "Measurement id")),
     request_body(content = super::openapi::FitBody, content_type = "application/json"),
     responses(
         (status = 201, description = "The fit", body = crate::store::Fit,
+            headers(("Location" = String, description = "The measurement's fits"))),
+        (status = 200, description = "The same fit (effects, order, method, software version) was stored before: that fit, no copy", body = crate::store::Fit,
             headers(("Location" = String, description = "The measurement's fits"))),
         (status = 404, description = "No such measurement"),
         (status = 410, description = "The retention policy removed the raw signals"),
@@ -417,6 +422,16 @@ pub async fn fit(
         exact,
     };
     let request = serde_json::to_value(&opts).map_err(Problem::internal)?;
+    // The same model asked for again: the stored fit (200), not another copy.
+    if let Some(same) = st
+        .store
+        .list_fits(&id)
+        .await?
+        .into_iter()
+        .find(|f| f.request == request && f.software_version == crate::VERSION)
+    {
+        return Ok(fit_response(StatusCode::OK, &id, &same));
+    }
     let mut d = tokio::task::spawn_blocking(move || diagnose::diagnose(&set, &opts))
         .await
         .map_err(Problem::internal)?
@@ -429,11 +444,63 @@ pub async fn fit(
         .store
         .insert_fit(&new_id(), &id, &request, &result)
         .await?;
-    let mut r = (StatusCode::CREATED, Json(&fit)).into_response();
+    Ok(fit_response(StatusCode::CREATED, &id, &fit))
+}
+
+fn fit_response(status: StatusCode, id: &str, fit: &crate::store::Fit) -> Response {
+    let mut r = (status, Json(fit)).into_response();
     if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/measurements/{id}/fits")) {
         r.headers_mut().insert(header::LOCATION, v);
     }
-    Ok(r)
+    r
+}
+
+#[utoipa::path(put, path = "/api/v1/measurements/{id}/headline", tag = "measurements",
+    summary = "Choose which stored fit supplies the measurement's headline figures (`fit_id` null: its own result); who chose it and when is recorded, every choice is kept.",
+    params(("id" = String, Path, description = "Measurement id")),
+    request_body(content = super::openapi::HeadlineBody, content_type = "application/json"),
+    responses(
+        (status = 200, description = "The choice", body = crate::store::HeadlineChoice),
+        (status = 404, description = "No such measurement"),
+        (status = 422, description = "`fit_id` is not a fit of this measurement")))]
+pub async fn choose_headline(
+    State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
+    Path(id): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Json<crate::store::HeadlineChoice>> {
+    if st.store.get_measurement(&id).await?.is_none() {
+        return Err(Problem::not_found("measurement", &id));
+    }
+    let obj = body
+        .as_object()
+        .ok_or_else(|| Problem::field("", "the body must be a JSON object"))?;
+    if let Some(k) = obj.keys().find(|k| k.as_str() != "fit_id") {
+        return Err(Problem::field(k, "unknown field"));
+    }
+    let fit_id = match obj.get("fit_id") {
+        Some(Value::Null) => None,
+        Some(Value::String(f)) => Some(f.as_str()),
+        _ => {
+            return Err(Problem::field(
+                "fit_id",
+                "must be the id of a fit of this measurement, or null for its own result",
+            ))
+        }
+    };
+    if let Some(f) = fit_id {
+        if !st.store.list_fits(&id).await?.iter().any(|x| x.id == f) {
+            return Err(Problem::field(
+                "fit_id",
+                format!("'{f}' is not a fit of measurement '{id}'"),
+            ));
+        }
+    }
+    Ok(Json(
+        st.store
+            .choose_headline(&id, fit_id, caller.0.as_deref())
+            .await?,
+    ))
 }
 
 #[utoipa::path(get, path = "/api/v1/measurements/{id}/fits", tag = "measurements",

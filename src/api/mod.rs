@@ -18,6 +18,7 @@ pub mod openapi;
 pub mod ops;
 pub mod problem;
 pub mod qc;
+pub mod report;
 pub mod server;
 pub mod session;
 
@@ -133,6 +134,16 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "get",
         "/api/v1/measurements/{id}/fits",
         get(measurements::list_fits),
+    )
+    .add(
+        "get",
+        "/api/v1/measurements/{id}/report",
+        get(report::report),
+    )
+    .add(
+        "put",
+        "/api/v1/measurements/{id}/headline",
+        put(measurements::choose_headline).layer(json_limit),
     )
     .add(
         "get",

@@ -21,7 +21,6 @@
 use super::auth;
 use crate::config::Role;
 use crate::identify::{Model, Report};
-use crate::qc::VerdictKind;
 use crate::runner::{BenchStatus, FieldError};
 use crate::store::hardware::CalibrationRecord;
 use crate::store::qc::{DeliveryRow, RecipeRow, VerdictRow};
@@ -79,15 +78,14 @@ pub struct Session {
     pub auth_required: bool,
 }
 
-/// A job with its QC verdict (`GET /api/v1/jobs/{id}`).
+/// A job with its QC verdict (`GET /api/v1/jobs/{id}`; the job's `verdict`,
+/// details at `/api/v1/jobs/{id}/verdict`).
 #[derive(serde::Serialize, ToSchema)]
 #[allow(dead_code)]
 pub struct JobWithVerdict {
     #[schema(inline)]
     #[serde(flatten)]
     pub job: Job,
-    /// QC verdict of a job with a recipe (details at `/api/v1/jobs/{id}/verdict`), null without one.
-    pub verdict: Option<VerdictKind>,
 }
 
 /// A page of jobs, newest first.
@@ -151,6 +149,11 @@ pub struct MeasurementRecord {
     /// only; null without a recipe).
     #[schema(required = false)]
     pub verdict: Option<VerdictRow>,
+    /// Which stored fit supplies the headline figures, who chose it and
+    /// when (`GET /api/v1/measurements/{id}` only; null: never chosen, the
+    /// measurement's own result).
+    #[schema(required = false)]
+    pub headline: Option<crate::store::HeadlineChoice>,
 }
 
 /// The measurement's record alone: the document of a measurement whose
@@ -435,6 +438,15 @@ pub struct FitBody {
     pub method: Option<crate::identify::Method>,
 }
 
+/// `PUT /api/v1/measurements/{id}/headline`.
+#[derive(serde::Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[allow(dead_code)]
+pub struct HeadlineBody {
+    /// A fit of this measurement; null: the measurement's own result.
+    pub fit_id: Option<String>,
+}
+
 /// `POST /api/v1/measurements` (multipart/form-data): an external recording set.
 #[derive(serde::Serialize, ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -482,6 +494,8 @@ pub struct ImportForm {
         super::measurements::recording,
         super::measurements::fit,
         super::measurements::list_fits,
+        super::measurements::choose_headline,
+        super::report::report,
         super::measurements::diagnostics,
         super::measurements::plot,
         super::events::events,

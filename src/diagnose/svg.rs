@@ -400,6 +400,35 @@ fn single<'a>(
     })
 }
 
+/// One curve of [`xy_chart`]: name, points (x, y), dashed.
+pub type Curve = (String, Vec<(f64, f64)>, bool);
+
+/// A one-panel line chart of curves (linear axes) with shaded x ranges
+/// (lo, hi, label): the plots of the printable report (`api::report`).
+pub fn xy_chart(
+    title: &str,
+    xlabel: &str,
+    ylabel: &str,
+    bands: Vec<(f64, f64, String)>,
+    curves: Vec<Curve>,
+) -> String {
+    single(
+        title,
+        xlabel,
+        ylabel,
+        (false, false),
+        bands,
+        curves
+            .into_iter()
+            .map(|(name, points, dashed)| Series {
+                name,
+                points,
+                dashed,
+            })
+            .collect(),
+    )
+}
+
 fn nums(v: &Value) -> Vec<f64> {
     v.as_array()
         .map(|a| a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect())

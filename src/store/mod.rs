@@ -35,7 +35,8 @@ macro_rules! job_select {
     () => {
         "SELECT j.seq, j.id, j.bench_id, j.part_serial, j.priority, j.state, j.step, j.progress, j.eta_s, \
      j.request_json, j.request_sha256, j.problem_json, j.bench_time_s, j.log_json, j.warnings_json, j.created_at, j.started_at, j.finished_at, \
-     (SELECT json_group_array(m.id) FROM (SELECT id FROM measurements WHERE job_id = j.id ORDER BY seq) m) AS measurement_ids \
+     (SELECT json_group_array(m.id) FROM (SELECT id FROM measurements WHERE job_id = j.id ORDER BY seq) m) AS measurement_ids, \
+     (SELECT v.verdict FROM qc_verdicts v WHERE v.job_id = j.id AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) AS verdict \
      FROM jobs j"
     };
 }
@@ -121,6 +122,10 @@ pub struct Part {
     pub created_at: String,
     pub updated_at: String,
     pub measurement_count: i64,
+    /// The QC verdict of the part's newest job judged under a recipe (`pass`,
+    /// `fail`, `invalid`, `no_limits`); null when no job was judged.
+    #[schema(value_type = Option<crate::qc::VerdictKind>)]
+    pub verdict: Option<String>,
 }
 
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -148,6 +153,10 @@ pub struct Job {
     /// target Xpeak not reached within the limits, with both figures).
     pub warnings: Vec<String>,
     pub measurement_ids: Vec<String>,
+    /// The job's QC verdict (`pass`, `fail`, `invalid`, `no_limits`); null
+    /// without a recipe or before the job has finished.
+    #[schema(value_type = Option<crate::qc::VerdictKind>)]
+    pub verdict: Option<String>,
     pub created_at: String,
     pub started_at: Option<String>,
     pub finished_at: Option<String>,
@@ -233,6 +242,16 @@ pub struct Fit {
     pub result: Value,
     pub software_version: String,
     pub created_at: String,
+}
+
+/// Which fit supplies a measurement's headline figures, chosen by whom and when.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct HeadlineChoice {
+    /// The fit (`GET /api/v1/measurements/{id}/fits`); null: the measurement's own result.
+    pub fit_id: Option<String>,
+    /// The token name of who chose it (null with open access).
+    pub chosen_by: Option<String>,
+    pub chosen_at: String,
 }
 
 /// Result of an insert that honours an idempotency key.
@@ -421,7 +440,8 @@ impl Store {
     pub async fn get_part(&self, serial: &str) -> StoreResult<Option<Part>> {
         let row = sqlx::query(
             "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
-             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial) \
+             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
+             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
              FROM parts p WHERE p.serial = ?",
         )
         .bind(serial.to_string())
@@ -434,7 +454,8 @@ impl Store {
     pub async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
         let rows = sqlx::query(
             "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
-             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial) \
+             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
+             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
              FROM parts p WHERE (? IS NULL OR p.serial > ?) ORDER BY p.serial LIMIT ?",
         )
         .bind(after.map(str::to_string))
@@ -906,6 +927,50 @@ impl Store {
             .collect()
     }
 
+    /// Records who chose which fit (None: the measurement's own result) to
+    /// supply the measurement's headline; every choice is kept.
+    pub async fn choose_headline(
+        &self,
+        measurement_id: &str,
+        fit_id: Option<&str>,
+        chosen_by: Option<&str>,
+    ) -> StoreResult<HeadlineChoice> {
+        let t = now();
+        sqlx::query(
+            "INSERT INTO headline_choices (measurement_id, fit_id, chosen_by, chosen_at) VALUES (?, ?, ?, ?)",
+        )
+        .bind(measurement_id.to_string())
+        .bind(fit_id.map(str::to_string))
+        .bind(chosen_by.map(str::to_string))
+        .bind(t.clone())
+        .execute(&self.pool)
+        .await?;
+        Ok(HeadlineChoice {
+            fit_id: fit_id.map(str::to_string),
+            chosen_by: chosen_by.map(str::to_string),
+            chosen_at: t,
+        })
+    }
+
+    /// The newest headline choice of a measurement (None: never chosen).
+    pub async fn headline_choice(
+        &self,
+        measurement_id: &str,
+    ) -> StoreResult<Option<HeadlineChoice>> {
+        let row = sqlx::query(
+            "SELECT fit_id, chosen_by, chosen_at FROM headline_choices \
+             WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1",
+        )
+        .bind(measurement_id.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(row.map(|r| HeadlineChoice {
+            fit_id: r.get(0),
+            chosen_by: r.get(1),
+            chosen_at: r.get(2),
+        }))
+    }
+
     // ---- events ----
 
     /// Appends an event; returns it with its sequence number.
@@ -1061,6 +1126,7 @@ fn part_from_row(r: &SqliteRow) -> Part {
         created_at: r.get(3),
         updated_at: r.get(4),
         measurement_count: r.get(5),
+        verdict: r.get(6),
     }
 }
 
@@ -1097,6 +1163,7 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
         log,
         warnings,
         measurement_ids: ids,
+        verdict: r.get("verdict"),
         created_at: r.get("created_at"),
         started_at: r.get("started_at"),
         finished_at: r.get("finished_at"),

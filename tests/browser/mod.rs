@@ -292,6 +292,72 @@ impl Browser {
         p
     }
 
+    /// Resizes the window so that the page's viewport is `w` x `h` CSS pixels,
+    /// then waits two animation frames (layout and the plots' redraw).
+    pub async fn set_viewport(&self, w: u32, h: u32) {
+        for _ in 0..3 {
+            let inner = self
+                .js("return [window.innerWidth, window.innerHeight];", vec![])
+                .await;
+            let (iw, ih) = (
+                inner[0].as_u64().unwrap_or(0) as i64,
+                inner[1].as_u64().unwrap_or(0) as i64,
+            );
+            if (iw, ih) == (w as i64, h as i64) {
+                break;
+            }
+            let (ow, oh) = self.c.get_window_size().await.expect("window size");
+            let _ = self
+                .c
+                .set_window_size(
+                    (ow as i64 + w as i64 - iw).max(100) as u32,
+                    (oh as i64 + h as i64 - ih).max(100) as u32,
+                )
+                .await;
+        }
+        self.frames().await;
+    }
+
+    /// Waits until the page has drawn two animation frames (a resize observed).
+    pub async fn frames(&self) {
+        self.js(
+            "return new Promise(r => requestAnimationFrame(() => requestAnimationFrame(() => setTimeout(() => r(true), 50))));",
+            vec![],
+        )
+        .await;
+    }
+
+    /// Screenshots `name-1024x768.png`, `-1280x800` and `-1920x1080` (the
+    /// station and office screens); the viewport is 1280x800 again after.
+    pub async fn screenshot_sizes(&self, name: &str) {
+        for (w, h) in [(1024, 768), (1920, 1080), (1280, 800)] {
+            self.set_viewport(w, h).await;
+            self.screenshot(&format!("{name}-{w}x{h}")).await;
+        }
+    }
+
+    /// The page printed to PDF by Chromium (WebDriver print), on A4 or
+    /// Letter (`letter`), portrait, with backgrounds and 1 cm margins.
+    pub async fn print_pdf(&self, letter: bool) -> Vec<u8> {
+        use fantoccini::wd::{PrintConfiguration, PrintMargins, PrintSize};
+        let cfg = PrintConfiguration::builder()
+            .size(if letter {
+                PrintSize::US_LETTER
+            } else {
+                PrintSize::A4
+            })
+            .margins(PrintMargins {
+                top: 1.0,
+                bottom: 1.0,
+                left: 1.0,
+                right: 1.0,
+            })
+            .background(true)
+            .build()
+            .expect("print configuration");
+        self.c.print(cfg).await.expect("print to PDF")
+    }
+
     /// Signs in through the login form with `token`; waits for the role badge.
     pub async fn login(&mut self, base: &str, token: &str, role: &str) {
         self.goto(&format!("{base}/")).await;
@@ -337,4 +403,38 @@ fn slug(s: &str) -> String {
         .chars()
         .take(60)
         .collect()
+}
+
+/// The number of pages of a PDF Chromium wrote: `/Count N` of the page
+/// tree's root (the dictionary with `/Type /Pages` and no `/Parent`).
+pub fn pdf_pages(pdf: &[u8]) -> usize {
+    let text = String::from_utf8_lossy(pdf);
+    let mut best = None;
+    let mut from = 0;
+    while let Some(i) = text[from..].find("/Pages") {
+        let at = from + i;
+        from = at + 6;
+        let before = text[..at].trim_end();
+        if !before.ends_with("/Type") {
+            continue;
+        }
+        let (Some(open), Some(close)) = (text[..at].rfind("<<"), text[at..].find(">>")) else {
+            continue;
+        };
+        let dict = &text[open..at + close];
+        if dict.contains("/Parent") {
+            continue;
+        }
+        if let Some(c) = dict.find("/Count") {
+            let n: String = dict[c + 6..]
+                .trim_start()
+                .chars()
+                .take_while(|c| c.is_ascii_digit())
+                .collect();
+            if let Ok(n) = n.parse::<usize>() {
+                best = Some(n);
+            }
+        }
+    }
+    best.expect("a PDF page tree with /Count")
 }

@@ -10,6 +10,7 @@ import * as measurement from './measurement.js';
 import * as compare from './compare.js';
 import * as diagnostics from './diagnostics.js';
 import * as qc from './qc.js';
+import * as report from './report.js';
 
 const ROLES = ['viewer', 'operator', 'admin'];
 const main = document.getElementById('view');
@@ -27,6 +28,7 @@ const views = {
   compare: compare.render,
   diagnostics: diagnostics.render,
   qc: qc.render,
+  report: report.render,
 };
 
 /** True when the session's role includes `role`. */
@@ -104,6 +106,8 @@ async function route() {
     params: r.params,
     confirm: confirmDialog,
     stale: () => seq !== state.renderSeq,
+    // Draws the current route again (after a change the page made).
+    rerender: () => route(),
   };
   try {
     const c = await view(main, ctx);

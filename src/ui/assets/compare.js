@@ -5,6 +5,7 @@ import { api } from './api.js';
 import { h, put, q, when, shortId, poly, linspace } from './util.js';
 import { chart, COLORS } from './plots.js';
 import { stiffnessMm } from './measurement.js';
+import { keffChart } from './report.js';
 
 export async function render(main, ctx) {
   const ids = (ctx.params.get('ids') || '').split(',').filter(Boolean);
@@ -35,6 +36,7 @@ export async function render(main, ctx) {
     location.hash = `#/compare?ids=${ids.join(',')}`;
   });
   const plotEl = h('div', { id: 'plot-compare' });
+  const keffEl = h('div', { id: 'plot-compare-keff' });
   const table = h('tbody', { id: 'compare-rows' });
   put(
     main,
@@ -42,7 +44,8 @@ export async function render(main, ctx) {
       h('h1', {}, 'Compare K(x)'),
       h('p', { class: 'muted' }, 'Each curve is drawn over its own measured (valid) range only. Pick measurements on a part\u2019s page, or add them here.'),
       form,
-      plotEl,
+      ids.length ? h('div', { class: 'toolbar' }, h('a', { class: 'button', id: 'open-compare-report', href: `#/report?ids=${ids.join(',')}` }, 'Printable report')) : null,
+      h('div', { class: 'plot-grid compare-grid' }, plotEl, keffEl),
       h('table', { class: 'list' },
         h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'part'), h('th', {}, 'measurement'), h('th', {}, 'measured'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'K(0)'), h('th', {}, 'valid range'), h('th', {}, ''))),
         table)),
@@ -72,6 +75,7 @@ export async function render(main, ctx) {
       x: { label: 'displacement x', unit: 'mm' }, y: { label: 'stiffness K', unit: 'N/mm' },
       series, data, height: 360,
     });
+    keffChart(keffEl, ok, 360);
   } else put(plotEl, h('p', { class: 'muted' }, 'None of these has a stiffness result.'));
   put(table, docs.map((d) => {
     if (d.error) return h('tr', {}, h('td', {}), h('td', { colspan: '8', class: 'error' }, `${d.id}: ${d.error.message}`));

@@ -7,20 +7,9 @@
 // against its fit.
 
 import { api } from './api.js';
-import { h, put, q, num, shortId, poly, linspace } from './util.js';
+import { h, put, num, shortId, poly, linspace, withSe, effectName, effectParam } from './util.js';
 import { chart, bars } from './plots.js';
 import { stiffnessMm } from './measurement.js';
-
-const EFFECT_NAMES = {
-  coulomb_friction: 'dry (Coulomb) friction',
-  quadratic_damping: 'quadratic damping',
-  channel_delay: 'delay between channels',
-  stiffness_order: 'higher K(x) order',
-  stiffness_drift: 'stiffness drift (warming)',
-  damping_vs_displacement: 'damping varying with x',
-  creep: 'creep (viscoelastic)',
-};
-const effectName = (e) => EFFECT_NAMES[e] || e.replace(/_/g, ' ');
 
 /** The SI stiffness coefficients -> N/mm^(i+1). */
 function toMm(c) {
@@ -86,6 +75,24 @@ export async function render(main, ctx) {
   const { lo, hi } = stiffnessMm(doc);
   const steps = [stepOf(d0.diagnostics, 'base', [], null)];
   let current = 0;
+  // The workspace opens on the fit chosen as the measurement's headline.
+  const chosen = info.headline && info.headline.fit_id;
+  let opened = null;
+  if (chosen) {
+    try {
+      const fits = (await api(`/api/v1/measurements/${encodeURIComponent(id)}/fits`)).items || [];
+      const f = fits.find((x) => x.id === chosen);
+      const diag = f && f.result && f.result.diagnostics;
+      if (diag) {
+        steps.push(stepOf(diag, 'final', (f.request && f.request.effects) || [], f.id));
+        current = 1;
+        opened = f;
+      }
+    } catch {
+      /* the base model, as without a choice */
+    }
+  }
+  if (ctx.stale()) return;
 
   const errEl = h('span', { class: 'model-error', id: 'model-error' });
   const ladderEl = h('div', { id: 'ladder' });
@@ -101,8 +108,10 @@ export async function render(main, ctx) {
   const undo = h('button', { id: 'undo', disabled: true }, 'Remove the last effect');
   undo.addEventListener('click', () => {
     if (steps.length > 1) {
-      steps.pop();
+      const gone = steps.pop();
       current = steps.length - 1;
+      status.className = 'status';
+      status.textContent = `Removed ${gone.label.replace(/^\+ /, '')}: back to ${steps[current].label} (model error ${num(steps[current].error, 3)} %). The stored fit is kept; the measurement page chooses which fit is its headline.`;
       draw();
     }
   });
@@ -188,7 +197,8 @@ export async function render(main, ctx) {
     put(candBody, cands.map((c) => {
       const params = Object.entries(c.parameters || {}).map(([k, v]) => {
         const se = (c.parameters_se || {})[k];
-        return h('div', {}, `${k} = ${num(v, 4)}${Number.isFinite(se) ? ` \u00b1 ${num(se, 2)}` : ''}`);
+        const d = effectParam(c.effect, k);
+        return h('div', { title: k }, `${d.label} = ${withSe(v, se, d.unit, d.scale)}`);
       });
       const already = s.effects.includes(c.effect);
       const btn = ctx.can('operator') && !already
@@ -200,7 +210,7 @@ export async function render(main, ctx) {
       else if (!c.identifiable) notes.push(h('div', { class: 'note' }, `cannot tell apart from ${c.collinear_with}`));
       if (c.significant && c.collinear_with && c.variance_inflation > 10) notes.push(h('div', { class: 'muted' }, `partly collinear with ${c.collinear_with} (variance inflation ${num(c.variance_inflation, 3)})`));
       return h('tr', { class: c.significant ? 'significant' : '', dataset: { effect: c.effect, significant: String(c.significant) } },
-        h('td', {}, effectName(c.effect), h('div', { class: 'muted mono' }, c.effect)),
+        h('td', { title: c.effect }, effectName(c.effect)),
         h('td', { class: 'num' }, `${num(c.error_reduction_percent, 3)} %`),
         h('td', {}, c.significant ? `yes (p = ${num(c.p_value, 2)})` : `no (p = ${num(c.p_value, 2)}, needs < ${num(c.alpha, 2)})`),
         h('td', {}, params),
@@ -265,7 +275,7 @@ export async function render(main, ctx) {
     const bands = s.bands.map((b, i) => ({ from: b[0], to: b[1], label: `${i + 1}f`, fill: i % 2 ? 'rgba(240,200,80,0.22)' : 'rgba(240,200,80,0.36)' }));
     chart(spEl, {
       title: `Residual spectrum (${s.label}); shaded: harmonics 1f, 2f, \u2026 of the swept fundamental`, kind: 'residual spectrum',
-      x: { label: 'frequency', unit: 'Hz', log: true }, y: { label: 'PSD', unit: 'N\u00b2/Hz', log: true },
+      x: { label: 'frequency', unit: 'Hz', log: true }, y: { label: 'PSD', unit: 'N\u00b2/Hz', log: true, maxDecades: 6 },
       series: [{ label: 'residual', unit: 'N\u00b2/Hz' }, { label: 'noise floor', unit: 'N\u00b2/Hz', color: '#2ca02c', dash: true }],
       data: [s.spF, s.spP, s.spNoise], xBands: bands, height: 260,
     });
@@ -300,8 +310,10 @@ export async function render(main, ctx) {
     drawSmallSignal();
   }
 
-  const sig = steps[0].candidates.filter((c) => c.significant).map((c) => effectName(c.effect));
-  status.textContent = sig.length
+  const sig = steps[current].candidates.filter((c) => c.significant).map((c) => effectName(c.effect));
+  status.textContent = opened
+    ? `Opened on the headline fit ${shortId(opened.id)} (${steps[current].label.replace(/^\+ /, '')}), chosen by ${info.headline.chosen_by || 'open access'}.`
+    : sig.length
     ? `The base model misses something: significant candidates ${sig.join(', ')}.${ctx.can('operator') ? ' Add one to refit.' : ''}`
     : 'No candidate effect is significant: the base model explains the measurement down to the noise.';
   draw();

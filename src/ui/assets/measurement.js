@@ -1,11 +1,15 @@
-// One measurement: headline figures, K(x), C(x), F(x) (valid range marked,
-// hover values with units), the level series Keff(Xpeak) of its job and
-// its joint fit (K(x), R and effects over all levels), the coefficients,
-// warnings, and the recordings to download.
+// One measurement: its QC verdict (recipe, limits, traceability), headline
+// figures rounded to their uncertainty (from the chosen fit), K(x) with the
+// recipe's mask, C(x), F(x) (valid range marked, hover values with units),
+// the symmetry of K(x), the level series Keff(Xpeak) of its job and its joint
+// fit, the coefficients, the stored fits, warnings, exports (CSV, JSON,
+// clipboard), the printable report and the recordings to download.
 
 import { api, download } from './api.js';
-import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row } from './util.js';
+import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm } from './util.js';
 import { chart } from './plots.js';
+import { verdictCard } from './verdict.js';
+import { parametersCsv, curvesCsv, exportJson, saveText, copyText, GRID_POINTS } from './export.js';
 
 /** K(x) in N/mm at x in mm, from a result document. */
 export function stiffnessMm(doc) {
@@ -22,28 +26,63 @@ export function xGrid(lo, hi, n = 241) {
   return linspace(lo - m, hi + m, n);
 }
 
-export async function render(main, ctx) {
-  const id = ctx.arg;
-  const doc = await api(`/api/v1/measurements/${encodeURIComponent(id)}`);
-  if (ctx.stale()) return;
-  const info = doc.measurement || {};
+/** K(-x)/K(x) - 1 over x >= 0 (inside the valid range), and the symmetry point. */
+export function symmetry(c, lo, hi) {
+  const xm = Math.min(-lo, hi);
+  if (!(xm > 0)) return null;
+  const xs = linspace(0, xm, 121);
+  const ratio = xs.map((x) => poly(c, -x) / poly(c, x));
+  // Symmetry point: where dK/dx = 0 inside the range (the minimum of a
+  // softening-free K(x)), by bisection on the derivative.
+  const d = c.map((k, i) => k * i).slice(1);
+  let sp = null;
+  const n = 400;
+  let prevX = lo;
+  let prevD = poly(d, lo);
+  for (let i = 1; i <= n; i++) {
+    const x = lo + ((hi - lo) * i) / n;
+    const dv = poly(d, x);
+    if (prevD === 0 || Math.sign(dv) !== Math.sign(prevD)) {
+      let a = prevX;
+      let b = x;
+      for (let k = 0; k < 50; k++) {
+        const m = 0.5 * (a + b);
+        if (Math.sign(poly(d, m)) === Math.sign(poly(d, a))) a = m;
+        else b = m;
+      }
+      sp = 0.5 * (a + b);
+      break;
+    }
+    prevX = x;
+    prevD = dv;
+  }
+  const asym = ratio.map((r) => 100 * (r - 1));
+  const worst = asym.reduce((w, v, i) => (Math.abs(v) > Math.abs(w.v) ? { v, x: xs[i] } : w), { v: 0, x: 0 });
+  return { xs, ratio, asym, xm, symmetryPoint: sp, worst };
+}
+
+/** The recipe's K(x) mask (N/mm over mm), when the measurement was judged under one. */
+async function recipeMask(verdict) {
+  if (!verdict) return null;
+  try {
+    const r = await api(`/api/v1/recipes/${encodeURIComponent(verdict.recipe_name)}/versions/${verdict.recipe_version}`);
+    const m = r.recipe && r.recipe.kx_mask;
+    if (!m || !m.x_m || !m.x_m.length) return null;
+    return { x: m.x_m.map((x) => x * 1e3), lo: m.lower_n_per_m.map((k) => k * 1e-3), hi: m.upper_n_per_m.map((k) => k * 1e-3), recipe: `${verdict.recipe_name} v${verdict.recipe_version}` };
+  } catch {
+    return null;
+  }
+}
+
+/** The figures table: each value rounded to its uncertainty, the unit after the \u00b1. */
+export function figuresTable(doc) {
   const ls = doc.large_signal || {};
   const ss = doc.small_signal || null;
   const model = doc.model || {};
-  const plotsEl = h('div', { class: 'plot-grid' });
-  const kx = h('div', { id: 'plot-kx' });
-  const cx = h('div', { id: 'plot-cx' });
-  const fx = h('div', { id: 'plot-fx' });
-  const lev = h('div', { id: 'plot-levels' });
-  plotsEl.append(kx, cx, fx, lev);
-  const dl = (file) =>
-    h('button', {
-      class: 'link',
-      id: `download-${file.replace('.', '-')}`,
-      onclick: () => download(`/api/v1/measurements/${id}/recordings/${file}`, `${info.part_serial || 'part'}-${shortId(id)}-${file}`).catch((e) => alert(`Download failed: ${e.message}`)),
-    }, file);
-  const figures = h('table', { class: 'kv', id: 'figures' },
-    row('Keff at Xpeak', q(ls.keff_n_per_m, 'N/mm', 1e-3)),
+  const st = doc.stiffness || {};
+  const unrel = ss && !ss.reliable ? h('span', { class: 'flag', title: 'the small-signal fit is unreliable' }, ' unreliable') : null;
+  return h('table', { class: 'kv', id: 'figures' },
+    row('Keff at Xpeak', h('span', { id: 'fig-keff' }, withSe(ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/mm', 1e-3))),
     Number.isFinite(ls.keff_at_target_n_per_m)
       ? row(`Keff at the target ${q(ls.target_xpeak_m, 'mm', 1e3)} (judged by QC)`, h('span', { id: 'keff-at-target' }, q(ls.keff_at_target_n_per_m, 'N/mm', 1e-3)))
       : null,
@@ -52,64 +91,82 @@ export async function render(main, ctx) {
     row('x range', `${q(ls.x_min_m, 'mm', 1e3)} \u2026 ${q(ls.x_max_m, 'mm', 1e3)}`),
     row('resonance (large signal)', q(ls.resonance_hz, 'Hz')),
     row('moving mass', q(ls.moving_mass_kg, 'g', 1e3)),
-    ss ? row('f0 (small signal)', `${q(ss.f0_hz, 'Hz')} \u00b1 ${num(ss.f0_se_hz, 2)}`) : null,
-    ss ? row('k0 (small signal)', q(ss.k0_n_per_m, 'N/mm', 1e-3)) : null,
-    ss ? row('R (small signal)', q(ss.r_ns_per_m, 'N\u00b7s/m')) : null,
-    ss ? row('Q', q(pick(ss, 'q', 'q_factor', 'q_1'), '')) : null,
-    row('model residual', q(model.residual_percent, '% of RMS(m\u00b7x\u2033)', 1, 3)),
+    ss ? row('f0 (small signal)', h('span', {}, withSe(ss.f0_hz, ss.f0_se_hz, 'Hz'), unrel)) : null,
+    ss ? row('k0 (small signal)', h('span', {}, withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3), unrel)) : null,
+    ss ? row('R (small signal)', h('span', {}, withSe(ss.r_ns_per_m, ss.r_se_ns_per_m, 'N\u00b7s/m'), unrel)) : null,
+    ss ? row('Q (small signal)', Number.isFinite(ss.q) ? h('span', {}, withSe(ss.q, ss.q_se), unrel) : `not determined${ss.q_null_reason ? `: ${ss.q_null_reason}` : ''}`) : null,
+    row('R (large signal)', withSe(st.r_ns_per_m, st.r_se_ns_per_m, 'N\u00b7s/m')),
+    row('model error', h('span', { id: 'fig-model-error' }, q(model.model_error_percent, '% of RMS(m\u00b7x\u2033)', 1, 3))),
+    row('noise floor', q(model.noise_floor_percent, '%', 1, 3)),
+    row('effects in the model', effectsText(model.effects)),
     row('method, order', `${pick(doc, 'stiffness.method') || '\u2013'}, ${pick(doc, 'stiffness.order') ?? '\u2013'}`),
   );
-  const { c, lo, hi } = stiffnessMm(doc);
+}
+
+
+/** K(x) coefficients with standard errors (N/mm^(i+1)). */
+export function coefficientTable(doc) {
+  const { c } = stiffnessMm(doc);
   const se = pick(doc, 'stiffness.coefficients_se_n_per_m_pow_i_plus_1', 'stiffness.coefficients_se') || [];
-  const coefTable = h('table', { class: 'list', id: 'coefficients' },
-    h('thead', {}, h('tr', {}, h('th', {}, 'i'), h('th', {}, 'k_i'), h('th', {}, 'standard error'), h('th', {}, 'unit'))),
-    h('tbody', {}, c.map((k, i) => h('tr', {}, h('td', {}, String(i)), h('td', {}, num(k, 5)), h('td', {}, num((se[i] || NaN) * 1e-3 ** (i + 1), 2)), h('td', {}, `N/mm${i + 1 > 1 ? `^${i + 1}` : ''}`)))));
-  put(
-    main,
-    h('section', { class: 'card' },
-      h('h1', {}, 'Measurement ', h('span', { class: 'mono' }, shortId(id)), ' of part ', h('a', { href: `#/part/${encodeURIComponent(info.part_serial || '')}`, class: 'serial' }, info.part_serial || '?')),
-      h('p', { class: 'muted' }, `${when(info.created_at)}; ${info.source || ''}${info.bench_id ? ` on ${info.bench_id}` : ''}${info.job_id ? `, job ${shortId(info.job_id)}` : ''}; software ${info.software_version || '?'}`),
-      h('div', { class: 'toolbar' },
-        h('a', { href: `#/diagnostics/${id}`, class: 'button', id: 'open-diagnostics' }, 'Diagnostics workspace'),
-        h('a', { href: `#/compare?ids=${id}`, class: 'button' }, 'Compare\u2026'),
-        h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav')),
-      info.analysis_error ? h('p', { class: 'error' }, `The analysis failed: ${info.analysis_error}. The recordings are kept; a fit can be run again.`) : null,
-      (doc.warnings || []).length ? h('ul', { class: 'warnings', id: 'warnings' }, doc.warnings.map((w) => h('li', {}, w))) : null,
-      h('div', { class: 'two' }, figures, coefTable),
-    ),
-    h('section', { class: 'card' }, h('h2', {}, 'Stiffness, compliance and force (shaded: outside the measured, valid range)'), plotsEl),
-    seriesCard(doc.series, id),
-  );
-  if (!c.length || !Number.isFinite(lo)) {
-    put(plotsEl, h('p', { class: 'muted' }, 'No stiffness result.'));
-    return;
-  }
+  return h('table', { class: 'list', id: 'coefficients' },
+    h('thead', {}, h('tr', {}, h('th', {}, 'K(x) coefficient'), h('th', {}, 'value \u00b1 standard error'))),
+    h('tbody', {}, c.map((k, i) => h('tr', {}, h('td', {}, `k${i}`), h('td', { class: 'num' }, withSe(k, (se[i] ?? NaN) * 1e-3 ** (i + 1), coefUnitMm(i)))))));
+}
+
+/** K(x), C(x), F(x) over the valid range and 25 % beyond; the mask band on K(x). */
+export function drawCurves(els, doc, { mask, jointSeries, height } = {}) {
+  const { c, lo, hi } = stiffnessMm(doc);
   const xs = xGrid(lo, hi);
   const k = xs.map((x) => poly(c, x));
-  // With a level series: the joint K(x) beside this level's (inside the series' range).
-  const jc = seriesKmm(doc.series);
   const kSeries = [{ label: 'K(x)', unit: 'N/mm' }];
   const kData = [xs, k];
+  const jc = seriesKmm(jointSeries);
   if (jc) {
     kSeries.push({ label: 'K(x), joint fit of the level series', unit: 'N/mm', dash: true, color: '#ff7f0e' });
     kData.push(xs.map((x) => (x >= jc.lo && x <= jc.hi ? poly(jc.c, x) : null)));
   }
-  chart(kx, {
+  const areas = [];
+  if (mask) {
+    const inter = (arr) => xs.map((x) => interp(mask.x, arr, x));
+    kSeries.push({ label: `mask of recipe ${mask.recipe} (from golden units): lower`, unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
+    kSeries.push({ label: 'mask: upper', unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
+    kData.push(inter(mask.lo), inter(mask.hi));
+    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(44,160,44,0.13)' });
+  }
+  chart(els.kx, {
     title: 'Stiffness K(x)', kind: 'K(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: 'stiffness K', unit: 'N/mm' },
-    series: kSeries, data: kData, validRange: [lo, hi],
+    series: kSeries, data: kData, validRange: [lo, hi], areas, height,
   });
-  chart(cx, {
+  if (els.kx && mask) els.kx.dataset.mask = String(mask.x.length);
+  chart(els.cx, {
     title: 'Compliance C(x) = 1/K(x)', kind: 'C(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: 'compliance C', unit: 'mm/N' },
-    series: [{ label: 'C(x)', unit: 'mm/N', color: '#2ca02c' }], data: [xs, k.map((v) => (v > 0 ? 1 / v : null))], validRange: [lo, hi],
+    series: [{ label: 'C(x)', unit: 'mm/N', color: '#2ca02c' }], data: [xs, k.map((v) => (v > 0 ? 1 / v : null))], validRange: [lo, hi], height,
   });
-  chart(fx, {
+  chart(els.fx, {
     title: 'Restoring force F(x) = \u222b K dx', kind: 'F(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: 'force F', unit: 'N' },
-    series: [{ label: 'F(x)', unit: 'N', color: '#9467bd' }], data: [xs, xs.map((x) => polyIntegral(c, x))], validRange: [lo, hi],
+    series: [{ label: 'F(x)', unit: 'N', color: '#9467bd' }], data: [xs, xs.map((x) => polyIntegral(c, x))], validRange: [lo, hi], height,
   });
-  // Level series: the measurements of the same job (one per level and repeat).
+}
+
+/** Linear interpolation of (xs, ys) at x; null outside. */
+function interp(xs, ys, x) {
+  if (!xs.length || x < xs[0] || x > xs[xs.length - 1]) return null;
+  for (let i = 1; i < xs.length; i++) {
+    if (x <= xs[i]) {
+      const t = (x - xs[i - 1]) / (xs[i] - xs[i - 1] || 1);
+      return ys[i - 1] + t * (ys[i] - ys[i - 1]);
+    }
+  }
+  return ys[ys.length - 1];
+}
+
+/** Keff(Xpeak) of the measurement's job (one point per level). */
+export async function drawLevels(el, doc, id, { height } = {}) {
+  const info = doc.measurement || {};
+  const ls = doc.large_signal || {};
   let levels = [];
   if (info.job_id) {
     try {
@@ -120,13 +177,12 @@ export async function render(main, ctx) {
     }
   }
   if (!levels.length && Number.isFinite(ls.xpeak_m)) levels = [{ id, summary: { xpeak_m: ls.xpeak_m, keff_n_per_m: ls.keff_n_per_m } }];
-  if (ctx.stale()) return;
   levels.sort((a, b) => a.summary.xpeak_m - b.summary.xpeak_m);
   const lx = levels.map((m) => m.summary.xpeak_m * 1e3);
   const ly = levels.map((m) => m.summary.keff_n_per_m * 1e-3);
   const here = levels.map((m) => (m.id === id ? m.summary.keff_n_per_m * 1e-3 : null));
-  chart(lev, {
-    title: `Level series Keff(Xpeak) of ${info.job_id ? `job ${shortId(info.job_id)}` : 'this measurement'} (${levels.length} level${levels.length === 1 ? '' : 's'})`,
+  chart(el, {
+    title: `Keff(Xpeak) of ${info.job_id ? `job ${shortId(info.job_id)}` : 'this measurement'} (${levels.length} level${levels.length === 1 ? '' : 's'})`,
     kind: 'Keff(Xpeak)',
     x: { label: 'peak displacement Xpeak', unit: 'mm' }, y: { label: 'Keff', unit: 'N/mm' },
     series: [
@@ -135,6 +191,151 @@ export async function render(main, ctx) {
     ],
     data: [lx, ly, here],
     xRange: lx.length === 1 ? [0, lx[0] * 1.5] : undefined,
+    height,
+  });
+}
+
+/** The stored fits: which one supplies the headline, and the choice (operator). */
+function fitsCard(id, fits, headline, ctx) {
+  const chosen = headline && headline.fit_id;
+  const choose = async (fitId) => {
+    try {
+      await api(`/api/v1/measurements/${encodeURIComponent(id)}/headline`, { method: 'PUT', body: { fit_id: fitId } });
+      ctx.reload();
+    } catch (e) {
+      alert(`Not chosen: ${e.message}`);
+    }
+  };
+  const btn = (fitId, label) => (ctx.can('operator')
+    ? h('button', { class: 'link', id: `headline-${fitId || 'base'}`, onclick: () => choose(fitId) }, label)
+    : null);
+  const eff = (f) => {
+    const e = (f.request && f.request.effects) || [];
+    return e.length ? e.map(effectName).join(', ') : (f.request && f.request.exact === false ? 'chosen by the diagnostics' : 'base model');
+  };
+  return h('section', { class: 'card', id: 'fits' },
+    h('h2', {}, 'Fits of this measurement'),
+    h('p', { class: 'muted' }, 'The headline figures, the plots, the exports and the report come from the chosen fit. Refits are made in the diagnostics workspace.'),
+    h('table', { class: 'list', id: 'fit-list' },
+      h('thead', {}, h('tr', {}, h('th', {}, 'fit'), h('th', {}, 'effects'), h('th', {}, 'model error'), h('th', {}, 'K(0)'), h('th', {}, 'made'), h('th', {}, 'headline'))),
+      h('tbody', {},
+        h('tr', { class: chosen ? '' : 'current', dataset: { fit: '' } },
+          h('td', {}, 'measurement\u2019s own result'), h('td', {}, 'as measured'), h('td', {}, '\u2013'), h('td', {}, '\u2013'), h('td', {}, ''),
+          h('td', {}, chosen ? btn(null, 'use this') : h('strong', {}, 'headline'))),
+        fits.map((f) => h('tr', { class: f.id === chosen ? 'current' : '', dataset: { fit: f.id } },
+          h('td', { class: 'mono' }, shortId(f.id)),
+          h('td', {}, eff(f)),
+          h('td', {}, q(pick(f, 'result.model.model_error_percent'), '%', 1, 3)),
+          h('td', {}, q((pick(f, 'result.stiffness.coefficients_n_per_m_pow_i_plus_1') || [])[0], 'N/mm', 1e-3)),
+          h('td', {}, when(f.created_at)),
+          h('td', {}, f.id === chosen ? h('strong', {}, 'headline') : btn(f.id, 'use as headline')))))),
+    chosen ? h('p', { class: 'muted', id: 'headline-chosen' }, `Chosen by ${headline.chosen_by || 'open access'} at ${when(headline.chosen_at)}.`) : null);
+}
+
+/** The measurement's document with the chosen fit's result in place of its own. */
+export async function headlineDoc(id, doc) {
+  const info = doc.measurement || {};
+  let fits = [];
+  try {
+    fits = (await api(`/api/v1/measurements/${encodeURIComponent(id)}/fits`)).items || [];
+  } catch {
+    fits = [];
+  }
+  const fid = info.headline && info.headline.fit_id;
+  const fit = fid ? fits.find((f) => f.id === fid) : null;
+  const shown = fit ? { ...fit.result, measurement: info } : doc;
+  return { shown, fit, fits };
+}
+
+export async function render(main, ctx) {
+  const id = ctx.arg;
+  const doc = await api(`/api/v1/measurements/${encodeURIComponent(id)}`);
+  const info = doc.measurement || {};
+  const { shown, fit, fits } = await headlineDoc(id, doc);
+  const mask = await recipeMask(info.verdict);
+  if (ctx.stale()) return;
+  ctx.reload = () => {
+    if (!ctx.stale()) ctx.rerender();
+  };
+  const plotsEl = h('div', { class: 'plot-grid' });
+  const kx = h('div', { id: 'plot-kx' });
+  const cx = h('div', { id: 'plot-cx' });
+  const fx = h('div', { id: 'plot-fx' });
+  const lev = h('div', { id: 'plot-levels' });
+  const sym = h('div', { id: 'plot-symmetry' });
+  plotsEl.append(kx, cx, fx, lev);
+  const exportMsg = h('span', { class: 'muted', id: 'export-msg', role: 'status' });
+  const base = `${info.part_serial || 'part'}-${shortId(id)}${fit ? `-fit-${shortId(fit.id)}` : ''}`;
+  const dl = (file) =>
+    h('button', {
+      class: 'link',
+      id: `download-${file.replace('.', '-')}`,
+      onclick: () => download(`/api/v1/measurements/${id}/recordings/${file}`, `${info.part_serial || 'part'}-${shortId(id)}-${file}`).catch((e) => alert(`Download failed: ${e.message}`)),
+    }, file);
+  const save = (what, text, type, name) => h('button', { class: 'link', id: `export-${what}`, onclick: () => saveText(name, text(), type) }, name.split('.').pop().toUpperCase());
+  const copy = (what, text) => h('button', {
+    class: 'link', id: `copy-${what}`,
+    onclick: async () => {
+      const ok = await copyText(text());
+      exportMsg.textContent = ok ? `Copied the ${what === 'parameters' ? 'parameter table' : 'K(x), C(x), F(x) table'} (tab-separated, for a spreadsheet).` : 'The browser refused the clipboard.';
+    },
+  }, 'copy');
+  const exports = h('div', { class: 'toolbar exports', id: 'exports' },
+    h('span', {}, 'Parameters: '), save('parameters-csv', () => parametersCsv(shown), 'text/csv', `${base}-parameters.csv`), copy('parameters', () => parametersCsv(shown, '\t')),
+    h('span', {}, ` K(x), C(x), F(x) (${GRID_POINTS} points inside the valid range): `), save('curves-csv', () => curvesCsv(shown), 'text/csv', `${base}-curves.csv`), copy('curves', () => curvesCsv(shown, '\t')),
+    h('span', {}, ' Everything: '), save('json', () => exportJson(shown), 'application/json', `${base}.json`),
+    exportMsg);
+  put(
+    main,
+    h('section', { class: 'card' },
+      h('h1', {}, 'Measurement ', h('span', { class: 'mono' }, shortId(id)), ' of part ', h('a', { href: `#/part/${encodeURIComponent(info.part_serial || '')}`, class: 'serial' }, info.part_serial || '?')),
+      h('p', { class: 'muted' }, `${when(info.created_at)}; ${info.source || ''}${info.bench_id ? ` on ${info.bench_id}` : ''}${info.job_id ? `, job ${shortId(info.job_id)}` : ''}; software ${info.software_version || '?'}`),
+      h('div', { class: 'toolbar' },
+        h('a', { href: `#/diagnostics/${id}`, class: 'button', id: 'open-diagnostics' }, 'Diagnostics workspace'),
+        h('a', { href: `#/compare?ids=${id}`, class: 'button' }, 'Compare\u2026'),
+        h('a', { href: `#/report/${id}`, class: 'button', id: 'open-report' }, 'Printable report'),
+        h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav')),
+      exports,
+      info.analysis_error ? h('p', { class: 'error' }, `The analysis failed: ${info.analysis_error}. The recordings are kept; a fit can be run again.`) : null,
+      fit
+        ? h('p', { class: 'headline-note', id: 'headline-source', dataset: { fit: fit.id } }, `Headline from fit ${shortId(fit.id)} (${((fit.request && fit.request.effects) || []).map(effectName).join(', ') || 'refit'}), chosen by ${info.headline.chosen_by || 'open access'} at ${when(info.headline.chosen_at)}.`)
+        : h('p', { class: 'muted', id: 'headline-source', dataset: { fit: '' } }, 'Headline from the measurement\u2019s own result.'),
+      (shown.warnings || []).length ? h('ul', { class: 'warnings', id: 'warnings' }, shown.warnings.map((w) => h('li', {}, w))) : null,
+      h('div', { class: 'two' }, figuresTable(shown), coefficientTable(shown)),
+    ),
+    info.verdict ? verdictCard(info.verdict, { title: 'QC verdict of this measurement', id: 'measurement-verdict' }) : null,
+    h('section', { class: 'card' }, h('h2', {}, 'Stiffness, compliance, force and Keff(Xpeak) (shaded: outside the measured, valid range)'), plotsEl),
+    h('section', { class: 'card', id: 'symmetry' }, h('h2', {}, 'Symmetry of K(x)'), sym),
+    fitsCard(id, fits, info.headline, ctx),
+    seriesCard(shown.series, id),
+  );
+  const { c, lo, hi } = stiffnessMm(shown);
+  if (!c.length || !Number.isFinite(lo)) {
+    put(plotsEl, h('p', { class: 'muted' }, 'No stiffness result.'));
+    return;
+  }
+  drawCurves({ kx, cx, fx }, shown, { mask, jointSeries: shown.series });
+  drawSymmetry(sym, c, lo, hi);
+  await drawLevels(lev, shown, id);
+}
+
+/** K(-x)/K(x) with the symmetry point and the asymmetry in %. */
+export function drawSymmetry(el, c, lo, hi, { height } = {}) {
+  const s = symmetry(c, lo, hi);
+  if (!s) {
+    put(el, h('p', { class: 'muted' }, 'The valid range does not reach both sides of x = 0.'));
+    return;
+  }
+  const note = h('p', { id: 'symmetry-figures', dataset: { asymmetryPercent: num(s.worst.v, 4), symmetryPointMm: s.symmetryPoint === null ? '' : num(s.symmetryPoint, 4) } },
+    `Largest asymmetry ${num(s.worst.v, 3)} % at |x| = ${num(s.worst.x, 3)} mm (K(\u2212x) ${s.worst.v >= 0 ? 'stiffer' : 'softer'} than K(x)); `,
+    s.symmetryPoint === null ? 'no stiffness minimum inside the valid range.' : `symmetry point (minimum of K) at x = ${num(s.symmetryPoint, 3)} mm.`);
+  const plot = h('div', { id: 'plot-symmetry-ratio' });
+  put(el, note, plot);
+  chart(plot, {
+    title: 'K(\u2212x) / K(x) over |x| (inside the valid range on both sides)', kind: 'symmetry',
+    x: { label: 'displacement |x|', unit: 'mm' }, y: { label: 'K(\u2212x)/K(x)', unit: '' },
+    series: [{ label: 'K(\u2212x)/K(x)', unit: '' }],
+    data: [s.xs, s.ratio], height: height || 220,
   });
 }
 
@@ -146,10 +347,13 @@ function seriesKmm(series) {
   return { c: c.map((k, i) => k * 1e-3 ** (i + 1)), lo: j.valid_range_m[0] * 1e3, hi: j.valid_range_m[1] * 1e3 };
 }
 
-/** Effects with their parameters, one line ("coulomb_friction: force_n 0.2008, ..."). */
-function effectsText(e) {
+/** Effects with their parameters, one line ("dry (Coulomb) friction: friction force 0.2008 N, ..."). */
+export function effectsText(e) {
   const parts = Object.entries(e || {}).filter(([, v]) => v).map(([name, p]) =>
-    `${name}: ${Object.entries(p).map(([k, v]) => `${k} ${num(v)}`).join(', ')}`);
+    `${effectName(name)}: ${Object.entries(p).map(([k, v]) => {
+      const d = effectParam(name, k);
+      return `${d.label} ${num(v * d.scale, 4)}${d.unit ? ` ${d.unit}` : ''}`;
+    }).join(', ')}`);
   return parts.length ? parts.join('; ') : 'none';
 }
 

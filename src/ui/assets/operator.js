@@ -1,11 +1,14 @@
 // Operator view (a 1280x800 station screen): benches with the current job,
 // step, progress and time left; live displacement and microphone signal;
 // the submit form (serial field focused, Enter submits: a barcode scanner
-// types the serial and Enter); cancel with a confirmation; the last part's
-// verdict; the queue and the recent jobs.
+// types the serial and Enter; the recipe choice is kept per station); cancel
+// with a confirmation; the verdict panel of the part on the bench (while a
+// part runs it shows that part, never the previous verdict); the queue and
+// the recent jobs with their verdicts.
 
 import { api, events, ApiError, Unreachable } from './api.js';
-import { h, put, q, dur, when, shortId, num, pick } from './util.js';
+import { h, put, q, dur, when, shortId, pick, VERDICT_WORDS } from './util.js';
+import { rankReasons, reasonText, failureText } from './verdict.js';
 import { chart } from './plots.js';
 
 const STEPS = {
@@ -15,6 +18,28 @@ const STEPS = {
   fit: 'fit',
 };
 const FINISHED = ['succeeded', 'failed', 'cancelled', 'interrupted'];
+
+// Where the station keeps its choices (this browser is the station).
+const STATION_KEY = 'springbench.station';
+
+function stationGet() {
+  try {
+    return JSON.parse(localStorage.getItem(STATION_KEY) || '{}') || {};
+  } catch {
+    return {};
+  }
+}
+
+function stationSet(k, v) {
+  const s = stationGet();
+  s[k] = v;
+  try {
+    localStorage.setItem(STATION_KEY, JSON.stringify(s));
+  } catch {
+    /* private mode: the choice lasts for this page only */
+  }
+}
+
 const LIVE_POINTS = 3000;
 
 function randomKey() {
@@ -40,6 +65,7 @@ export async function render(main, ctx) {
   // --- submit form -----------------------------------------------------------
   let form = null;
   let idemKey = randomKey();
+  let recipesReady = Promise.resolve();
   if (ctx.can('operator')) {
     const serial = h('input', {
       id: 'serial',
@@ -59,14 +85,37 @@ export async function render(main, ctx) {
     const level = h('input', { id: 'level-mm', name: 'level', type: 'number', min: '0.1', max: '15', step: '0.1', value: '8', required: true });
     const benchSel = h('select', { id: 'bench', name: 'bench' });
     const recipeSel = h('select', { id: 'recipe', name: 'recipe' }, h('option', { value: '' }, '(none: measure at the level below)'));
-    api('/api/v1/recipes')
+    const recipeKinds = new Map();
+    const saved = stationGet();
+    if (saved.kind) kind.value = saved.kind;
+    const applyRecipe = () => {
+      level.disabled = !!recipeSel.value;
+      // A recipe names the part kind; the form shows it and sends none of its own.
+      const rk = recipeKinds.get(recipeSel.value);
+      kind.disabled = !!(recipeSel.value && rk);
+      if (recipeSel.value && rk) kind.value = rk;
+    };
+    // Submitting waits for the list when a recipe was chosen at this station:
+    // a scanner's first part must not go out without it.
+    recipesReady = api('/api/v1/recipes')
       .then((l) => {
-        for (const r of l.items || []) recipeSel.append(h('option', { value: r.name }, `${r.name} (v${r.version})`));
+        for (const r of l.items || []) {
+          recipeKinds.set(r.name, r.recipe && r.recipe.part_kind);
+          recipeSel.append(h('option', { value: r.name }, `${r.name} (v${r.version})`));
+        }
+        if (saved.recipe && recipeKinds.has(saved.recipe)) recipeSel.value = saved.recipe;
+        else if (saved.recipe) {
+          formMsg.className = 'error';
+          formMsg.textContent = `The recipe '${saved.recipe}' chosen at this station no longer exists: choose one.`;
+        }
+        applyRecipe();
       })
       .catch(() => {});
     recipeSel.addEventListener('change', () => {
-      level.disabled = !!recipeSel.value;
+      stationSet('recipe', recipeSel.value);
+      applyRecipe();
     });
+    kind.addEventListener('change', () => stationSet('kind', kind.value));
     form = h(
       'form',
       { id: 'submit-form', class: 'card submit', autocomplete: 'off' },
@@ -87,11 +136,13 @@ export async function render(main, ctx) {
     form.addEventListener('submit', async (ev) => {
       ev.preventDefault();
       const s = serial.value.trim();
+      await recipesReady;
       const mm = Number(level.value);
-      const body = { part: { serial: s, kind: kind.value } };
-      // A recipe sets the levels (and is judged by); otherwise the level given here.
+      const body = { part: { serial: s } };
+      // A recipe sets the levels and the part kind (and is judged by); otherwise the form's.
       if (recipeSel.value) body.recipe = recipeSel.value;
       else body.target_xpeak_m = mm / 1000;
+      if (!kind.disabled) body.part.kind = kind.value;
       if (benchSel.value) body.bench = benchSel.value;
       formMsg.className = '';
       formMsg.textContent = 'Submitting\u2026';
@@ -124,7 +175,7 @@ export async function render(main, ctx) {
         form || h('section', { class: 'card', id: 'no-submit' }, h('p', { class: 'muted' }, `Your role (${ctx.role}) can watch the benches but not start or cancel jobs.`)),
         verdictEl,
         h('section', { class: 'card' }, h('h2', {}, 'Recent jobs'),
-          h('table', { class: 'list' }, h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'part'), h('th', {}, 'state'), h('th', {}, 'finished'))), recentEl)),
+          h('table', { class: 'list' }, h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'part'), h('th', {}, 'outcome'), h('th', {}, 'finished'))), recentEl)),
       ),
     ),
   );
@@ -200,6 +251,12 @@ export async function render(main, ctx) {
       j.eta_s = data.eta_s;
     }
     progressSeen.set(jobId, (progressSeen.get(jobId) || 0) + 1);
+    if (verdictEl.dataset.verdict === 'running' && verdictEl.dataset.job === jobId) {
+      const st = document.getElementById('verdict-step');
+      const pc = document.getElementById('verdict-pct');
+      if (st) st.textContent = STEPS[data.step] || data.step;
+      if (pc) pc.textContent = `${Math.round(100 * data.progress)} %`;
+    }
     const b = benches.find((x) => x.job_id === jobId);
     if (!b) return;
     const prog = document.getElementById(`progress-${b.id}`);
@@ -212,18 +269,30 @@ export async function render(main, ctx) {
   }
 
   // --- lists and verdict -----------------------------------------------------
+  function outcomeBadge(j) {
+    if (j.verdict) return h('span', { class: `badge verdict-${j.verdict}` }, VERDICT_WORDS[j.verdict] || j.verdict);
+    if (j.state === 'succeeded') return h('span', { class: 'badge state-succeeded' }, 'measured');
+    return h('span', { class: `badge state-${j.state}` }, j.state === 'failed' ? 'not measured' : j.state);
+  }
+
   function jobRow(j, finished) {
     const link = j.measurement_ids && j.measurement_ids.length ? h('a', { href: `#/measurement/${j.measurement_ids[0]}` }, shortId(j.id)) : shortId(j.id);
-    return h('tr', { dataset: { job: j.id, state: j.state } },
+    return h('tr', { dataset: { job: j.id, state: j.state, verdict: j.verdict || '' } },
       h('td', {}, link),
       h('td', {}, j.part_serial),
-      finished ? h('td', {}, h('span', { class: `badge state-${j.state}` }, j.state)) : h('td', {}, j.bench_id),
+      finished ? h('td', {}, outcomeBadge(j)) : h('td', {}, j.bench_id),
       h('td', {}, when(finished ? j.finished_at || j.created_at : j.created_at)),
       finished ? null : h('td', {}, cancelButton(j)),
     );
   }
 
+  const fullBtn = () =>
+    document.fullscreenEnabled
+      ? h('button', { class: 'link verdict-full', title: 'Full screen (Esc leaves)', onclick: () => (document.fullscreenElement ? document.exitFullscreen() : verdictEl.requestFullscreen()).catch(() => {}) }, 'full screen')
+      : null;
+
   let verdictFor = null;
+  /** The verdict panel shows the part on the bench: a running job, else the last finished. */
   async function drawVerdict(j) {
     if (!j || verdictFor === `${j.id}:${j.state}`) return;
     verdictFor = `${j.id}:${j.state}`;
@@ -231,8 +300,21 @@ export async function render(main, ctx) {
       verdictEl.className = `verdict ${cls}`;
       verdictEl.dataset.verdict = cls;
       verdictEl.dataset.job = j.id;
-      return [h('div', { class: 'verdict-big', id: 'verdict-big' }, big), h('div', { class: 'verdict-part' }, `part ${j.part_serial}`, h('span', { class: 'muted' }, `  job ${shortId(j.id)}, ${when(j.finished_at)}`)), sub];
+      verdictEl.dataset.serial = j.part_serial;
+      return [
+        h('div', { class: 'verdict-top' }, h('div', { class: 'verdict-big', id: 'verdict-big' }, big), fullBtn()),
+        h('div', { class: 'verdict-part' }, h('span', { class: 'verdict-serial', id: 'verdict-serial' }, j.part_serial)),
+        h('div', { class: 'verdict-when' }, `job ${shortId(j.id)}${j.finished_at ? `, ${when(j.finished_at)}` : ''}`),
+        sub,
+      ];
     };
+    if (!FINISHED.includes(j.state)) {
+      const pct = Math.round(100 * (j.progress || 0));
+      put(verdictEl, head('running', 'MEASURING\u2026',
+        h('p', { class: 'verdict-step' }, h('span', { id: 'verdict-step' }, STEPS[j.step] || j.step || 'starting'), ' ', h('span', { id: 'verdict-pct' }, `${pct} %`)),
+        h('p', { class: 'verdict-why' }, 'The verdict appears here when this part is done.')));
+      return;
+    }
     // A job run under a recipe has a verdict whatever its state (a failed job is `invalid`).
     // Only a job run under a recipe has one (asking for the others would be a 404).
     let v = null;
@@ -248,21 +330,29 @@ export async function render(main, ctx) {
     const openLink = mid ? h('a', { href: `#/measurement/${mid}`, id: 'open-result' }, 'open the result') : null;
     if (v && v.verdict) {
       const d = v.detail || {};
-      const recipe = h('p', { class: 'muted', id: 'verdict-recipe' }, `recipe ${v.recipe_name} version ${v.recipe_version} (${String(v.recipe_sha256 || '').slice(0, 12)})`);
-      const pv = (x) => `${x.name}${x.x_m !== undefined && x.x_m !== null ? ` at ${num(x.x_m * 1e3, 3)} mm` : ''}`;
+      const recipe = h('p', { class: 'verdict-recipe', id: 'verdict-recipe' }, `recipe ${v.recipe_name} version ${v.recipe_version} (${String(v.recipe_sha256 || '').slice(0, 12)})`);
       if (v.verdict === 'pass') {
         put(verdictEl, head('pass', 'PASS', recipe, openLink));
       } else if (v.verdict === 'fail') {
         put(verdictEl, head('fail', 'FAIL',
-          h('ul', { class: 'failing', id: 'failing' }, (d.failures || []).map((f) => h('li', {},
-            `${pv(f)}: ${num(f.value, 5)} ${f.unit} outside ${f.lower === null || f.lower === undefined ? '\u2013' : num(f.lower, 5)} \u2026 ${f.upper === null || f.upper === undefined ? '\u2013' : num(f.upper, 5)} ${f.unit}`))),
+          h('ul', { class: 'failing', id: 'failing' }, (d.failures || []).map((f) => h('li', { dataset: { name: f.name } }, failureText(f)))),
           recipe, openLink));
       } else if (v.verdict === 'invalid') {
-        put(verdictEl, head('not-measured', 'INVALID',
-          h('ul', { class: 'verdict-why', id: 'invalid-reasons' }, (d.invalid_reasons || []).map((r) => h('li', {}, `${r.code.replace(/_/g, ' ')}: ${r.detail}`))),
-          h('p', {}, 'The measurement cannot be trusted: the part was not judged. Measure it again.'), recipe, openLink));
+        const [first, ...rest] = rankReasons(d.invalid_reasons);
+        const t = first ? reasonText(first.code) : { title: 'The measurement cannot be trusted', action: 'Call the engineer.' };
+        put(verdictEl, head('invalid', 'INVALID',
+          h('div', { class: 'invalid-primary', id: 'invalid-primary', dataset: { code: first ? first.code : '' } },
+            h('p', { class: 'invalid-title' }, t.title),
+            first ? h('p', { class: 'invalid-detail' }, first.detail) : null,
+            h('p', { class: 'invalid-action', id: 'invalid-action' }, t.action)),
+          rest.length
+            ? h('details', { class: 'invalid-more', id: 'invalid-more' },
+              h('summary', {}, `${rest.length} consequence${rest.length === 1 ? '' : 's'} of this (not judged)`),
+              h('ul', { id: 'invalid-reasons' }, rest.map((r) => h('li', { dataset: { code: r.code } }, `${reasonText(r.code).title}: ${r.detail}`))))
+            : null,
+          recipe, openLink));
       } else {
-        put(verdictEl, head('measured', 'NO LIMITS', h('p', { class: 'muted' }, 'Measured under the recipe, which has no approved limits yet (golden units).'), recipe, openLink));
+        put(verdictEl, head('measured', 'NO LIMITS', h('p', { class: 'verdict-why' }, 'Measured under the recipe, which has no approved limits yet (golden units).'), recipe, openLink));
       }
       return;
     }
@@ -288,7 +378,7 @@ export async function render(main, ctx) {
       put(verdictEl, head('not-measured', 'NO RESULT', h('p', { class: 'verdict-why' }, `analysis failed: ${m.measurement.analysis_error}`)));
       return;
     }
-    put(verdictEl, head('measured', 'MEASURED', h('p', { class: 'muted' }, 'No QC verdict: the job named no recipe.'), figures, openLink));
+    put(verdictEl, head('measured', 'MEASURED', h('p', { class: 'verdict-why' }, 'No QC verdict: the job named no recipe.'), figures, openLink));
   }
 
   let refreshing = false;
@@ -334,7 +424,19 @@ export async function render(main, ctx) {
       const fin = recent.items.filter((j) => FINISHED.includes(j.state));
       put(recentEl, fin.length ? fin.map((j) => jobRow(j, true)) : h('tr', {}, h('td', { colspan: '4', class: 'muted' }, 'none yet')));
       const last = fin.slice().sort((a, b) => String(b.finished_at || '').localeCompare(String(a.finished_at || '')))[0];
-      drawVerdict(last);
+      // The part on the bench: a job started after the last one finished is
+      // shown as running (never the previous part's verdict while it runs).
+      const onBench = benches
+        .map((b) => b.job_id && jobs.get(b.job_id))
+        .filter((j) => j && !FINISHED.includes(j.state))
+        .sort((a, b) => String(b.started_at || b.created_at || '').localeCompare(String(a.started_at || a.created_at || '')))[0];
+      const runningIsNewer = onBench && (!last || String(onBench.started_at || onBench.created_at || '') >= String(last.finished_at || ''));
+      let show = runningIsNewer ? onBench : last;
+      // Never back to an older part: a list read before the shown part
+      // finished would otherwise bring the previous verdict back for a moment.
+      const shown = verdictEl.dataset.job && jobs.get(verdictEl.dataset.job);
+      if (shown && show && shown.id !== show.id && String(shown.created_at) > String(show.created_at)) show = shown;
+      drawVerdict(show);
     } catch (e) {
       // Unreachable: keep what is shown (the banner says it may be out of date).
       if (!ctx.stale() && !(e instanceof Unreachable)) put(benchesEl, h('p', { class: 'error' }, `Cannot read the benches: ${e.message}`));

@@ -1,8 +1,15 @@
-// Engineer views: the parts (search by serial or kind) and one part's
-// history (its measurements and jobs), with a selection to compare.
+// Engineer views: the parts (search by serial or kind, filter by verdict and
+// kind) and one part's page: its verdict with the recipe, limits and
+// traceability, its measurements and jobs, with a selection to compare.
 
-import { api } from './api.js';
-import { h, put, q, when, shortId } from './util.js';
+import { api, ApiError } from './api.js';
+import { h, put, q, when, shortId, VERDICT_WORDS } from './util.js';
+import { verdictCard } from './verdict.js';
+
+/** A verdict badge (or a dash for a part never judged). */
+export function verdictBadge(v) {
+  return v ? h('span', { class: `badge verdict-${v}` }, VERDICT_WORDS[v] || v) : h('span', { class: 'muted' }, '\u2013');
+}
 
 /** All parts (the API pages them; a station knows thousands at most). */
 async function allParts() {
@@ -25,36 +32,62 @@ export async function render(main, ctx) {
     value: ctx.params.get('q') || '',
     'aria-label': 'Search parts',
   });
+  const verdictSel = h('select', { id: 'filter-verdict', 'aria-label': 'Filter by verdict' },
+    h('option', { value: '' }, 'any verdict'),
+    ['pass', 'fail', 'invalid', 'no_limits'].map((v) => h('option', { value: v }, VERDICT_WORDS[v])),
+    h('option', { value: 'none' }, 'not judged'));
+  const kindSel = h('select', { id: 'filter-kind', 'aria-label': 'Filter by kind' }, h('option', { value: '' }, 'any kind'));
+  verdictSel.value = ctx.params.get('verdict') || '';
   const body = h('tbody', { id: 'parts' });
   const count = h('span', { class: 'muted', id: 'parts-count' });
   put(
     main,
     h('section', { class: 'card' },
       h('h1', {}, 'Parts ', count),
-      h('div', { class: 'toolbar' }, h('label', { for: 'part-search' }, 'Search '), search),
+      h('div', { class: 'toolbar' },
+        h('label', { for: 'part-search' }, 'Search '), search,
+        h('label', { for: 'filter-verdict' }, 'Verdict '), verdictSel,
+        h('label', { for: 'filter-kind' }, 'Kind '), kindSel),
       h('table', { class: 'list' },
-        h('thead', {}, h('tr', {}, h('th', {}, 'serial'), h('th', {}, 'kind'), h('th', {}, 'measurements'), h('th', {}, 'last change'))),
+        h('thead', {}, h('tr', {}, h('th', {}, 'serial'), h('th', {}, 'kind'), h('th', {}, 'verdict'), h('th', {}, 'measurements'), h('th', {}, 'last change'))),
         body)),
   );
   search.focus();
   const parts = await allParts();
   if (ctx.stale()) return;
+  const kinds = [...new Set(parts.map((p) => p.kind || ''))].sort();
+  for (const k of kinds) kindSel.append(h('option', { value: k || 'none' }, k ? k.replace(/_/g, ' ') : 'not given'));
+  kindSel.value = ctx.params.get('kind') || '';
   function draw() {
     const needle = search.value.trim().toLowerCase();
-    const hits = parts.filter((p) => !needle || p.serial.toLowerCase().includes(needle) || (p.kind || '').toLowerCase().includes(needle));
+    const wantV = verdictSel.value;
+    const wantK = kindSel.value;
+    const hits = parts.filter((p) =>
+      (!needle || p.serial.toLowerCase().includes(needle) || (p.kind || '').toLowerCase().includes(needle))
+      && (!wantV || (wantV === 'none' ? !p.verdict : p.verdict === wantV))
+      && (!wantK || (wantK === 'none' ? !p.kind : p.kind === wantK)));
     count.textContent = `${hits.length} of ${parts.length}`;
     put(body, hits.length
-      ? hits.slice(0, 500).map((p) => h('tr', { dataset: { serial: p.serial } },
+      ? hits.slice(0, 500).map((p) => h('tr', { dataset: { serial: p.serial, verdict: p.verdict || '', kind: p.kind || '' } },
         h('td', {}, h('a', { href: `#/part/${encodeURIComponent(p.serial)}` }, p.serial)),
-        h('td', {}, p.kind || '\u2013'),
+        h('td', {}, p.kind ? p.kind.replace(/_/g, ' ') : '\u2013'),
+        h('td', {}, verdictBadge(p.verdict)),
         h('td', {}, String(p.measurement_count)),
         h('td', {}, when(p.updated_at))))
-      : h('tr', {}, h('td', { colspan: '4', class: 'muted' }, parts.length ? 'no part matches' : 'no part measured yet')));
+      : h('tr', {}, h('td', { colspan: '5', class: 'muted' }, parts.length ? 'no part matches' : 'no part measured yet')));
   }
-  search.addEventListener('input', () => {
-    history.replaceState(null, '', `#/parts${search.value ? `?q=${encodeURIComponent(search.value)}` : ''}`);
+  const keep = () => {
+    const ps = new URLSearchParams();
+    if (search.value) ps.set('q', search.value);
+    if (verdictSel.value) ps.set('verdict', verdictSel.value);
+    if (kindSel.value) ps.set('kind', kindSel.value);
+    const qs = ps.toString();
+    history.replaceState(null, '', `#/parts${qs ? `?${qs}` : ''}`);
     draw();
-  });
+  };
+  search.addEventListener('input', keep);
+  verdictSel.addEventListener('change', keep);
+  kindSel.addEventListener('change', keep);
   search.addEventListener('keydown', (ev) => {
     if (ev.key !== 'Enter') return;
     const first = body.querySelector('a');
@@ -65,11 +98,26 @@ export async function render(main, ctx) {
 
 export async function renderPart(main, ctx) {
   const serial = ctx.arg;
-  const [part, meas, jobs] = await Promise.all([
+  const [part, meas, jobs, verdict] = await Promise.all([
     api(`/api/v1/parts/${encodeURIComponent(serial)}`),
     api(`/api/v1/parts/${encodeURIComponent(serial)}/measurements?limit=200`),
     api(`/api/v1/jobs?part=${encodeURIComponent(serial)}&limit=50`),
+    // The newest job verdict; 404 for a part never judged under a recipe.
+    api(`/api/v1/parts/${encodeURIComponent(serial)}/verdict`).catch((e) => {
+      if (e instanceof ApiError && e.status === 404) return null;
+      throw e;
+    }),
   ]);
+  // The kind: the part's own, else its recipe's.
+  let kind = part.kind ? part.kind.replace(/_/g, ' ') : null;
+  if (!kind && verdict) {
+    try {
+      const r = await api(`/api/v1/recipes/${encodeURIComponent(verdict.recipe_name)}`);
+      if (r.recipe && r.recipe.part_kind) kind = `${r.recipe.part_kind.replace(/_/g, ' ')} (from recipe ${verdict.recipe_name})`;
+    } catch {
+      /* retired or unreadable: "not given" */
+    }
+  }
   if (ctx.stale()) return;
   const selected = new Set();
   const compareBtn = h('button', { id: 'compare-selected', disabled: true }, 'Compare K(x) of the selected');
@@ -99,8 +147,13 @@ export async function renderPart(main, ctx) {
     main,
     h('section', { class: 'card' },
       h('h1', {}, 'Part ', h('span', { class: 'serial' }, part.serial)),
-      h('p', { class: 'muted' }, `${part.kind || 'kind not given'}; first seen ${when(part.created_at)}; ${part.measurement_count} measurements`),
+      h('p', { class: 'muted', id: 'part-kind' }, `${kind || 'kind not given'}; first seen ${when(part.created_at)}; ${part.measurement_count} measurements`),
       part.notes ? h('p', {}, part.notes) : null,
+    ),
+    verdict
+      ? verdictCard(verdict, { title: `Verdict of the newest judged job (${when(verdict.created_at)})`, id: 'part-verdict' })
+      : h('section', { class: 'card', id: 'part-verdict', dataset: { verdict: '' } }, h('p', { class: 'muted' }, 'Not judged: no job of this part ran under a QC recipe.')),
+    h('section', { class: 'card' },
       h('h2', {}, 'Measurements'),
       h('table', { class: 'list', id: 'part-measurements' },
         h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'measured'), h('th', {}, 'source'), h('th', {}, 'target Xpeak'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'resonance'), h('th', {}, ''))),
@@ -108,10 +161,12 @@ export async function renderPart(main, ctx) {
       compareBtn,
       h('h2', {}, 'Jobs'),
       h('table', { class: 'list', id: 'part-jobs' },
-        h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'state'), h('th', {}, 'bench'), h('th', {}, 'submitted'), h('th', {}, 'bench time'), h('th', {}, 'problem'))),
-        h('tbody', {}, jobs.items.map((j) => h('tr', {},
+        h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'state'), h('th', {}, 'verdict'), h('th', {}, 'recipe'), h('th', {}, 'bench'), h('th', {}, 'submitted'), h('th', {}, 'bench time'), h('th', {}, 'problem'))),
+        h('tbody', {}, jobs.items.map((j) => h('tr', { dataset: { job: j.id, verdict: j.verdict || '' } },
           h('td', {}, shortId(j.id)),
           h('td', {}, h('span', { class: `badge state-${j.state}` }, j.state)),
+          h('td', {}, verdictBadge(j.verdict)),
+          h('td', {}, j.request && j.request.recipe ? `${j.request.recipe.name} v${j.request.recipe.version}` : '\u2013'),
           h('td', {}, j.bench_id),
           h('td', {}, when(j.created_at)),
           h('td', {}, q(j.bench_time_s, 's', 1, 3)),

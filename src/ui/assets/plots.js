@@ -68,7 +68,7 @@ export function chart(el, spec) {
       spanGaps: false,
       points: s.points ? { show: true, size: 7, fill: color } : { show: false },
       paths: s.points === 'only' ? () => null : undefined,
-      value: (u, v) => (v === null || v === undefined ? '\u2013' : `${num(v, 4)} ${unit}`),
+      value: (u, v) => (v === null || v === undefined ? '\u2013' : `${num(v, 4)}${unit ? ` ${unit}` : ''}`),
     });
   });
   const logAxis = (log) =>
@@ -78,19 +78,43 @@ export function chart(el, spec) {
           values: (u, splits) => splits.map(tickLabel),
         }
       : { values: (u, splits) => splits.map(tickLabel) };
+  const lab = (a) => (a.unit ? `${a.label} (${a.unit})` : a.label);
   const axes = [
-    { label: `${spec.x.label} (${xUnit})`, ...logAxis(spec.x.log), size: 42 },
-    { label: `${spec.y.label} (${spec.y.unit})`, scale: 'y', ...logAxis(spec.y.log), size: 64 },
+    { label: lab(spec.x), ...logAxis(spec.x.log), size: 42 },
+    { label: lab(spec.y), scale: 'y', ...logAxis(spec.y.log), size: 64 },
   ];
   const scales = {
     x: spec.x.log ? { time: false, distr: 3, log: 10 } : { time: false },
     y: spec.y.log ? { distr: 3, log: 10 } : {},
   };
   if (spec.y2) {
-    axes.push({ label: `${spec.y2.label} (${spec.y2.unit})`, scale: 'y2', side: 1, grid: { show: false }, ...logAxis(false), size: 64 });
+    axes.push({ label: lab(spec.y2), scale: 'y2', side: 1, grid: { show: false }, ...logAxis(false), size: 64 });
     scales.y2 = {};
   }
   if (spec.xRange) scales.x.range = () => spec.xRange;
+  // A log axis spans the data (uPlot would round it out to whole decades:
+  // 20-110 Hz drawn up to 1 kHz), and a log y axis at most `maxDecades`
+  // below its largest value (a residual spectrum would otherwise span 14).
+  const data0 = spec.data.map(clean);
+  const finitePos = (arrs) => arrs.flat().filter((v) => v !== null && v > 0);
+  if (spec.x.log && !spec.xRange) {
+    const xs = finitePos([data0[0]]);
+    if (xs.length) {
+      const a = Math.min(...xs);
+      const b = Math.max(...xs);
+      scales.x.range = () => [a, b > a ? b : a * 10];
+    }
+  }
+  if (spec.y.log) {
+    const ys = finitePos(data0.slice(1).filter((_, i) => !spec.series[i].y2));
+    if (ys.length) {
+      const top = Math.max(...ys);
+      const bottom = Math.max(Math.min(...ys), top * 10 ** -(spec.y.maxDecades || 6));
+      scales.y.range = () => [bottom / 1.5, top * 1.5];
+    }
+  }
+  // Counts (sample numbers) get whole-number ticks only.
+  if (spec.x.integer) axes[0].incrs = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000];
   const width = Math.max(320, el.clientWidth || 600);
   const opts = {
     title: spec.title,
@@ -100,6 +124,8 @@ export function chart(el, spec) {
     axes,
     series,
     legend: { show: true, live: true },
+    // Filled areas between two series (a mask or a band): uPlot series indices (x is 0).
+    bands: (spec.areas || []).map((a) => ({ series: [a.upper, a.lower], fill: a.fill || 'rgba(44,160,44,0.13)' })),
     cursor: spec.sync ? { sync: { key: spec.sync, setSeries: false } } : {},
     hooks: {
       drawClear: [(u) => drawBands(u, spec)],
@@ -108,7 +134,7 @@ export function chart(el, spec) {
   };
   el.replaceChildren();
   el.classList.add('plot');
-  const data = spec.data.map(clean);
+  const data = data0;
   const u = new uPlot(opts, data, el);
   // What the plot shows, for people using assistive tools and for the tests.
   el.dataset.kind = spec.kind || spec.title || '';
@@ -187,21 +213,32 @@ function drawBandLabels(u, spec) {
     ctx.fillStyle = '#444';
     const a = xPos(u, spec.validRange[0]);
     const b = xPos(u, spec.validRange[1]);
-    if (a > left + 4) {
+    // The longest wording that fits inside the shaded part, else none.
+    const fit = (room) => ['outside valid range', 'outside'].find((t) => ctx.measureText(t).width + 8 * px <= room);
+    const ta = fit(a - left);
+    if (ta) {
       ctx.textAlign = 'right';
-      ctx.fillText('outside valid range', a - 4 * px, top + 4 * px);
+      ctx.fillText(ta, a - 4 * px, top + 4 * px);
     }
-    if (b < left + width - 4) {
+    const tb = fit(left + width - b);
+    if (tb) {
       ctx.textAlign = 'left';
-      ctx.fillText('outside valid range', b + 4 * px, top + 4 * px);
+      ctx.fillText(tb, b + 4 * px, top + 4 * px);
     }
   }
   ctx.textAlign = 'center';
   ctx.fillStyle = '#806000';
+  // Band labels never overlap: one that would touch the previous is left out
+  // (on a log axis the upper harmonics crowd together).
+  let lastRight = -Infinity;
   for (const b of spec.xBands || []) {
     if (!b.label) continue;
     const m = (xPos(u, b.from) + xPos(u, b.to)) / 2;
-    if (m > left && m < left + width) ctx.fillText(b.label, m, top + 3 * px);
+    const w = ctx.measureText(b.label).width;
+    if (m > left && m < left + width && m - w / 2 > lastRight + 4 * px) {
+      ctx.fillText(b.label, m, top + 3 * px);
+      lastRight = m + w / 2;
+    }
   }
   ctx.textAlign = 'right';
   ctx.fillStyle = '#1a6e1a';

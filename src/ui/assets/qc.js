@@ -4,12 +4,12 @@
 // individuals chart with the specification and control limits).
 
 import { api, download, ApiError } from './api.js';
-import { h, put, num, when, shortId } from './util.js';
+import { h, put, num, when, shortId, siq, limitsText, displayUnit } from './util.js';
 import { chart } from './plots.js';
 
-/** A limit or value with its unit, as stored (SI or the parameter's own unit). */
+/** A limit or value in its display unit (N/m as N/mm, "1" as none). */
 function lim(v, unit) {
-  return v === null || v === undefined ? '\u2013' : `${num(v, 5)} ${unit || ''}`.trim();
+  return siq(v, unit, 5);
 }
 
 /** The unit of a recipe parameter's limits (docs/qc.md, "quantity"). */
@@ -203,13 +203,14 @@ function drawSpc(el, ctx, name, params) {
     }
     if (ctx.stale()) return;
     const u = s.unit || '';
+    const du = displayUnit(u);
     const row = (k, v) => h('tr', {}, h('th', {}, k), h('td', {}, v));
     put(stats,
       row('n (valid measurements)', String(s.n)),
       row('mean', lim(s.mean, u)),
       row('\u03c3 overall (Pp, Ppk)', lim(s.sigma, u)),
       row('\u03c3 within (Cp, Cpk)', lim(s.sigma_within, u)),
-      row('specification', `${lim(s.lower, u)} \u2026 ${lim(s.upper, u)}`),
+      row('specification', limitsText(s.lower, s.upper, u)),
       row('Cp / Cpk', `${num(s.cp, 3)} / ${num(s.cpk, 3)}`),
       row('Pp / Ppk', `${num(s.pp, 3)} / ${num(s.ppk, 3)}`),
       row('yield', s.yield_fraction === null || s.yield_fraction === undefined ? '\u2013' : `${num(100 * s.yield_fraction, 4)} % (${s.passed} pass, ${s.failed} fail; ${s.invalid} invalid not counted)`),
@@ -223,22 +224,24 @@ function drawSpc(el, ctx, name, params) {
       return;
     }
     const xs = pts.map((_, i) => i + 1);
-    const flat = (v) => xs.map(() => (v === null || v === undefined ? null : v));
+    const sc = (v) => (v === null || v === undefined ? null : v * du.scale);
+    const flat = (v) => xs.map(() => sc(v));
+    const su = du.unit;
     const series = [
-      { label: `${s.parameter}`, unit: u, points: true },
-      { label: 'lower spec', unit: u, color: '#d62728', dash: true },
-      { label: 'upper spec', unit: u, color: '#d62728', dash: true },
-      { label: 'centre line', unit: u, color: '#2ca02c' },
-      { label: 'LCL', unit: u, color: '#9467bd', dash: true },
-      { label: 'UCL', unit: u, color: '#9467bd', dash: true },
+      { label: `${s.parameter}`, unit: su, points: true },
+      { label: 'lower spec', unit: su, color: '#d62728', dash: true },
+      { label: 'upper spec', unit: su, color: '#d62728', dash: true },
+      { label: 'centre line', unit: su, color: '#2ca02c' },
+      { label: 'LCL', unit: su, color: '#9467bd', dash: true },
+      { label: 'UCL', unit: su, color: '#9467bd', dash: true },
     ];
     chart(plot, {
       title: `${s.parameter}: individuals chart`,
       kind: 'SPC',
-      x: { label: 'measurement', unit: '#' },
-      y: { label: s.parameter, unit: u },
+      x: { label: 'measurement', unit: '#', integer: true },
+      y: { label: s.parameter, unit: su },
       series,
-      data: [xs, pts.map((p) => p.value), flat(s.lower), flat(s.upper), flat(s.center_line), flat(s.lcl), flat(s.ucl)],
+      data: [xs, pts.map((p) => sc(p.value)), flat(s.lower), flat(s.upper), flat(s.center_line), flat(s.lcl), flat(s.ucl)],
       height: 280,
     });
   }

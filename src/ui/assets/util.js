@@ -101,3 +101,131 @@ export function pick(obj, ...paths) {
 export function row(label, value) {
   return h('tr', {}, h('th', {}, label), h('td', {}, value));
 }
+
+// --- numbers and names for people ---------------------------------------------
+
+/**
+ * How an SI unit of the API is shown: N/m as N/mm, m as mm, "1" as no unit.
+ * Returns {unit, scale} (display value = SI value * scale).
+ */
+export function displayUnit(si) {
+  const u = String(si ?? '').trim();
+  const map = {
+    'N/m': ['N/mm', 1e-3],
+    m: ['mm', 1e3],
+    'm/N': ['mm/N', 1e3],
+    'N s/m': ['N\u00b7s/m', 1],
+    'N s^2/m^2': ['N\u00b7s\u00b2/m\u00b2', 1],
+    'N s/m^2': ['N\u00b7s/m\u00b2', 1],
+    'N s/m^3': ['N\u00b7s/m\u00b3', 1],
+    'N/(m s)': ['N/(mm\u00b7s)', 1e-3],
+    'm/s': ['mm/s', 1e3],
+    s: ['ms', 1e3],
+    1: ['', 1],
+    '': ['', 1],
+  };
+  const [unit, scale] = map[u] || [u, 1];
+  return { unit, scale };
+}
+
+/** "3.92 N/mm" from an SI value and its SI unit ("1": no unit). */
+export function siq(v, siUnit, digits = 4) {
+  if (v === undefined || v === null || !Number.isFinite(v)) return '\u2013';
+  const { unit, scale } = displayUnit(siUnit);
+  return `${num(v * scale, digits)}${unit ? ` ${unit}` : ''}`;
+}
+
+/**
+ * Limits as people write them: "3.1 \u2026 4.9 N/mm", one-sided "\u2264 0.1 N" or
+ * "\u2265 2 N/mm", "no limits" (SI values and unit in).
+ */
+export function limitsText(lower, upper, siUnit) {
+  const has = (x) => x !== undefined && x !== null && Number.isFinite(x);
+  const { unit, scale } = displayUnit(siUnit);
+  const u = unit ? ` ${unit}` : '';
+  if (has(lower) && has(upper)) return `${num(lower * scale, 4)} \u2026 ${num(upper * scale, 4)}${u}`;
+  if (has(upper)) return `\u2264 ${num(upper * scale, 4)}${u}`;
+  if (has(lower)) return `\u2265 ${num(lower * scale, 4)}${u}`;
+  return 'no limits';
+}
+
+/**
+ * A value rounded to its uncertainty: the standard error to 2 significant
+ * digits, the value to the same decimal place, the unit after the \u00b1
+ * ("3.921 \u00b1 0.012 N/mm"). Without a finite uncertainty: 4 digits.
+ */
+export function withSe(v, se, unit = '', scale = 1) {
+  if (v === undefined || v === null || !Number.isFinite(v)) return '\u2013';
+  const u = unit ? ` ${unit}` : '';
+  const x = v * scale;
+  const s = Math.abs(se * scale);
+  if (!Number.isFinite(s) || s === 0) return `${num(x, 4)}${u}`;
+  const place = Math.floor(Math.log10(s)) - 1; // 2 significant digits of the error
+  const r = (y) => {
+    if (place >= 0) return String(Math.round(y / 10 ** place) * 10 ** place);
+    return y.toFixed(Math.min(20, -place));
+  };
+  const a = Math.max(Math.abs(x), s);
+  if (a >= 1e6 || a < 1e-4) {
+    // Very large or small: a common power of ten.
+    const e = Math.floor(Math.log10(a));
+    const k = 10 ** e;
+    return `(${withSe(x / k, s / k)}) \u00d7 10^${e}${u}`;
+  }
+  return `${r(x)} \u00b1 ${r(s)}${u}`;
+}
+
+/** Effects and their parameters as people name them, with display units. */
+export const EFFECTS = {
+  coulomb_friction: { name: 'dry (Coulomb) friction', params: { force_n: 'friction force', v_eps_m_per_s: 'smoothing velocity' } },
+  quadratic_damping: { name: 'quadratic damping (v|v|)', params: { coeff_ns2_per_m2: 'coefficient' } },
+  damping_vs_displacement: { name: 'damping varying with x', params: { r1_ns_per_m2: 'R slope (x)', r2_ns_per_m3: 'R curvature (x\u00b2)' } },
+  creep: { name: 'creep (viscoelastic)', params: { k_n_per_m: 'creep stiffness', tau_s: 'time constant' } },
+  stiffness_drift: { name: 'stiffness drift (warming)', params: { dk0_dt_n_per_m_s: 'drift of k0' } },
+  channel_delay: { name: 'delay between channels', params: { delay_s: 'delay' } },
+  stiffness_order: { name: 'higher K(x) order', params: {} },
+};
+
+export function effectName(e) {
+  return (EFFECTS[e] && EFFECTS[e].name) || String(e).replace(/_/g, ' ');
+}
+
+/** SI unit of an effect parameter from its name's suffix (force_n -> N). */
+export function unitOfParam(name) {
+  const suffixes = [
+    ['_ns2_per_m2', 'N s^2/m^2'],
+    ['_ns_per_m3', 'N s/m^3'],
+    ['_ns_per_m2', 'N s/m^2'],
+    ['_n_per_m_s', 'N/(m s)'],
+    ['_n_per_m', 'N/m'],
+    ['_m_per_s', 'm/s'],
+    ['_n', 'N'],
+    ['_s', 's'],
+  ];
+  const f = suffixes.find(([s]) => name.endsWith(s));
+  return f ? f[1] : '1';
+}
+
+/** {label, unit, scale} of an effect parameter ("friction force", "N", 1). */
+export function effectParam(effect, name) {
+  const label = (EFFECTS[effect] && EFFECTS[effect].params[name]) || name.replace(/_/g, ' ');
+  return { label, ...displayUnit(unitOfParam(name)) };
+}
+
+/** A judged parameter's label: the recipe's name; a K(x) mask point names its x. */
+export function paramLabel(p) {
+  if (p.name === 'kx_mask' || p.quantity === 'kx_mask') {
+    return `K(x) mask${Number.isFinite(p.x_m) ? ` at ${num(p.x_m * 1e3, 3)} mm` : ''}`;
+  }
+  return p.name;
+}
+
+/** Verdict words as a station shows them. */
+export const VERDICT_WORDS = { pass: 'PASS', fail: 'FAIL', invalid: 'INVALID', no_limits: 'NO LIMITS' };
+
+const SUPERSCRIPT = { 2: '\u00b2', 3: '\u00b3', 4: '\u2074', 5: '\u2075', 6: '\u2076', 7: '\u2077', 8: '\u2078', 9: '\u2079' };
+
+/** The unit of the K(x) coefficient k_i in N/mm^(i+1): "N/mm", "N/mm\u00b2", ... */
+export function coefUnitMm(i) {
+  return i === 0 ? 'N/mm' : `N/mm${SUPERSCRIPT[i + 1] || `^${i + 1}`}`;
+}

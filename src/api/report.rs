@@ -1,0 +1,573 @@
+//! The printable report of a measurement over the API (issue 23), for a
+//! part's traveller document: one self-contained HTML page (inline styles
+//! and SVG plots, no script, no other request) with a print stylesheet for
+//! A4 and Letter. It holds what the UI's report view (`#/report/ID`) holds:
+//! part identity, the verdict with every judged parameter and its limits,
+//! the parameters with units, uncertainties and validity, K(x), C(x), F(x)
+//! over the valid range and Keff(Xpeak) of the job, and the traceability
+//! (software version, recipe hash, calibration record). The numbers come
+//! from the fit chosen as the measurement's headline, else its own result.
+
+use super::problem::{ApiResult, Problem};
+use super::AppState;
+use crate::diagnose::svg::{xy_chart, Curve};
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue};
+use axum::response::{IntoResponse, Response};
+use serde_json::Value;
+use std::fmt::Write;
+
+/// Points of each curve inside the valid range.
+const CURVE_POINTS: usize = 201;
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn f(v: &Value) -> Option<f64> {
+    v.as_f64().filter(|x| x.is_finite())
+}
+
+/// A value with `digits` significant digits.
+fn sig(v: f64, digits: usize) -> String {
+    if v == 0.0 {
+        return "0".into();
+    }
+    let a = v.abs();
+    if !(1e-4..1e6).contains(&a) {
+        return format!("{:.*e}", digits.saturating_sub(1), v);
+    }
+    let place = digits as i32 - 1 - a.log10().floor() as i32;
+    let t = format!("{:.*}", place.max(0) as usize, v);
+    if t.contains('.') {
+        t.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        t
+    }
+}
+
+/// A value rounded to its uncertainty (the standard error to two
+/// significant digits, the value to the same place), the unit after the +-.
+pub fn with_se(v: f64, se: Option<f64>, unit: &str) -> String {
+    let u = if unit.is_empty() {
+        String::new()
+    } else {
+        format!(" {unit}")
+    };
+    match se.map(f64::abs).filter(|s| s.is_finite() && *s > 0.0) {
+        Some(s) if (1e-4..1e6).contains(&v.abs().max(s)) => {
+            let place = s.log10().floor() as i32 - 1;
+            let d = (-place).max(0) as usize;
+            let r = |x: f64| {
+                if place > 0 {
+                    let k = 10f64.powi(place);
+                    format!("{}", (x / k).round() * k)
+                } else {
+                    format!("{x:.d$}")
+                }
+            };
+            format!("{} \u{b1} {}{u}", r(v), r(s))
+        }
+        Some(s) => format!("{v:.3e} \u{b1} {s:.1e}{u}"),
+        None => format!("{}{u}", sig(v, 4)),
+    }
+}
+
+/// SI unit -> (display unit, scale).
+fn display(unit: &str) -> (&str, f64) {
+    match unit {
+        "N/m" => ("N/mm", 1e-3),
+        "m" => ("mm", 1e3),
+        "N s/m" => ("N\u{b7}s/m", 1.0),
+        "1" => ("", 1.0),
+        u => (u, 1.0),
+    }
+}
+
+fn limits(lower: Option<f64>, upper: Option<f64>, unit: &str) -> String {
+    let (u, k) = display(unit);
+    let u = if u.is_empty() {
+        String::new()
+    } else {
+        format!(" {u}")
+    };
+    match (lower, upper) {
+        (Some(l), Some(h)) => format!("{} \u{2026} {}{u}", sig(l * k, 4), sig(h * k, 4)),
+        (None, Some(h)) => format!("\u{2264} {}{u}", sig(h * k, 4)),
+        (Some(l), None) => format!("\u{2265} {}{u}", sig(l * k, 4)),
+        (None, None) => "no limits".into(),
+    }
+}
+
+/// (parameter, value +- se with unit, validity) rows of a result document.
+fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
+    let mut out = vec![];
+    let mut push = |name: &str, v: &Value, se: &Value, unit: &str, scale: f64, valid: &str| {
+        if let Some(x) = f(v) {
+            out.push((
+                name.to_string(),
+                with_se(x * scale, f(se).map(|s| s * scale), unit),
+                valid.to_string(),
+            ));
+        }
+    };
+    let ss = &doc["small_signal"];
+    if ss.is_object() {
+        let valid = if ss["reliable"].as_bool() == Some(false) {
+            format!(
+                "unreliable (misfit {} %)",
+                sig(f(&ss["misfit_percent"]).unwrap_or(f64::NAN), 3)
+            )
+        } else {
+            "valid".into()
+        };
+        push(
+            "resonance f0 (small signal)",
+            &ss["f0_hz"],
+            &ss["f0_se_hz"],
+            "Hz",
+            1.0,
+            &valid,
+        );
+        push(
+            "stiffness k0 (small signal)",
+            &ss["k0_n_per_m"],
+            &ss["k0_se_n_per_m"],
+            "N/mm",
+            1e-3,
+            &valid,
+        );
+        push(
+            "mechanical resistance R (small signal)",
+            &ss["r_ns_per_m"],
+            &ss["r_se_ns_per_m"],
+            "N\u{b7}s/m",
+            1.0,
+            &valid,
+        );
+        push(
+            "quality factor Q (small signal)",
+            &ss["q"],
+            &ss["q_se"],
+            "",
+            1.0,
+            &valid,
+        );
+    }
+    let ls = &doc["large_signal"];
+    push(
+        "effective stiffness Keff at Xpeak",
+        &ls["keff_n_per_m"],
+        &ls["keff_se_n_per_m"],
+        "N/mm",
+        1e-3,
+        "valid",
+    );
+    push(
+        "Keff at the target Xpeak (judged by QC)",
+        &ls["keff_at_target_n_per_m"],
+        &Value::Null,
+        "N/mm",
+        1e-3,
+        "valid",
+    );
+    push(
+        "peak displacement Xpeak",
+        &ls["xpeak_m"],
+        &Value::Null,
+        "mm",
+        1e3,
+        "valid",
+    );
+    push(
+        "resonance (large signal)",
+        &ls["resonance_hz"],
+        &Value::Null,
+        "Hz",
+        1.0,
+        "valid",
+    );
+    push(
+        "moving mass",
+        &ls["moving_mass_kg"],
+        &Value::Null,
+        "g",
+        1e3,
+        "entered",
+    );
+    let st = &doc["stiffness"];
+    let vr = &st["valid_range_m"];
+    let range = format!(
+        "valid for {:.3} .. {:.3} mm",
+        f(&vr[0]).unwrap_or(f64::NAN) * 1e3,
+        f(&vr[1]).unwrap_or(f64::NAN) * 1e3
+    );
+    if let Some(c) = st["coefficients_n_per_m_pow_i_plus_1"].as_array() {
+        for (i, k) in c.iter().enumerate() {
+            let unit = if i == 0 {
+                "N/mm".to_string()
+            } else {
+                format!("N/mm^{}", i + 1)
+            };
+            push(
+                &format!("K(x) coefficient k{i}"),
+                k,
+                &st["coefficients_se_n_per_m_pow_i_plus_1"][i],
+                &unit,
+                1e-3f64.powi(i as i32 + 1),
+                &range,
+            );
+        }
+    }
+    push(
+        "mechanical resistance R (large signal)",
+        &st["r_ns_per_m"],
+        &st["r_se_ns_per_m"],
+        "N\u{b7}s/m",
+        1.0,
+        "valid",
+    );
+    let m = &doc["model"];
+    push(
+        "model error",
+        &m["model_error_percent"],
+        &Value::Null,
+        "%",
+        1.0,
+        "valid",
+    );
+    push(
+        "noise floor",
+        &m["noise_floor_percent"],
+        &Value::Null,
+        "%",
+        1.0,
+        "valid",
+    );
+    out
+}
+
+fn horner(c: &[f64], x: f64) -> f64 {
+    c.iter().rev().fold(0.0, |acc, k| acc * x + k)
+}
+
+fn integral(c: &[f64], x: f64) -> f64 {
+    x * c
+        .iter()
+        .enumerate()
+        .rev()
+        .fold(0.0, |acc, (i, k)| acc * x + k / (i as f64 + 1.0))
+}
+
+/// The four plots (K, C, F over the valid range in mm; Keff against Xpeak).
+fn plots(doc: &Value, levels: &[(f64, f64)]) -> Vec<String> {
+    let st = &doc["stiffness"];
+    let c: Vec<f64> = st["coefficients_n_per_m_pow_i_plus_1"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
+        .unwrap_or_default();
+    let (Some(lo), Some(hi)) = (f(&st["valid_range_m"][0]), f(&st["valid_range_m"][1])) else {
+        return vec![];
+    };
+    if c.is_empty() || hi <= lo {
+        return vec![];
+    }
+    let xs: Vec<f64> = (0..CURVE_POINTS)
+        .map(|i| lo + (hi - lo) * i as f64 / (CURVE_POINTS - 1) as f64)
+        .collect();
+    let curve = |name: &str, g: &dyn Fn(f64) -> Option<f64>| -> Vec<Curve> {
+        vec![(
+            name.to_string(),
+            xs.iter()
+                .filter_map(|&x| g(x).map(|y| (x * 1e3, y)))
+                .collect(),
+            false,
+        )]
+    };
+    let k = |x: f64| horner(&c, x);
+    vec![
+        xy_chart(
+            "Stiffness K(x)",
+            "displacement x (mm)",
+            "K (N/mm)",
+            vec![],
+            curve("K(x)", &|x| Some(k(x) * 1e-3)),
+        ),
+        xy_chart(
+            "Compliance C(x) = 1/K(x)",
+            "displacement x (mm)",
+            "C (mm/N)",
+            vec![],
+            curve("C(x)", &|x| (k(x) > 0.0).then(|| 1e3 / k(x))),
+        ),
+        xy_chart(
+            "Restoring force F(x)",
+            "displacement x (mm)",
+            "F (N)",
+            vec![],
+            curve("F(x)", &|x| Some(integral(&c, x))),
+        ),
+        xy_chart(
+            "Keff against Xpeak (the job's levels)",
+            "Xpeak (mm)",
+            "Keff (N/mm)",
+            vec![],
+            vec![(
+                "Keff(Xpeak)".into(),
+                levels.iter().map(|(x, k)| (x * 1e3, k * 1e-3)).collect(),
+                false,
+            )],
+        ),
+    ]
+}
+
+const STYLE: &str = "body{font-family:'DejaVu Sans',Arial,sans-serif;font-size:11px;color:#1b2430;margin:0 auto;max-width:190mm}\
+h1{font-size:17px;margin:0 0 2px}h2{font-size:13px;margin:10px 0 3px;border-bottom:1px solid #ccd}\
+table{border-collapse:collapse;width:100%}td,th{text-align:left;padding:1px 4px;vertical-align:top}\
+th{color:#555;font-weight:600}tr.fail td{color:#b3261e;font-weight:600}.num{font-variant-numeric:tabular-nums}\
+.two{display:grid;grid-template-columns:1fr 1fr;gap:0 14px}.plots{display:grid;grid-template-columns:1fr 1fr;gap:4px 10px}\
+.plots svg{width:100%;height:auto}.word{font-size:16px;font-weight:800;padding:0 6px;border-radius:3px}\
+.pass{background:#137333;color:#fff}.fail-w{background:#b3261e;color:#fff}.invalid{background:#f2a900}\
+.muted{color:#5d6b7a}.mono{font-family:'DejaVu Sans Mono',monospace}section{break-inside:avoid}\
+@page{margin:11mm 10mm}@media print{*{-webkit-print-color-adjust:exact;print-color-adjust:exact}}";
+
+/// The report page of a measurement.
+pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
+    let (info, result, _) = st
+        .store
+        .get_measurement(id)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", id))?;
+    let choice = st.store.headline_choice(id).await?;
+    let mut doc = result.unwrap_or(Value::Null);
+    let mut source = "the measurement\u{2019}s own fit".to_string();
+    if let Some(c) = choice.as_ref().filter(|c| c.fit_id.is_some()) {
+        if let Some(fit) = st
+            .store
+            .list_fits(id)
+            .await?
+            .into_iter()
+            .find(|x| Some(&x.id) == c.fit_id.as_ref())
+        {
+            source = format!(
+                "fit {} chosen by {} at {}",
+                fit.id,
+                c.chosen_by.as_deref().unwrap_or("open access"),
+                c.chosen_at
+            );
+            doc = fit.result;
+        }
+    }
+    let verdict = st.store.measurement_verdict(id).await?;
+    let part = st.store.get_part(&info.part_serial).await?;
+    let mut levels = vec![];
+    if let Some(job) = &info.job_id {
+        for m in st
+            .store
+            .list_measurements(None, Some(job), None, 200)
+            .await?
+        {
+            if let (Some(x), Some(k)) = (f(&m.summary["xpeak_m"]), f(&m.summary["keff_n_per_m"])) {
+                levels.push((x, k));
+            }
+        }
+    }
+    if levels.is_empty() {
+        if let (Some(x), Some(k)) = (
+            f(&doc["large_signal"]["xpeak_m"]),
+            f(&doc["large_signal"]["keff_n_per_m"]),
+        ) {
+            levels.push((x, k));
+        }
+    }
+    levels.sort_by(|a, b| a.0.total_cmp(&b.0));
+
+    let mut s = String::new();
+    let serial = esc(&info.part_serial);
+    let _ = write!(
+        s,
+        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>Report {serial} {}</title><style>{STYLE}</style></head><body>",
+        esc(&info.id)
+    );
+    let _ = write!(
+        s,
+        "<h1>Suspension test report: part {serial}</h1><p class=\"muted\">Springbench {}, made {}</p>",
+        esc(crate::VERSION),
+        esc(&crate::store::now())
+    );
+    // Identity and verdict side by side.
+    let kind = part
+        .as_ref()
+        .and_then(|p| p.kind.clone())
+        .unwrap_or_else(|| "not given".into());
+    let target = info
+        .target_xpeak_m
+        .map(|x| format!("{:.3} mm", x * 1e3))
+        .unwrap_or_else(|| "\u{2013}".into());
+    let _ = write!(
+        s,
+        "<div class=\"two\"><section id=\"identity\"><h2>Part and measurement</h2><table>\
+         <tr><th>part</th><td class=\"mono\">{serial}</td></tr><tr><th>kind</th><td>{}</td></tr>\
+         <tr><th>measurement</th><td class=\"mono\">{}</td></tr><tr><th>measured</th><td>{}{} ({})</td></tr>\
+         <tr><th>target Xpeak</th><td>{target}</td></tr><tr><th>result from</th><td>{}</td></tr></table></section>",
+        esc(&kind),
+        esc(&info.id),
+        esc(&info.created_at),
+        info.bench_id
+            .as_deref()
+            .map(|b| format!(" on {}", esc(b)))
+            .unwrap_or_default(),
+        esc(&info.source),
+        esc(&source)
+    );
+    s.push_str("<section id=\"verdict\"><h2>Verdict and limits</h2>");
+    match &verdict {
+        None => s.push_str("<p class=\"muted\">Not judged: measured without a QC recipe.</p>"),
+        Some(v) => {
+            let (word, cls) = match v.verdict.as_str() {
+                "pass" => ("PASS", "pass"),
+                "fail" => ("FAIL", "fail-w"),
+                "invalid" => ("INVALID", "invalid"),
+                _ => ("NO LIMITS", ""),
+            };
+            let _ = write!(
+                s,
+                "<p><span class=\"word {cls}\">{word}</span> recipe {} version {}</p>",
+                esc(&v.recipe_name),
+                v.recipe_version
+            );
+            for r in v.detail["invalid_reasons"].as_array().into_iter().flatten() {
+                let _ = write!(
+                    s,
+                    "<p>{}: {}</p>",
+                    esc(r["code"].as_str().unwrap_or("").replace('_', " ").as_str()),
+                    esc(r["detail"].as_str().unwrap_or(""))
+                );
+            }
+            s.push_str(
+                "<table><tr><th>parameter</th><th>value</th><th>limits</th><th>result</th></tr>",
+            );
+            for p in v.detail["parameters"].as_array().into_iter().flatten() {
+                let unit = p["unit"].as_str().unwrap_or("");
+                let (du, k) = display(unit);
+                let name = match (p["name"].as_str(), f(&p["x_m"])) {
+                    (Some("kx_mask"), Some(x)) => format!("K(x) mask at {:.3} mm", x * 1e3),
+                    (n, _) => n.unwrap_or("").to_string(),
+                };
+                let result = p["result"].as_str().unwrap_or("");
+                let _ = write!(
+                    s,
+                    "<tr class=\"{}\"><td>{}</td><td class=\"num\">{} {}</td><td>{}</td><td>{}</td></tr>",
+                    esc(result),
+                    esc(&name),
+                    f(&p["value"]).map(|x| sig(x * k, 5)).unwrap_or_default(),
+                    esc(du),
+                    esc(&limits(f(&p["lower"]), f(&p["upper"]), unit)),
+                    esc(result)
+                );
+            }
+            s.push_str("</table>");
+        }
+    }
+    s.push_str("</section></div>");
+    s.push_str("<section id=\"parameters\"><h2>Parameters</h2><table><tr><th>parameter</th><th>value \u{b1} standard error</th><th>validity</th></tr>");
+    for (name, value, valid) in parameter_rows(&doc) {
+        let _ = write!(
+            s,
+            "<tr><td>{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
+            esc(&name),
+            esc(&value),
+            esc(&valid)
+        );
+    }
+    s.push_str("</table></section>");
+    s.push_str("<section id=\"plots\"><h2>Curves over the measured (valid) range</h2><div class=\"plots\">");
+    for p in plots(&doc, &levels) {
+        s.push_str(&p);
+    }
+    s.push_str("</div></section>");
+    // Traceability.
+    let trace = verdict.as_ref().map(|v| &v.traceability);
+    let cal = trace
+        .map(|t| &t["calibration"])
+        .filter(|c| !c.is_null())
+        .map(|c| c.to_string())
+        .unwrap_or_else(|| "none (virtual bench or import)".into());
+    let _ = write!(
+        s,
+        "<section id=\"traceability\"><h2>Traceability</h2><table>\
+         <tr><th>software (measurement)</th><td>{}</td></tr>\
+         <tr><th>recipe</th><td>{}</td></tr><tr><th>recipe hash (SHA-256)</th><td class=\"mono\">{}</td></tr>\
+         <tr><th>calibration record</th><td>{}</td></tr><tr><th>bench</th><td>{}</td></tr>\
+         <tr><th>job</th><td class=\"mono\">{}</td></tr><tr><th>submitted by</th><td>{}</td></tr></table></section></body></html>",
+        esc(&info.software_version),
+        verdict
+            .as_ref()
+            .map(|v| format!("{} version {}", esc(&v.recipe_name), v.recipe_version))
+            .unwrap_or_else(|| "none".into()),
+        verdict
+            .as_ref()
+            .map(|v| esc(&v.recipe_sha256))
+            .unwrap_or_else(|| "\u{2013}".into()),
+        esc(&cal),
+        esc(info.bench_id.as_deref().unwrap_or("\u{2013}")),
+        esc(info.job_id.as_deref().unwrap_or("\u{2013}")),
+        esc(trace
+            .and_then(|t| t["submitted_by"].as_str())
+            .unwrap_or("\u{2013}")),
+    );
+    Ok(s)
+}
+
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/report", tag = "measurements",
+    summary = "The printable report of a measurement (HTML, A4 and Letter print stylesheet, inline SVG plots, no script): part identity, verdict and limits, parameters with units, uncertainties and validity, K(x), C(x), F(x), Keff(Xpeak), traceability; from the headline fit.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "The report", content_type = "text/html", body = String),
+        (status = 404, description = "No such measurement")))]
+pub async fn report(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    let body = html(&st, &id).await?;
+    Ok((
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("text/html; charset=utf-8"),
+            ),
+            // Its own styles only; nothing is loaded, nothing runs.
+            (
+                header::CONTENT_SECURITY_POLICY,
+                HeaderValue::from_static("default-src 'none'; style-src 'unsafe-inline'"),
+            ),
+        ],
+        body,
+    )
+        .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn values_are_rounded_to_their_uncertainty_with_the_unit_after_the_error() {
+        assert_eq!(
+            with_se(3.92149, Some(0.01234), "N/mm"),
+            "3.921 \u{b1} 0.012 N/mm"
+        );
+        assert_eq!(
+            with_se(2433.26, Some(0.26), "N/m"),
+            "2433.26 \u{b1} 0.26 N/m"
+        );
+        assert_eq!(with_se(12345.0, Some(150.0), ""), "12350 \u{b1} 150");
+        assert_eq!(with_se(5.99851, None, ""), "5.999");
+        assert_eq!(limits(None, Some(0.1), "N"), "\u{2264} 0.1 N");
+        assert_eq!(
+            limits(Some(1000.0), Some(8000.0), "N/m"),
+            "1 \u{2026} 8 N/mm"
+        );
+        assert_eq!(limits(Some(2.0), None, "1"), "\u{2265} 2");
+    }
+}
