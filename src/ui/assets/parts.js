@@ -2,7 +2,7 @@
 // kind) and one part's page: its verdict with the recipe, limits and
 // traceability, its measurements and jobs, with a selection to compare.
 
-import { api, ApiError } from './api.js';
+import { api } from './api.js';
 import { h, put, q, when, shortId, VERDICT_WORDS } from './util.js';
 import { verdictCard } from './verdict.js';
 
@@ -98,16 +98,14 @@ export async function render(main, ctx) {
 
 export async function renderPart(main, ctx) {
   const serial = ctx.arg;
-  const [part, meas, jobs, verdict] = await Promise.all([
+  const [part, meas, jobs] = await Promise.all([
     api(`/api/v1/parts/${encodeURIComponent(serial)}`),
     api(`/api/v1/parts/${encodeURIComponent(serial)}/measurements?limit=200`),
     api(`/api/v1/jobs?part=${encodeURIComponent(serial)}&limit=50`),
-    // The newest job verdict; 404 for a part never judged under a recipe.
-    api(`/api/v1/parts/${encodeURIComponent(serial)}/verdict`).catch((e) => {
-      if (e instanceof ApiError && e.status === 404) return null;
-      throw e;
-    }),
   ]);
+  // The newest job verdict with its detail, for a part judged under a recipe
+  // (the part's `verdict`; asking for the others would be a 404).
+  const verdict = part.verdict ? await api(`/api/v1/parts/${encodeURIComponent(serial)}/verdict`) : null;
   // The kind: the part's own, else its recipe's.
   let kind = part.kind ? part.kind.replace(/_/g, ' ') : null;
   if (!kind && verdict) {
