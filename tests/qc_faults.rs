@@ -1015,3 +1015,225 @@ async fn a_cancelled_series_keeps_its_finished_repeats() {
         rss_max / 1024
     );
 }
+
+/// A 422 naming `field` (and no error with an empty field).
+fn names_field(status: u16, v: &Value, field: &str) -> Result<(), String> {
+    let errors = v["errors"].as_array().cloned().unwrap_or_default();
+    let fields: Vec<&str> = errors.iter().filter_map(|e| e["field"].as_str()).collect();
+    if status == 422 && fields.contains(&field) && !fields.contains(&"") {
+        Ok(())
+    } else {
+        Err(format!("{status}, fields {fields:?}, wanted {field}: {v}"))
+    }
+}
+
+/// The "Low" list of the issue: each bad recipe, proposal and query is
+/// refused with a per-field problem naming the field, parse errors too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_recipes_proposals_and_queries_name_their_field() {
+    let d = Daemon::start("");
+    let c = client();
+    let with = |path: &str, v: Value| {
+        let mut r = recipe("val");
+        let ptr: Vec<&str> = path.split('/').collect();
+        let mut cur = &mut r;
+        for k in &ptr[..ptr.len() - 1] {
+            cur = match k.parse::<usize>() {
+                Ok(i) => &mut cur[i],
+                Err(_) => &mut cur[*k],
+            };
+        }
+        cur[ptr[ptr.len() - 1]] = v;
+        r
+    };
+    let mask = |x: Vec<f64>| {
+        let n = x.len();
+        json!({"x_m": x, "lower_n_per_m": vec![1000.0; n], "upper_n_per_m": vec![5000.0; n]})
+    };
+    let cases: Vec<(&str, Value, &str)> = vec![
+        (
+            "duplicate levels",
+            with("procedure/levels_m", json!([0.004, 0.004])),
+            "procedure.levels_m[1]",
+        ),
+        (
+            "decreasing levels",
+            with("procedure/levels_m", json!([0.008, 0.004])),
+            "procedure.levels_m[1]",
+        ),
+        (
+            "a 1e-300 m level",
+            with("procedure/levels_m", json!([1e-300])),
+            "procedure.levels_m[0]",
+        ),
+        (
+            "a 1e-300 kg mass",
+            with("procedure/moving_mass_kg", json!(1e-300)),
+            "procedure.moving_mass_kg",
+        ),
+        (
+            "mask x_m of 1 m",
+            with("kx_mask", mask(vec![0.0, 1.0])),
+            "kx_mask.x_m[1]",
+        ),
+        (
+            "unsorted mask x_m",
+            with("kx_mask", mask(vec![0.002, -0.002])),
+            "kx_mask.x_m[1]",
+        ),
+        (
+            "a 20 000-character description",
+            with("description", json!("d".repeat(20_000))),
+            "description",
+        ),
+        (
+            "a 100-character part kind",
+            with("part_kind", json!("k".repeat(100))),
+            "part_kind",
+        ),
+        (
+            "an upper limit of 1.7e308",
+            with("parameters/1/upper", json!(1.7e308)),
+            "parameters[1].upper",
+        ),
+        (
+            "a lower limit of -1.7e308",
+            with("parameters/0/lower", json!(-1.7e308)),
+            "parameters[0].lower",
+        ),
+        (
+            "a level that is text (parse error)",
+            with("procedure/levels_m", json!(["8 mm"])),
+            "procedure.levels_m[0]",
+        ),
+        (
+            "repeats that are text (parse error)",
+            with("procedure/repeats", json!("ten")),
+            "procedure.repeats",
+        ),
+    ];
+    let mut wrong = vec![];
+    for (what, body, field) in &cases {
+        let (s, v) = post(&c, &d, "/api/v1/recipes", body).await;
+        if let Err(e) = names_field(s, &v, field) {
+            wrong.push(format!("POST recipe with {what}: {e}"));
+        }
+    }
+    // Proposals: size cap, options, parse errors (the recipe exists).
+    let (s, v) = post(&c, &d, "/api/v1/recipes", &recipe("valid")).await;
+    assert_eq!(s, 201, "{v}");
+    let many: Vec<String> = (0..95_000).map(|i| format!("S-{i}")).collect();
+    let five: Vec<String> = (0..5).map(|i| format!("S-{i}")).collect();
+    let proposals: Vec<(&str, Value, &str)> = vec![
+        (
+            "95 000 serials",
+            json!({"serials": many, "method": "k_sigma", "k": 6.0}),
+            "serials",
+        ),
+        (
+            "k = -1",
+            json!({"serials": five, "method": "k_sigma", "k": -1.0}),
+            "k",
+        ),
+        (
+            "mask_points = 1",
+            json!({"serials": five, "method": "k_sigma", "k": 6.0, "mask_points": 1}),
+            "mask_points",
+        ),
+        (
+            "mask_range_fraction = 2",
+            json!({"serials": five, "method": "k_sigma", "k": 6.0, "mask_range_fraction": 2.0}),
+            "mask_range_fraction",
+        ),
+        (
+            "a numeric serial (parse error)",
+            json!({"serials": [1, 2], "method": "k_sigma", "k": 6.0}),
+            "serials[0]",
+        ),
+    ];
+    for (what, body, field) in &proposals {
+        let (s, v) = post(&c, &d, "/api/v1/recipes/valid/limit-proposals", body).await;
+        if let Err(e) = names_field(s, &v, field) {
+            wrong.push(format!(
+                "proposal with {what}: {}",
+                e.chars().take(400).collect::<String>()
+            ));
+        }
+    }
+    let r = c
+        .get(d.url("/api/v1/recipes/valid/spc?parameter=k0&format=xml"))
+        .send()
+        .await
+        .unwrap();
+    let s = r.status().as_u16();
+    let v: Value = r.json().await.unwrap_or(Value::Null);
+    if let Err(e) = names_field(s, &v, "format") {
+        wrong.push(format!("SPC format=xml: {e}"));
+    }
+    assert!(
+        wrong.is_empty(),
+        "{} wrong:\n{}",
+        wrong.len(),
+        wrong.join("\n")
+    );
+}
+
+/// A golden unit that fails the recipe's current limits is left out of a
+/// proposal (and named) unless the engineer keeps it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failing_golden_unit_is_left_out_unless_kept() {
+    let d = Daemon::start("");
+    let c = client();
+    let r = with_k0_limits(recipe("gold"), 2000.0, 2800.0);
+    let (s, v) = post(&c, &d, "/api/v1/recipes", &r).await;
+    assert_eq!(s, 201, "{v}");
+    let mut jobs: Vec<Value> = (0..5)
+        .map(|i| qc_job(&format!("G-{i}"), "gold", 400 + i))
+        .collect();
+    let mut stiff = qc_job("G-stiff", "gold", 500);
+    stiff["production"]["defect"] = json!("stiff");
+    jobs.push(stiff);
+    let done = run_all(&c, &d, &jobs).await;
+    let verdicts: Vec<String> = done
+        .iter()
+        .map(|j| j["verdict"].as_str().unwrap_or("").to_string())
+        .collect();
+    assert_eq!(
+        verdicts,
+        ["pass", "pass", "pass", "pass", "pass", "fail"],
+        "{done:?}"
+    );
+    let serials: Vec<String> = (0..5)
+        .map(|i| format!("G-{i}"))
+        .chain(["G-stiff".to_string()])
+        .collect();
+    let body = json!({"serials": serials, "method": "k_sigma", "k": 6.0});
+    let (s, p) = post(&c, &d, "/api/v1/recipes/gold/limit-proposals", &body).await;
+    assert_eq!(s, 201, "{p}");
+    assert_eq!(
+        p["proposal"]["serials"].as_array().unwrap().len(),
+        5,
+        "{}",
+        p["proposal"]["serials"]
+    );
+    assert_eq!(
+        p["proposal"]["left_out"][0]["serial"], "G-stiff",
+        "{}",
+        p["proposal"]
+    );
+    assert!(p["proposal"]["left_out"][0]["failures"][0]
+        .as_str()
+        .unwrap()
+        .starts_with("k0 = "));
+    let mut body = body;
+    body["keep_failed"] = json!(["G-stiff"]);
+    let (s, p) = post(&c, &d, "/api/v1/recipes/gold/limit-proposals", &body).await;
+    assert_eq!(s, 201, "{p}");
+    assert_eq!(p["proposal"]["serials"].as_array().unwrap().len(), 6);
+    assert_eq!(p["proposal"]["kept_failed"][0]["serial"], "G-stiff");
+}
+
+fn with_k0_limits(mut r: Value, lo: f64, hi: f64) -> Value {
+    r["parameters"][0] = json!({"name": "k0", "quantity": "k0", "lower": lo, "upper": hi});
+    r
+}

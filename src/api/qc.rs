@@ -27,6 +27,20 @@ fn field_errors(e: Vec<crate::qc::FieldError>) -> Problem {
     )
 }
 
+/// Parses a JSON body into `T`; a failure is a 422 naming the field it
+/// failed at (`procedure.levels_m[2]`; `body` for the document itself).
+pub fn parse_body<T: serde::de::DeserializeOwned>(body: Value) -> ApiResult<T> {
+    serde_path_to_error::deserialize(body).map_err(|e| {
+        let path = e.path().to_string();
+        let field = if path.is_empty() || path == "." {
+            "body".to_string()
+        } else {
+            path
+        };
+        Problem::field(&field, e.into_inner().to_string())
+    })
+}
+
 /// Parses and checks a recipe body; `name` (from the path) must match when given.
 fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
     let mut body = body;
@@ -39,7 +53,7 @@ fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
             Some(_) => return Err(Problem::field("name", format!("must be '{n}' (the path)"))),
         }
     }
-    let r: Recipe = serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
+    let r: Recipe = parse_body(body)?;
     r.validate().map_err(field_errors)?;
     Ok(r)
 }
@@ -366,8 +380,15 @@ pub async fn apply_recipe(
 
 #[derive(Deserialize, utoipa::ToSchema)]
 pub struct ProposalBody {
-    /// Serials of the golden units (each measured with the recipe, valid).
+    /// Serials of the golden units (each measured with the recipe, valid): 5 to 200.
+    #[schema(min_items = 5, max_items = 200)]
     serials: Vec<String>,
+    /// Serials of golden units to use although they fail the recipe's
+    /// current limits (otherwise such units are left out and listed in
+    /// `left_out`).
+    #[serde(default)]
+    #[schema(max_items = 200)]
+    keep_failed: Vec<String>,
     #[serde(flatten)]
     options: ProposalOptions,
 }
@@ -410,8 +431,21 @@ pub async fn propose(
     Path(name): Path<String>,
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
-    let b: ProposalBody =
-        serde_json::from_value(body).map_err(|e| Problem::field("", e.to_string()))?;
+    let b: ProposalBody = parse_body(body)?;
+    let mut errors = b.options.validate();
+    if b.serials.len() > crate::qc::limits::MAX_GOLDEN {
+        errors.push(crate::qc::FieldError {
+            field: "serials".into(),
+            message: format!(
+                "{} serials; at most {} golden units",
+                b.serials.len(),
+                crate::qc::limits::MAX_GOLDEN
+            ),
+        });
+    }
+    if !errors.is_empty() {
+        return Err(field_errors(errors));
+    }
     let row = st
         .store
         .get_recipe(&name, None)
@@ -435,8 +469,24 @@ pub async fn propose(
     if !errors.is_empty() {
         return Err(Problem::validation(errors));
     }
-    let p = crate::qc::limits::propose(&recipe, &golden, &b.options)
-        .map_err(|e| Problem::field("serials", e))?;
+    let (golden, left_out, kept_failed) =
+        crate::qc::limits::screen_golden(&recipe, golden, &b.keep_failed);
+    let mut p = crate::qc::limits::propose(&recipe, &golden, &b.options).map_err(|e| {
+        let named: Vec<&str> = left_out.iter().map(|l| l.serial.as_str()).collect();
+        if named.is_empty() {
+            Problem::field("serials", e)
+        } else {
+            Problem::field(
+                "serials",
+                format!(
+                    "{e} ({} left out: they fail the current limits; keep_failed keeps them)",
+                    named.join(", ")
+                ),
+            )
+        }
+    })?;
+    p.left_out = left_out;
+    p.kept_failed = kept_failed;
     let id = crate::runner::new_id();
     let body = serde_json::to_value(&p).map_err(Problem::internal)?;
     let row = st
@@ -669,6 +719,11 @@ pub async fn spc(
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
     let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let csv = match q.format.as_deref() {
+        None | Some("") | Some("json") => false,
+        Some("csv") => true,
+        Some(f) => return Err(Problem::field("format", format!("json or csv, got '{f}'"))),
+    };
     let since = parse_time("since", q.since.as_deref())?;
     let until = parse_time("until", q.until.as_deref())?;
     let last = match q.last {
@@ -738,7 +793,7 @@ pub async fn spc(
         points,
         invalid,
     );
-    if q.format.as_deref() == Some("csv") {
+    if csv {
         return Ok((
             [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
             crate::qc::spc::to_csv(&s),

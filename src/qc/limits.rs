@@ -60,6 +60,39 @@ fn default_mask_range() -> f64 {
     0.9
 }
 
+impl ProposalOptions {
+    /// One message per bad option, named as in the request body.
+    pub fn validate(&self) -> Vec<super::FieldError> {
+        let mut e = vec![];
+        if let Err(m) = self.spread.validate() {
+            let field = match self.spread {
+                Spread::KSigma { .. } => "k",
+                Spread::Tolerance { .. } => "tolerance_percent",
+            };
+            e.push(super::FieldError {
+                field: field.into(),
+                message: m,
+            });
+        }
+        if !(self.mask_range_fraction > 0.0 && self.mask_range_fraction <= 1.0) {
+            e.push(super::FieldError {
+                field: "mask_range_fraction".into(),
+                message: format!("must be in (0, 1], got {}", self.mask_range_fraction),
+            });
+        }
+        if self.mask_points == 1 || self.mask_points > super::MAX_MASK_POINTS {
+            e.push(super::FieldError {
+                field: "mask_points".into(),
+                message: format!("must be 0 or 2 to {}", super::MAX_MASK_POINTS),
+            });
+        }
+        e
+    }
+}
+
+/// Most golden units one proposal may name.
+pub const MAX_GOLDEN: usize = 200;
+
 /// One golden unit: its measurements, one per level (level index, facts).
 #[derive(Debug, Clone)]
 pub struct GoldenUnit {
@@ -85,11 +118,77 @@ pub struct ProposedLimit {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Proposal {
     pub serials: Vec<String>,
+    /// Golden units named but left out: they fail the recipe's current
+    /// limits (a failed part is no golden unit unless the engineer keeps it
+    /// with `keep_failed`).
+    #[serde(default)]
+    pub left_out: Vec<LeftOut>,
+    /// Golden units that fail the current limits and were kept on request.
+    #[serde(default)]
+    pub kept_failed: Vec<LeftOut>,
     pub options: ProposalOptions,
     pub parameters: Vec<ProposedLimit>,
     pub kx_mask: Option<KxMask>,
     /// The recipe as it would be after approval (limits filled in).
     pub recipe: Recipe,
+}
+
+/// A golden unit that fails the recipe's current limits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LeftOut {
+    pub serial: String,
+    /// The failing parameters (value, limits), one line each.
+    pub failures: Vec<String>,
+}
+
+/// Splits `golden` into the units to use and those that fail the recipe's
+/// current limits (left out unless their serial is in `keep`): (used, left
+/// out, kept although failing).
+pub fn screen_golden(
+    recipe: &Recipe,
+    golden: Vec<GoldenUnit>,
+    keep: &[String],
+) -> (Vec<GoldenUnit>, Vec<LeftOut>, Vec<LeftOut>) {
+    let (mut used, mut out, mut kept) = (vec![], vec![], vec![]);
+    for g in golden {
+        let failures: Vec<String> = g
+            .measurements
+            .iter()
+            .map(|m| super::judge(recipe, m))
+            .filter(|v| v.verdict == super::VerdictKind::Fail)
+            .flat_map(|v| {
+                v.failures
+                    .iter()
+                    .map(|f| {
+                        let lim = |l: Option<f64>| l.map(|x| x.to_string()).unwrap_or("-".into());
+                        format!(
+                            "{} = {} {} outside [{}, {}]",
+                            f.name,
+                            f.value,
+                            f.unit,
+                            lim(f.lower),
+                            lim(f.upper)
+                        )
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        if failures.is_empty() {
+            used.push(g);
+        } else if keep.contains(&g.serial) {
+            kept.push(LeftOut {
+                serial: g.serial.clone(),
+                failures,
+            });
+            used.push(g);
+        } else {
+            out.push(LeftOut {
+                serial: g.serial,
+                failures,
+            });
+        }
+    }
+    (used, out, kept)
 }
 
 /// Mean and sample standard deviation (n - 1).
@@ -274,6 +373,8 @@ pub fn propose(
     }
     Ok(Proposal {
         serials: golden.iter().map(|g| g.serial.clone()).collect(),
+        left_out: vec![],
+        kept_failed: vec![],
         options: opts.clone(),
         parameters: stats,
         kx_mask: out.kx_mask.clone(),

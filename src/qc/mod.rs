@@ -21,6 +21,16 @@ use sha2::{Digest, Sha256};
 
 /// Largest number of judged parameters of a recipe, and of K(x) mask points.
 pub const MAX_PARAMETERS: usize = 64;
+/// Longest `description` of a recipe (characters).
+pub const MAX_DESCRIPTION_CHARS: usize = 4096;
+/// Longest `part_kind` of a recipe (characters).
+pub const MAX_PART_KIND_CHARS: usize = 64;
+/// Largest magnitude of a limit or mask bound (SI units): anything beyond is
+/// a typing error, and (U - L) / 6 sigma would overflow near 1.7e308.
+pub const MAX_LIMIT: f64 = 1e12;
+/// Smallest target level (m) and moving mass (kg) a recipe may name.
+pub const MIN_LEVEL_M: f64 = 1e-5;
+pub const MIN_MOVING_MASS_KG: f64 = 1e-4;
 pub const MAX_MASK_POINTS: usize = 201;
 
 /// Procedure settings of a recipe (what a job posted with `"recipe"` runs).
@@ -200,9 +210,13 @@ pub struct KxMask {
 pub struct Recipe {
     /// 1-64 characters: letters, digits, `-`, `_`, `.`.
     pub name: String,
+    /// At most 64 characters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(max_length = 64)]
     pub part_kind: Option<String>,
+    /// At most 4096 characters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(max_length = 4096)]
     pub description: Option<String>,
     pub procedure: ProcedureSettings,
     pub parameters: Vec<ParamSpec>,
@@ -264,12 +278,40 @@ impl Recipe {
             ));
         }
         for (i, &l) in p.levels_m.iter().enumerate() {
-            if !(finite(l) && l > 0.0 && l <= 0.1) {
+            if !(finite(l) && (MIN_LEVEL_M..=0.1).contains(&l)) {
                 e.push(ferr(
                     format!("procedure.levels_m[{i}]"),
-                    format!("must be in (0, 0.1] m, got {l}"),
+                    format!("must be in [{MIN_LEVEL_M}, 0.1] m, got {l}"),
+                ));
+            } else if i > 0 && l <= p.levels_m[i - 1] {
+                e.push(ferr(
+                    format!("procedure.levels_m[{i}]"),
+                    format!(
+                        "must be above the level before it ({} m): levels rise, without repeats",
+                        p.levels_m[i - 1]
+                    ),
                 ));
             }
+        }
+        if self
+            .description
+            .as_ref()
+            .is_some_and(|d| d.chars().count() > MAX_DESCRIPTION_CHARS)
+        {
+            e.push(ferr(
+                "description",
+                format!("at most {MAX_DESCRIPTION_CHARS} characters"),
+            ));
+        }
+        if self
+            .part_kind
+            .as_ref()
+            .is_some_and(|d| d.chars().count() > MAX_PART_KIND_CHARS)
+        {
+            e.push(ferr(
+                "part_kind",
+                format!("at most {MAX_PART_KIND_CHARS} characters"),
+            ));
         }
         if let Some(o) = p.order {
             if !(1..=crate::runner::job::MAX_ORDER).contains(&o) {
@@ -286,10 +328,10 @@ impl Recipe {
             ));
         }
         if let Some(m) = p.moving_mass_kg {
-            if !(finite(m) && m > 0.0 && m <= 10.0) {
+            if !(finite(m) && (MIN_MOVING_MASS_KG..=10.0).contains(&m)) {
                 e.push(ferr(
                     "procedure.moving_mass_kg",
-                    format!("must be in (0, 10] kg, got {m}"),
+                    format!("must be in [{MIN_MOVING_MASS_KG}, 10] kg, got {m}"),
                 ));
             }
         }
@@ -350,8 +392,11 @@ impl Recipe {
             }
             for (n, v) in [("lower", ps.lower), ("upper", ps.upper)] {
                 if let Some(v) = v {
-                    if !finite(v) {
-                        e.push(ferr(f(n), "must be a finite number"));
+                    if !(finite(v) && v.abs() <= MAX_LIMIT) {
+                        e.push(ferr(
+                            f(n),
+                            format!("must be a finite number within +-{MAX_LIMIT:e}, got {v}"),
+                        ));
                     }
                 }
             }
@@ -397,8 +442,27 @@ impl Recipe {
                 ));
             }
             let all = m.x_m.iter().chain(&m.lower_n_per_m).chain(&m.upper_n_per_m);
-            if all.clone().any(|v| !finite(*v)) {
-                e.push(ferr("kx_mask", "every value must be a finite number"));
+            if all.clone().any(|v| !(finite(*v) && v.abs() <= MAX_LIMIT)) {
+                e.push(ferr(
+                    "kx_mask",
+                    format!("every value must be a finite number within +-{MAX_LIMIT:e}"),
+                ));
+            }
+            for (i, &x) in m.x_m.iter().enumerate() {
+                if !(finite(x) && x.abs() <= 0.1) {
+                    e.push(ferr(
+                        format!("kx_mask.x_m[{i}]"),
+                        format!("must be within +-0.1 m, got {x}"),
+                    ));
+                } else if i > 0 && x <= m.x_m[i - 1] {
+                    e.push(ferr(
+                        format!("kx_mask.x_m[{i}]"),
+                        format!(
+                            "must be above the point before it ({} m): x_m rises",
+                            m.x_m[i - 1]
+                        ),
+                    ));
+                }
             }
             if m.lower_n_per_m
                 .iter()
