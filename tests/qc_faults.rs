@@ -250,9 +250,17 @@ async fn a_job_meeting_a_full_disk_ends_failed_with_verdict_and_messages() {
             &qc_job(&format!("D-{}", i + 2), "disk", 8 + i),
         )
         .await;
-        assert_eq!(s, 202, "submit {i}: {j}");
-        ids.push(j["id"].as_str().unwrap().to_string());
+        // Accepted, or refused by admission (the queue's space), never a 500.
+        match s {
+            202 => ids.push(j["id"].as_str().unwrap().to_string()),
+            503 if j["detail"]
+                .as_str()
+                .unwrap_or("")
+                .contains("disk full for the queue") => {}
+            _ => panic!("submit {i}: {s} {j}"),
+        }
     }
+    assert!(ids.len() >= 2, "{} of 12 submits accepted", ids.len());
     for id in ids.iter().take(2) {
         let j = wait_state(&c, &d, id, common::terminal).await;
         assert_eq!(j["state"], "succeeded", "{j}");
