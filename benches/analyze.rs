@@ -4,6 +4,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use springbench::identify::{analyze, AnalyzeOptions, Method};
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

@@ -6,6 +6,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use springbench::diagnose::{diagnose, diagnose_data, engine::EngineOptions, DiagnoseOptions};
 use springbench::identify::{force_balance_data, AnalyzeOptions};
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 
 fn bench(c: &mut Criterion) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -4,8 +4,11 @@
 //! `cargo bench --bench simulate`
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use springbench::bench::simulate::simulate;
+use springbench::bench::simulate::SimulateOptions;
+use springbench::bench::virtual_bench::VirtualBench;
 use springbench::bench::{Bench, Control};
-use springbench::physics::{preset, simulate, SimulateOptions, VirtualBench};
+use springbench::physics::preset;
 use springbench::procedure::SweepSpec;
 use std::hint::black_box;
 

@@ -3,7 +3,9 @@
 //! data in `./springbench-data`. See `deploy/springbench.toml` for an
 //! annotated example.
 
-use crate::bench::Limits;
+use crate::bench::settings::{default_limits, default_preset};
+pub use crate::bench::settings::{BenchConfig, BenchKind, DEFAULT_PRESET};
+pub use crate::store::Retention;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -36,96 +38,6 @@ pub struct Token {
 pub struct Auth {
     pub tokens: Vec<Token>,
 }
-
-/// Which kind of device a bench is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum BenchKind {
-    /// The physics simulation ([`crate::physics::VirtualBench`]).
-    Virtual,
-    /// A real bench: audio devices through cpal, a laser (feature `hardware`).
-    Hardware,
-    /// The hardware code path against the bench emulator (physics behind the
-    /// device interfaces; feature `hardware`).
-    Emulated,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BenchConfig {
-    /// Stable identifier, used in job requests (`bench`) and stored with measurements.
-    pub id: String,
-    #[serde(default = "default_kind")]
-    pub kind: BenchKind,
-    /// Virtual bench: the preset part mounted when a job names none.
-    #[serde(default = "default_preset")]
-    pub preset: String,
-    /// Virtual bench: noise seed of the first job (incremented per run).
-    #[serde(default)]
-    pub seed: u64,
-    /// Hard limits; a job may ask for tighter ones, never for wider ones.
-    #[serde(default = "default_limits")]
-    pub limits: Limits,
-    /// Hardware and emulated benches: devices, channels, calibration, laser.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub hardware: Option<crate::bench::settings::HardwareConfig>,
-    /// Emulated bench: latency, noise, injected faults.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub emulator: Option<crate::bench::settings::EmulatorConfig>,
-}
-
-impl BenchConfig {
-    /// The `hardware` / `emulator` tables fit the kind, and the build can run it.
-    fn validate_devices(&self) -> Result<(), String> {
-        let id = &self.id;
-        match (self.kind, &self.hardware) {
-            (BenchKind::Virtual, Some(_)) => {
-                return Err(format!(
-                    "bench '{id}': a [benches.hardware] table needs kind = \"hardware\" or \"emulated\""
-                ))
-            }
-            (BenchKind::Hardware | BenchKind::Emulated, None) => {
-                return Err(format!(
-                    "bench '{id}': kind = \"hardware\"/\"emulated\" needs a [benches.hardware] table (devices, calibration)"
-                ))
-            }
-            (_, Some(h)) => h.validate(id)?,
-            _ => {}
-        }
-        match (self.kind, &self.emulator) {
-            (BenchKind::Emulated, Some(e)) => e.validate(id)?,
-            (BenchKind::Emulated, None) => {}
-            (_, Some(_)) => {
-                return Err(format!(
-                    "bench '{id}': a [benches.emulator] table needs kind = \"emulated\""
-                ))
-            }
-            _ => {}
-        }
-        if self.kind != BenchKind::Virtual && !cfg!(feature = "hardware") {
-            return Err(format!(
-                "bench '{id}': this springbench was built without the `hardware` feature (cargo build --features hardware)"
-            ));
-        }
-        Ok(())
-    }
-}
-
-fn default_kind() -> BenchKind {
-    BenchKind::Virtual
-}
-fn default_preset() -> String {
-    DEFAULT_PRESET.to_string()
-}
-fn default_limits() -> Limits {
-    Limits {
-        max_displacement_m: 0.015,
-        max_drive_v: 100.0,
-    }
-}
-
-/// Preset mounted on the default virtual bench.
-pub const DEFAULT_PRESET: &str = "spider_4in";
 
 /// Defaults applied to a job that leaves a field out.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -176,30 +88,6 @@ pub struct Config {
     /// MES delivery: CFX `Source` and the webhooks of the outbox worker.
     pub mes: crate::mes::MesConfig,
     pub retention: Retention,
-}
-
-/// How long raw signals are kept (decision 0013). A recording is kept while
-/// it is younger than `raw_max_age_days` **or** belongs to one of the last
-/// `raw_keep_last_per_part` measurements of its part; an unset limit keeps
-/// nothing by itself, both unset keep everything. Results, fits, verdicts,
-/// jobs and configurations are always kept.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Retention {
-    pub raw_max_age_days: Option<f64>,
-    pub raw_keep_last_per_part: Option<u32>,
-    /// Seconds between two retention passes (the first runs at start).
-    pub interval_s: f64,
-}
-
-impl Default for Retention {
-    fn default() -> Self {
-        Retention {
-            raw_max_age_days: None,
-            raw_keep_last_per_part: None,
-            interval_s: 3600.0,
-        }
-    }
 }
 
 impl Default for Config {

@@ -1,28 +1,28 @@
-//! Springbench: dynamic measurement of loudspeaker suspension parts.
+//! Springbench: dynamic measurement of loudspeaker suspension parts. This
+//! root crate is the daemon and its command line; the layers below it are
+//! crates of their own (ARCHITECTURE.md):
+//! - `springbench-core`: the pure numeric core and the typed documents
+//!   ([`dsp`], [`identify`], [`physics`], [`effects`], [`diagnose`], [`qc`], [`job`], [`finite`])
+//! - `springbench-recording`: recording formats and files ([`recording`])
+//! - `springbench-bench`: the device seam, the virtual and hardware benches, the procedure ([`bench`], [`procedure`])
+//! - `springbench-store`: schema, migrations, queries ([`store`])
 //!
-//! Layers (see ARCHITECTURE.md):
-//! - numeric core, pure and synchronous, no I/O: [`dsp`], [`identify`], [`physics`], [`effects`], [`diagnose`]
-//! - recordings on disk: [`recording`] (WAV + meta.json)
-//! - measurement: [`bench`] (device seam: virtual or hardware), [`procedure`] (steps as data)
-//! - daemon shell (async): [`config`], [`store`], [`runner`], [`api`], [`ui`] (web pages compiled in)
-//! - command line: [`cli`]
+//! Here: [`config`], [`runner`] (job queue, one owner per bench), [`mes`]
+//! (the delivery worker), [`api`] (HTTP + websocket), [`ui`] (web pages
+//! compiled in), [`cli`]. The lower crates are re-exported under their usual
+//! names, so that `springbench::identify::Report` and
+//! `springbench_core::identify::Report` are one type.
+
+pub use springbench_bench as bench;
+pub use springbench_bench::procedure;
+pub use springbench_core::{diagnose, dsp, effects, finite, identify, job, physics, qc};
+pub use springbench_recording as recording;
+pub use springbench_store as store;
 
 pub mod api;
-pub mod bench;
 pub mod cli;
 pub mod config;
-pub mod diagnose;
-pub mod dsp;
-pub mod effects;
-pub mod identify;
 pub mod mes;
-pub mod physics;
-pub mod procedure;
-pub mod qc;
-pub mod recording;
 pub mod runner;
-pub mod store;
 pub mod ui;
-
-/// Software version recorded with every measurement.
-pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+pub use springbench_core::VERSION;

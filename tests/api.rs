@@ -7,6 +7,7 @@ mod common;
 use common::{client, get_bytes, get_text, problem, terminal, wait_job, Daemon};
 use futures_util::StreamExt;
 use serde_json::{json, Value};
+use springbench::recording::RecordingSetFiles;
 use std::time::Duration;
 
 #[tokio::test]

@@ -7,9 +7,10 @@
 //! of library effects one level cannot separate: tests/series.rs.
 //!
 //! `SPRINGBENCH_TRUST_SEEDS=N` runs N seeds per case (default 1).
+use springbench::bench::simulate::simulate_recording_set;
 use springbench::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use springbench::effects::EffectId;
-use springbench::physics::{preset, simulate_recording_set, PartSpec, SecondMode};
+use springbench::physics::{preset, PartSpec, SecondMode};
 
 fn seeds() -> u64 {
     std::env::var("SPRINGBENCH_TRUST_SEEDS")

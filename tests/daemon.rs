@@ -130,7 +130,7 @@ async fn virtual_job_recovers_the_mounted_parts_stiffness() {
         serde_json::from_value(m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone())
             .unwrap();
     let range: [f64; 2] = serde_json::from_value(m["stiffness"]["valid_range_m"].clone()).unwrap();
-    let truth = springbench::physics::preset(springbench::config::DEFAULT_PRESET)
+    let truth = springbench::physics::preset(springbench::bench::settings::DEFAULT_PRESET)
         .unwrap()
         .k_coeffs_si;
     let err = k_rms_error_percent(&fit, &truth, range);

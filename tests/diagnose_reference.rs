@@ -1,6 +1,7 @@
 //! Diagnostics on the independent reference recordings (../shared/data/reference-recordings).
 use springbench::diagnose::{diagnose, plot, plot_names, DiagnoseOptions};
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 
 const DIR: &str = "../shared/data/reference-recordings";
 
@@ -10,7 +11,10 @@ fn run(case: &str) -> Option<springbench::diagnose::Diagnosis> {
         .join(case);
     let set = RecordingSet::read_dir(&path).ok()?;
     let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
-    eprintln!("{case}:\n{}", springbench::cli::diagnose::table(&d));
+    eprintln!(
+        "{case}:\n{}",
+        springbench::cli::analyze::diagnose::table(&d)
+    );
     for name in plot_names() {
         let has_fit = d
             .report

@@ -8,9 +8,10 @@
 //! `SPRINGBENCH_DIAG_SEEDS=N` runs N seeds per effect (default 2);
 //! `SPRINGBENCH_FDR_SEEDS=N` runs N seeds without a hidden effect (default 4).
 use rand::{Rng, SeedableRng};
+use springbench::bench::simulate::simulate_recording_set;
 use springbench::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use springbench::effects::*;
-use springbench::physics::{preset, simulate_recording_set, PartSpec};
+use springbench::physics::{preset, PartSpec};
 
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name)
@@ -101,7 +102,7 @@ fn check_single(id: EffectId) {
             c["effect"],
             id.as_str(),
             "seed {seed}: {}",
-            springbench::cli::diagnose::table(&d)
+            springbench::cli::analyze::diagnose::table(&d)
         );
         assert_eq!(c["significant"], true);
         assert!(c["error_reduction_percent"].as_f64().unwrap() >= 50.0);
@@ -176,7 +177,7 @@ fn two_hidden_effects_ladder_adds_both() {
         ..Default::default()
     };
     let d = run(&part_with(effects), 9);
-    eprintln!("{}", springbench::cli::diagnose::table(&d));
+    eprintln!("{}", springbench::cli::analyze::diagnose::table(&d));
     let got = d.report.model.effects.ids();
     assert!(
         got.contains(&EffectId::CoulombFriction) && got.contains(&EffectId::StiffnessDrift),

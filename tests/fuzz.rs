@@ -22,6 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value};
 use springbench::bench::laser::{self, ascii_lines, keyence, optoncdt, ProtocolConfig, Reading};
 use springbench::recording::codec::{self, Resolution, SampleFormat};
+use springbench::recording::RecordingSetFiles;
 use springbench::recording::{self as rec, ChannelScale, Meta, Signals};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

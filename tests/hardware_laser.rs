@@ -18,7 +18,9 @@ use springbench::bench::laser::{
     ascii_lines::AsciiLinesConfig, keyence::KeyenceConfig, optoncdt::OptoncdtConfig, LaserError,
     LaserFaultKind, LaserSample, LaserSource, ProtocolConfig, SampleClock, SerialLaserConfig,
 };
-use springbench::physics::{preset, simulate, SimulateOptions};
+use springbench::bench::simulate::simulate;
+use springbench::bench::simulate::SimulateOptions;
+use springbench::physics::preset;
 use std::time::{Duration, Instant};
 
 const PPM: f64 = 150.0;

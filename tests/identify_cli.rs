@@ -2,6 +2,7 @@
 //! panic) on bad input.
 
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

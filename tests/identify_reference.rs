@@ -3,6 +3,7 @@
 
 use springbench::identify::{analyze, AnalyzeOptions, Method, Report};
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 use std::path::PathBuf;
 
 fn dir(case: &str) -> PathBuf {

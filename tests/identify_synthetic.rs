@@ -274,7 +274,7 @@ fn an_undamped_fit_has_q_null_with_a_reason() {
     assert!(ss.r_ns_per_m <= 0.0, "R = {}", ss.r_ns_per_m);
     assert_eq!((ss.q, ss.q_se), (None, None));
     assert!(ss.q_null_reason.as_deref().unwrap().contains("no damping"));
-    let v = springbench::store::finite::to_value(&rep).expect("a finite result document");
+    let v = springbench::finite::to_value(&rep).expect("a finite result document");
     assert!(v["small_signal"]["q"].is_null());
     assert!(v["small_signal"]["q_se"].is_null());
     assert!(v["small_signal"]["q_null_reason"].is_string());

@@ -38,10 +38,12 @@ async fn stored_documents_get_the_unit_field_names_with_values_unchanged() {
         .execute(&mut c)
         .await
         .unwrap();
-    sqlx::raw_sql(include_str!("../migrations/0150_unit_field_names.sql"))
-        .execute(&mut c)
-        .await
-        .unwrap();
+    sqlx::raw_sql(include_str!(
+        "../crates/store/migrations/0150_unit_field_names.sql"
+    ))
+    .execute(&mut c)
+    .await
+    .unwrap();
     for (table, sql) in [
         (
             "measurements",

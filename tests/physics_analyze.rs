@@ -4,8 +4,9 @@
 //!
 //! More seeds for the docs: `SPRINGBENCH_SEEDS=5 cargo test --release --test physics_analyze -- --include-ignored --nocapture`.
 
+use springbench::bench::simulate::simulate_recording_set;
 use springbench::identify::{analyze, AnalyzeOptions, Report};
-use springbench::physics::{preset, preset_names, simulate_recording_set, PartSpec};
+use springbench::physics::{preset, preset_names, PartSpec};
 use std::f64::consts::PI;
 
 /// RMS of K_fit - K_true relative to RMS of K_true on a grid over `range`.

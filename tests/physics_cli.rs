@@ -1,6 +1,7 @@
 //! `springbench simulate` end to end: files written, readable by the
 //! recording module, truth.json consistent; bad input gives one line and exit != 0.
 
+use springbench::recording::RecordingSetFiles;
 use std::process::Command;
 
 fn bin() -> Command {

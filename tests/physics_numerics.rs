@@ -34,7 +34,7 @@ fn all_effects() -> Effects {
 
 /// Noiseless x at the sample instants.
 fn run(part: &PartSpec, bench: &BenchParams, drive: &[f64]) -> Vec<f64> {
-    springbench::physics::virtual_bench::integrate(part, bench, drive).0
+    springbench::bench::virtual_bench::integrate(part, bench, drive).0
 }
 
 fn step_halving(part: &PartSpec, bench: &BenchParams, drive: &[f64]) -> (f64, [f64; 3]) {

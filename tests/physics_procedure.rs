@@ -1,8 +1,9 @@
 //! The standard procedure on the virtual bench (issue 3): level check,
 //! resonance search, narrow sweep; limits, bench time, cancel, abort ramp.
 
+use springbench::bench::virtual_bench::VirtualBench;
 use springbench::bench::{Bench, BenchError, Block, Control, Limits};
-use springbench::physics::{preset, preset_names, VirtualBench};
+use springbench::physics::{preset, preset_names};
 use springbench::procedure::{run, Observer, ProcedureConfig, ProcedureError, Step, SweepSpec};
 
 /// Records what the procedure shows: max |x|, max |drive|, steps, progress.

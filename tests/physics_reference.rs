@@ -2,10 +2,11 @@
 //! `shared/data/reference-recordings` (issue 3): same part, same bench, same
 //! stimulus; displacement within 1 % RMS of p1's recorded x, noise aside.
 
-use springbench::physics::virtual_bench::integrate;
+use springbench::bench::virtual_bench::integrate;
 use springbench::physics::{BenchParams, PartSpec};
 use springbench::procedure::SweepSpec;
 use springbench::recording::RecordingSet;
+use springbench::recording::RecordingSetFiles;
 use std::path::PathBuf;
 
 fn refdir(case: &str) -> PathBuf {

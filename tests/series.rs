@@ -6,11 +6,13 @@ mod common;
 
 use common::{client, get, submit, terminal, wait_job, Daemon};
 use serde_json::{json, Value};
+use springbench::bench::simulate::simulate;
+use springbench::bench::simulate::SimulateOptions;
 use springbench::diagnose::engine::EngineOptions;
 use springbench::diagnose::series::{fit_series_sets, SeriesFit};
 use springbench::diagnose::{diagnose, DiagnoseOptions};
 use springbench::effects::*;
-use springbench::physics::{preset, simulate, PartSpec, SimulateOptions};
+use springbench::physics::{preset, PartSpec};
 use springbench::recording::RecordingSet;
 
 fn k_of(c: &[f64], x: f64) -> f64 {

@@ -15,8 +15,8 @@ use std::time::Duration;
 /// every sample the same `f64` and the same converter code.
 #[tokio::test]
 async fn a_capture_reads_back_from_the_store_sample_for_sample() {
-    let part = springbench::physics::preset(springbench::config::DEFAULT_PRESET).unwrap();
-    let mut bench = springbench::physics::VirtualBench::new(part, 7);
+    let part = springbench::physics::preset(springbench::bench::settings::DEFAULT_PRESET).unwrap();
+    let mut bench = springbench::bench::virtual_bench::VirtualBench::new(part, 7);
     let res: Resolution = bench
         .resolution()
         .expect("the virtual bench declares its converter");

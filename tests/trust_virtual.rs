@@ -7,11 +7,12 @@
 //!
 //! `SPRINGBENCH_TRUST_SEEDS=N` runs N seeds per effect (default 1).
 use rand::{Rng, SeedableRng};
+use springbench::bench::simulate::simulate_recording_set;
 use springbench::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use springbench::effects::*;
 use springbench::identify::large::describing_function_keff;
 use springbench::identify::Report;
-use springbench::physics::{preset, simulate_recording_set, PartSpec};
+use springbench::physics::{preset, PartSpec};
 
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name)

@@ -2,7 +2,7 @@
 
 use super::problem::{ApiResult, Problem};
 use super::AppState;
-use crate::config::BenchKind;
+use crate::bench::settings::BenchKind;
 use crate::runner::{hardware, new_id};
 use crate::store::Inserted;
 use axum::extract::{Path, State};

@@ -82,8 +82,8 @@ async fn compute(st: &AppState, id: &str, name: &str) -> ApiResult<Derived> {
             let id2 = id.to_string();
             tokio::task::spawn_blocking(move || {
                 // Never stored with a NaN written as null (issue 11).
-                let checked = crate::store::finite::to_value(&d.report.model).and_then(|m| {
-                    Ok((m, crate::store::finite::to_value(&d.report.diagnostics)?))
+                let checked = crate::finite::to_value(&d.report.model).and_then(|m| {
+                    Ok((m, crate::finite::to_value(&d.report.diagnostics)?))
                 });
                 let (model, diagnostics) = match checked {
                     Ok(x) => x,

@@ -8,7 +8,7 @@
 //! - `Idempotency-Key` works as for jobs: the same key with the same fields
 //!   answers the stored measurement (200, `Idempotent-Replayed: true`), with
 //!   other fields 409 `idempotency-conflict` (decision 0021);
-//! - nothing non-finite is stored ([`crate::store::finite`]).
+//! - nothing non-finite is stored ([`crate::finite`]).
 
 use super::problem::{ApiResult, Problem};
 use super::AppState;
@@ -400,9 +400,10 @@ pub async fn import(
     .await
     .map_err(Problem::internal)?
     .map_err(|e| Problem::validation(vec![e]))?;
-    let (result, analysis_error) = match p.analysis.and_then(|r| {
-        crate::store::finite::to_value(&r).map_err(|e| format!("result refused: {e}"))
-    }) {
+    let (result, analysis_error) = match p
+        .analysis
+        .and_then(|r| crate::finite::to_value(&r).map_err(|e| format!("result refused: {e}")))
+    {
         Ok(v) => (Some(v), None),
         Err(e) => (None, Some(e)),
     };
@@ -423,7 +424,7 @@ pub async fn import(
                 source: "import",
                 bench_id: None,
                 config: json!({"analysis": opts}),
-                meta: crate::store::finite::to_value(&p.meta)
+                meta: crate::finite::to_value(&p.meta)
                     .map_err(|e| Problem::field("meta", e.to_string()))?,
                 result,
                 analysis_error,

@@ -438,7 +438,7 @@ pub async fn fit(
         .map_err(|e| numeric_failure("Fit failed", e))?;
     // Keff at the target amplitude from this fit's K(x), as the job's result has it.
     crate::qc::set_keff_at_target(&mut d.report, target);
-    let result = crate::store::finite::to_value(&d.report)
+    let result = crate::finite::to_value(&d.report)
         .map_err(|e| numeric_failure("Fit failed", format!("result refused: {e}")))?;
     let fit = st
         .store

@@ -214,7 +214,11 @@ pub fn app(state: AppState) -> Router {
     let (router, _) = routes(&state.cfg);
     let body_timeout = std::time::Duration::from_secs_f64(state.cfg.http.body_read_timeout_s);
     router
-        .merge(crate::ui::router())
+        .merge(crate::ui::router(|path| {
+            axum::response::IntoResponse::into_response(problem::Problem::not_found(
+                "UI file", path,
+            ))
+        }))
         .fallback(fallback)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(axum::middleware::from_fn_with_state(

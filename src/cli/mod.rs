@@ -2,7 +2,6 @@
 //! `main` prints the error as one line on stderr and exits non-zero.
 pub mod analyze;
 pub mod devices;
-pub mod diagnose;
 pub mod openapi;
 pub mod serve;
 pub mod simulate;

@@ -1,7 +1,9 @@
 //! `springbench simulate --part PRESET_OR_FILE --out DIR [--seed N]`: runs the
 //! standard procedure on the virtual bench and writes the recording set
 //! (pre.wav, main.wav, meta.json) that `analyze` reads, plus truth.json.
-use crate::physics::{self, PartSpec, SimulateOptions};
+use crate::bench::simulate::SimulateOptions;
+use crate::physics::{self, PartSpec};
+use crate::recording::RecordingSetFiles;
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug, Default)]
@@ -57,11 +59,12 @@ pub fn run(args: SimulateArgs) -> Result<(), String> {
                 "--max-drive-v must be a positive number of volts, got {v}"
             ));
         }
-        let mut limits = physics::VirtualBench::new(part.clone(), args.seed).limits;
+        let mut limits =
+            crate::bench::virtual_bench::VirtualBench::new(part.clone(), args.seed).limits;
         limits.max_drive_v = v;
         opts.limits = Some(limits);
     }
-    let sim = physics::simulate(&part, args.seed, &opts)?;
+    let sim = crate::bench::simulate::simulate(&part, args.seed, &opts)?;
     sim.set.write_dir(&args.out).map_err(|e| e.to_string())?;
     let tp = args.out.join("truth.json");
     let text = serde_json::to_string_pretty(&sim.truth).map_err(|e| e.to_string())?;

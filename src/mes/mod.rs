@@ -4,7 +4,7 @@
 //! the messages themselves ([`cfx`]) are written by the runner in the
 //! transaction of the result they announce.
 
-pub mod cfx;
+pub use crate::qc::cfx;
 
 use crate::store::qc::DeliveryRow;
 use crate::store::Store;

@@ -9,14 +9,9 @@ use crate::physics::PartSpec;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-/// Largest number of levels of a level series, and of repeats.
-pub const MAX_LEVELS: usize = 16;
-pub const MAX_REPEATS: u32 = 10;
-/// Lightest moving mass accepted (kg): 0.1 g. Lighter values are typos, and
-/// the fit divides by the mass (1e-300 kg overflowed into stored infinities).
-pub const MIN_MOVING_MASS_KG: f64 = 1e-4;
-/// Highest K(x) order a job may ask for.
-pub const MAX_ORDER: usize = 12;
+pub use crate::job::{
+    valid_serial, MAX_LEVELS, MAX_ORDER, MAX_REPEATS, MIN_MOVING_MASS_KG, SERIAL_RULE,
+};
 
 /// The part a job measures.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -114,20 +109,6 @@ pub const FIELDS: &[&str] = &[
     "recipe",
     "production",
 ];
-
-/// A valid part serial: 1-64 characters of letters, digits, `-`, `_`, `.`,
-/// starting with a letter or digit (it appears in URLs,
-/// `/api/v1/parts/{serial}`, where `.` and `..` would be path segments).
-pub fn valid_serial(s: &str) -> bool {
-    s.len() <= 64
-        && s.starts_with(|c: char| c.is_ascii_alphanumeric())
-        && s.chars()
-            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
-}
-
-/// The rule of [`valid_serial`] in words (problem documents, CLI).
-pub const SERIAL_RULE: &str =
-    "1-64 characters: letters, digits, '-', '_', '.', starting with a letter or digit";
 
 fn number(v: &Value, field: &str, errors: &mut Vec<FieldError>) -> Option<f64> {
     match v.as_f64() {

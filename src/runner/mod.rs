@@ -633,7 +633,7 @@ impl Runner {
                 .iter()
                 .filter_map(|(n, p, u)| pick(p).map(|v| (n.to_string(), v, u.to_string())))
                 .collect();
-                crate::mes::cfx::TestedMeasurement {
+                crate::qc::cfx::TestedMeasurement {
                     measurement_id: m.id.clone(),
                     target_xpeak_m: m.target_xpeak_m,
                     level_index: m.level_index,
@@ -643,7 +643,7 @@ impl Runner {
                 }
             })
             .collect();
-        let facts = crate::mes::cfx::JobFacts {
+        let facts = crate::qc::cfx::JobFacts {
             job_id: job.id.clone(),
             part_serial: job.part_serial.clone(),
             source: format!("{}/{}", self.mes.source, bench.id),
@@ -658,7 +658,7 @@ impl Runner {
             measurements: tested,
         };
         for (uid, name, body) in
-            crate::mes::cfx::job_messages(&facts, [new_id(), new_id(), new_id()])
+            crate::qc::cfx::job_messages(&facts, [new_id(), new_id(), new_id()])
         {
             rec.messages.push(crate::store::qc::NewMessage {
                 unique_id: uid,
@@ -930,7 +930,7 @@ fn virtual_bench(
     limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
     part.validate()?;
-    let mut b = crate::physics::VirtualBench::new(part, seed).with_limits(limits);
+    let mut b = crate::bench::virtual_bench::VirtualBench::new(part, seed).with_limits(limits);
     b.id = id.to_string();
     Ok(Box::new(b))
 }
@@ -1102,7 +1102,7 @@ fn execute(
                 // Never stored with a non-finite number written as null
                 // (issue 11): the result is refused, the reason kept. QC has
                 // judged the report above with its own rules.
-                Ok(rep) => match crate::store::finite::to_value(&rep) {
+                Ok(rep) => match crate::finite::to_value(&rep) {
                     Ok(v) => (Some(v), None),
                     Err(e) => {
                         let e = format!("result refused: {e}");
@@ -1378,5 +1378,5 @@ impl Runner {
 /// guard before the database).
 fn verdict_json(v: &crate::qc::Verdict) -> Value {
     let v = crate::qc::finite_verdict(v.clone());
-    crate::store::finite::to_value(&v).unwrap_or(Value::Null)
+    crate::finite::to_value(&v).unwrap_or(Value::Null)
 }

@@ -49,7 +49,7 @@ pub fn attach(
         lf.measurement_id = Some(l.measurement_id.clone());
         lf.target_xpeak_m = Some(l.target_xpeak_m);
     }
-    let value = match crate::store::finite::to_value(&fit) {
+    let value = match crate::finite::to_value(&fit) {
         Ok(v) => v,
         Err(e) => return vec![format!("level series: joint fit refused: {e}")],
     };

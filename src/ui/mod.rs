@@ -112,19 +112,23 @@ async fn favicon() -> Response {
     serve(asset("favicon.svg").expect("favicon.svg is compiled in"))
 }
 
-async fn file(Path(path): Path<String>) -> Response {
-    match asset(&path) {
-        Some(a) => serve(a),
-        None => crate::api::problem::Problem::not_found("UI file", &path).into_response(),
-    }
-}
-
-/// The UI's routes (no state needed).
-pub fn router<S: Clone + Send + Sync + 'static>() -> Router<S> {
+/// The UI's routes (no state needed). `not_found` answers a path under
+/// `/ui/` that is no asset (the API's problem document): the UI knows no
+/// HTTP error format of its own, and the API, which mounts these routes,
+/// stays the one module above it.
+pub fn router<S: Clone + Send + Sync + 'static>(not_found: fn(&str) -> Response) -> Router<S> {
     Router::new()
         .route("/", get(index))
         .route("/favicon.ico", get(favicon))
-        .route("/ui/{*path}", get(file))
+        .route(
+            "/ui/{*path}",
+            get(move |Path(path): Path<String>| async move {
+                match asset(&path) {
+                    Some(a) => serve(a),
+                    None => not_found(&path),
+                }
+            }),
+        )
 }
 
 #[cfg(test)]

@@ -1,0 +1,120 @@
+//! The standard measurement procedure as steps with parameters (data), run on
+//! any [`Bench`]: (1) pre-measurement: wide-band low-level sweep with a level
+//! check, (2) resonance search with rising sweeps, (3) narrow rising sweep
+//! through the large-signal resonance, per target Xpeak. The fit (4) is done
+//! by the caller with [`springbench_core::identify`].
+//!
+//! Used by `springbench simulate` and by the daemon's runner alike.
+//! CONTRACT (owned by the virtual-bench work): types and `run` signature are
+//! shared with the daemon; change them only together.
+
+use serde::{Deserialize, Serialize};
+use springbench_core::recording::Signals;
+
+/// Parameters of the whole procedure. All SI.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProcedureConfig {
+    /// Moving mass of part + inner clamp (kg), as the user weighed it.
+    pub moving_mass_kg: f64,
+    /// Target peak displacements of the narrow sweeps (m), one sweep each (level series).
+    pub levels_m: Vec<f64>,
+    /// Displacement the pre-measurement aims for at resonance (m); about 1 mm.
+    pub pre_target_x_m: f64,
+    /// Start and end of the pre-measurement log sweep (Hz).
+    pub pre_f_start_hz: f64,
+    pub pre_f_end_hz: f64,
+    /// Length of the pre-measurement sweep (s).
+    pub pre_duration_s: f64,
+    /// Length of each narrow sweep (s).
+    pub narrow_duration_s: f64,
+}
+
+impl Default for ProcedureConfig {
+    fn default() -> Self {
+        ProcedureConfig {
+            moving_mass_kg: 0.05,
+            levels_m: vec![0.008],
+            pre_target_x_m: 1e-3,
+            pre_f_start_hz: 5.0,
+            pre_f_end_hz: 100.0,
+            pre_duration_s: 16.0,
+            narrow_duration_s: 10.0,
+        }
+    }
+}
+
+/// Which step is running.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Step {
+    PreMeasurement,
+    ResonanceSearch,
+    NarrowSweep,
+    Fit,
+}
+
+/// Everything the procedure measured.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// The small-signal sweep that was kept (after the level check).
+    pub pre: Signals,
+    /// The stimulus of `pre`.
+    pub pre_sweep: SweepSpec,
+    /// Small-signal resonance read off the pre-measurement (peak of |X/Mic|, Hz).
+    pub f0_hz: f64,
+    /// One narrow sweep per requested level, in the order of `levels_m`.
+    pub narrow: Vec<NarrowSweep>,
+    /// Stimulus time a real bench would need for all sweeps played, searches included (s).
+    pub bench_time_s: f64,
+    /// Human-readable log of the decisions taken (levels, resonances found).
+    pub log: Vec<String>,
+}
+
+#[derive(Debug, Clone)]
+pub struct NarrowSweep {
+    pub target_xpeak_m: f64,
+    /// Drive amplitude used (V).
+    pub drive_v: f64,
+    pub f_start_hz: f64,
+    pub f_end_hz: f64,
+    /// The complete stimulus.
+    pub sweep: SweepSpec,
+    /// Large-signal resonance found in the sweep (peak of |X/Mic| of the fundamental, Hz).
+    pub resonance_hz: f64,
+    /// Largest |x| of the sweep (m).
+    pub xpeak_m: f64,
+    pub signals: Signals,
+    /// Set when the target was not reached within the limits: both figures
+    /// and which limit held the level down (one line, for the result and the job).
+    pub warning: Option<String>,
+}
+
+/// Receives progress while the procedure runs. Default methods ignore everything.
+pub trait Observer {
+    /// A step started or progressed; `progress` is the fraction of the whole procedure done (0..1),
+    /// `eta_s` the estimated bench time left (s).
+    fn progress(&mut self, _step: Step, _progress: f64, _eta_s: f64) {}
+    /// Live samples during a sweep (for decimated streaming).
+    fn samples(&mut self, _step: Step, _block: crate::Block<'_>) {}
+    /// Polled between blocks; true aborts the procedure (cancel, shutdown).
+    fn cancelled(&self) -> bool {
+        false
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProcedureError {
+    #[error("cancelled")]
+    Cancelled,
+    #[error("invalid procedure configuration: {0}")]
+    Invalid(String),
+    #[error("bench: {0}")]
+    Bench(#[from] crate::BenchError),
+    #[error("{0}")]
+    Failed(String),
+}
+
+mod run;
+pub mod sweep;
+pub use run::run;
+pub use sweep::SweepSpec;

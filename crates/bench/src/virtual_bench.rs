@@ -1,0 +1,259 @@
+//! [`VirtualBench`]: the lumped model behind the [`Bench`] trait, streaming
+//! block by block like an audio device, with the sensors' noise, range,
+//! quantisation, delays and ADC clipping.
+
+use crate::{Bench, BenchError, Block, Control, Limits};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use springbench_core::physics::model::{idx, BenchParams, Integrator, Model};
+use springbench_core::physics::PartSpec;
+use springbench_core::recording::{ChannelScale, Signals};
+use springbench_recording::codec::Resolution;
+
+/// Samples per block handed to the observer (10 ms at 48 kHz).
+pub const BLOCK_LEN: usize = 480;
+/// Length of the ramp-down after an abort (s).
+pub const ABORT_RAMP_S: f64 = 0.01;
+
+/// The virtual bench: implements [`crate::Bench`].
+pub struct VirtualBench {
+    pub part: PartSpec,
+    pub seed: u64,
+    /// Exciter, box and sensors.
+    pub bench: BenchParams,
+    /// Hard limits reported to the procedure.
+    pub limits: Limits,
+    /// Stable identifier.
+    pub id: String,
+    /// Sweeps played so far (each gets its own noise).
+    runs: u64,
+}
+
+/// Default limits of the virtual bench: the exciter's +-20 mm are the part's too.
+pub const DEFAULT_LIMITS: Limits = Limits {
+    max_displacement_m: 0.02,
+    max_drive_v: 100.0,
+};
+
+impl VirtualBench {
+    pub fn new(part: PartSpec, seed: u64) -> VirtualBench {
+        VirtualBench {
+            part,
+            seed,
+            bench: BenchParams::default(),
+            limits: DEFAULT_LIMITS,
+            id: "virtual-0".into(),
+            runs: 0,
+        }
+    }
+
+    pub fn with_bench(mut self, bench: BenchParams) -> VirtualBench {
+        self.bench = bench;
+        self
+    }
+
+    pub fn with_limits(mut self, limits: Limits) -> VirtualBench {
+        self.limits = limits;
+        self
+    }
+
+    /// Number of sweeps played.
+    pub fn runs(&self) -> u64 {
+        self.runs
+    }
+}
+
+/// The converter of a virtual bench: `converter_bits` over the laser's
+/// range and the ADC's full scale.
+pub fn converter_resolution(b: &BenchParams) -> Resolution {
+    Resolution {
+        bits: b.converter_bits,
+        scale: ChannelScale {
+            displacement: Some(b.laser.range_m),
+            microphone: Some(b.adc_full_scale_v),
+            drive: Some(b.adc_full_scale_v),
+        },
+    }
+}
+
+/// Value of `hist` at fractional index `pos` (zero before the start).
+#[inline]
+fn delayed(hist: &[f64], k: usize, delay_samples: f64) -> f64 {
+    if delay_samples == 0.0 {
+        return hist[k];
+    }
+    let pos = k as f64 - delay_samples;
+    if pos < 0.0 {
+        return 0.0;
+    }
+    let i = pos.floor() as usize;
+    let a = pos - i as f64;
+    let h0 = hist[i];
+    if a == 0.0 || i + 1 >= hist.len() {
+        h0
+    } else {
+        h0 + a * (hist[i + 1] - h0)
+    }
+}
+
+/// Noiseless states sampled at the sample instants: (x, p) per sample.
+/// Plain offline integration without sensors (tests, comparisons).
+pub fn integrate(part: &PartSpec, bench: &BenchParams, drive_v: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let mut sim = Integrator::new(
+        Model::new(part, bench),
+        bench.sample_rate_hz,
+        bench.substeps,
+    );
+    let n = drive_v.len();
+    let mut xs = Vec::with_capacity(n);
+    let mut ps = Vec::with_capacity(n);
+    for k in 0..n {
+        xs.push(sim.state[idx::X]);
+        ps.push(sim.state[idx::P]);
+        let u1 = if k + 1 < n { drive_v[k + 1] } else { 0.0 };
+        sim.step(drive_v[k], u1);
+    }
+    (xs, ps)
+}
+
+impl Bench for VirtualBench {
+    fn id(&self) -> &str {
+        &self.id
+    }
+
+    fn sample_rate_hz(&self) -> f64 {
+        self.bench.sample_rate_hz
+    }
+
+    fn limits(&self) -> Limits {
+        self.limits
+    }
+
+    fn resolution(&self) -> Option<Resolution> {
+        Some(converter_resolution(&self.bench))
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "virtual bench (lumped model, RK4 at {} Hz) with part '{}'",
+            self.bench.sample_rate_hz, self.part.name
+        )
+    }
+
+    fn run(
+        &mut self,
+        drive_v: &[f64],
+        observer: &mut dyn FnMut(Block<'_>) -> Control,
+    ) -> Result<Signals, BenchError> {
+        self.part.validate().map_err(BenchError::Device)?;
+        self.bench.validate().map_err(BenchError::Device)?;
+        let b = self.bench;
+        // A dark or glossy part surface scatters less light: more laser noise.
+        let laser_noise_m = self
+            .part
+            .laser_noise_m
+            .map_or(b.laser.noise_m, |n| n.max(b.laser.noise_m));
+        let fs = b.sample_rate_hz;
+        let n = drive_v.len();
+        if let Some(i) = drive_v.iter().position(|u| !u.is_finite()) {
+            return Err(BenchError::Device(format!(
+                "drive sample {i} is not finite"
+            )));
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            self.seed
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                .wrapping_add(self.runs),
+        );
+        self.runs += 1;
+        let mut sim = Integrator::new(Model::new(&self.part, &b), fs, b.substeps);
+        let mic_delay = b.microphone.delay_s
+            + self
+                .part
+                .effects
+                .channel_delay
+                .map(|c| c.delay_s)
+                .unwrap_or(0.0);
+        let laser_delay_samples = b.laser.delay_s * fs;
+        let mic_delay_samples = mic_delay * fs;
+        let mut x_true = Vec::with_capacity(n);
+        let mut p_true = Vec::with_capacity(n);
+        let mut xs = Vec::with_capacity(n);
+        let mut mics = Vec::with_capacity(n);
+        let mut drv = Vec::with_capacity(n);
+        let ramp_len = ((ABORT_RAMP_S * fs).round() as usize).max(1);
+        // Sample where the ramp-down started, and why.
+        let mut abort: Option<(usize, BenchError)> = None;
+        let gain_at = |k: usize, abort: &Option<(usize, BenchError)>| -> f64 {
+            match abort {
+                None => 1.0,
+                Some((k0, _)) => {
+                    let j = k.saturating_sub(*k0) as f64 / ramp_len as f64;
+                    if j >= 1.0 {
+                        0.0
+                    } else {
+                        0.5 * (1.0 + (std::f64::consts::PI * j).cos())
+                    }
+                }
+            }
+        };
+        // The converter: every captured sample is one of its codes (rounded, clipped).
+        let res = converter_resolution(&b);
+        let adc = |fs: Option<f64>, v: f64| Resolution::quantise(res.bits, fs.unwrap_or(1.0), v);
+        let mut block_start = 0;
+        for k in 0..n {
+            let u = drive_v[k] * gain_at(k, &abort);
+            x_true.push(sim.state[idx::X]);
+            p_true.push(sim.state[idx::P]);
+            // Laser.
+            let xm = delayed(&x_true, k, laser_delay_samples);
+            if xm.abs() > b.laser.range_m && abort.is_none() {
+                abort = Some((k, BenchError::LaserOutOfRange { t_s: k as f64 / fs }));
+            }
+            let mut xo = xm + laser_noise_m * rng.sample::<f64, _>(StandardNormal);
+            if b.laser.quantisation_m > 0.0 {
+                xo = (xo / b.laser.quantisation_m).round() * b.laser.quantisation_m;
+            }
+            xs.push(adc(res.scale.displacement, xo));
+            // Microphone.
+            let pm = delayed(&p_true, k, mic_delay_samples)
+                + b.microphone.noise_pa * rng.sample::<f64, _>(StandardNormal);
+            mics.push(adc(res.scale.microphone, b.microphone.gain_v_per_pa * pm));
+            drv.push(adc(res.scale.drive, u));
+            let u1 = if k + 1 < n {
+                drive_v[k + 1] * gain_at(k + 1, &abort)
+            } else {
+                0.0
+            };
+            sim.step(u, u1);
+            let end = k + 1;
+            if end - block_start == BLOCK_LEN || end == n {
+                let ctl = observer(Block {
+                    start_sample: block_start,
+                    displacement_m: &xs[block_start..end],
+                    microphone_v: &mics[block_start..end],
+                    drive_v: &drv[block_start..end],
+                });
+                if ctl == Control::Abort && abort.is_none() {
+                    abort = Some((end, BenchError::Aborted));
+                }
+                block_start = end;
+            }
+            if let Some((k0, _)) = &abort {
+                if end >= k0 + ramp_len {
+                    break;
+                }
+            }
+        }
+        if let Some((_, e)) = abort {
+            return Err(e);
+        }
+        Ok(Signals {
+            sample_rate_hz: fs,
+            displacement_m: xs,
+            microphone_v: mics,
+            drive_v: Some(drv),
+        })
+    }
+}

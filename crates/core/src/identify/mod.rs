@@ -1,0 +1,693 @@
+//! Identification: small-signal fit (pre-measurement), large-signal results and
+//! nonlinear stiffness K(x) (One Signal / Two Signal) from a recording set.
+//! Pure and synchronous: no I/O, no logging.
+//!
+//! CONTRACT shared with the daemon: `analyze`, `AnalyzeOptions`, `Method`,
+//! `Report` (Serialize + Deserialize + Clone; JSON field names fixed by issue 2).
+
+use crate::recording::RecordingSet;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    #[default]
+    TwoSignal,
+    OneSignal,
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct AnalyzeOptions {
+    pub method: Method,
+    /// Highest power of K(x) = sum k_i x^i; chosen from the data when None.
+    pub order: Option<usize>,
+}
+
+/// The result document (same JSON as `springbench analyze --json` and the API).
+/// Field names are fixed by issues 2 and 5, with the unit in every name since
+/// issue 12 (old names are read as aliases); more fields may be added.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Report {
+    /// Small-signal fit of the pre-measurement; None when the set has no usable pre sweep.
+    pub small_signal: Option<SmallSignal>,
+    pub large_signal: LargeSignal,
+    pub stiffness: Stiffness,
+    pub model: Model,
+    /// Human-readable warnings (one line each), e.g. "pre-measurement unreliable: ...".
+    pub warnings: Vec<String>,
+    /// Filled by `diagnose` (candidates, ladder, ...); None from a plain analysis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub diagnostics: Option<serde_json::Value>,
+    /// Level series (a daemon job with two or more `levels_m`): K(x), R and
+    /// the effects fitted jointly over all levels of the measurement's
+    /// repeat, beside each level's own fit (`diagnose::series`). The same
+    /// object in the document of every level of that repeat.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub series: Option<documents::SeriesFit>,
+}
+
+/// Small-signal parameters from the pre-measurement (SI), with standard errors.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SmallSignal {
+    pub f0_hz: f64,
+    pub k0_n_per_m: f64,
+    pub r_ns_per_m: f64,
+    /// Quality factor sqrt(k0 m) / R; null when the fit found no positive
+    /// damping (R <= 0: Q infinite or undefined), `q_null_reason` says so.
+    /// Never a non-finite number.
+    pub q: Option<f64>,
+    /// Standard errors of the above (same units); `f0_se_hz` is null when
+    /// the fitted k0 <= 0 (f0 = 0: its error is undefined), `q_se` with `q`
+    /// or when it is undefined.
+    pub f0_se_hz: Option<f64>,
+    pub k0_se_n_per_m: f64,
+    pub r_se_ns_per_m: f64,
+    pub q_se: Option<f64>,
+    /// Why `q` is null.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q_null_reason: Option<String>,
+    /// Force per microphone volt A = Sd / mic sensitivity (N/V, i.e. m^2 Pa/V); None without a mic model.
+    #[serde(default, alias = "area_per_mic_unit_m2_per_v")]
+    pub force_per_mic_v_n_per_v: Option<f64>,
+    /// Misfit of the linear resonator model against the measured transfer function (%).
+    pub misfit_percent: f64,
+    /// False when the pre-measurement is not the linear resonator it should be.
+    pub reliable: bool,
+    /// Effects in the small-signal model the values above come from (empty:
+    /// the linear resonator). Filled by the diagnostics.
+    #[serde(default, skip_serializing_if = "crate::effects::Effects::is_empty")]
+    pub effects: crate::effects::Effects,
+    /// Time (s from the start of the pre-measurement) k0 refers to, when the
+    /// model lets the stiffness change over time (stiffness drift).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_time_s: Option<f64>,
+    /// The linear resonator's values when the model above has effects
+    /// (what a plain analysis reports), for comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
+    pub base: Option<Box<SmallSignal>>,
+}
+
+/// The standard error of f0 = sqrt(k0 / m) / (2 pi) from k0's relative
+/// error: f0 rel_k / 2; None when it is undefined (k0 <= 0 gives f0 = 0 and
+/// no relative error), never a NaN, which the store refuses with the whole
+/// result.
+pub fn f0_standard_error(f0_hz: f64, rel_k: f64) -> Option<f64> {
+    let se = 0.5 * f0_hz * rel_k;
+    (f0_hz > 0.0 && se.is_finite()).then_some(se)
+}
+
+/// Q = sqrt(k0 m) / R and its standard error from the relative errors of
+/// k0 and R: (Q, its error, why Q is null). An undamped fit (R <= 0) has no
+/// finite positive Q: null with the reason, never an infinity (which JSON
+/// cannot carry and the store refuses, issue 11).
+pub fn quality_factor(
+    k0_n_per_m: f64,
+    mass_kg: f64,
+    r_ns_per_m: f64,
+    rel_k: f64,
+    rel_r: f64,
+) -> (Option<f64>, Option<f64>, Option<String>) {
+    let q = (k0_n_per_m.max(0.0) * mass_kg).sqrt() / r_ns_per_m;
+    if !(r_ns_per_m > 0.0 && q.is_finite()) {
+        return (
+            None,
+            None,
+            Some(format!(
+                "the fit found no damping (R = {r_ns_per_m:.3e} N s/m): Q = sqrt(k0 m) / R is infinite or undefined"
+            )),
+        );
+    }
+    let se = q * ((0.5 * rel_k).powi(2) + rel_r.powi(2)).sqrt();
+    (Some(q), se.is_finite().then_some(se), None)
+}
+
+/// Large-signal results from the main (narrow) sweep (SI).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LargeSignal {
+    /// fR: where the fundamental of x lags the driving force (Ss p, the
+    /// microphone) by 90 degrees; the displacement peak when the phase never
+    /// crosses (with a warning).
+    pub resonance_hz: f64,
+    /// Keff(Xpeak) = (2 pi fR)^2 m.
+    pub keff_n_per_m: f64,
+    pub ceff_m_per_n: f64,
+    /// Largest |x| of the resonance period: the amplitude Keff belongs to.
+    pub xpeak_m: f64,
+    /// Smallest and largest x of the whole analysed sweep.
+    pub x_min_m: f64,
+    pub x_max_m: f64,
+    /// Mean x of the resonance period.
+    pub dc_m: f64,
+    pub moving_mass_kg: f64,
+    /// Harmonic amplitudes of x at resonance, fundamental first (m).
+    #[serde(default)]
+    pub harmonics_m: Vec<f64>,
+    /// Smallest and largest x of the resonance period (the excursion of Keff).
+    #[serde(default)]
+    pub x_min_at_resonance_m: f64,
+    #[serde(default)]
+    pub x_max_at_resonance_m: f64,
+    /// Cross-check of Keff: the first-harmonic describing function of the
+    /// fitted restoring force K(x) x over the excursion at resonance.
+    #[serde(default)]
+    pub keff_from_k_of_x_n_per_m: f64,
+    /// Frequency of the largest fundamental displacement of the sweep (Hz).
+    #[serde(default)]
+    pub displacement_peak_hz: f64,
+    /// Why the displacement peak is not fR, when they differ by more than
+    /// 0.5 % (box air spring, damping).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub displacement_peak_note: Option<String>,
+    /// Time of the resonance period's centre (s from the start of the main
+    /// recording): where stiffness drift is evaluated for Keff.
+    #[serde(default)]
+    pub resonance_time_s: f64,
+    /// Block-robust standard error of Keff (N/m), when Keff comes from a
+    /// fitted model (diagnostics with effects); None for the phase method.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_se_n_per_m: Option<f64>,
+    /// How fR and Keff were found: "phase" (x lags the force by 90 degrees,
+    /// model-free) or "chosen_model" (the describing function of the chosen
+    /// model's K(x) over the excursion at resonance, fR = sqrt(Keff/m)/2 pi).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_method: Option<String>,
+    /// The target peak displacement of the level this measurement was made
+    /// for (m), when it had one (daemon jobs); the level control stops near,
+    /// not at, it (`xpeak_m` is what was reached).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_xpeak_m: Option<f64>,
+    /// Keff at the target amplitude (N/m): the first-harmonic describing
+    /// function of the headline K(x) over c +- `target_xpeak_m` (c the
+    /// measured centre of the excursion at resonance), the value QC judges
+    /// as `keff` (`qc::keff_at_target`). `keff_n_per_m` is Keff at the
+    /// reached Xpeak.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keff_at_target_n_per_m: Option<f64>,
+    /// With effects in the chosen model: the identification's values (phase
+    /// method, no effects) in the same layout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
+    pub base: Option<Box<LargeSignal>>,
+}
+
+/// Nonlinear stiffness K(x) = sum k_i x^i (x in m, K in N/m).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Stiffness {
+    /// "two-signal" or "one-signal".
+    pub method: String,
+    pub order: usize,
+    /// k_0..k_order in N/m^(i+1).
+    #[serde(alias = "coefficients")]
+    pub coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Standard errors of k_0..k_order in N/m^(i+1).
+    #[serde(alias = "coefficients_se")]
+    pub coefficients_se_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Same coefficients in N/mm^(i+1) (x in mm, K in N/mm).
+    #[serde(default, alias = "coefficients_n_per_mm")]
+    pub coefficients_n_per_mm_pow_i_plus_1: Vec<f64>,
+    /// The measured range; K(x) is not valid outside it.
+    pub valid_range_m: [f64; 2],
+    /// x where C(x) first falls to 75 % of C(0), per side; None when not reached inside the range.
+    #[serde(default)]
+    pub xc_m: [Option<f64>; 2],
+    /// Fitted mechanical resistance of the force balance (N s/m).
+    #[serde(default)]
+    pub r_ns_per_m: f64,
+    /// Force per microphone volt of the Two Signal method (N/V); None for One Signal.
+    #[serde(default)]
+    pub force_per_mic_v_n_per_v: Option<f64>,
+    /// Standard error of `r_ns_per_m` (N s/m); 0 when not estimated.
+    #[serde(default)]
+    pub r_se_ns_per_m: f64,
+    /// Time (s from the start of the main recording) K(x) refers to, when
+    /// the model lets the stiffness change over time (stiffness drift).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_time_s: Option<f64>,
+    /// The base model's K(x) and R when the model the values above come
+    /// from has effects (chosen by the diagnostics or asked for).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
+    pub base: Option<Box<Stiffness>>,
+    /// Change from the base model to this one: K at both ends of the range,
+    /// K(0) and R (%).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub change_from_base: Option<StiffnessChange>,
+}
+
+/// How much the headline K(x) and R differ from the base model's (%).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct StiffnessChange {
+    /// 100 (K(x)/K_base(x) - 1) at the lower and upper end of the valid range.
+    pub k_at_range_ends_percent: [f64; 2],
+    pub k0_percent: f64,
+    pub r_percent: f64,
+}
+
+/// How well the force-balance model explains the measurement (issue 5 names).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Model {
+    /// Effects included in the fitted model, with their fitted parameters.
+    #[serde(default)]
+    pub effects: crate::effects::Effects,
+    /// 100 RMS(e) / RMS(m x'') over the analysed span.
+    pub residual_percent: f64,
+    /// The part of the residual that sensor noise explains (estimated from the data).
+    pub noise_floor_percent: f64,
+    /// Structured part: sqrt(residual^2 - noise^2).
+    pub model_error_percent: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AnalyzeError {
+    #[error("{0}")]
+    Invalid(String),
+}
+
+pub mod documents;
+pub mod large;
+mod prep;
+mod small;
+mod stiffness;
+
+pub use small::{COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
+pub use stiffness::{MAX_AUTO_ORDER, MAX_ORDER};
+
+/// Relative variation of the microphone's fundamental over the One Signal span
+/// above which the One Signal assumption (constant force at resonance) fails.
+pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
+
+/// Analyses a recording set.
+pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
+    let p = prep::prepare(set)?;
+    analyze_prepared(set, &p, opts, None)
+}
+
+/// [`analyze`] and [`force_balance_data`] from one preparation of the main
+/// sweep (the diagnostics need both; preparing twice doubled their cost).
+pub fn analyze_with_force_balance(
+    set: &RecordingSet,
+    opts: &AnalyzeOptions,
+) -> Result<(Report, ForceBalanceData), AnalyzeError> {
+    let p = prep::prepare(set)?;
+    let report = analyze_prepared(set, &p, opts, None)?;
+    Ok((report, force_balance_of(&p, false)))
+}
+
+/// The pre-measurement's spectra, transformed once for the diagnostics: the
+/// small-signal fit, the pre-measurement's force balance and the comparison
+/// plot each took its own two 2^20-point FFTs before.
+#[derive(Debug, Clone)]
+pub struct PreSpectra {
+    sx: crate::dsp::Spectrum,
+    sm: crate::dsp::Spectrum,
+}
+
+impl PreSpectra {
+    /// [`pre_force_balance_data`] from these spectra.
+    pub fn force_balance_data(&self, set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
+        let p = prep::prepare_shared(&set.pre, set.meta.moving_mass_kg, "pre", &self.sx, &self.sm)?;
+        Ok(force_balance_of(&p, true))
+    }
+
+    /// Displacement and microphone spectra of the whole pre-measurement
+    /// (FFT size: the record plus at least 64 samples, to a power of two).
+    pub fn spectra(&self) -> (&crate::dsp::Spectrum, &crate::dsp::Spectrum) {
+        (&self.sx, &self.sm)
+    }
+}
+
+/// [`analyze_with_force_balance`] plus the pre-measurement's spectra (the
+/// same report: the small-signal fit runs on those spectra).
+pub fn analyze_for_diagnosis(
+    set: &RecordingSet,
+    opts: &AnalyzeOptions,
+) -> Result<(Report, ForceBalanceData, PreSpectra), AnalyzeError> {
+    let p = prep::prepare(set)?;
+    small::check(&set.pre)?;
+    let (sx, sm) = prep::spectra(&set.pre);
+    let report = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
+    Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
+}
+
+fn analyze_prepared(
+    set: &RecordingSet,
+    p: &prep::Prepared,
+    opts: &AnalyzeOptions,
+    pre_spectra: Option<(&crate::dsp::Spectrum, &crate::dsp::Spectrum)>,
+) -> Result<Report, AnalyzeError> {
+    let mut warnings = Vec::new();
+
+    let fitted = match pre_spectra {
+        Some((sx, sm)) => small::fit_spectra(&set.pre, p.mass_kg, sx, sm),
+        None => small::fit(&set.pre, p.mass_kg),
+    };
+    let small_signal = match fitted {
+        Ok(f) => {
+            warnings.extend(f.warnings);
+            Some(f.result)
+        }
+        Err(e) => return Err(e),
+    };
+
+    let span = match opts.method {
+        Method::TwoSignal => p.span,
+        Method::OneSignal => {
+            let (_, variation) = one_signal_span(p);
+            if variation > ONE_SIGNAL_MIC_VARIATION_LIMIT {
+                warnings.push(format!(
+                    "one-signal assumption fails: the microphone's fundamental varies by {:.0} % (> {:.0} %) around the resonance, so the driving force is not constant; use two-signal",
+                    100.0 * variation,
+                    100.0 * ONE_SIGNAL_MIC_VARIATION_LIMIT
+                ));
+            }
+            p.span
+        }
+    };
+    let kf = stiffness::fit(p, opts.method, span, opts.order)?;
+    if opts.order.is_none() && kf.order == MAX_AUTO_ORDER {
+        warnings.push(format!(
+            "stiffness order reached the automatic limit {MAX_AUTO_ORDER}: the polynomial may not describe K(x) well"
+        ));
+    }
+    if let (Some(ss), Some((s, _))) = (&small_signal, kf.scale_n_per_v) {
+        if let Some(a) = ss.force_per_mic_v_n_per_v {
+            if ss.reliable && ((s - a) / a).abs() > 0.1 {
+                warnings.push(format!(
+                    "microphone scale differs between pre-measurement ({a:.4} N/V) and main sweep ({s:.4} N/V)"
+                ));
+            }
+        }
+    }
+    let large_signal = large_signal(p, &kf, &mut warnings)?;
+    let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
+    let k0 = kf.k_of_x(0.0);
+    let xc = [xc_side(&kf, k0, xlo), xc_side(&kf, k0, xhi)];
+    let stiffness = Stiffness {
+        method: match opts.method {
+            Method::TwoSignal => "two-signal".into(),
+            Method::OneSignal => "one-signal".into(),
+        },
+        order: kf.order,
+        coefficients_n_per_mm_pow_i_plus_1: kf
+            .k
+            .iter()
+            .enumerate()
+            .map(|(i, k)| k * 1e-3f64.powi(i as i32 + 1))
+            .collect(),
+        coefficients_n_per_m_pow_i_plus_1: kf.k.clone(),
+        coefficients_se_n_per_m_pow_i_plus_1: kf.k_se.clone(),
+        valid_range_m: [xlo, xhi],
+        xc_m: xc,
+        r_ns_per_m: kf.r_ns_per_m,
+        force_per_mic_v_n_per_v: kf.scale_n_per_v.map(|s| s.0),
+        ..Default::default()
+    };
+
+    // Noise floor of the force balance: what the sensor noise puts into e.
+    let xs = &p.x[span.0..span.1];
+    let mean_kinc2 = xs
+        .iter()
+        .map(|&x| (kf.k_of_x(x) + x * kf.dk_dx(x)).powi(2))
+        .sum::<f64>()
+        / xs.len() as f64;
+    let s = kf.scale_n_per_v.map_or(0.0, |s| s.0);
+    let noise_n = ((p.mass_kg * p.noise_a_m_per_s2).powi(2)
+        + (s * p.noise_mic_v).powi(2)
+        + (kf.r_ns_per_m * p.noise_v_m_per_s).powi(2)
+        + mean_kinc2 * p.noise_x_m.powi(2))
+    .sqrt();
+    let residual_percent = kf.residual_percent();
+    let noise_floor_percent = 100.0 * noise_n / kf.rms_ma_n;
+    let model = Model {
+        effects: Default::default(),
+        residual_percent,
+        noise_floor_percent,
+        model_error_percent: (residual_percent.powi(2) - noise_floor_percent.powi(2))
+            .max(0.0)
+            .sqrt(),
+    };
+    Ok(Report {
+        small_signal,
+        large_signal,
+        stiffness,
+        model,
+        warnings,
+        diagnostics: None,
+        series: None,
+    })
+}
+
+/// Prepares the force-balance data of the main sweep of `set` (band limiting,
+/// differentiation, alignment, analysed span). Shared by `analyze` and `diagnose`.
+pub fn force_balance_data(
+    set: &RecordingSet,
+    _opts: &AnalyzeOptions,
+) -> Result<ForceBalanceData, AnalyzeError> {
+    let p = prep::prepare(set)?;
+    Ok(force_balance_of(&p, false))
+}
+
+/// The force-balance data of the pre-measurement, prepared like the main
+/// sweep (its span: where the displacement's fundamental exceeds 10 % of its
+/// peak). The diagnostics fit the small-signal model with effects on it.
+pub fn pre_force_balance_data(set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
+    let p = prep::prepare_sweep(&set.pre, set.meta.moving_mass_kg, "pre")?;
+    Ok(force_balance_of(&p, true))
+}
+
+/// The analysed span of a prepared main sweep (the same for both methods).
+fn force_balance_of(p: &prep::Prepared, starts_at_rest: bool) -> ForceBalanceData {
+    let (s0, s1) = p.span;
+    ForceBalanceData {
+        sample_rate_hz: p.fs_hz,
+        t0_s: s0 as f64 / p.fs_hz,
+        mass_kg: p.mass_kg,
+        x_m: p.x[s0..s1].to_vec(),
+        v_m_per_s: p.v[s0..s1].to_vec(),
+        a_m_per_s2: p.a[s0..s1].to_vec(),
+        mic_v: p.mic[s0..s1].to_vec(),
+        laser_noise_m: p.noise_x_m,
+        mic_noise_v: p.noise_mic_v,
+        starts_at_rest,
+    }
+}
+
+/// Relative difference between Keff from the phase and from the fitted K(x)
+/// above which the result says that an assumption of the force balance fails.
+pub const KEFF_CROSS_CHECK_LIMIT: f64 = 0.03;
+
+/// fR, Keff(Xpeak) and the excursion at resonance (see [`large`]).
+fn large_signal(
+    p: &prep::Prepared,
+    kf: &stiffness::KFit,
+    warnings: &mut Vec<String>,
+) -> Result<LargeSignal, AnalyzeError> {
+    let m = p.mass_kg;
+    let w2m = |f: f64| (2.0 * std::f64::consts::PI * f).powi(2) * m;
+    let peak_hz = large::freq_at(p, p.res_pos);
+    let (ri, fr) = match large::find(p) {
+        Some(r) => (r.index, r.fr_hz),
+        None if p.disp_peak_inside => {
+            warnings.push(format!(
+                "the displacement never lags the driving force (microphone) by 90 degrees inside the sweep: fR = {peak_hz:.2} Hz is the displacement peak, which lies below the resonance of a damped part and is moved by the box's air spring"
+            ));
+            (p.res_index, peak_hz)
+        }
+        None => {
+            return Err(AnalyzeError::Invalid(
+                "main: no resonance inside the sweep (the displacement neither peaks nor lags the driving force by 90 degrees inside it)"
+                    .into(),
+            ))
+        }
+    };
+    let n = p.px.len();
+    if ri < 2 || ri + 2 >= n {
+        warnings.push(format!(
+            "the resonance ({fr:.2} Hz) lies at an end of the sweep: sweep from further below to further above it"
+        ));
+    }
+    let period = &p.px[ri];
+    let (xlo, xhi) = (period.min, period.max);
+    let keff = w2m(fr);
+    let keff_kx = large::describing_function_keff(&kf.k, xlo, xhi);
+    if keff_kx.is_finite() && ((keff / keff_kx) - 1.0).abs() > KEFF_CROSS_CHECK_LIMIT {
+        warnings.push(format!(
+            "Keff from the resonance ({keff:.1} N/m) and from the fitted K(x) over the same excursion ({keff_kx:.1} N/m) differ by {:.1} % (> {:.0} %): the fitted K(x) or the force balance is off (an effect outside the model, see --diagnose; a delayed microphone; or a failed One Signal assumption)",
+            100.0 * (keff / keff_kx - 1.0),
+            100.0 * KEFF_CROSS_CHECK_LIMIT
+        ));
+    }
+    let note = ((peak_hz / fr - 1.0).abs() > 0.005).then(|| {
+        let mic = |i: usize| p.pm[i].amplitude(1);
+        let change = mic(p.res_index) / mic(ri) - 1.0;
+        let q = (keff * m).sqrt() / kf.r_ns_per_m;
+        if change.abs() > 0.05 {
+            format!(
+                "the displacement peaks at {peak_hz:.2} Hz, not at fR {fr:.2} Hz: the driving force (box pressure) there is {:.0} % {} than at fR, because the box's air spring takes part (large effective area); fR is where x lags the force by 90 degrees",
+                100.0 * change.abs(),
+                if change < 0.0 { "lower" } else { "higher" }
+            )
+        } else {
+            let ideal = (1.0 - 0.5 / (q * q)).max(0.0).sqrt();
+            format!(
+                "the displacement peaks at {peak_hz:.2} Hz, {:.1} % {} fR {fr:.2} Hz: a damped resonator (Q = {q:.1}) driven by a constant force peaks at {ideal:.3} fR; fR is where x lags the force by 90 degrees",
+                100.0 * (peak_hz / fr - 1.0).abs(),
+                if peak_hz < fr { "below" } else { "above" }
+            )
+        }
+    });
+    let (x_min, x_max) = extremes(&p.x[p.span.0..p.span.1]);
+    Ok(LargeSignal {
+        resonance_hz: fr,
+        keff_n_per_m: keff,
+        ceff_m_per_n: 1.0 / keff,
+        xpeak_m: xhi.max(-xlo),
+        x_min_m: x_min,
+        x_max_m: x_max,
+        dc_m: period.dc,
+        moving_mass_kg: m,
+        harmonics_m: period.harmonics.iter().map(|c| c.norm()).collect(),
+        x_min_at_resonance_m: xlo,
+        x_max_at_resonance_m: xhi,
+        keff_from_k_of_x_n_per_m: keff_kx,
+        displacement_peak_hz: peak_hz,
+        displacement_peak_note: note,
+        resonance_time_s: 0.5 * (period.start + period.end) / p.fs_hz,
+        keff_se_n_per_m: None,
+        keff_method: Some("phase".into()),
+        target_xpeak_m: None,
+        keff_at_target_n_per_m: None,
+        base: None,
+    })
+}
+
+/// Minimum and maximum of a sampled band-limited signal, refined by a parabola
+/// through the extreme sample and its neighbours.
+fn extremes(x: &[f64]) -> (f64, f64) {
+    let refine = |i: usize| -> f64 {
+        if i == 0 || i + 1 >= x.len() {
+            return x[i];
+        }
+        let (a, b, c) = (x[i - 1], x[i], x[i + 1]);
+        let den = a - 2.0 * b + c;
+        if den == 0.0 {
+            return b;
+        }
+        let off = (0.5 * (a - c) / den).clamp(-0.5, 0.5);
+        b - 0.25 * (a - c) * off
+    };
+    let (mut imin, mut imax) = (0, 0);
+    for (i, &v) in x.iter().enumerate() {
+        if v < x[imin] {
+            imin = i;
+        }
+        if v > x[imax] {
+            imax = i;
+        }
+    }
+    (refine(imin), refine(imax))
+}
+
+/// The periods around the resonance (from where the fundamental of x first
+/// reaches 70 % of its peak up to the resonance period) and the relative
+/// variation of the microphone's fundamental over them: One Signal needs a
+/// drive force that does not change over the resonance.
+fn one_signal_span(p: &prep::Prepared) -> ((usize, usize), f64) {
+    let ri = p.res_index;
+    let peak = p.px[ri].amplitude(1);
+    let mut lo = ri;
+    while lo > 0 && p.px[lo - 1].amplitude(1) >= 0.7 * peak {
+        lo -= 1;
+    }
+    let hi = (ri + 1).min(p.px.len() - 1);
+    let lo = lo.min(hi.saturating_sub(10));
+    let mics: Vec<f64> = p.pm[lo..=hi].iter().map(|q| q.amplitude(1)).collect();
+    let (mn, mx) = mics
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+    let mean = mics.iter().sum::<f64>() / mics.len() as f64;
+    let variation = if mean > 0.0 { (mx - mn) / mean } else { 0.0 };
+    let s0 = p.px[lo].start.ceil().max(0.0) as usize;
+    let s1 = (p.px[hi].end.floor() as usize).min(p.x.len());
+    ((s0, s1), variation)
+}
+
+/// Where C(x) = 1/K(x) first falls to 75 % of C(0) between 0 and `edge`.
+fn xc_side(kf: &stiffness::KFit, k0: f64, edge: f64) -> Option<f64> {
+    if k0.is_nan() || k0 <= 0.0 || edge == 0.0 {
+        return None;
+    }
+    let target = k0 / 0.75;
+    let steps = 2000;
+    let mut prev = 0.0;
+    for i in 1..=steps {
+        let x = edge * i as f64 / steps as f64;
+        if kf.k_of_x(x) >= target {
+            // Bisection between prev and x.
+            let (mut a, mut b) = (prev, x);
+            for _ in 0..60 {
+                let m = 0.5 * (a + b);
+                if kf.k_of_x(m) >= target {
+                    b = m;
+                } else {
+                    a = m;
+                }
+            }
+            return Some(0.5 * (a + b));
+        }
+        prev = x;
+    }
+    None
+}
+
+/// The large-signal force-balance data, prepared once by the identification
+/// and shared with [`crate::diagnose`] (which extends the same force balance
+/// with candidate effects). All SI; every slice has the same length and covers
+/// the analysed span of the main sweep (already band-limited, possibly decimated).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ForceBalanceData {
+    /// Sample rate of these slices (Hz).
+    pub sample_rate_hz: f64,
+    /// Time of the first sample, from the start of the main recording (s).
+    pub t0_s: f64,
+    /// Moving mass (kg).
+    pub mass_kg: f64,
+    /// Displacement (m), band-limited.
+    pub x_m: Vec<f64>,
+    /// Velocity (m/s).
+    pub v_m_per_s: Vec<f64>,
+    /// Acceleration (m/s^2).
+    pub a_m_per_s2: Vec<f64>,
+    /// Microphone (V), band-limited, aligned with x.
+    pub mic_v: Vec<f64>,
+    /// Standard deviation of the laser noise estimated from the data (m), for the noise floor.
+    pub laser_noise_m: f64,
+    /// Standard deviation of the microphone noise estimated from the data (V).
+    pub mic_noise_v: f64,
+    /// True when the span starts with the part at rest, or near it (the
+    /// pre-measurement's slow start, a simulation from rest): a state
+    /// variable such as creep's relaxed position starts at x[0]. False for a
+    /// span that starts mid-oscillation (the main sweep).
+    pub starts_at_rest: bool,
+}
+
+#[cfg(test)]
+mod f0_se_tests {
+    use super::f0_standard_error;
+
+    #[test]
+    fn f0_error_follows_k0_and_is_null_without_a_stiffness() {
+        // k0 = 2500 N/m, m = 20 g: f0 = sqrt(2500 / 0.02) / 2 pi = 56.27 Hz;
+        // 1 % on k0 is 0.5 % on f0.
+        let f0 = (2500.0f64 / 0.02).sqrt() / (2.0 * std::f64::consts::PI);
+        let se = f0_standard_error(f0, 0.01).unwrap();
+        assert!(
+            (se - 0.005 * f0).abs() < 1e-12 && (se - 0.28135).abs() < 1e-4,
+            "{se}"
+        );
+        // k0 <= 0: f0 is 0 and rel_k NaN (k0 = 0) or negative; no error, no NaN.
+        assert_eq!(f0_standard_error(0.0, f64::NAN), None);
+        assert_eq!(f0_standard_error(0.0, -0.3), None);
+    }
+}

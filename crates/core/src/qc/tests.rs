@@ -1,0 +1,541 @@
+use super::limits::{propose, GoldenUnit, ProposalOptions, Spread};
+use super::spc::{compute, SpcPoint};
+use super::*;
+use crate::identify::{LargeSignal, Model, SmallSignal, Stiffness};
+
+/// A result document with K(x) = k0 + k1 x + k2 x^2 measured over +-8 mm.
+fn report(k0: f64, k1: f64, k2: f64, q: f64) -> Report {
+    Report {
+        small_signal: Some(SmallSignal {
+            f0_hz: 35.0,
+            k0_n_per_m: k0,
+            r_ns_per_m: (k0 * 0.05f64).sqrt() / q,
+            q: Some(q),
+            reliable: true,
+            misfit_percent: 0.5,
+            ..Default::default()
+        }),
+        large_signal: LargeSignal {
+            keff_n_per_m: k0 * 1.5,
+            xpeak_m: 0.008,
+            ..Default::default()
+        },
+        stiffness: Stiffness {
+            coefficients_n_per_m_pow_i_plus_1: vec![k0, k1, k2],
+            valid_range_m: [-0.008, 0.008],
+            ..Default::default()
+        },
+        model: Model {
+            residual_percent: 1.0,
+            noise_floor_percent: 0.5,
+            model_error_percent: 0.8,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+fn facts(r: Report) -> RunFacts {
+    RunFacts {
+        report: Some(r),
+        target_xpeak_m: Some(0.008),
+        level_index: 0,
+        drive_v: Some(20.0),
+        max_drive_v: Some(100.0),
+        ..Default::default()
+    }
+}
+
+fn param(name: &str, q: Quantity, x_m: Option<f64>, lo: Option<f64>, hi: Option<f64>) -> ParamSpec {
+    ParamSpec {
+        name: name.into(),
+        quantity: q,
+        x_m,
+        effect: None,
+        effect_parameter: None,
+        level_index: None,
+        lower: lo,
+        upper: hi,
+        from_golden: None,
+    }
+}
+
+fn recipe() -> Recipe {
+    Recipe {
+        name: "spider-4in".into(),
+        part_kind: Some("spider".into()),
+        description: None,
+        procedure: ProcedureSettings {
+            levels_m: vec![0.008],
+            method: Method::TwoSignal,
+            order: Some(4),
+            repeats: 1,
+            moving_mass_kg: Some(0.05),
+        },
+        parameters: vec![
+            param("k0", Quantity::K0, None, Some(2300.0), Some(2500.0)),
+            param("q", Quantity::Q, None, Some(5.0), Some(7.0)),
+            param(
+                "k_at_4mm",
+                Quantity::KAtX,
+                Some(0.004),
+                Some(2700.0),
+                Some(3100.0),
+            ),
+            param(
+                "asym_4mm",
+                Quantity::KAsymmetry,
+                Some(0.004),
+                Some(0.8),
+                Some(1.0),
+            ),
+            param("model_error", Quantity::ModelError, None, None, Some(5.0)),
+        ],
+        validity: Validity::default(),
+        kx_mask: None,
+    }
+}
+
+#[test]
+fn k_of_x_and_asymmetry_follow_the_polynomial() {
+    let r = report(2400.0, 1.2e5, 3.6e7, 6.0);
+    let x = 0.004;
+    let kp = 2400.0 + 1.2e5 * x + 3.6e7 * x * x; // 2880
+    let km = 2400.0 - 1.2e5 * x + 3.6e7 * x * x; // 1920
+    assert!((k_of_x(&r, x) - kp).abs() < 1e-9);
+    let v = judge(&recipe(), &facts(r));
+    let asym = v.parameters.iter().find(|p| p.name == "asym_4mm").unwrap();
+    assert!((asym.value - km / kp).abs() < 1e-12, "{}", asym.value);
+    assert_eq!(asym.unit, "1");
+}
+
+#[test]
+fn pass_inside_the_limits_fail_names_every_failing_parameter() {
+    let r = recipe();
+    // k1 small: symmetric K(x): asymmetry 1.0 is at the upper limit (pass).
+    let good = report(2400.0, 0.0, 3.0e7, 6.0); // K(4 mm) = 2880
+    let v = judge(&r, &facts(good));
+    assert_eq!(v.verdict, VerdictKind::Pass, "{v:?}");
+    assert!(v.failures.is_empty());
+    assert_eq!(v.parameters.len(), 5);
+    let k0 = &v.parameters[0];
+    assert_eq!(
+        (k0.value, k0.lower, k0.upper, k0.unit.as_str()),
+        (2400.0, Some(2300.0), Some(2500.0), "N/m")
+    );
+
+    // Stiff and over-damped: k0, K(4 mm) and Q fail, with their values and limits.
+    let bad = report(2700.0, 0.0, 3.0e7, 4.0);
+    let v = judge(&r, &facts(bad));
+    assert_eq!(v.verdict, VerdictKind::Fail);
+    let names: Vec<&str> = v.failures.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["k0", "q", "k_at_4mm"]);
+    assert_eq!(v.failures[0].value, 2700.0);
+    assert_eq!(v.failures[0].upper, Some(2500.0));
+    assert_eq!(v.failures[1].value, 4.0);
+    assert_eq!(v.failures[1].lower, Some(5.0));
+    assert!((v.failures[2].value - (2700.0 + 3.0e7 * 16e-6)).abs() < 1e-9);
+    assert!(v.invalid_reasons.is_empty());
+}
+
+#[test]
+fn an_untrusted_measurement_is_invalid_never_pass() {
+    let r = recipe();
+    let good = report(2400.0, 0.0, 3.0e7, 6.0);
+    // Target not reached at the drive limit: values inside the limits, still invalid.
+    let mut f = facts(good.clone());
+    f.report.as_mut().unwrap().large_signal.xpeak_m = 0.005;
+    f.drive_v = Some(100.0);
+    let v = judge(&r, &f);
+    assert_eq!(v.verdict, VerdictKind::Invalid);
+    assert_eq!(v.invalid_reasons[0].code, "target_not_reached");
+    assert!(
+        v.invalid_reasons[0].detail.contains("drive limit"),
+        "{}",
+        v.invalid_reasons[0].detail
+    );
+    assert!(v.failures.is_empty());
+
+    // Noise floor above the bound.
+    let mut f = facts(good.clone());
+    f.report.as_mut().unwrap().model.noise_floor_percent = 7.0;
+    assert_eq!(judge(&r, &f).invalid_reasons[0].code, "noise_high");
+    // Model error above the validity bound (10 %), also above the limit (5 %): invalid wins.
+    let mut f = facts(good.clone());
+    f.report.as_mut().unwrap().model.model_error_percent = 12.0;
+    let v = judge(&r, &f);
+    assert_eq!(v.verdict, VerdictKind::Invalid);
+    assert_eq!(v.invalid_reasons[0].code, "model_error_high");
+    // Unreliable small-signal fit.
+    let mut f = facts(good.clone());
+    f.report
+        .as_mut()
+        .unwrap()
+        .small_signal
+        .as_mut()
+        .unwrap()
+        .reliable = false;
+    assert_eq!(
+        judge(&r, &f).invalid_reasons[0].code,
+        "small_signal_unreliable"
+    );
+    // Clipping reported by the analysis.
+    let mut f = facts(good.clone());
+    f.report
+        .as_mut()
+        .unwrap()
+        .warnings
+        .push("microphone clipped in 12 samples".into());
+    assert_eq!(judge(&r, &f).invalid_reasons[0].code, "clipping");
+    // K(x) point outside the measured range.
+    let mut f = facts(good.clone());
+    f.report.as_mut().unwrap().stiffness.valid_range_m = [-0.003, 0.008];
+    assert_eq!(
+        judge(&r, &f).invalid_reasons[0].code,
+        "outside_measured_range"
+    );
+    // No result at all.
+    let f = RunFacts {
+        analysis_error: Some("too short".into()),
+        ..Default::default()
+    };
+    let v = judge(&r, &f);
+    assert_eq!(v.verdict, VerdictKind::Invalid);
+    assert!(v.invalid_reasons[0].detail.contains("too short"));
+}
+
+#[test]
+fn a_recipe_without_limits_gives_no_limits_and_the_hash_follows_the_content() {
+    let mut r = recipe();
+    for p in &mut r.parameters {
+        p.lower = None;
+        p.upper = None;
+    }
+    assert!(!r.has_limits());
+    let v = judge(&r, &facts(report(2400.0, 0.0, 3.0e7, 6.0)));
+    assert_eq!(v.verdict, VerdictKind::NoLimits);
+    let h = r.sha256();
+    assert_eq!(h.len(), 64);
+    assert_eq!(r.clone().sha256(), h);
+    r.parameters[0].upper = Some(2500.0);
+    assert_ne!(r.sha256(), h);
+}
+
+#[test]
+fn job_verdict_invalid_outranks_fail_outranks_pass() {
+    let r = recipe();
+    let pass = judge(&r, &facts(report(2400.0, 0.0, 3.0e7, 6.0)));
+    let fail = judge(&r, &facts(report(2700.0, 0.0, 3.0e7, 6.0)));
+    let invalid = invalid_job("hardware_fault", "laser out of range".into());
+    assert_eq!(
+        combine(&[pass.clone(), pass.clone()]).verdict,
+        VerdictKind::Pass
+    );
+    assert_eq!(
+        combine(&[pass.clone(), fail.clone()]).verdict,
+        VerdictKind::Fail
+    );
+    assert_eq!(
+        combine(&[fail, invalid.clone(), pass]).verdict,
+        VerdictKind::Invalid
+    );
+    assert_eq!(combine(&[]).verdict, VerdictKind::Invalid);
+}
+
+#[test]
+fn recipe_validation_names_each_bad_field() {
+    let mut r = recipe();
+    r.name = "a/b".into();
+    r.procedure.levels_m = vec![0.0];
+    r.parameters[2].x_m = None;
+    r.parameters[0].lower = Some(3000.0);
+    r.parameters
+        .push(param("k0", Quantity::Keff, None, None, None));
+    let mut fx = param("friction", Quantity::EffectSize, None, None, Some(0.05));
+    fx.effect = Some("coulomb_friction".into());
+    fx.effect_parameter = Some("force".into());
+    r.parameters.push(fx);
+    let e = r.validate().unwrap_err();
+    let f: Vec<&str> = e.iter().map(|e| e.field.as_str()).collect();
+    assert_eq!(
+        f,
+        [
+            "name",
+            "procedure.levels_m[0]",
+            "parameters[0].lower",
+            "parameters[2].x_m",
+            "parameters[5].name",
+            "parameters[6].effect_parameter"
+        ]
+    );
+    assert!(recipe().validate().is_ok());
+}
+
+#[test]
+fn effect_size_reads_the_fitted_effect_or_zero() {
+    let mut r = recipe();
+    let mut fx = param("friction", Quantity::EffectSize, None, None, Some(0.05));
+    fx.effect = Some("coulomb_friction".into());
+    fx.effect_parameter = Some("force_n".into());
+    r.parameters = vec![fx];
+    assert!(r.needs_diagnostics());
+    let mut rep = report(2400.0, 0.0, 3.0e7, 6.0);
+    let v = judge(&r, &facts(rep.clone()));
+    assert_eq!((v.verdict, v.parameters[0].value), (VerdictKind::Pass, 0.0));
+    assert_eq!(v.parameters[0].unit, "N");
+    rep.model.effects.coulomb_friction = Some(crate::effects::CoulombFriction {
+        force_n: 0.2,
+        v_eps_m_per_s: 0.002,
+    });
+    let v = judge(&r, &facts(rep));
+    assert_eq!(v.verdict, VerdictKind::Fail);
+    assert_eq!(v.failures[0].value, 0.2);
+}
+
+#[test]
+fn golden_limits_are_mean_plus_minus_k_sigma_and_a_mask() {
+    let mut r = recipe();
+    for p in &mut r.parameters {
+        if p.from_golden() {
+            p.lower = None;
+            p.upper = None;
+        }
+    }
+    // k0 of the golden units 2380..2420 (mean 2400, sample sigma sqrt(250)).
+    let k0s = [2380.0, 2390.0, 2400.0, 2410.0, 2420.0];
+    let golden: Vec<GoldenUnit> = k0s
+        .iter()
+        .enumerate()
+        .map(|(i, &k0)| GoldenUnit {
+            serial: format!("G-{i}"),
+            measurements: vec![facts(report(k0, 0.0, 3.0e7, 6.0))],
+        })
+        .collect();
+    let opts = ProposalOptions {
+        spread: Spread::KSigma { k: 3.0 },
+        mask_points: 5,
+        mask_range_fraction: 0.5,
+    };
+    let p = propose(&r, &golden, &opts).unwrap();
+    let k0 = p.parameters.iter().find(|s| s.name == "k0").unwrap();
+    let sigma = 250f64.sqrt();
+    assert!((k0.mean - 2400.0).abs() < 1e-9 && (k0.sigma - sigma).abs() < 1e-9);
+    assert!((k0.lower.unwrap() - (2400.0 - 3.0 * sigma)).abs() < 1e-9);
+    assert!((k0.upper.unwrap() - (2400.0 + 3.0 * sigma)).abs() < 1e-9);
+    // Manual limits (model error) are kept, not proposed.
+    assert!(p.parameters.iter().all(|s| s.name != "model_error"));
+    assert_eq!(p.recipe.parameters[4].upper, Some(5.0));
+    // Mask over half of the common range +-8 mm: +-4 mm, K(x) = k0 + 3e7 x^2.
+    let m = p.kx_mask.as_ref().unwrap();
+    assert_eq!(m.x_m, vec![-0.004, -0.002, 0.0, 0.002, 0.004]);
+    let mid = 2400.0 + 3.0e7 * 16e-6;
+    assert!((0.5 * (m.lower_n_per_m[4] + m.upper_n_per_m[4]) - mid).abs() < 1e-6);
+    assert!((0.5 * (m.upper_n_per_m[4] - m.lower_n_per_m[4]) - 3.0 * sigma).abs() < 1e-6);
+    // The approved recipe judges a golden unit pass and a stiff part fail on k0 and the mask.
+    assert_eq!(
+        judge(&p.recipe, &golden[2].measurements[0]).verdict,
+        VerdictKind::Pass
+    );
+    let v = judge(&p.recipe, &facts(report(2500.0, 0.0, 3.0e7, 6.0)));
+    let names: Vec<&str> = v.failures.iter().map(|f| f.name.as_str()).collect();
+    assert!(
+        names.contains(&"k0") && names.contains(&KX_MASK),
+        "{names:?}"
+    );
+
+    // Tolerance: +- 10 % of the mean.
+    let opts_t = ProposalOptions {
+        spread: Spread::Tolerance {
+            tolerance_percent: 10.0,
+        },
+        mask_points: 0,
+        mask_range_fraction: 0.9,
+    };
+    let p = propose(&r, &golden, &opts_t).unwrap();
+    let k0 = p.parameters.iter().find(|s| s.name == "k0").unwrap();
+    assert!((k0.upper.unwrap() - 2640.0).abs() < 1e-9);
+    assert!(p.kx_mask.is_none());
+
+    // Four golden units are too few; an invalid golden unit is refused by serial.
+    assert!(propose(&r, &golden[..4], &opts)
+        .unwrap_err()
+        .contains("at least 5"));
+    let mut g = golden.clone();
+    g[1].measurements[0]
+        .report
+        .as_mut()
+        .unwrap()
+        .model
+        .noise_floor_percent = 9.0;
+    assert!(propose(&r, &g, &opts).unwrap_err().contains("G-1"));
+}
+
+#[test]
+fn spc_matches_the_closed_form() {
+    let vals = [1.0, 2.0, 3.0, 4.0, 5.0];
+    let pts: Vec<SpcPoint> = vals
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| SpcPoint {
+            time: format!("2026-01-01T00:00:0{i}Z"),
+            part_serial: format!("S{i}"),
+            measurement_id: format!("m{i}"),
+            job_id: Some(format!("j{i}")),
+            level_index: Some(0),
+            value: v,
+            repeats: 1,
+            verdict: if v < 5.0 {
+                VerdictKind::Pass
+            } else {
+                VerdictKind::Fail
+            },
+        })
+        .collect();
+    let s = compute("x", "1", Some(0.0), Some(6.0), pts, 2);
+    let sigma = 2.5f64.sqrt();
+    let sw = 1.0 / 1.128; // average moving range 1
+    assert_eq!(s.n, 5);
+    assert!((s.mean.unwrap() - 3.0).abs() < 1e-12);
+    assert!((s.sigma.unwrap() - sigma).abs() < 1e-12);
+    assert!((s.sigma_within.unwrap() - sw).abs() < 1e-12);
+    assert!((s.cp.unwrap() - 6.0 / (6.0 * sw)).abs() < 1e-12);
+    assert!((s.cpk.unwrap() - 3.0 / (3.0 * sw)).abs() < 1e-12);
+    assert!((s.pp.unwrap() - 6.0 / (6.0 * sigma)).abs() < 1e-12);
+    assert!((s.ppk.unwrap() - 3.0 / (3.0 * sigma)).abs() < 1e-12);
+    assert!((s.yield_fraction.unwrap() - 0.8).abs() < 1e-12);
+    assert_eq!((s.passed, s.failed, s.invalid), (4, 1, 2));
+    assert!((s.ucl.unwrap() - (3.0 + 3.0 * sw)).abs() < 1e-12);
+    // One-sided: Cpk from the upper limit only, no Cp.
+    let s1 = compute("x", "1", None, Some(6.0), s.points.clone(), 0);
+    assert!(s1.cp.is_none());
+    assert!((s1.cpk.unwrap() - 3.0 / (3.0 * sw)).abs() < 1e-12);
+    let csv = super::spc::to_csv(&s);
+    assert_eq!(csv.lines().count(), 6);
+    assert!(
+        csv.lines().nth(5).unwrap().contains(",5,fail,0,6,3,"),
+        "{csv}"
+    );
+    // Repeats: one point per job, the mean of its repeats (three repeats of
+    // each part: the moving ranges are between the parts' means).
+    let reps: Vec<SpcPoint> = s
+        .points
+        .iter()
+        .flat_map(|p| {
+            [-0.3, 0.1, 0.2].map(|d| SpcPoint {
+                value: p.value + d,
+                ..p.clone()
+            })
+        })
+        .collect();
+    let r = compute("x", "1", Some(0.0), Some(6.0), reps, 0);
+    assert_eq!(r.n, 5);
+    assert!(r.points.iter().all(|p| p.repeats == 3));
+    assert!((r.mean.unwrap() - 3.0).abs() < 1e-12);
+    assert!((r.sigma_within.unwrap() - sw).abs() < 1e-12);
+    assert!((r.cpk.unwrap() - s.cpk.unwrap()).abs() < 1e-12);
+    // Empty window: no NaN anywhere.
+    let e = compute("x", "1", Some(0.0), Some(6.0), vec![], 0);
+    assert!(e.mean.is_none() && e.cpk.is_none() && e.yield_fraction.is_none());
+}
+
+#[test]
+fn keff_is_judged_at_the_target_amplitude_not_the_reached_one() {
+    // K(x) = k0 + k2 x^2: the describing function at amplitude X is
+    // k0 + 3/4 k2 X^2 (exact), whatever Xpeak the level control reached.
+    let (k0, k2) = (2400.0, 3.0e7);
+    let mut r = report(k0, 0.0, k2, 6.0);
+    r.large_signal.xpeak_m = 0.0075;
+    r.large_signal.x_min_at_resonance_m = -0.0075;
+    r.large_signal.x_max_at_resonance_m = 0.0075;
+    let want = |x: f64| k0 + 0.75 * k2 * x * x;
+    let got = keff_at_target(&r, Some(0.008));
+    assert!((got - want(0.008)).abs() < 1e-9 * want(0.008), "{got}");
+    // A part that reached 8.0 mm instead gives the same figure.
+    r.large_signal.xpeak_m = 0.008;
+    assert!((keff_at_target(&r, Some(0.008)) - got).abs() < 1e-9 * got);
+    // A centre offset c: x = c + X cos(theta) gives k0 + k2 (3 c^2 + 3/4 X^2).
+    r.large_signal.x_min_at_resonance_m = -0.007;
+    r.large_signal.x_max_at_resonance_m = 0.009;
+    let c: f64 = 0.001;
+    let w = k0 + k2 * (3.0 * c * c + 0.75 * 0.008 * 0.008);
+    assert!((keff_at_target(&r, Some(0.008)) - w).abs() < 1e-9 * w);
+    // Without a target: the measured Keff.
+    assert_eq!(keff_at_target(&r, None), r.large_signal.keff_n_per_m);
+}
+
+#[test]
+fn keff_at_target_is_put_beside_the_measured_keff() {
+    // K(x) = k0 + k1 x + k2 x^2 + k3 x^3 around a centre c, amplitude X: the
+    // first harmonic of K(x) x over x = c + X cos(theta) gives
+    // Keff = k0 + 2 k1 c + k2 (3 c^2 + 3/4 X^2) + k3 (4 c^3 + 3 c X^2).
+    let (k0, k1, k2, k3) = (2400.0, -4.0e4, 3.0e7, 2.0e8);
+    let mut r = report(k0, k1, k2, 6.0);
+    r.stiffness.coefficients_n_per_m_pow_i_plus_1 = vec![k0, k1, k2, k3];
+    r.large_signal.xpeak_m = 0.0085;
+    r.large_signal.x_min_at_resonance_m = -0.0075;
+    r.large_signal.x_max_at_resonance_m = 0.0085;
+    let (c, x) = (0.0005f64, 0.008f64);
+    let want = k0
+        + 2.0 * k1 * c
+        + k2 * (3.0 * c * c + 0.75 * x * x)
+        + k3 * (4.0 * c.powi(3) + 3.0 * c * x * x);
+    let measured = r.large_signal.keff_n_per_m;
+    set_keff_at_target(&mut r, Some(x));
+    let got = r.large_signal.keff_at_target_n_per_m.unwrap();
+    assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+    assert_eq!(r.large_signal.target_xpeak_m, Some(x));
+    // The number QC judges, and the measured Keff left as it was.
+    assert_eq!(got, keff_at_target(&r, Some(x)));
+    assert_eq!(r.large_signal.keff_n_per_m, measured);
+    // Serialized with the unit in the name.
+    let v = serde_json::to_value(&r).unwrap();
+    assert_eq!(
+        v["large_signal"]["keff_at_target_n_per_m"],
+        serde_json::json!(got)
+    );
+    assert_eq!(v["large_signal"]["target_xpeak_m"], serde_json::json!(x));
+    // No target: nothing added (and nothing in the JSON).
+    let mut r2 = report(k0, k1, k2, 6.0);
+    set_keff_at_target(&mut r2, None);
+    assert!(r2.large_signal.keff_at_target_n_per_m.is_none());
+    let v = serde_json::to_value(&r2).unwrap();
+    assert!(v["large_signal"].get("keff_at_target_n_per_m").is_none());
+    // No fitted K(x): the target is stated, no Keff invented.
+    r2.stiffness.coefficients_n_per_m_pow_i_plus_1.clear();
+    set_keff_at_target(&mut r2, Some(x));
+    assert_eq!(r2.large_signal.target_xpeak_m, Some(x));
+    assert!(r2.large_signal.keff_at_target_n_per_m.is_none());
+}
+
+/// Issue 11: a result with a non-finite stiffness coefficient (an
+/// ill-conditioned fit; the store refuses such a result, QC judges it first)
+/// against a K(x) mask was a `fail` whose value was stored as null. The
+/// verdict is `invalid` and names the value; it passes the store's check.
+#[test]
+fn a_non_finite_value_makes_the_verdict_invalid_not_null() {
+    let mut r = recipe();
+    r.parameters.clear();
+    r.kx_mask = Some(KxMask {
+        x_m: vec![-0.004, 0.0, 0.004],
+        lower_n_per_m: vec![1000.0; 3],
+        upper_n_per_m: vec![1.0e5; 3],
+        level_index: None,
+    });
+    let good = judge(&r, &facts(report(2400.0, 1.2e5, 3.6e7, 6.0)));
+    assert_eq!(good.verdict, VerdictKind::Pass, "{good:?}");
+    let mut rep = report(2400.0, 1.2e5, 3.6e7, 6.0);
+    rep.stiffness.coefficients_n_per_m_pow_i_plus_1[2] = f64::NAN;
+    let raw = judge_values(&r, &facts(rep.clone()));
+    assert!(raw.parameters[0].value.is_nan(), "{raw:?}");
+    let v = judge(&r, &facts(rep));
+    assert_eq!(v.verdict, VerdictKind::Invalid, "{v:?}");
+    assert_eq!(v.invalid_reasons[0].code, "non_finite_value");
+    assert!(
+        v.invalid_reasons[0]
+            .detail
+            .contains("NaN at failures[0].value"),
+        "{v:?}"
+    );
+    let doc = crate::finite::to_value(&v).unwrap();
+    assert_eq!(doc["verdict"], "invalid");
+}

@@ -1,0 +1,200 @@
+//! The result document as the `analyze` command's table.
+use crate::identify::Report;
+
+/// The readable table: SI and the conventional units of the field.
+pub fn table(r: &Report) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let mm = |m: f64| m * 1e3;
+    if let Some(s) = &r.small_signal {
+        let _ = writeln!(
+            o,
+            "Small signal (pre-measurement){}",
+            if s.reliable { "" } else { "  ** UNRELIABLE **" }
+        );
+        let _ = writeln!(
+            o,
+            "  f0      {:>10.3} Hz         ± {}",
+            s.f0_hz,
+            s.f0_se_hz
+                .map_or("undefined (k0 <= 0)".to_string(), |v| format!("{v:.3}"))
+        );
+        let _ = writeln!(
+            o,
+            "  k0      {:>10.1} N/m        ± {:.1}   ({:.4} N/mm)",
+            s.k0_n_per_m,
+            s.k0_se_n_per_m,
+            s.k0_n_per_m * 1e-3
+        );
+        let _ = writeln!(
+            o,
+            "  R       {:>10.4} N s/m      ± {:.4}",
+            s.r_ns_per_m, s.r_se_ns_per_m
+        );
+        match (s.q, s.q_se) {
+            (Some(q), Some(se)) => {
+                let _ = writeln!(o, "  Q       {q:>10.3}            ± {se:.3}");
+            }
+            (Some(q), None) => {
+                let _ = writeln!(o, "  Q       {q:>10.3}");
+            }
+            (None, _) => {
+                let _ = writeln!(
+                    o,
+                    "  Q       {:>10}            ({})",
+                    "-",
+                    s.q_null_reason.as_deref().unwrap_or("undefined")
+                );
+            }
+        }
+        if let Some(a) = s.force_per_mic_v_n_per_v {
+            let _ = writeln!(o, "  Ss/mic  {a:>10.5} N/V (m^2 Pa/V)");
+        }
+        let _ = writeln!(o, "  misfit  {:>10.2} %", s.misfit_percent);
+    }
+    let l = &r.large_signal;
+    let _ = writeln!(
+        o,
+        "Large signal (main sweep), m = {:.4} kg",
+        l.moving_mass_kg
+    );
+    let from_model = l.keff_method.as_deref() == Some("chosen_model");
+    let _ = writeln!(
+        o,
+        "  fR      {:>10.3} Hz   ({})",
+        l.resonance_hz,
+        if from_model {
+            "Keff of the chosen model's K(x) resonating with m"
+        } else {
+            "x lags the force by 90 degrees"
+        }
+    );
+    let _ = writeln!(
+        o,
+        "  Keff    {:>10.1} N/m{}   ({:.4} N/mm) @ Xpeak = {:.3} mm",
+        l.keff_n_per_m,
+        l.keff_se_n_per_m
+            .map_or(String::new(), |se| format!(" ± {se:.1}")),
+        l.keff_n_per_m * 1e-3,
+        mm(l.xpeak_m)
+    );
+    if let Some(b) = &l.base {
+        let _ = writeln!(
+            o,
+            "  base (phase method, no effects): fR {:.3} Hz, Keff {:.1} N/m",
+            b.resonance_hz, b.keff_n_per_m
+        );
+    }
+    let _ = writeln!(
+        o,
+        "  Ceff    {:>10.4e} m/N ({:.4} mm/N)",
+        l.ceff_m_per_n,
+        l.ceff_m_per_n * 1e3
+    );
+    let _ = writeln!(
+        o,
+        "  x at resonance {:.3} .. {:.3} mm; Keff of the fitted K(x) there {:.1} N/m",
+        mm(l.x_min_at_resonance_m),
+        mm(l.x_max_at_resonance_m),
+        l.keff_from_k_of_x_n_per_m
+    );
+    let _ = writeln!(
+        o,
+        "  displacement peak {:.3} Hz{}",
+        l.displacement_peak_hz,
+        l.displacement_peak_note
+            .as_ref()
+            .map_or(String::new(), |n| format!("\n    ({n})"))
+    );
+    let _ = writeln!(
+        o,
+        "  x range {:>10.3} .. {:.3} mm, dc at resonance {:.3} mm",
+        mm(l.x_min_m),
+        mm(l.x_max_m),
+        mm(l.dc_m)
+    );
+    let h: Vec<String> = l
+        .harmonics_m
+        .iter()
+        .map(|a| format!("{:.4}", mm(*a)))
+        .collect();
+    let _ = writeln!(o, "  harmonics of x at resonance (mm): {}", h.join(" "));
+    let k = &r.stiffness;
+    let _ = writeln!(
+        o,
+        "Stiffness K(x) = sum k_i x^i ({}, order {}), valid for x in [{:.3}, {:.3}] mm",
+        k.method,
+        k.order,
+        mm(k.valid_range_m[0]),
+        mm(k.valid_range_m[1])
+    );
+    for i in 0..k.coefficients_n_per_m_pow_i_plus_1.len() {
+        let _ = writeln!(
+            o,
+            "  k{i:<2} {:>14.6e} N/m^{:<2} ± {:.2e}   = {:>12.6e} N/mm^{}",
+            k.coefficients_n_per_m_pow_i_plus_1[i],
+            i + 1,
+            k.coefficients_se_n_per_m_pow_i_plus_1
+                .get(i)
+                .copied()
+                .unwrap_or(f64::NAN),
+            k.coefficients_n_per_mm_pow_i_plus_1
+                .get(i)
+                .copied()
+                .unwrap_or(f64::NAN),
+            i + 1
+        );
+    }
+    let _ = writeln!(o, "  R  {:>10.4} N s/m", k.r_ns_per_m);
+    if let Some(s) = k.force_per_mic_v_n_per_v {
+        let _ = writeln!(o, "  force per mic volt {s:.5} N/V");
+    }
+    let xc = |v: Option<f64>| v.map_or("not reached".to_string(), |x| format!("{:.3} mm", mm(x)));
+    let _ = writeln!(
+        o,
+        "  XC (C = 75 % of C(0)): {} / {}",
+        xc(k.xc_m[0]),
+        xc(k.xc_m[1])
+    );
+    let _ = writeln!(
+        o,
+        "  {:>9} {:>10} {:>11} {:>10} {:>12}",
+        "x [mm]", "K [N/mm]", "C [mm/N]", "F [N]", "dF/dx [N/mm]"
+    );
+    let n = 8;
+    for i in 0..=n {
+        let x =
+            k.valid_range_m[0] + (k.valid_range_m[1] - k.valid_range_m[0]) * i as f64 / n as f64;
+        let kx: f64 = k
+            .coefficients_n_per_m_pow_i_plus_1
+            .iter()
+            .rev()
+            .fold(0.0, |a, c| a * x + c);
+        // dF/dx = d(K(x) x)/dx = sum (i+1) k_i x^i
+        let inc: f64 = k
+            .coefficients_n_per_m_pow_i_plus_1
+            .iter()
+            .enumerate()
+            .rev()
+            .fold(0.0, |a, (i, c)| a * x + (i + 1) as f64 * c);
+        let _ = writeln!(
+            o,
+            "  {:>9.3} {:>10.4} {:>11.4} {:>10.4} {:>12.4}",
+            mm(x),
+            kx * 1e-3,
+            1e3 / kx,
+            kx * x,
+            inc * 1e-3
+        );
+    }
+    let m = &r.model;
+    let _ = writeln!(
+        o,
+        "Model: residual {:.3} %, noise floor {:.3} %, model error {:.3} %",
+        m.residual_percent, m.noise_floor_percent, m.model_error_percent
+    );
+    for w in &r.warnings {
+        let _ = writeln!(o, "WARNING: {w}");
+    }
+    o
+}

@@ -1,0 +1,418 @@
+//! The house's layering, checked on every `cargo test` (ARCHITECTURE.md,
+//! "Crates and their invariants").
+//!
+//! - The compiler enforces the crate graph (a lower crate cannot name a
+//!   higher one). What it cannot see is a lower crate gaining a dependency
+//!   that breaks its invariant: the pure core pulling in an async runtime, a
+//!   database driver, an HTTP stack or a logger, directly or through another
+//!   crate. [`core_and_recording_have_no_io_or_async_dependency`] reads the
+//!   resolved graph (`cargo tree`) and fails on one.
+//! - Inside a crate, the compiler allows modules that import each other.
+//!   [`no_import_circle_between_modules`] reads every crate's sources and
+//!   fails on a circle between top-level modules (such as `identify` <->
+//!   `diagnose` before the workspace).
+//! - The pure core does no I/O in its own code either:
+//!   [`core_code_does_no_io`] fails on `std::fs`, `std::net`, a process, a
+//!   thread, an environment variable or a print outside unit tests.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Crates that bring I/O, async, a database, HTTP, logging or devices.
+const FORBIDDEN_IN_CORE: &[&str] = &[
+    "tokio",
+    "mio",
+    "async-std",
+    "futures",
+    "futures-util",
+    "sqlx",
+    "sqlx-core",
+    "libsqlite3-sys",
+    "rusqlite",
+    "postgres",
+    "tokio-postgres",
+    "axum",
+    "hyper",
+    "hyper-util",
+    "tower",
+    "tower-http",
+    "http",
+    "reqwest",
+    "ureq",
+    "tracing",
+    "tracing-subscriber",
+    "log",
+    "env_logger",
+    "cpal",
+    "alsa",
+    "alsa-sys",
+    "tokio-serial",
+    "serialport",
+    "socket2",
+    "libc",
+    "nix",
+];
+
+/// The normal (not dev, not build) dependencies of `package`, transitively,
+/// with every feature of the package on: what its code can link against.
+fn dependencies(package: &str) -> BTreeSet<String> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .current_dir(root())
+        .args([
+            "tree",
+            "-p",
+            package,
+            "-e",
+            "normal",
+            "--all-features",
+            "--prefix",
+            "none",
+            "--format",
+            "{p}",
+        ])
+        .output()
+        .expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "cargo tree -p {package}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.split_whitespace().next())
+        .map(str::to_string)
+        .collect()
+}
+
+fn forbidden_in(package: &str, forbidden: &[&str]) -> Vec<String> {
+    let deps = dependencies(package);
+    assert!(
+        deps.contains(package),
+        "cargo tree did not list {package} itself: {deps:?}"
+    );
+    forbidden
+        .iter()
+        .filter(|f| deps.contains(**f))
+        .map(|f| f.to_string())
+        .collect()
+}
+
+#[test]
+fn core_and_recording_have_no_io_or_async_dependency() {
+    for package in ["springbench-core", "springbench-recording"] {
+        let bad = forbidden_in(package, FORBIDDEN_IN_CORE);
+        assert!(
+            bad.is_empty(),
+            "{package} must stay pure (no I/O, async, database, HTTP, logging or device crate), \
+             but depends on {bad:?}; move the code that needs them into bench, store or the daemon"
+        );
+    }
+}
+
+#[test]
+fn bench_and_store_do_not_see_each_other_or_the_daemon() {
+    let daemon_only = ["axum", "hyper", "tower-http", "reqwest", "springbench"];
+    let bad = forbidden_in(
+        "springbench-bench",
+        &[&daemon_only[..], &["sqlx", "springbench-store"]].concat(),
+    );
+    assert!(bad.is_empty(), "springbench-bench depends on {bad:?}");
+    let bad = forbidden_in(
+        "springbench-store",
+        &[
+            &daemon_only[..],
+            &["springbench-bench", "cpal", "tokio-serial"],
+        ]
+        .concat(),
+    );
+    assert!(bad.is_empty(), "springbench-store depends on {bad:?}");
+}
+
+/// The crates of the workspace and their source folders.
+fn crate_sources() -> Vec<(String, PathBuf)> {
+    let mut v = vec![("springbench".to_string(), root().join("src"))];
+    for entry in std::fs::read_dir(root().join("crates")).unwrap() {
+        let dir = entry.unwrap().path();
+        if dir.join("Cargo.toml").exists() {
+            v.push((
+                format!("springbench-{}", dir.file_name().unwrap().to_string_lossy()),
+                dir.join("src"),
+            ));
+        }
+    }
+    v
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// A file's code without comments, and without its unit tests (a test may
+/// use a module above the one it tests; the layering is about the code).
+fn code_of(path: &Path) -> String {
+    let text = std::fs::read_to_string(path).unwrap();
+    let text = match text.find("#[cfg(test)]\nmod ") {
+        Some(i) => &text[..i],
+        None => &text[..],
+    };
+    if path
+        .file_name()
+        .is_some_and(|n| n.to_string_lossy().ends_with("_tests.rs"))
+    {
+        return String::new();
+    }
+    text.lines()
+        .map(|l| match l.find("//") {
+            Some(i) => &l[..i],
+            None => l,
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The top-level module a file belongs to (`src/api/jobs.rs` -> `api`);
+/// None for the crate root.
+fn module_of(src: &Path, file: &Path) -> Option<String> {
+    let rel = file.strip_prefix(src).unwrap();
+    let first = rel
+        .components()
+        .next()?
+        .as_os_str()
+        .to_string_lossy()
+        .to_string();
+    let name = first.trim_end_matches(".rs").to_string();
+    (name != "lib" && name != "main").then_some(name)
+}
+
+/// `crate::NAME` references in `code`.
+fn crate_refs(code: &str) -> BTreeSet<String> {
+    let mut refs = BTreeSet::new();
+    let mut rest = code;
+    while let Some(i) = rest.find("crate::") {
+        let tail = &rest[i + 7..];
+        let name: String = tail
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+            .collect();
+        if !name.is_empty() {
+            refs.insert(name);
+        }
+        // `crate::{a, b}`
+        if tail.starts_with('{') {
+            let inner = &tail[1..tail.find('}').unwrap_or(tail.len())];
+            for part in inner.split(',') {
+                let n: String = part
+                    .trim()
+                    .chars()
+                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                    .collect();
+                if !n.is_empty() {
+                    refs.insert(n);
+                }
+            }
+        }
+        rest = &rest[i + 7..];
+    }
+    refs
+}
+
+/// Module -> modules it imports, for one crate.
+fn module_graph(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let modules: BTreeSet<String> = files.iter().filter_map(|f| module_of(src, f)).collect();
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for f in &files {
+        let Some(m) = module_of(src, f) else { continue };
+        let code = code_of(f);
+        let mut refs = crate_refs(&code);
+        // `super::x` in a top-level module's own file is the crate root's x.
+        let top = f.parent() == Some(src)
+            || (f.file_name().is_some_and(|n| n == "mod.rs")
+                && f.parent().and_then(|p| p.parent()) == Some(src));
+        if top {
+            for line in code.lines() {
+                if let Some(i) = line.find("super::") {
+                    let n: String = line[i + 7..]
+                        .chars()
+                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                        .collect();
+                    refs.insert(n);
+                }
+            }
+        }
+        let e = graph.entry(m.clone()).or_default();
+        for r in refs {
+            if r != m && modules.contains(&r) {
+                e.insert(r);
+            }
+        }
+    }
+    graph
+}
+
+/// The strongly connected components of more than one module (Tarjan).
+fn circles(graph: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
+    struct T<'a> {
+        g: &'a BTreeMap<String, BTreeSet<String>>,
+        index: BTreeMap<&'a str, usize>,
+        low: BTreeMap<&'a str, usize>,
+        stack: Vec<&'a str>,
+        on: BTreeSet<&'a str>,
+        out: Vec<Vec<String>>,
+    }
+    fn visit<'a>(t: &mut T<'a>, v: &'a str) {
+        let i = t.index.len();
+        t.index.insert(v, i);
+        t.low.insert(v, i);
+        t.stack.push(v);
+        t.on.insert(v);
+        let g = t.g;
+        for w in g.get(v).into_iter().flatten() {
+            let w = w.as_str();
+            if !t.index.contains_key(w) {
+                visit(t, w);
+                let lw = t.low[w];
+                let lv = t.low.get_mut(v).unwrap();
+                *lv = (*lv).min(lw);
+            } else if t.on.contains(w) {
+                let iw = t.index[w];
+                let lv = t.low.get_mut(v).unwrap();
+                *lv = (*lv).min(iw);
+            }
+        }
+        if t.low[v] == t.index[v] {
+            let mut scc = Vec::new();
+            loop {
+                let w = t.stack.pop().unwrap();
+                t.on.remove(w);
+                scc.push(w.to_string());
+                if w == v {
+                    break;
+                }
+            }
+            if scc.len() > 1 {
+                scc.sort();
+                t.out.push(scc);
+            }
+        }
+    }
+    let mut t = T {
+        g: graph,
+        index: BTreeMap::new(),
+        low: BTreeMap::new(),
+        stack: Vec::new(),
+        on: BTreeSet::new(),
+        out: Vec::new(),
+    };
+    for v in graph.keys() {
+        if !t.index.contains_key(v.as_str()) {
+            visit(&mut t, v);
+        }
+    }
+    t.out
+}
+
+#[test]
+fn circle_finder_finds_a_circle() {
+    // The finder itself, on a known graph: a -> b -> c -> a, c -> d.
+    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for (a, b) in [("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")] {
+        g.entry(a.into()).or_default().insert(b.into());
+        g.entry(b.into()).or_default();
+    }
+    assert_eq!(circles(&g), vec![vec!["a", "b", "c"]]);
+    assert_eq!(
+        crate_refs("use crate::{api, ui::x};\nlet a = crate::store::Store;"),
+        ["api", "store", "ui"]
+            .into_iter()
+            .map(String::from)
+            .collect()
+    );
+}
+
+#[test]
+fn no_import_circle_between_modules() {
+    let mut found = Vec::new();
+    for (name, src) in crate_sources() {
+        let g = module_graph(&src);
+        assert!(
+            !g.is_empty(),
+            "{name}: no modules read under {}",
+            src.display()
+        );
+        for c in circles(&g) {
+            let ties: Vec<String> = c
+                .iter()
+                .flat_map(|a| {
+                    g[a].iter()
+                        .filter(|b| c.contains(b))
+                        .map(move |b| format!("{a} -> {b}"))
+                })
+                .collect();
+            found.push(format!(
+                "{name}: {{{}}} ({})",
+                c.join(", "),
+                ties.join(", ")
+            ));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "import circles between modules (move the shared type or constant down to where it belongs):\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn core_code_does_no_io() {
+    let src = root().join("crates/core/src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let banned = [
+        "std::fs",
+        "std::net",
+        "std::process",
+        "std::thread",
+        "std::env",
+        "std::io::stdin",
+        "std::io::stdout",
+        "std::io::stderr",
+        "File::",
+        "println!",
+        "eprintln!",
+        "print!",
+        "dbg!",
+    ];
+    let mut found = Vec::new();
+    for f in &files {
+        let code = code_of(f);
+        for b in banned {
+            if code.contains(b) {
+                found.push(format!(
+                    "{}: {b}",
+                    f.strip_prefix(root()).unwrap().display()
+                ));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "the pure core does I/O (move it to recording, bench, store or the daemon):\n{}",
+        found.join("\n")
+    );
+}
