@@ -15,7 +15,7 @@ pub struct RecipeRow {
     pub name: String,
     pub version: i64,
     pub sha256: String,
-    /// The recipe document ([`springbench_core::qc::Recipe`]).
+    /// The recipe document ([`crate::qc::Recipe`]).
     #[schema(value_type = springbench_core::qc::Recipe)]
     pub recipe: Value,
     /// `created`, `edited` or `limits_approved`.
@@ -32,7 +32,7 @@ pub struct ProposalRow {
     pub id: String,
     pub recipe_name: String,
     pub recipe_version: i64,
-    /// [`springbench_core::qc::limits::Proposal`].
+    /// [`crate::qc::limits::Proposal`].
     #[schema(value_type = springbench_core::qc::limits::Proposal)]
     pub proposal: Value,
     /// `proposed`, `approved` or `rejected`.
