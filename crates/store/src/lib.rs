@@ -123,7 +123,7 @@ pub struct Part {
     pub measurement_count: i64,
     /// The QC verdict of the part's newest job judged under a recipe (`pass`,
     /// `fail`, `invalid`, `no_limits`); null when no job was judged.
-    #[schema(value_type = Option<crate::qc::VerdictKind>)]
+    #[schema(value_type = Option<springbench_core::qc::VerdictKind>)]
     pub verdict: Option<String>,
 }
 
@@ -154,7 +154,7 @@ pub struct Job {
     pub measurement_ids: Vec<String>,
     /// The job's QC verdict (`pass`, `fail`, `invalid`, `no_limits`); null
     /// without a recipe or before the job has finished.
-    #[schema(value_type = Option<crate::qc::VerdictKind>)]
+    #[schema(value_type = Option<springbench_core::qc::VerdictKind>)]
     pub verdict: Option<String>,
     pub created_at: String,
     pub started_at: Option<String>,
