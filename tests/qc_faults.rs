@@ -111,17 +111,28 @@ async fn wait_state(
     common::wait_job(c, d, id, Duration::from_secs(300), done).await
 }
 
-/// The job's MES messages in the outbox (any state), by message name.
-async fn job_messages(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<String> {
-    let mut names = vec![];
+/// The job's MES deliveries in the outbox (any state): (message name, UniqueID).
+async fn job_outbox(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<(String, String)> {
+    let mut out = vec![];
     for state in ["pending", "failed", "delivered"] {
         let o = common::get(c, d, &format!("/api/v1/outbox?state={state}&limit=500")).await;
         for m in o["items"].as_array().unwrap() {
             if m["job_id"] == job {
-                names.push(m["message_name"].as_str().unwrap().to_string());
+                let field = |k: &str| m[k].as_str().unwrap().to_string();
+                out.push((field("message_name"), field("unique_id")));
             }
         }
     }
+    out
+}
+
+/// The job's MES messages in the outbox, by message name (one per webhook delivery).
+async fn job_messages(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<String> {
+    let mut names: Vec<String> = job_outbox(c, d, job)
+        .await
+        .into_iter()
+        .map(|m| m.0)
+        .collect();
     names.sort();
     names
 }
@@ -137,12 +148,13 @@ const THREE: [&str; 3] = [
 /// fail ("begin_with at non-zero transaction depth") after space returned.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_disk_leaves_no_broken_connection_in_the_pool() {
+    use springbench::store::qc::RecipeExpect::Any;
     let Some(fs) = Tmpfs::mount("6m") else { return };
     let store = springbench::store::Store::open(fs.path()).await.unwrap();
     let body = |i: usize| json!({"pad": "x".repeat(50_000), "i": i});
     for i in 0..5 {
         store
-            .insert_recipe("r", &format!("{i}"), &body(i), "created", None)
+            .write_recipe("r", &format!("{i}"), &body(i), "created", None, Any)
             .await
             .unwrap();
     }
@@ -150,7 +162,7 @@ async fn a_full_disk_leaves_no_broken_connection_in_the_pool() {
     let mut refused = 0;
     for i in 0..60 {
         if store
-            .insert_recipe("r", &format!("f{i}"), &body(i), "created", None)
+            .write_recipe("r", &format!("f{i}"), &body(i), "created", None, Any)
             .await
             .is_err()
         {
@@ -165,7 +177,7 @@ async fn a_full_disk_leaves_no_broken_connection_in_the_pool() {
     let mut errors = vec![];
     for i in 0..40 {
         if let Err(e) = store
-            .insert_recipe("r", &format!("after{i}"), &body(i), "created", None)
+            .write_recipe("r", &format!("after{i}"), &body(i), "created", None, Any)
             .await
         {
             errors.push(e.to_string());
@@ -843,15 +855,11 @@ async fn a_hanging_receiver_delays_only_itself() {
 
 /// The UniqueIDs of a job's messages (one per message, any webhook).
 async fn job_messages_all(c: &reqwest::Client, d: &Daemon, job: &str) -> Vec<String> {
-    let mut ids = vec![];
-    for state in ["pending", "failed", "delivered"] {
-        let o = common::get(c, d, &format!("/api/v1/outbox?state={state}&limit=500")).await;
-        for m in o["items"].as_array().unwrap() {
-            if m["job_id"] == job {
-                ids.push(m["unique_id"].as_str().unwrap().to_string());
-            }
-        }
-    }
+    let mut ids: Vec<String> = job_outbox(c, d, job)
+        .await
+        .into_iter()
+        .map(|m| m.1)
+        .collect();
     ids.sort();
     ids.dedup();
     ids
@@ -1244,4 +1252,68 @@ async fn a_failing_golden_unit_is_left_out_unless_kept() {
 fn with_k0_limits(mut r: Value, lo: f64, hi: f64) -> Value {
     r["parameters"][0] = json!({"name": "k0", "quantity": "k0", "lower": lo, "upper": hi});
     r
+}
+
+/// kill -9 during QC lots, 20 rounds: every job the API acknowledged ends
+/// with a verdict and its three MES messages (no message twice).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kill_9_rounds_lose_no_verdict_and_no_message() {
+    let c = client();
+    let mut d = Daemon::start(WEBHOOK);
+    let (s, r) = post(&c, &d, "/api/v1/recipes", &recipe("rounds")).await;
+    assert_eq!(s, 201, "{r}");
+    let tmp = d.take_dir().unwrap();
+    let mut acked = vec![];
+    for round in 0..20u64 {
+        if round > 0 {
+            d = Daemon::start_in(tmp.path(), WEBHOOK);
+        }
+        for k in 0..2 {
+            let (s, j) = post(
+                &c,
+                &d,
+                "/api/v1/jobs",
+                &qc_job(&format!("L-{round}-{k}"), "rounds", 600 + 2 * round + k),
+            )
+            .await;
+            if s == 202 {
+                acked.push(j["id"].as_str().unwrap().to_string());
+            }
+        }
+        // kills land before, during and after runs and their commits
+        tokio::time::sleep(Duration::from_millis(150 + 173 * (round % 9))).await;
+        d.kill9();
+    }
+    let d = Daemon::start_in(tmp.path(), WEBHOOK);
+    assert!(acked.len() >= 30, "{} jobs acknowledged", acked.len());
+    let mut states = std::collections::BTreeMap::new();
+    for id in &acked {
+        let j = wait_state(&c, &d, id, common::terminal).await;
+        *states
+            .entry(j["state"].as_str().unwrap().to_string())
+            .or_insert(0) += 1;
+        let r = c
+            .get(d.url(&format!("/api/v1/jobs/{id}/verdict")))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(
+            r.status().as_u16(),
+            200,
+            "job {id} ({}) has no verdict",
+            j["state"]
+        );
+        assert_eq!(
+            job_messages(&c, &d, id).await,
+            THREE,
+            "job {id} ({})",
+            j["state"]
+        );
+        assert_eq!(
+            job_messages_all(&c, &d, id).await.len(),
+            3,
+            "job {id}: UniqueIDs"
+        );
+    }
+    println!("20 kill -9 rounds: {} jobs acknowledged, ends {states:?}; each with a verdict and 3 MES messages", acked.len());
 }

@@ -262,29 +262,10 @@ pub(super) async fn insert_job_records(
 impl Store {
     // ---- recipes ----
 
-    /// Stores a new version of a recipe (version = last + 1, or 1).
-    pub async fn insert_recipe(
-        &self,
-        name: &str,
-        sha256: &str,
-        body: &Value,
-        origin: &str,
-        created_by: Option<&str>,
-    ) -> StoreResult<RecipeRow> {
-        match self
-            .write_recipe(name, sha256, body, origin, created_by, RecipeExpect::Any)
-            .await?
-        {
-            RecipeWrite::Stored(r) => Ok(r),
-            RecipeWrite::Conflict(c) => Err(StoreError::Corrupt(format!(
-                "recipe '{name}': a write expecting nothing conflicted with {c:?}"
-            ))),
-        }
-    }
-
-    /// Stores a new version of a recipe if the stored one is what the caller
-    /// saw (`expect`), checked inside the write transaction: two concurrent
-    /// creations of one name, or two edits of one version, store one.
+    /// Stores a new version of a recipe (version = last + 1, or 1) if the
+    /// stored one is what the caller saw (`expect`), checked inside the
+    /// write transaction: two concurrent creations of one name, or two edits
+    /// of one version, store one.
     pub async fn write_recipe(
         &self,
         name: &str,

@@ -294,25 +294,13 @@ impl Recipe {
                 ));
             }
         }
-        if self
-            .description
-            .as_ref()
-            .is_some_and(|d| d.chars().count() > MAX_DESCRIPTION_CHARS)
-        {
-            e.push(ferr(
-                "description",
-                format!("at most {MAX_DESCRIPTION_CHARS} characters"),
-            ));
-        }
-        if self
-            .part_kind
-            .as_ref()
-            .is_some_and(|d| d.chars().count() > MAX_PART_KIND_CHARS)
-        {
-            e.push(ferr(
-                "part_kind",
-                format!("at most {MAX_PART_KIND_CHARS} characters"),
-            ));
+        for (field, text, max) in [
+            ("description", &self.description, MAX_DESCRIPTION_CHARS),
+            ("part_kind", &self.part_kind, MAX_PART_KIND_CHARS),
+        ] {
+            if text.as_ref().is_some_and(|t| t.chars().count() > max) {
+                e.push(ferr(field, format!("at most {max} characters")));
+            }
         }
         if let Some(o) = p.order {
             if !(1..=crate::job::MAX_ORDER).contains(&o) {
