@@ -447,6 +447,19 @@ async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
     assert_eq!(fits["items"].as_array().map(|a| a.len()), Some(1));
     b.js("window.scrollTo(0, 0); return true;", vec![]).await;
     b.screenshot("diagnostics-after-friction").await;
+    for (css, name) in [
+        ("#diag-time", "diagnostics-time"),
+        ("#diag-spectra", "diagnostics-spectra"),
+        ("#diag-residuals", "diagnostics-residuals"),
+    ] {
+        b.js(
+            &format!("document.querySelector('{css}').scrollIntoView(); return true;"),
+            vec![],
+        )
+        .await;
+        b.screenshot_sizes(name).await;
+    }
+    b.js("window.scrollTo(0, 0); return true;", vec![]).await;
     b.screenshot_element("#diag-candidates", "diagnostics-candidates")
         .await;
     b.screenshot_element("#diag-time", "diagnostics-model-and-residual")
@@ -521,7 +534,12 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
                 .next()
                 .unwrap()
                 .to_string();
-            b.screenshot(&format!("{role}-{name}")).await;
+            if role == "admin" {
+                // Every view at the station and office screen sizes.
+                b.screenshot_sizes(&format!("view-{name}")).await;
+            } else {
+                b.screenshot(&format!("{role}-{name}")).await;
+            }
             // Controls by role: the submit form and "add this effect" need operator.
             if name == "operator" {
                 assert_eq!(

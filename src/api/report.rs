@@ -315,11 +315,20 @@ fn plots(doc: &Value, levels: &[(f64, f64)]) -> Vec<String> {
             "Xpeak (mm)",
             "Keff (N/mm)",
             vec![],
-            vec![(
-                "Keff(Xpeak)".into(),
-                levels.iter().map(|(x, k)| (x * 1e3, k * 1e-3)).collect(),
-                false,
-            )],
+            vec![if let [(x, k)] = levels {
+                // One level: a short mark (a line needs two points).
+                (
+                    "Keff at Xpeak (one level)".into(),
+                    vec![(x * 1e3 - 0.1, k * 1e-3), (x * 1e3 + 0.1, k * 1e-3)],
+                    false,
+                )
+            } else {
+                (
+                    "Keff(Xpeak)".into(),
+                    levels.iter().map(|(x, k)| (x * 1e3, k * 1e-3)).collect(),
+                    false,
+                )
+            }],
         ),
     ]
 }
@@ -486,7 +495,12 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
     s.push_str("</table></section>");
     s.push_str("<section id=\"plots\"><h2>Curves over the measured (valid) range</h2><div class=\"plots\">");
     for p in plots(&doc, &levels) {
-        s.push_str(&p);
+        // Drawn 760 px wide and printed about 90 mm wide: larger type (the
+        // layout leaves room for it), so the labels read at about 7 pt.
+        s.push_str(
+            &p.replacen("font-size=\"12\"", "font-size=\"19\"", 1)
+                .replacen("font-size=\"15\"", "font-size=\"21\"", 1),
+        );
     }
     s.push_str("</div></section>");
     // Traceability.

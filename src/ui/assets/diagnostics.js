@@ -229,11 +229,11 @@ export async function render(main, ctx) {
       data: [s.t, s.measured, s.model], sync: 'diag-time', height: 220,
     });
     chart(resEl, {
-      title: 'Residual = measured \u2212 model', kind: 'residual over time',
-      x: { label: 'time', unit: 's' }, y: { label: 'residual force', unit: 'N' },
+      title: `Residual = measured \u2212 model${Number.isFinite(s.noiseRms) ? ' (shaded: \u00b1 noise RMS)' : ''}`, kind: 'residual over time',
+      x: { label: 'time', unit: 's' }, y: { label: 'residual', unit: 'N', symmetric: true },
       series: [{ label: 'residual', unit: 'N', color: '#555' }],
-      data: [s.t, res], sync: 'diag-time', height: 160,
-      hBands: Number.isFinite(s.noiseRms) ? [{ from: -s.noiseRms, to: s.noiseRms, label: '\u00b1 noise RMS' }] : [],
+      data: [s.t, res], sync: 'diag-time', height: 180,
+      hBands: Number.isFinite(s.noiseRms) ? [{ from: -s.noiseRms, to: s.noiseRms }] : [],
     });
   }
 

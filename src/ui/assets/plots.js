@@ -81,7 +81,8 @@ export function chart(el, spec) {
   const lab = (a) => (a.unit ? `${a.label} (${a.unit})` : a.label);
   const axes = [
     { label: lab(spec.x), ...logAxis(spec.x.log), size: 42 },
-    { label: lab(spec.y), scale: 'y', ...logAxis(spec.y.log), size: 64 },
+    // Short plots get denser y ticks (a residual strip had a single "0").
+    { label: lab(spec.y), scale: 'y', ...logAxis(spec.y.log), size: 64, space: (spec.height || 260) < 200 ? 18 : 30 },
   ];
   const scales = {
     x: spec.x.log ? { time: false, distr: 3, log: 10 } : { time: false },
@@ -104,6 +105,11 @@ export function chart(el, spec) {
       const b = Math.max(...xs);
       scales.x.range = () => [a, b > a ? b : a * 10];
     }
+  }
+  // A signal around zero: a symmetric y range with room, so ticks fall on both sides.
+  if (spec.y.symmetric) {
+    const m = Math.max(...data0.slice(1).flat().filter((v) => v !== null).map(Math.abs), ...(spec.hBands || []).map((b) => Math.max(Math.abs(b.from), Math.abs(b.to))));
+    if (m > 0) scales.y.range = () => [-1.15 * m, 1.15 * m];
   }
   if (spec.y.log) {
     const ys = finitePos(data0.slice(1).filter((_, i) => !spec.series[i].y2));
