@@ -158,13 +158,17 @@ fn noise_free_polynomial_spring_is_recovered_exactly() {
     let ss = r.small_signal.as_ref().unwrap();
     assert!(ss.reliable && ss.misfit_percent < 0.5, "{ss:?}");
     assert!(
-        (ss.k0_n_per_m / K[0] - 1.0).abs() < 1e-3,
-        "{}",
+        (ss.k0_n_per_m.unwrap() / K[0] - 1.0).abs() < 1e-3,
+        "{:?}",
         ss.k0_n_per_m
     );
-    assert!((ss.r_ns_per_m / R - 1.0).abs() < 5e-3, "{}", ss.r_ns_per_m);
+    assert!(
+        (ss.r_ns_per_m.unwrap() / R - 1.0).abs() < 5e-3,
+        "{:?}",
+        ss.r_ns_per_m
+    );
     let f0 = (K[0] / M).sqrt() / (2.0 * PI);
-    assert!((ss.f0_hz / f0 - 1.0).abs() < 5e-4);
+    assert!((ss.f0_hz.unwrap() / f0 - 1.0).abs() < 5e-4);
     assert!((ss.q.unwrap() / ((K[0] * M).sqrt() / R) - 1.0).abs() < 5e-3);
     assert!((ss.force_per_mic_v_n_per_v.unwrap() / SCALE - 1.0).abs() < 1e-3);
 
@@ -268,10 +272,26 @@ fn an_undamped_fit_has_q_null_with_a_reason() {
     let rep = analyze(&s, &AnalyzeOptions::default()).unwrap();
     let ss = rep.small_signal.as_ref().unwrap();
     println!(
-        "undamped: R = {:e} +- {:e} N s/m, Q {:?}, reason {:?}",
+        "undamped: R = {:?} +- {:e} N s/m, Q {:?}, reason {:?}",
         ss.r_ns_per_m, ss.r_se_ns_per_m, ss.q, ss.q_null_reason
     );
-    assert!(ss.r_ns_per_m <= 0.0, "R = {}", ss.r_ns_per_m);
+    // Issue 22: R <= 0 is not a headline value: null, the fit's number
+    // kept as a diagnostic with the state and its reason.
+    assert_eq!(ss.r_ns_per_m, None);
+    let v = &ss.validity.r_ns_per_m;
+    assert_eq!(
+        v.state,
+        springbench::identify::validity::State::NotDetermined
+    );
+    assert!(v.fit_value.unwrap() <= 0.0, "{v:?}");
+    assert!(
+        v.reason.as_deref().unwrap().contains("no physical damping"),
+        "{v:?}"
+    );
+    assert_eq!(
+        ss.validity.q.state,
+        springbench::identify::validity::State::NotDetermined
+    );
     assert_eq!((ss.q, ss.q_se), (None, None));
     assert!(ss.q_null_reason.as_deref().unwrap().contains("no damping"));
     let v = springbench::finite::to_value(&rep).expect("a finite result document");

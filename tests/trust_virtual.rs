@@ -132,7 +132,7 @@ pub fn errors(part: &PartSpec, r: &Report) -> Errors {
                 0.0,
             )
         }),
-        k0_percent: 100.0 * (ss.k0_n_per_m / k0_true - 1.0),
+        k0_percent: 100.0 * (ss.k0_n_per_m.unwrap() / k0_true - 1.0),
         r_percent: 100.0 * (s.r_ns_per_m / part.r_ns_per_m - 1.0),
     }
 }
@@ -193,6 +193,22 @@ fn check_seed(id: EffectId, seed: u64) {
         assert!(e.k0_percent.abs() <= 3.0, "{id} seed {seed}: {e:?}");
         assert!(e.r_percent.abs() <= 5.0, "{id} seed {seed}: {e:?}");
         assert!(e.keff_percent.abs() <= 1.5, "{id} seed {seed}: {e:?}");
+        // Issue 22: a good part's headline values are all `valid` (no
+        // false mark on a part with library effects only).
+        let ss = d.report.small_signal.as_ref().unwrap();
+        let states = [
+            ("f0", &ss.validity.f0_hz),
+            ("k0", &ss.validity.k0_n_per_m),
+            ("small-signal R", &ss.validity.r_ns_per_m),
+            ("Q", &ss.validity.q),
+            ("K(x)", &d.report.stiffness.validity.k_of_x),
+            ("R", &d.report.stiffness.validity.r_ns_per_m),
+            ("fR", &d.report.large_signal.validity.resonance_hz),
+            ("Keff", &d.report.large_signal.validity.keff_n_per_m),
+        ];
+        for (n, v) in states {
+            assert!(v.is_valid(), "{id} seed {seed}: {n} {v:?}");
+        }
         // Keff comes from the model that holds the effect, with its error.
         let l = &d.report.large_signal;
         assert_eq!(l.keff_method.as_deref(), Some("chosen_model"));

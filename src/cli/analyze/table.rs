@@ -1,4 +1,5 @@
 //! The result document as the `analyze` command's table.
+use crate::identify::validity::Validity;
 use crate::identify::Report;
 
 /// The readable table: SI and the conventional units of the field.
@@ -6,44 +7,75 @@ pub fn table(r: &Report) -> String {
     use std::fmt::Write;
     let mut o = String::new();
     let mm = |m: f64| m * 1e3;
+    // Every headline value with its state (issue 22): a value that is not
+    // valid carries its state in brackets and its reason below the table.
+    let mut notes: Vec<String> = Vec::new();
+    let mut tag = |what: &str, v: &Validity| -> String {
+        if v.is_valid() {
+            return String::new();
+        }
+        let mut note = format!(
+            "{what} {}: {}",
+            v.state.as_str().to_uppercase(),
+            v.reason.as_deref().unwrap_or("-")
+        );
+        if let Some(f) = v.fit_value {
+            note.push_str(&format!(" (the fit gave {f:.6e})"));
+        }
+        notes.push(note);
+        format!("   [{}]", v.state.as_str().to_uppercase())
+    };
+    let num = |v: Option<f64>, prec: usize| {
+        v.map_or("not determined".to_string(), |x| format!("{x:.prec$}"))
+    };
     if let Some(s) = &r.small_signal {
         let _ = writeln!(
             o,
             "Small signal (pre-measurement){}",
             if s.reliable { "" } else { "  ** UNRELIABLE **" }
         );
+        let sv = &s.validity;
         let _ = writeln!(
             o,
-            "  f0      {:>10.3} Hz         ± {}",
-            s.f0_hz,
+            "  f0      {:>10} Hz         ± {}{}",
+            num(s.f0_hz, 3),
             s.f0_se_hz
-                .map_or("undefined (k0 <= 0)".to_string(), |v| format!("{v:.3}"))
+                .map_or("undefined (k0 <= 0)".to_string(), |v| format!("{v:.3}")),
+            tag("f0", &sv.f0_hz)
         );
         let _ = writeln!(
             o,
-            "  k0      {:>10.1} N/m        ± {:.1}   ({:.4} N/mm)",
-            s.k0_n_per_m,
+            "  k0      {:>10} N/m        ± {:.1}   ({} N/mm){}",
+            num(s.k0_n_per_m, 1),
             s.k0_se_n_per_m,
-            s.k0_n_per_m * 1e-3
+            num(s.k0_n_per_m.map(|k| k * 1e-3), 4),
+            tag("k0", &sv.k0_n_per_m)
         );
         let _ = writeln!(
             o,
-            "  R       {:>10.4} N s/m      ± {:.4}",
-            s.r_ns_per_m, s.r_se_ns_per_m
+            "  R       {:>10} N s/m      ± {:.4}{}",
+            num(s.r_ns_per_m, 4),
+            s.r_se_ns_per_m,
+            tag("small-signal R", &sv.r_ns_per_m)
         );
         match (s.q, s.q_se) {
             (Some(q), Some(se)) => {
-                let _ = writeln!(o, "  Q       {q:>10.3}            ± {se:.3}");
+                let _ = writeln!(
+                    o,
+                    "  Q       {q:>10.3}            ± {se:.3}{}",
+                    tag("Q", &sv.q)
+                );
             }
             (Some(q), None) => {
-                let _ = writeln!(o, "  Q       {q:>10.3}");
+                let _ = writeln!(o, "  Q       {q:>10.3}{}", tag("Q", &sv.q));
             }
             (None, _) => {
                 let _ = writeln!(
                     o,
-                    "  Q       {:>10}            ({})",
+                    "  Q       {:>10}            ({}){}",
                     "-",
-                    s.q_null_reason.as_deref().unwrap_or("undefined")
+                    s.q_null_reason.as_deref().unwrap_or("undefined"),
+                    tag("Q", &sv.q)
                 );
             }
         }
@@ -61,23 +93,39 @@ pub fn table(r: &Report) -> String {
     let from_model = l.keff_method.as_deref() == Some("chosen_model");
     let _ = writeln!(
         o,
-        "  fR      {:>10.3} Hz   ({})",
+        "  fR      {:>10.3} Hz   ({}){}",
         l.resonance_hz,
         if from_model {
             "Keff of the chosen model's K(x) resonating with m"
         } else {
             "x lags the force by 90 degrees"
-        }
+        },
+        tag("fR", &l.validity.resonance_hz)
     );
     let _ = writeln!(
         o,
-        "  Keff    {:>10.1} N/m{}   ({:.4} N/mm) @ Xpeak = {:.3} mm",
+        "  Keff    {:>10.1} N/m{}   ({:.4} N/mm) @ Xpeak = {:.3} mm{}",
         l.keff_n_per_m,
         l.keff_se_n_per_m
             .map_or(String::new(), |se| format!(" ± {se:.1}")),
         l.keff_n_per_m * 1e-3,
-        mm(l.xpeak_m)
+        mm(l.xpeak_m),
+        tag("Keff", &l.validity.keff_n_per_m)
     );
+    if let Some(xt) = l.target_xpeak_m {
+        let st = l
+            .validity
+            .keff_at_target_n_per_m
+            .clone()
+            .unwrap_or_default();
+        let _ = writeln!(
+            o,
+            "  Keff at the target Xpeak {:.3} mm: {} N/m{}",
+            mm(xt),
+            num(l.keff_at_target_n_per_m, 1),
+            tag("Keff at the target", &st)
+        );
+    }
     if let Some(b) = &l.base {
         let _ = writeln!(
             o,
@@ -122,11 +170,12 @@ pub fn table(r: &Report) -> String {
     let k = &r.stiffness;
     let _ = writeln!(
         o,
-        "Stiffness K(x) = sum k_i x^i ({}, order {}), valid for x in [{:.3}, {:.3}] mm",
+        "Stiffness K(x) = sum k_i x^i ({}, order {}), valid for x in [{:.3}, {:.3}] mm{}",
         k.method,
         k.order,
         mm(k.valid_range_m[0]),
-        mm(k.valid_range_m[1])
+        mm(k.valid_range_m[1]),
+        tag("K(x)", &k.validity.k_of_x)
     );
     for i in 0..k.coefficients_n_per_m_pow_i_plus_1.len() {
         let _ = writeln!(
@@ -145,7 +194,12 @@ pub fn table(r: &Report) -> String {
             i + 1
         );
     }
-    let _ = writeln!(o, "  R  {:>10.4} N s/m", k.r_ns_per_m);
+    let _ = writeln!(
+        o,
+        "  R  {:>10.4} N s/m{}",
+        k.r_ns_per_m,
+        tag("R", &k.validity.r_ns_per_m)
+    );
     if let Some(s) = k.force_per_mic_v_n_per_v {
         let _ = writeln!(o, "  force per mic volt {s:.5} N/V");
     }
@@ -193,6 +247,9 @@ pub fn table(r: &Report) -> String {
         "Model: residual {:.3} %, noise floor {:.3} %, model error {:.3} %",
         m.residual_percent, m.noise_floor_percent, m.model_error_percent
     );
+    for n in &notes {
+        let _ = writeln!(o, "STATE: {n}");
+    }
     for w in &r.warnings {
         let _ = writeln!(o, "WARNING: {w}");
     }

@@ -165,6 +165,8 @@ pub struct EngineResult {
     pub base_spectrum: super::spectrum::ResidualSpectrum,
     /// Order chosen for the base model and how.
     pub order_note: String,
+    /// Significant candidates the ladder did not add, and why (one line each).
+    pub skipped: Vec<String>,
 }
 
 /// Model specification: K order plus effects with their hyper-parameter.
@@ -1227,8 +1229,30 @@ fn rank(
         } else {
             0.0
         };
+        // An effect enters only with plausible parameters and a held-out
+        // gain that holds in most folds, not one fold's luck (issue 22).
+        let implausible = match term {
+            Term::Effect(e) => implausible(p, built, &ev, e, &params),
+            Term::StiffnessOrder => None,
+        };
+        let folds_won = {
+            let (b, c) = (
+                built.gram.cv_sse_folds(opts.folds),
+                ev.gram.cv_sse_folds(opts.folds),
+            );
+            b.iter().zip(&c).filter(|(b, c)| c < b).count()
+        };
+        let stable = 2 * folds_won > opts.folds;
         let significant =
             ev.p_value < alpha && cv < base_cv && reduction >= opts.min_reduction_percent;
+        let not_added = match (&implausible, stable) {
+            (Some(why), _) => Some(format!("implausible parameters ({why})")),
+            (None, false) => Some(format!(
+                "the held-out gain is not stable (lower held-out error in {folds_won} of {} folds)",
+                opts.folds
+            )),
+            (None, true) => None,
+        };
         let note = match (identifiable, significant) {
             (true, _) => None,
             (false, false) => Some(format!(
@@ -1262,10 +1286,83 @@ fn rank(
             cv_residual_percent: pct(p, cv),
             hyper: ev.hyper,
             cv_sse: cv,
+            not_added,
         };
         out.push((term, ev, res));
     }
     out
+}
+
+/// True for a number above zero (false for NaN).
+fn is_positive(v: f64) -> bool {
+    v > 0.0
+}
+
+/// Why a candidate's fitted parameters are not physical for a suspension
+/// part on the bench (None: plausible). Friction, v|v| damping and creep
+/// are positive; damping that depends on x keeps the total damping
+/// positive over the measured range; drift moves K(0) by less than half
+/// over the record; a channel delay is shorter than a quarter of a typical
+/// period.
+fn implausible(
+    p: &Prepared,
+    built: &Built,
+    ev: &Evaluated,
+    e: EffectId,
+    params: &serde_json::Value,
+) -> Option<String> {
+    let g = |k: &str| params.get(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
+    let r_model = built
+        .roles
+        .iter()
+        .position(|r| *r == Role::R)
+        .filter(|_| !ev.drop_mic)
+        .map_or(f64::NAN, |i| -ev.beta[i]);
+    let k_scale = p.d.mass_kg * p.omega_typ * p.omega_typ;
+    match e {
+        EffectId::CoulombFriction if !is_positive(g("force_n")) => {
+            Some(format!("friction force {:.3e} N <= 0", g("force_n")))
+        }
+        EffectId::QuadraticDamping if !is_positive(g("coeff_ns2_per_m2")) => Some(format!(
+            "v|v| damping {:.3e} N s^2/m^2 <= 0",
+            g("coeff_ns2_per_m2")
+        )),
+        EffectId::Creep if !is_positive(g("k_n_per_m")) => {
+            Some(format!("creep stiffness {:.3e} N/m <= 0", g("k_n_per_m")))
+        }
+        EffectId::DampingVsDisplacement if r_model.is_finite() => {
+            let (r1, r2) = (g("r1_ns_per_m2"), g("r2_ns_per_m3"));
+            let (lo, hi) =
+                p.d.x_m
+                    .iter()
+                    .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+            let rmin = [lo, hi, 0.0]
+                .iter()
+                .map(|x| r_model + r1 * x + r2 * x * x)
+                .fold(f64::INFINITY, f64::min);
+            (!is_positive(rmin)).then(|| {
+                format!("the total damping R + r1 x + r2 x^2 falls to {rmin:.3e} N s/m <= 0 inside the range")
+            })
+        }
+        EffectId::StiffnessDrift => {
+            let change = (g("dk0_dt_n_per_m_s") * p.duration_s).abs();
+            (!is_positive(0.5 * k_scale - change)).then(|| {
+                format!(
+                    "drift moves K(0) by {change:.3e} N/m over the record, more than half the stiffness ({k_scale:.3e} N/m)"
+                )
+            })
+        }
+        EffectId::ChannelDelay => {
+            let quarter = 0.25 * 2.0 * std::f64::consts::PI / p.omega_typ;
+            (!is_positive(quarter - g("delay_s").abs())).then(|| {
+                format!(
+                    "delay {:.3e} s is not shorter than a quarter period ({quarter:.3e} s)",
+                    g("delay_s")
+                )
+            })
+        }
+        _ => None,
+    }
 }
 
 fn choose_order(p: &Prepared, forced: &[(EffectId, f64)], opts: &EngineOptions) -> (usize, String) {
@@ -1357,6 +1454,7 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     // and the base model's spectrum (the first step's).
     let mut current: Option<(Vec<f64>, Vec<f64>, super::spectrum::ResidualSpectrum)> = None;
     let mut base_spectrum = None;
+    let mut skipped: Vec<String> = Vec::new();
     for _ in 0..opts.max_steps {
         // Noise floor of this step's residual (never rising along the ladder:
         // a big missing effect can only lift the estimate).
@@ -1371,9 +1469,19 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         let ranked = rank(&p, &built, opts, noise_percent);
         let best = ranked
             .iter()
-            .filter(|r| r.2.significant)
+            .filter(|r| r.2.significant && r.2.not_added.is_none())
             .min_by(|a, b| a.2.cv_sse.total_cmp(&b.2.cv_sse))
-            .map(|r| (r.0, r.1.hyper, r.2.p_value));
+            .map(|r| (r.0, r.1.hyper, r.2.p_value, r.2.cv_sse));
+        // A significant candidate that ranked better but may not enter
+        // (issue 22): said, so that the choice is traceable.
+        for r in ranked.iter().filter(|r| r.2.significant) {
+            if let (Some(why), true) = (&r.2.not_added, best.is_none_or(|b| r.2.cv_sse < b.3)) {
+                if opts.ladder {
+                    skipped.push(format!("the ladder did not add {}: {why}", r.2.effect));
+                }
+            }
+        }
+        let best = best.map(|b| (b.0, b.1, b.2));
         if candidates.is_none() {
             candidates = Some(ranked.iter().map(|r| r.2.clone()).collect());
         }
@@ -1436,6 +1544,7 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
             .then(a.cv_sse.total_cmp(&b.cv_sse))
     });
     Ok(EngineResult {
+        skipped,
         model_error_percent: model_error(model.residual_percent, noise_floor_percent),
         base_model_error_percent: model_error(base.residual_percent, noise_floor_percent),
         base,

@@ -64,6 +64,7 @@ fn stiffness_of(template: &Stiffness, m: &FittedModel) -> Stiffness {
         reference_time_s: m.reference_time_s,
         base: None,
         change_from_base: None,
+        validity: Default::default(),
         ..template.clone()
     }
 }
@@ -159,18 +160,16 @@ pub fn large_signal(plain: &LargeSignal, r: &EngineResult) -> LargeSignal {
         keff_se_n_per_m: Some(se),
         keff_method: Some("chosen_model".into()),
         base: Some(Box::new(base)),
+        validity: Default::default(),
         ..plain.clone()
     }
 }
 
-/// The headline small-signal values: from the small-signal model with
-/// effects when the diagnostics chose (or were asked for) any, with the
-/// linear resonator's fit beside; else the linear resonator's fit.
-pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> SmallSignal {
+/// The small-signal values of the model with effects (the engine on the
+/// pre-measurement): reliable when k0 and R are positive and their
+/// block-robust relative standard errors below 5 %.
+fn small_signal_of_model(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> SmallSignal {
     let m = &pre.model;
-    if m.effect_ids.is_empty() {
-        return plain.clone();
-    }
     let k0 = m.stiffness_coefficients_n_per_m_pow_i_plus_1[0];
     let k0_se = m
         .stiffness_coefficients_se_n_per_m_pow_i_plus_1
@@ -186,16 +185,14 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
     } else {
         f64::NAN
     };
-    // Reliable: a physical resonator whose k0 and R the data determine
-    // (relative standard errors below 5 %, the block-robust ones).
     let (q, q_se, q_null_reason) = crate::identify::quality_factor(k0, mass_kg, r, rel_k, rel_r);
     let reliable = k0 > 0.0 && r > 0.0 && rel_k < 0.05 && rel_r < 0.05;
     let mut base = plain.clone();
     base.base = None;
-    SmallSignal {
-        f0_hz: f0,
-        k0_n_per_m: k0,
-        r_ns_per_m: r,
+    let mut s = SmallSignal {
+        f0_hz: Some(f0),
+        k0_n_per_m: Some(k0),
+        r_ns_per_m: Some(r),
         q,
         f0_se_hz: crate::identify::f0_standard_error(f0, rel_k),
         k0_se_n_per_m: k0_se,
@@ -208,7 +205,54 @@ pub fn small_signal(plain: &SmallSignal, pre: &EngineResult, mass_kg: f64) -> Sm
         effects: m.effects,
         reference_time_s: m.reference_time_s,
         base: Some(Box::new(base)),
+        validity: Default::default(),
+    };
+    crate::identify::validity::judge_small_signal(&mut s);
+    s
+}
+
+/// The headline small-signal values: from the small-signal model with
+/// effects when the diagnostics chose (or were asked for) any and that
+/// model is reliable and physical (k0 and R positive, their block-robust
+/// relative standard errors below 5 %), with the linear resonator's fit
+/// beside; else the linear resonator's fit, and the reason the model with
+/// effects was not taken (a warning).
+pub fn small_signal(
+    plain: &SmallSignal,
+    pre: &EngineResult,
+    mass_kg: f64,
+) -> (SmallSignal, Option<String>) {
+    if pre.model.effect_ids.is_empty() {
+        return (plain.clone(), None);
     }
+    let s = small_signal_of_model(plain, pre, mass_kg);
+    if s.reliable {
+        return (s, None);
+    }
+    let ids: Vec<&str> = pre.model.effect_ids.iter().map(|e| e.as_str()).collect();
+    let m = &pre.model;
+    let k0 = m.stiffness_coefficients_n_per_m_pow_i_plus_1[0];
+    let mut linear = plain.clone();
+    linear.validity.mark_all(
+        crate::identify::validity::State::Unreliable,
+        &format!(
+            "the linear resonator holds none of {} that the diagnostics found, and the model with them is not reliable",
+            ids.join(" + ")
+        ),
+    );
+    (
+        linear,
+        Some(format!(
+            "the small-signal model with {} is not reliable (k0 {k0:.1} ± {:.1} N/m, R {:.3} ± {:.3} N s/m): the small-signal values are the linear resonator's",
+            ids.join(" + "),
+            m.stiffness_coefficients_se_n_per_m_pow_i_plus_1
+                .first()
+                .copied()
+                .unwrap_or(f64::NAN),
+            m.r_ns_per_m,
+            m.r_se_ns_per_m
+        )),
+    )
 }
 
 /// The small-signal model's diagnostics (no plot data): what was tested on

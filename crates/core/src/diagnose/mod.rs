@@ -52,33 +52,81 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     let mut warnings = Vec::new();
     let (mut report, data, pre_spectra) =
         crate::identify::analyze_for_diagnosis(set, &opts.analyze)?;
-    let engine_opts = engine::EngineOptions {
+    // A measurement that fails validity (its noise floor far above the
+    // bench's: a drive limit far below the target, a dark surface) gets no
+    // effect added: the ladder would fit the noise's structure (issue 22).
+    let failed = crate::identify::validity::noise_problem(report.model.noise_floor_percent);
+    let mut engine_opts = engine::EngineOptions {
         order: opts.analyze.order,
         forced: opts.effects.clone(),
         ladder: !opts.exact,
         ..Default::default()
     };
-    let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
-    report.model = result.report_model();
-    // One model, one set of numbers: the headline K(x) and R are the chosen
-    // model's (the engine's force balance is the Two Signal one).
-    if opts.analyze.method == crate::identify::Method::TwoSignal {
-        report.stiffness = headline::stiffness(&report.stiffness, &result);
-        report.large_signal = headline::large_signal(&report.large_signal, &result);
-    } else if !result.model.effect_ids.is_empty() {
-        warnings.push(
-            "the effects were fitted with the two-signal force balance; K(x) above is the one-signal fit without them"
-                .into(),
-        );
+    if let (Some(why), true) = (&failed, engine_opts.ladder) {
+        engine_opts.ladder = false;
+        warnings.push(format!(
+            "the diagnostics added no effect: {why}; the candidates are ranked and reported only"
+        ));
     }
+    let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
+    warnings.extend(result.skipped.iter().cloned());
     let mut diagnostics = result.diagnostics_json(&data);
-    // Beyond the library: what the chosen model leaves, described.
+    // Beyond the library: what the chosen model leaves, described; and a
+    // resonance of its own in the pre-measurement's wide band (a second mode).
     let mut unexplained = unexplained::describe(
         &data,
         &result.residual_n,
         result.model_error_percent,
         result.noise_floor_percent,
     );
+    // A second mode is linear: only a pre-measurement that is a clean
+    // linear system around its resonance (the linear resonator's fit
+    // reliable) is searched (a sticking part's misfit is not a mode).
+    let linear_pre = report.small_signal.as_ref().is_some_and(|s| s.reliable);
+    if let Some(res) = linear_pre
+        .then(|| pre_spectra.wide_band_resonance(set))
+        .flatten()
+    {
+        unexplained::add_resonance(&mut unexplained, res);
+    }
+    // Effects the ladder added while structure stays unexplained only stand
+    // in for it: they do not enter the headline model (the forced ones do).
+    let stand_ins: Vec<EffectId> = if unexplained.present && !opts.exact {
+        result
+            .model
+            .effect_ids
+            .iter()
+            .copied()
+            .filter(|e| !opts.effects.contains(e))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let claimed = if stand_ins.is_empty() {
+        result.clone()
+    } else {
+        warnings.push(format!(
+            "the headline values come from the model without {}: the model still misses structure, which they only stand in for",
+            stand_ins.iter().map(|e| e.as_str()).collect::<Vec<_>>().join(", ")
+        ));
+        engine::EngineResult {
+            model: result.base.clone(),
+            model_error_percent: result.base_model_error_percent,
+            ..result.clone()
+        }
+    };
+    report.model = claimed.report_model();
+    // One model, one set of numbers: the headline K(x) and R are the chosen
+    // model's (the engine's force balance is the Two Signal one).
+    if opts.analyze.method == crate::identify::Method::TwoSignal {
+        report.stiffness = headline::stiffness(&report.stiffness, &claimed);
+        report.large_signal = headline::large_signal(&report.large_signal, &claimed);
+    } else if !claimed.model.effect_ids.is_empty() {
+        warnings.push(
+            "the effects were fitted with the two-signal force balance; K(x) above is the one-signal fit without them"
+                .into(),
+        );
+    }
     if unexplained.present {
         warnings.push(unexplained.signature.clone());
         if !unexplained.experiments.is_empty() {
@@ -87,18 +135,32 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
                 unexplained.experiments.join("; or ")
             ));
         }
+        let why = format!(
+            "the model misses structure outside the effect library ({})",
+            unexplained.short
+        );
+        let v = &mut report.stiffness.validity;
+        v.k_of_x
+            .mark(crate::identify::validity::State::Unreliable, &why);
+        v.r_ns_per_m
+            .mark(crate::identify::validity::State::Unreliable, &why);
+        let l = &mut report.large_signal.validity;
+        l.resonance_hz
+            .mark(crate::identify::validity::State::Unreliable, &why);
+        l.keff_n_per_m
+            .mark(crate::identify::validity::State::Unreliable, &why);
     }
     diagnostics["ambiguities"] =
         serde_json::Value::Array(ambiguities(&data, &result, &engine_opts));
     // The small-signal model: the same engine on the pre-measurement (creep,
     // friction and delay show below resonance), k0, f0 and Q from its choice.
     if let Some(plain) = report.small_signal.clone() {
-        // The part is the same in both sweeps: the effects of the main
+        // The part is the same in both sweeps: the effects of the headline
         // model are in the small-signal model from the start (a log sweep
         // alone confounds time and frequency: drift and creep look alike
         // there), the ladder may add more.
         let mut pre_opts = engine_opts.clone();
-        for e in result.model.effect_ids.iter() {
+        for e in claimed.model.effect_ids.iter() {
             if !pre_opts.forced.contains(e) {
                 pre_opts.forced.push(*e);
             }
@@ -106,21 +168,63 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         match pre_spectra
             .force_balance_data(set)
             .map_err(|e| e.to_string())
-            .and_then(|d| engine::run(&d, &pre_opts))
+            .and_then(|d| engine::run(&d, &pre_opts).map(|r| (d, r)))
         {
-            Ok(pre) => {
-                let ss = headline::small_signal(&plain, &pre, set.meta.moving_mass_kg);
+            Ok((pre_data, pre)) => {
+                let pre_unexplained = unexplained::describe(
+                    &pre_data,
+                    &pre.residual_n,
+                    pre.model_error_percent,
+                    pre.noise_floor_percent,
+                );
+                let (mut ss, not_taken) = if pre_unexplained.present
+                    && !pre.model.effect_ids.is_empty()
+                {
+                    // Its effects would stand in for what it misses.
+                    let ids: Vec<&str> = pre.model.effect_ids.iter().map(|e| e.as_str()).collect();
+                    let mut linear = plain.clone();
+                    let why = format!(
+                        "the small-signal model with {} still misses structure ({}), so its values are not taken; the linear resonator holds none of these effects",
+                        ids.join(" + "),
+                        pre_unexplained.short
+                    );
+                    linear
+                        .validity
+                        .mark_all(crate::identify::validity::State::Unreliable, &why);
+                    (linear, Some(format!("{why}: the small-signal values are the linear resonator's")))
+                } else {
+                    headline::small_signal(&plain, &pre, set.meta.moving_mass_kg)
+                };
+                warnings.extend(not_taken);
+                if unexplained.present {
+                    ss.validity.mark_all(
+                        crate::identify::validity::State::Unreliable,
+                        &format!(
+                            "the part has structure outside the effect library ({})",
+                            unexplained.short
+                        ),
+                    );
+                }
                 if !ss.effects.is_empty() {
                     let ids: Vec<&str> = ss.effects.ids().iter().map(|e| e.as_str()).collect();
+                    let k0 = |s: &crate::identify::SmallSignal| {
+                        s.k0_n_per_m
+                            .map_or("not determined".to_string(), |k| format!("{k:.1} N/m"))
+                    };
                     warnings.push(format!(
-                        "small-signal values from the model with {} (the linear resonator's fit is in small_signal.base: k0 {:.1} N/m there, {:.1} N/m here)",
+                        "small-signal values from the model with {} (the linear resonator's fit is in small_signal.base: k0 {} there, {} here)",
                         ids.join(" + "),
-                        plain.k0_n_per_m,
-                        ss.k0_n_per_m
+                        k0(&plain),
+                        k0(&ss)
                     ));
                 }
                 report.small_signal = Some(ss);
-                diagnostics["small_signal_model"] = headline::small_signal_json(&pre);
+                let mut sj = headline::small_signal_json(&pre);
+                if pre_unexplained.present {
+                    sj["unexplained"] =
+                        serde_json::to_value(&pre_unexplained).unwrap_or_default();
+                }
+                diagnostics["small_signal_model"] = sj;
             }
             Err(e) => warnings.push(format!(
                 "small-signal model with effects not fitted ({e}); small-signal values are the linear resonator's"
@@ -165,6 +269,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         }
     }
     report.warnings.extend(warnings);
+    crate::identify::validity::judge(&mut report);
     Ok(Diagnosis { report })
 }
 
@@ -241,6 +346,7 @@ fn small_signal_comparison(
 ) -> Option<serde_json::Value> {
     let ss = report.small_signal.as_ref()?;
     let area = ss.force_per_mic_v_n_per_v?;
+    let (k0, r) = (ss.k0_n_per_m?, ss.r_ns_per_m?);
     let pre = &set.pre;
     // The pre-measurement passed the small-signal fit's checks (finite
     // samples) before its spectra were taken.
@@ -269,7 +375,7 @@ fn small_signal_comparison(
             continue;
         }
         let w = 2.0 * std::f64::consts::PI * fr;
-        let den = crate::dsp::Complex64::new(ss.k0_n_per_m - w * w * m, w * ss.r_ns_per_m);
+        let den = crate::dsp::Complex64::new(k0 - w * w * m, w * r);
         f.push(fr);
         meas.push(tf.h[i].norm());
         fit.push(area.abs() / den.norm());

@@ -250,19 +250,24 @@ impl BlockGram {
     /// Held-out sum of squared errors of blocked cross-validation with
     /// `folds` contiguous folds (each a run of neighbouring blocks).
     pub fn cv_sse(&self, folds: usize) -> f64 {
+        self.cv_sse_folds(folds).iter().sum()
+    }
+
+    /// The held-out sum of squared errors of each fold of [`Self::cv_sse`].
+    pub fn cv_sse_folds(&self, folds: usize) -> Vec<f64> {
         let nb = self.blocks.len();
         let folds = folds.clamp(2, nb.max(2));
         let total = self.total();
-        let mut sse = 0.0;
-        for f in 0..folds {
-            let (s, e) = (f * nb / folds, (f + 1) * nb / folds);
-            let test = self.sum(s..e);
-            let g = &total.g - &test.g;
-            let c = &total.c - &test.c;
-            let beta = solve_spd(&g, &c);
-            sse += (test.yy - 2.0 * beta.dot(&test.c) + (&test.g * &beta).dot(&beta)).max(0.0);
-        }
-        sse
+        (0..folds)
+            .map(|f| {
+                let (s, e) = (f * nb / folds, (f + 1) * nb / folds);
+                let test = self.sum(s..e);
+                let g = &total.g - &test.g;
+                let c = &total.c - &test.c;
+                let beta = solve_spd(&g, &c);
+                (test.yy - 2.0 * beta.dot(&test.c) + (&test.g * &beta).dot(&beta)).max(0.0)
+            })
+            .collect()
     }
 
     /// Batch-means (block) covariance of the coefficients at `beta`:

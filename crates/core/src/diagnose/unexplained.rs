@@ -63,6 +63,45 @@ pub struct Unexplained {
     /// claimed as measured. Empty when nothing is unexplained.
     #[serde(default)]
     pub parameters_not_claimed: Vec<String>,
+    /// A resonance at a fixed frequency of its own in the pre-measurement's
+    /// wide-band transfer function (a second mechanical mode), when found.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resonance: Option<crate::identify::WideBandResonance>,
+    /// A few words for the states' reasons ("model error 1.2 % over a
+    /// noise floor of 1.5 %", "a resonance at 74 Hz").
+    #[serde(skip)]
+    pub short: String,
+}
+
+/// The experiment that tells a resonance at a fixed frequency from a change
+/// over time (a log sweep moves both together).
+pub const FALLING_SWEEP: &str = "a falling sweep or a second sweep rate (a resonance at a fixed frequency stays where it is, a change over time moves with the sweep)";
+
+/// Adds a second mode's resonance found in the pre-measurement: the
+/// structure is outside the library (present), its signature and the
+/// experiment that would tell come first.
+pub fn add_resonance(u: &mut Unexplained, r: crate::identify::WideBandResonance) {
+    let what = format!(
+        "a resonance at a fixed frequency of {:.1} Hz (Q {:.1}, {:.1} g moving on its own spring) in the pre-measurement's transfer function over {:.0}-{:.0} Hz (misfit {:.1} % linear, {:.1} % with creep, {:.1} % with the resonance): a second mechanical mode, outside the effect library",
+        r.frequency_hz,
+        r.q,
+        r.mass_kg * 1e3,
+        r.band_hz[0],
+        r.band_hz[1],
+        r.misfit_linear_percent,
+        r.misfit_with_creep_percent,
+        r.misfit_with_resonance_percent
+    );
+    u.signature = if u.present {
+        format!("{}; {what}", u.signature)
+    } else {
+        format!("an effect outside the library: {what}")
+    };
+    u.short = format!("a resonance at {:.1} Hz, a second mode", r.frequency_hz);
+    u.present = true;
+    u.experiments.retain(|e| e != FALLING_SWEEP);
+    u.experiments.insert(0, FALLING_SWEEP.to_string());
+    u.resonance = Some(r);
 }
 
 fn moving_mean(v: &[f64], w: usize) -> Vec<f64> {
@@ -278,7 +317,8 @@ pub fn describe(
             tx.unwrap_or(0.0),
             tv.unwrap_or(0.0)
         ));
-        add("a slower sweep or a repeated run (separates a change over time from one over frequency)");
+        add(FALLING_SWEEP);
+        add("a repeated run (a change over time differs between runs)");
         add("the small-signal transfer function over a wider band (a second mechanical mode shows as a resonance of its own)");
     }
     if experiments.is_empty() && present {
@@ -309,5 +349,9 @@ pub fn describe(
         signature,
         experiments,
         parameters_not_claimed: Vec::new(),
+        resonance: None,
+        short: format!(
+            "model error {model_error_percent:.2} % over a noise floor of {noise_floor_percent:.2} %"
+        ),
     }
 }

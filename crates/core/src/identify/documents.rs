@@ -36,6 +36,11 @@ pub struct CandidateResult {
     pub hyper: Option<f64>,
     #[serde(skip)]
     pub cv_sse: f64,
+    /// Why the ladder does not add this candidate although it is
+    /// significant (implausible parameters, a held-out gain that does not
+    /// hold in most folds); None: it may be added.
+    #[serde(skip)]
+    pub not_added: Option<String>,
 }
 
 /// One step of the ladder.

@@ -49,9 +49,11 @@ pub struct Report {
 /// Small-signal parameters from the pre-measurement (SI), with standard errors.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SmallSignal {
-    pub f0_hz: f64,
-    pub k0_n_per_m: f64,
-    pub r_ns_per_m: f64,
+    /// f0, k0 and R are null when not determined (`validity` says why and
+    /// keeps the fit's number); never a non-finite number.
+    pub f0_hz: Option<f64>,
+    pub k0_n_per_m: Option<f64>,
+    pub r_ns_per_m: Option<f64>,
     /// Quality factor sqrt(k0 m) / R; null when the fit found no positive
     /// damping (R <= 0: Q infinite or undefined), `q_null_reason` says so.
     /// Never a non-finite number.
@@ -86,6 +88,9 @@ pub struct SmallSignal {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(no_recursion)]
     pub base: Option<Box<SmallSignal>>,
+    /// The state of each headline value above (issue 22).
+    #[serde(default)]
+    pub validity: validity::SmallSignalValidity,
 }
 
 /// The standard error of f0 = sqrt(k0 / m) / (2 pi) from k0's relative
@@ -189,6 +194,9 @@ pub struct LargeSignal {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(no_recursion)]
     pub base: Option<Box<LargeSignal>>,
+    /// The state of each headline value above (issue 22).
+    #[serde(default)]
+    pub validity: validity::LargeSignalValidity,
 }
 
 /// Nonlinear stiffness K(x) = sum k_i x^i (x in m, K in N/m).
@@ -233,6 +241,9 @@ pub struct Stiffness {
     /// K(0) and R (%).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub change_from_base: Option<StiffnessChange>,
+    /// The state of K(x) and R (issue 22).
+    #[serde(default)]
+    pub validity: validity::StiffnessValidity,
 }
 
 /// How much the headline K(x) and R differ from the base model's (%).
@@ -269,8 +280,9 @@ pub mod large;
 mod prep;
 mod small;
 mod stiffness;
+pub mod validity;
 
-pub use small::{COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
+pub use small::{WideBandResonance, COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
 pub use stiffness::{MAX_AUTO_ORDER, MAX_ORDER};
 
 /// Relative variation of the microphone's fundamental over the One Signal span
@@ -280,7 +292,9 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
     let p = prep::prepare(set)?;
-    analyze_prepared(set, &p, opts, None)
+    let mut r = analyze_prepared(set, &p, opts, None)?;
+    validity::judge_plain(&mut r);
+    Ok(r)
 }
 
 /// [`analyze`] and [`force_balance_data`] from one preparation of the main
@@ -290,7 +304,8 @@ pub fn analyze_with_force_balance(
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
     let p = prep::prepare(set)?;
-    let report = analyze_prepared(set, &p, opts, None)?;
+    let mut report = analyze_prepared(set, &p, opts, None)?;
+    validity::judge_plain(&mut report);
     Ok((report, force_balance_of(&p, false)))
 }
 
@@ -308,6 +323,15 @@ impl PreSpectra {
     pub fn force_balance_data(&self, set: &RecordingSet) -> Result<ForceBalanceData, AnalyzeError> {
         let p = prep::prepare_shared(&set.pre, set.meta.moving_mass_kg, "pre", &self.sx, &self.sm)?;
         Ok(force_balance_of(&p, true))
+    }
+
+    /// A resonance at a fixed frequency of its own in the pre-measurement's
+    /// transfer function over the whole excited band (a second mechanical
+    /// mode), when it explains it far better than the linear resonator
+    /// and than creep (`small::wide_band_resonance`).
+    pub fn wide_band_resonance(&self, set: &RecordingSet) -> Option<WideBandResonance> {
+        let m = set.meta.moving_mass_kg;
+        small::wide_band(&set.pre, m, &self.sx, &self.sm, true)?.resonance(m)
     }
 
     /// Displacement and microphone spectra of the whole pre-measurement
@@ -383,6 +407,17 @@ fn analyze_prepared(
     let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
     let k0 = kf.k_of_x(0.0);
     let xc = [xc_side(&kf, k0, xlo), xc_side(&kf, k0, xhi)];
+    let mut stiffness_validity = validity::StiffnessValidity::default();
+    let (keff, keff_kx) = (
+        large_signal.keff_n_per_m,
+        large_signal.keff_from_k_of_x_n_per_m,
+    );
+    if keff_kx.is_finite() && ((keff / keff_kx) - 1.0).abs() > KEFF_CROSS_CHECK_LIMIT {
+        stiffness_validity.k_of_x.mark(
+            validity::State::Unreliable,
+            &cross_check_reason(keff, keff_kx),
+        );
+    }
     let stiffness = Stiffness {
         method: match opts.method {
             Method::TwoSignal => "two-signal".into(),
@@ -401,6 +436,7 @@ fn analyze_prepared(
         xc_m: xc,
         r_ns_per_m: kf.r_ns_per_m,
         force_per_mic_v_n_per_v: kf.scale_n_per_v.map(|s| s.0),
+        validity: stiffness_validity,
         ..Default::default()
     };
 
@@ -486,12 +522,18 @@ fn large_signal(
     let m = p.mass_kg;
     let w2m = |f: f64| (2.0 * std::f64::consts::PI * f).powi(2) * m;
     let peak_hz = large::freq_at(p, p.res_pos);
+    let mut states = validity::LargeSignalValidity::default();
+    let mut mark = |why: &str| {
+        states.resonance_hz.mark(validity::State::Unreliable, why);
+        states.keff_n_per_m.mark(validity::State::Unreliable, why);
+    };
     let (ri, fr) = match large::find(p) {
         Some(r) => (r.index, r.fr_hz),
         None if p.disp_peak_inside => {
             warnings.push(format!(
                 "the displacement never lags the driving force (microphone) by 90 degrees inside the sweep: fR = {peak_hz:.2} Hz is the displacement peak, which lies below the resonance of a damped part and is moved by the box's air spring"
             ));
+            mark("the displacement never lags the force by 90 degrees inside the sweep: fR is the displacement peak");
             (p.res_index, peak_hz)
         }
         None => {
@@ -506,6 +548,7 @@ fn large_signal(
         warnings.push(format!(
             "the resonance ({fr:.2} Hz) lies at an end of the sweep: sweep from further below to further above it"
         ));
+        mark("the resonance lies at an end of the sweep");
     }
     let period = &p.px[ri];
     let (xlo, xhi) = (period.min, period.max);
@@ -517,6 +560,7 @@ fn large_signal(
             100.0 * (keff / keff_kx - 1.0),
             100.0 * KEFF_CROSS_CHECK_LIMIT
         ));
+        mark(&cross_check_reason(keff, keff_kx));
     }
     let note = ((peak_hz / fr - 1.0).abs() > 0.005).then(|| {
         let mic = |i: usize| p.pm[i].amplitude(1);
@@ -559,7 +603,18 @@ fn large_signal(
         target_xpeak_m: None,
         keff_at_target_n_per_m: None,
         base: None,
+        validity: states,
     })
+}
+
+/// Why Keff and K(x) are unreliable when they disagree by more than
+/// [`KEFF_CROSS_CHECK_LIMIT`].
+fn cross_check_reason(keff: f64, keff_kx: f64) -> String {
+    format!(
+        "Keff from the resonance and from the fitted K(x) over the same excursion differ by {:.1} % (> {:.0} %): an effect outside the model (see the diagnostics), a delayed microphone or a failed One Signal assumption",
+        100.0 * (keff / keff_kx - 1.0),
+        100.0 * KEFF_CROSS_CHECK_LIMIT
+    )
 }
 
 /// Minimum and maximum of a sampled band-limited signal, refined by a parabola

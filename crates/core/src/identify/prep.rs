@@ -183,7 +183,7 @@ pub fn spectra(s: &Signals) -> (Spectrum, Spectrum) {
 
 /// The band (Hz) above the low-pass whose white noise sets the noise of the
 /// band-limited signals.
-fn noise_band(fs: f64) -> (f64, f64) {
+pub(super) fn noise_band(fs: f64) -> (f64, f64) {
     let nyq = 0.5 * fs;
     ((2.0 * lowpass_for(fs).stop_hz).min(0.5 * nyq), 0.95 * nyq)
 }

@@ -752,6 +752,8 @@ pub fn set_keff_at_target(r: &mut crate::identify::Report, target_xpeak_m: Optio
         (!r.stiffness.coefficients_n_per_m_pow_i_plus_1.is_empty())
             .then(|| keff_at_target(r, Some(xt)))
             .filter(|v| v.is_finite());
+    // Its state (extrapolated beyond the measured range, issue 22).
+    crate::identify::validity::judge(r);
 }
 
 /// The verdict of one measurement under a recipe.
@@ -793,10 +795,10 @@ fn judge_values(recipe: &Recipe, facts: &RunFacts) -> Verdict {
         }
         let ss = r.small_signal.as_ref();
         let value = match p.quantity {
-            Quantity::K0 => ss.map(|s| s.k0_n_per_m),
-            Quantity::F0 => ss.map(|s| s.f0_hz),
+            Quantity::K0 => ss.and_then(|s| s.k0_n_per_m),
+            Quantity::F0 => ss.and_then(|s| s.f0_hz),
             Quantity::Q => ss.and_then(|s| s.q),
-            Quantity::R => ss.map(|s| s.r_ns_per_m),
+            Quantity::R => ss.and_then(|s| s.r_ns_per_m),
             Quantity::Keff => Some(keff_at_target(r, facts.target_xpeak_m)),
             Quantity::KAtX | Quantity::KAsymmetry => {
                 let x = p.x_m.unwrap_or(0.0);

@@ -7,9 +7,9 @@ use crate::identify::{LargeSignal, Model, SmallSignal, Stiffness};
 fn report(k0: f64, k1: f64, k2: f64, q: f64) -> Report {
     Report {
         small_signal: Some(SmallSignal {
-            f0_hz: 35.0,
-            k0_n_per_m: k0,
-            r_ns_per_m: (k0 * 0.05f64).sqrt() / q,
+            f0_hz: Some(35.0),
+            k0_n_per_m: Some(k0),
+            r_ns_per_m: Some((k0 * 0.05f64).sqrt() / q),
             q: Some(q),
             reliable: true,
             misfit_percent: 0.5,
