@@ -22,7 +22,7 @@ use rand::{Rng, SeedableRng};
 use springbench::diagnose::{diagnose, DiagnoseOptions};
 use springbench::effects::{CoulombFriction, Creep};
 use springbench::identify::large::describing_function_keff;
-use springbench::identify::validity::{State, Validity};
+use springbench::identify::validity::{HeadlineValidity, State};
 use springbench::identify::{analyze, AnalyzeOptions, Report};
 use springbench::physics::{preset, preset_names, simulate, PartSpec, SecondMode, SimulateOptions};
 use std::collections::HashMap;
@@ -158,7 +158,7 @@ fn pct(a: f64, b: f64) -> f64 {
 /// Every headline value of `r` against `part`; panics on an unphysical one.
 fn checks(part: &PartSpec, r: &Report, what: &str) -> Vec<Check> {
     let mut out = Vec::new();
-    let mut push = |name, err: f64, bound, v: &Validity| {
+    let mut push = |name, err: f64, bound, v: &HeadlineValidity| {
         out.push(Check {
             name,
             error_percent: err,

@@ -1,5 +1,5 @@
 //! The result document as the `analyze` command's table.
-use crate::identify::validity::Validity;
+use crate::identify::validity::HeadlineValidity;
 use crate::identify::Report;
 
 /// The readable table: SI and the conventional units of the field.
@@ -10,7 +10,7 @@ pub fn table(r: &Report) -> String {
     // Every headline value with its state (issue 22): a value that is not
     // valid carries its state in brackets and its reason below the table.
     let mut notes: Vec<String> = Vec::new();
-    let mut tag = |what: &str, v: &Validity| -> String {
+    let mut tag = |what: &str, v: &HeadlineValidity| -> String {
         if v.is_valid() {
             return String::new();
         }

@@ -57,7 +57,7 @@ impl State {
 
 /// The state of a headline value and why.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct Validity {
+pub struct HeadlineValidity {
     pub state: State,
     /// Why the value is not `valid` (one or more sentences, `; `-joined).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -68,7 +68,7 @@ pub struct Validity {
     pub fit_value: Option<f64>,
 }
 
-impl Validity {
+impl HeadlineValidity {
     /// Moves the state to `state` when that is worse, and adds `reason`
     /// (once).
     pub fn mark(&mut self, state: State, reason: &str) {
@@ -96,10 +96,10 @@ impl Validity {
 /// States of the small-signal headline values.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SmallSignalValidity {
-    pub f0_hz: Validity,
-    pub k0_n_per_m: Validity,
-    pub r_ns_per_m: Validity,
-    pub q: Validity,
+    pub f0_hz: HeadlineValidity,
+    pub k0_n_per_m: HeadlineValidity,
+    pub r_ns_per_m: HeadlineValidity,
+    pub q: HeadlineValidity,
 }
 
 impl SmallSignalValidity {
@@ -120,19 +120,19 @@ impl SmallSignalValidity {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct LargeSignalValidity {
     /// fR (and with it Keff and Ceff at the reached Xpeak).
-    pub resonance_hz: Validity,
-    pub keff_n_per_m: Validity,
+    pub resonance_hz: HeadlineValidity,
+    pub keff_n_per_m: HeadlineValidity,
     /// Keff at the target amplitude, when the report has one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub keff_at_target_n_per_m: Option<Validity>,
+    pub keff_at_target_n_per_m: Option<HeadlineValidity>,
 }
 
 /// States of the stiffness headline values.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct StiffnessValidity {
     /// K(x) over `valid_range_m` (outside it K(x) is always extrapolated).
-    pub k_of_x: Validity,
-    pub r_ns_per_m: Validity,
+    pub k_of_x: HeadlineValidity,
+    pub r_ns_per_m: HeadlineValidity,
 }
 
 /// Noise floor of the main sweep's force balance (% of RMS(m a)) above
@@ -176,7 +176,7 @@ fn k_min_over(k: &[f64], range: [f64; 2]) -> (f64, f64) {
 
 /// Null for a headline number that is not determined, its value kept in
 /// `fit_value`; a number stays when the state allows it.
-fn hide(v: &mut Option<f64>, validity: &mut Validity) {
+fn hide(v: &mut Option<f64>, validity: &mut HeadlineValidity) {
     if validity.state == State::NotDetermined {
         if let Some(x) = v.take() {
             if x.is_finite() {
@@ -392,7 +392,7 @@ mod tests {
 
     #[test]
     fn marks_only_get_worse_and_reasons_are_kept_once() {
-        let mut v = Validity::default();
+        let mut v = HeadlineValidity::default();
         v.mark(State::Unreliable, "a");
         v.mark(State::Extrapolated, "b");
         v.mark(State::Unreliable, "a");
@@ -404,7 +404,7 @@ mod tests {
             serde_json::json!({"state": "unreliable", "reason": "a; b"})
         );
         assert_eq!(
-            serde_json::to_value(Validity::default()).unwrap(),
+            serde_json::to_value(HeadlineValidity::default()).unwrap(),
             serde_json::json!({"state": "valid"})
         );
     }
