@@ -19,12 +19,13 @@
 //! the whole suite (3 seeds per case, every preset) whose figures are in
 //! docs/diagnostics.md.
 use rand::{Rng, SeedableRng};
+use springbench::bench::simulate::{simulate, SimulateOptions};
 use springbench::diagnose::{diagnose, DiagnoseOptions};
 use springbench::effects::{CoulombFriction, Creep};
 use springbench::identify::large::describing_function_keff;
 use springbench::identify::validity::{HeadlineValidity, State};
 use springbench::identify::{analyze, AnalyzeOptions, Report};
-use springbench::physics::{preset, preset_names, simulate, PartSpec, SecondMode, SimulateOptions};
+use springbench::physics::{preset, preset_names, PartSpec, SecondMode};
 use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
 
@@ -94,7 +95,7 @@ fn setup(name: &str, case: Case) -> (PartSpec, SimulateOptions) {
     let k0 = part.k_coeffs_si[0];
     match case {
         Case::DriveLimit(f) => {
-            let mut l = springbench::physics::virtual_bench::DEFAULT_LIMITS;
+            let mut l = springbench::bench::virtual_bench::DEFAULT_LIMITS;
             l.max_drive_v = f * target_drive_v(name);
             opts.limits = Some(l);
         }
