@@ -323,7 +323,7 @@ impl Store {
             .connect_with(opts.clone())
             .await?;
         sqlx::migrate!("./migrations").run(&pool).await?;
-        health::spawn_watchdog(guard, opts);
+        health::spawn_watchdog(guard, opts, pool.clone());
         Ok(Store {
             pool,
             dir: Some(std::sync::Arc::new(data_dir.to_path_buf())),
