@@ -1,0 +1,182 @@
+//! The diagnostics engine on force-balance data: the linear-in-parameters
+//! force balance
+//!
+//! `m a = s mic + c - sum_i k_i x^(i+1) - R v - (effect terms)`
+//!
+//! (`s` the force per microphone volt, `c` an offset), candidate effects with
+//! their regressors and hyper-parameter searches, ranking by blocked
+//! cross-validation and a block-robust Wald test, identifiability by variance
+//! inflation, and the forward-selection ladder.
+
+mod design;
+mod fit;
+mod options;
+mod rank;
+mod result;
+
+pub use crate::identify::documents::{CandidateResult, LadderStep};
+pub use design::Prepared;
+pub use options::{EngineOptions, Term};
+pub use result::{fundamental_range_hz, EngineResult, FittedModel};
+
+use crate::diagnose::spectrum;
+use crate::effects::EffectId;
+use crate::identify::ForceBalanceData;
+use design::{Built, Spec};
+use fit::{describe, forced_hyper, model_error, pct, residual};
+use rank::{choose_order, rank};
+
+/// Runs the whole engine on prepared data.
+pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, String> {
+    let p = Prepared::new(d, opts.blocks)?;
+    // Forced effects: their hyper-parameters are searched against the K-only model.
+    let mut forced: Vec<(EffectId, f64)> = Vec::new();
+    let mut forced_ids = opts.forced.clone();
+    forced_ids.dedup();
+    let (order0, _) = choose_order(&p, &[], opts);
+    for &e in &forced_ids {
+        if forced.iter().any(|f| f.0 == e) {
+            continue;
+        }
+        let built = Built::new(
+            &p,
+            Spec {
+                order: order0,
+                effects: forced.clone(),
+            },
+        );
+        forced.push((e, forced_hyper(&p, &built, e)));
+    }
+    let (order, order_note) = choose_order(&p, &forced, opts);
+    let mut built = Built::new(
+        &p,
+        Spec {
+            order,
+            effects: forced.clone(),
+        },
+    );
+    let (base, base_beta) = describe(&p, &built, opts.folds);
+    let (base_res, _) = residual(&p, &built, &base_beta);
+    let mut ladder = vec![LadderStep {
+        effects: forced.iter().map(|e| e.0.as_str().to_string()).collect(),
+        order,
+        residual_percent: base.residual_percent,
+        cv_residual_percent: base.cv_residual_percent,
+        model_error_percent: 0.0,
+        added: None,
+        p_value: None,
+    }];
+    let mut candidates: Option<Vec<CandidateResult>> = None;
+    let mut ladder_names: Vec<String> = ladder[0].effects.clone();
+    let mut noise_percent = f64::INFINITY;
+    // The residual, modelled force and spectrum of `built` while it is the
+    // model of the step (the final model's when the ladder stops there),
+    // and the base model's spectrum (the first step's).
+    let mut current: Option<(Vec<f64>, Vec<f64>, spectrum::ResidualSpectrum)> = None;
+    let mut base_spectrum = None;
+    let mut skipped: Vec<String> = Vec::new();
+    for _ in 0..opts.max_steps {
+        // Noise floor of this step's residual (never rising along the ladder:
+        // a big missing effect can only lift the estimate).
+        let fit = built.gram.fit();
+        let (res, modelled) = residual(&p, &built, &fit.beta);
+        let sp = spectrum::residual_spectrum(&res, p.fs(), 0.5);
+        noise_percent = noise_percent.min(100.0 * sp.noise_variance.sqrt() / p.rms_y);
+        if base_spectrum.is_none() {
+            base_spectrum = Some(sp.clone());
+        }
+        current = Some((res, modelled, sp));
+        let ranked = rank(&p, &built, opts, noise_percent);
+        let best = ranked
+            .iter()
+            .filter(|r| r.2.significant && r.2.not_added.is_none())
+            .min_by(|a, b| a.2.cv_sse.total_cmp(&b.2.cv_sse))
+            .map(|r| (r.0, r.1.hyper, r.2.p_value, r.2.cv_sse));
+        // A significant candidate that ranked better but may not enter
+        // (issue 22): said, so that the choice is traceable.
+        for r in ranked.iter().filter(|r| r.2.significant) {
+            if let (Some(why), true) = (&r.2.not_added, best.is_none_or(|b| r.2.cv_sse < b.3)) {
+                if opts.ladder {
+                    skipped.push(format!("the ladder did not add {}: {why}", r.2.effect));
+                }
+            }
+        }
+        let best = best.map(|b| (b.0, b.1, b.2));
+        if candidates.is_none() {
+            candidates = Some(ranked.iter().map(|r| r.2.clone()).collect());
+        }
+        if !opts.ladder {
+            // An explicit model: the candidates are reported, never added.
+            break;
+        }
+        let Some((term, hyper, pv)) = best else { break };
+        let mut spec = built.spec.clone();
+        match term {
+            Term::StiffnessOrder => spec.order += 1,
+            Term::Effect(e) => spec.effects.push((e, hyper.unwrap_or(0.0))),
+        }
+        built = Built::new(&p, spec);
+        current = None;
+        let fit = built.gram.fit();
+        ladder_names.push(term.name().into());
+        ladder.push(LadderStep {
+            effects: ladder_names.clone(),
+            order: built.spec.order,
+            residual_percent: pct(&p, fit.sse),
+            cv_residual_percent: pct(&p, built.gram.cv_sse(opts.folds)),
+            model_error_percent: 0.0,
+            added: Some(term.name().into()),
+            p_value: Some(pv),
+        });
+    }
+    let (model, beta) = describe(&p, &built, opts.folds);
+    // The fit of the same Gram gives the same coefficients: the step's
+    // residual and spectrum are the final model's.
+    let (res, modelled, spectrum) = current.unwrap_or_else(|| {
+        let (res, modelled) = residual(&p, &built, &beta);
+        let sp = spectrum::residual_spectrum(&res, p.fs(), 0.5);
+        (res, modelled, sp)
+    });
+    let base_spectrum =
+        base_spectrum.unwrap_or_else(|| spectrum::residual_spectrum(&base_res, p.fs(), 0.5));
+    let noise_floor_percent = 100.0 * spectrum.noise_variance.sqrt() / p.rms_y;
+    // Every model-error figure of the document is one formula: the in-sample
+    // residual against the final model's noise floor (held-out figures are
+    // reported as such: cv_residual_percent, error_reduction_percent).
+    for step in &mut ladder {
+        step.model_error_percent = model_error(step.residual_percent, noise_floor_percent);
+    }
+    // Reported reductions use the final model's noise floor (the cleanest
+    // residual); the decisions above used each step's own estimate.
+    let base_me = model_error(base.cv_residual_percent, noise_floor_percent);
+    let mut candidates = candidates.unwrap_or_default();
+    for c in &mut candidates {
+        let me = model_error(c.cv_residual_percent, noise_floor_percent);
+        c.error_reduction_percent = if base_me > 0.0 {
+            100.0 * (1.0 - me / base_me)
+        } else {
+            0.0
+        };
+    }
+    candidates.sort_by(|a, b| {
+        b.significant
+            .cmp(&a.significant)
+            .then(a.cv_sse.total_cmp(&b.cv_sse))
+    });
+    Ok(EngineResult {
+        skipped,
+        model_error_percent: model_error(model.residual_percent, noise_floor_percent),
+        base_model_error_percent: model_error(base.residual_percent, noise_floor_percent),
+        base,
+        model,
+        candidates,
+        ladder,
+        noise_floor_percent,
+        residual_n: res,
+        base_residual_n: base_res,
+        modelled_force_n: modelled,
+        spectrum,
+        base_spectrum,
+        order_note,
+    })
+}

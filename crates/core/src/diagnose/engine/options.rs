@@ -1,0 +1,90 @@
+//! What the engine is asked: its settings and the candidate terms.
+
+use crate::effects::EffectId;
+
+/// Settings of the engine. The defaults are the documented design choices
+/// (docs/diagnostics.md), not tuned to any data set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineOptions {
+    /// Highest power of K(x) in the base model; chosen from the data when None.
+    pub order: Option<usize>,
+    /// Effects forced into the model from the start.
+    pub forced: Vec<EffectId>,
+    /// Let the forward-selection ladder add effects to `forced` ("auto");
+    /// false fits exactly `forced` and only reports what the ladder would add.
+    pub ladder: bool,
+    /// Number of contiguous time blocks (batch-means covariance).
+    pub blocks: usize,
+    /// Number of contiguous cross-validation folds (runs of blocks).
+    pub folds: usize,
+    /// Family-wise significance level per ladder step (Bonferroni over candidates).
+    pub alpha: f64,
+    /// Variance inflation above which a candidate cannot be told apart from the model.
+    pub vif_limit: f64,
+    /// Most effects the ladder adds.
+    pub max_steps: usize,
+    /// Practical relevance: a significant candidate must remove at least this
+    /// share of the held-out model error (%).
+    pub min_reduction_percent: f64,
+    /// Highest K(x) power the order selection and `stiffness_order` may reach.
+    pub max_order: usize,
+}
+
+impl Default for EngineOptions {
+    fn default() -> Self {
+        EngineOptions {
+            order: None,
+            forced: Vec::new(),
+            ladder: true,
+            blocks: 40,
+            folds: 5,
+            alpha: 0.01,
+            vif_limit: 200.0,
+            max_steps: 6,
+            min_reduction_percent: 5.0,
+            max_order: 10,
+        }
+    }
+}
+
+/// A candidate extension of the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Term {
+    Effect(EffectId),
+    /// One more power of K(x) (not physics; guards against a too-low order).
+    StiffnessOrder,
+}
+
+impl Term {
+    pub fn name(self) -> &'static str {
+        match self {
+            Term::Effect(e) => e.as_str(),
+            Term::StiffnessOrder => "stiffness_order",
+        }
+    }
+
+    /// The experiment that separates this term from the model when this data cannot.
+    pub fn separating_experiment(self) -> &'static str {
+        match self {
+            Term::Effect(EffectId::CoulombFriction) => {
+                "a second drive level (dry friction does not grow with amplitude, viscous damping does)"
+            }
+            Term::Effect(EffectId::QuadraticDamping) => {
+                "a second drive level (v|v| damping grows with amplitude, viscous damping does not)"
+            }
+            Term::Effect(EffectId::DampingVsDisplacement) => {
+                "a second drive level or a larger excursion (damping that depends on x changes with it)"
+            }
+            Term::Effect(EffectId::Creep) => {
+                "a wider frequency range (the small-signal sweep) or an added mass that moves the resonance"
+            }
+            Term::Effect(EffectId::StiffnessDrift) => {
+                "a repeated measurement some minutes later (drift changes K(0) between runs)"
+            }
+            Term::Effect(EffectId::ChannelDelay) => {
+                "an added mass (moves the resonance, so delay and damping separate)"
+            }
+            Term::StiffnessOrder => "a higher drive level (a larger displacement range)",
+        }
+    }
+}

@@ -1,0 +1,283 @@
+//! What the engine found: the fitted models, the candidates and the ladder,
+//! and the `diagnostics` document with the comparison data the plots draw.
+
+use crate::diagnose::spectrum;
+use crate::effects::{EffectId, Effects};
+use crate::identify::documents::{CandidateResult, LadderStep};
+use crate::identify::ForceBalanceData;
+use serde::{Deserialize, Serialize};
+
+/// Fitted model: what is in it and how well it explains the data.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FittedModel {
+    pub order: usize,
+    /// Effects in the model in the order they were added (forced first).
+    pub effect_ids: Vec<EffectId>,
+    pub effects: Effects,
+    /// Standard errors of the effect parameters (same names), block-robust.
+    pub effects_se: serde_json::Value,
+    /// K(x) = sum k_i x^i (N/m, x in m) of this model; with stiffness
+    /// drift in the model, K(x) at the start of the recording (`reference_time_s`).
+    pub stiffness_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Block-robust standard errors of the coefficients (same units).
+    #[serde(default)]
+    pub stiffness_coefficients_se_n_per_m_pow_i_plus_1: Vec<f64>,
+    /// Time (s from the start of the recording) K(x) refers to; None when
+    /// nothing in the model changes K over time.
+    #[serde(default)]
+    pub reference_time_s: Option<f64>,
+    pub r_ns_per_m: f64,
+    #[serde(default)]
+    pub r_se_ns_per_m: f64,
+    pub force_per_mic_n_per_v: f64,
+    pub residual_percent: f64,
+    /// Residual of blocked cross-validation (held-out data).
+    pub cv_residual_percent: f64,
+    /// Block-robust covariance of the K(x) coefficients (row-major, same
+    /// units as the coefficients): for derived figures such as Keff.
+    #[serde(skip)]
+    pub stiffness_covariance: Vec<Vec<f64>>,
+    /// K(0) changes by this much per second (N/m/s) when stiffness drift is
+    /// in the model (K(x) above holds at `reference_time_s`).
+    #[serde(skip)]
+    pub dk0_dt_n_per_m_s: f64,
+}
+
+/// Everything the engine found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineResult {
+    pub base: FittedModel,
+    pub model: FittedModel,
+    pub candidates: Vec<CandidateResult>,
+    pub ladder: Vec<LadderStep>,
+    pub noise_floor_percent: f64,
+    pub model_error_percent: f64,
+    pub base_model_error_percent: f64,
+    /// Residual of the final and the base model (N), sample by sample.
+    pub residual_n: Vec<f64>,
+    pub base_residual_n: Vec<f64>,
+    /// Modelled inertia force m a of the final model (N).
+    pub modelled_force_n: Vec<f64>,
+    pub spectrum: spectrum::ResidualSpectrum,
+    /// Spectrum of the base model's residual.
+    pub base_spectrum: spectrum::ResidualSpectrum,
+    /// Order chosen for the base model and how.
+    pub order_note: String,
+    /// Significant candidates the ladder did not add, and why (one line each).
+    pub skipped: Vec<String>,
+}
+
+impl EngineResult {
+    /// The refitted model in the identification's report form.
+    pub fn report_model(&self) -> crate::identify::Model {
+        crate::identify::Model {
+            effects: self.model.effects,
+            residual_percent: self.model.residual_percent,
+            noise_floor_percent: self.noise_floor_percent,
+            model_error_percent: self.model_error_percent,
+        }
+    }
+
+    /// The `diagnostics` document (issue 5 names plus the comparison data the plots draw).
+    pub fn diagnostics_json(&self, d: &ForceBalanceData) -> serde_json::Value {
+        use serde_json::json;
+        let describe = |m: &FittedModel, me: f64| {
+            json!({
+                "effects": m.effect_ids.iter().map(|e| e.as_str()).collect::<Vec<_>>(),
+                "parameters": m.effects,
+                "parameters_se": m.effects_se,
+                "order": m.order,
+                "stiffness_coefficients_n_per_m_pow_i_plus_1": m.stiffness_coefficients_n_per_m_pow_i_plus_1,
+                "r_ns_per_m": m.r_ns_per_m,
+                "force_per_mic_n_per_v": m.force_per_mic_n_per_v,
+                "residual_percent": m.residual_percent,
+                "cv_residual_percent": m.cv_residual_percent,
+                "model_error_percent": me,
+            })
+        };
+        json!({
+            "candidates": self.candidates,
+            "ladder": self.ladder,
+            "base_model": describe(&self.base, self.base_model_error_percent),
+            "final_model": describe(&self.model, self.model_error_percent),
+            "noise_floor_percent": self.noise_floor_percent,
+            "order_note": self.order_note,
+            "method": {
+                "cross_validation": "blocked, 5 contiguous folds of 8 time blocks each",
+                "test": "Wald test with batch-means (40 contiguous blocks) covariance, Bonferroni over candidates; hyper-parameter searches count 5 times",
+                "identifiability": "variance inflation of the candidate's regressors against the model's; above 200 and not significant: cannot tell from this data",
+                "relevance": "a significant candidate removes at least 5 % of the held-out model error (noise floor of the step's residual)",
+                "model_error": "sqrt(residual^2 - noise_floor^2), residual on held-out blocks for candidates and ladder",
+            },
+            "comparison": comparison(self, d),
+        })
+    }
+}
+
+fn mean_by_bins(
+    key: &[f64],
+    val: &[f64],
+    mask: impl Fn(usize) -> bool,
+    lo: f64,
+    hi: f64,
+    nb: usize,
+) -> Vec<Option<f64>> {
+    let mut sum = vec![0.0; nb];
+    let mut cnt = vec![0usize; nb];
+    let w = (hi - lo) / nb as f64;
+    for (i, (&k, &v)) in key.iter().zip(val).enumerate() {
+        if !mask(i) || w <= 0.0 {
+            continue;
+        }
+        let b = (((k - lo) / w) as usize).min(nb - 1);
+        sum[b] += v;
+        cnt[b] += 1;
+    }
+    sum.iter()
+        .zip(&cnt)
+        .map(|(s, &c)| (c >= 20).then(|| s / c as f64))
+        .collect()
+}
+
+/// Range of the fundamental frequency (Hz) from the upward zero crossings of x.
+pub fn fundamental_range_hz(x: &[f64], fs: f64) -> Option<(f64, f64)> {
+    let mean = x.iter().sum::<f64>() / x.len().max(1) as f64;
+    let amp = x.iter().fold(0.0f64, |m, v| m.max((v - mean).abs()));
+    let mut crossings = Vec::new();
+    let mut armed = false;
+    for i in 1..x.len() {
+        let (a, b) = (x[i - 1] - mean, x[i] - mean);
+        if b < -0.2 * amp {
+            armed = true;
+        }
+        if armed && a < 0.0 && b >= 0.0 {
+            crossings.push(i as f64 - 1.0 + a / (a - b));
+            armed = false;
+        }
+    }
+    let mut f: Vec<f64> = crossings.windows(2).map(|w| fs / (w[1] - w[0])).collect();
+    if f.len() < 4 {
+        return None;
+    }
+    f.sort_by(|a, b| a.total_cmp(b));
+    Some((f[f.len() / 20], f[f.len() - 1 - f.len() / 20]))
+}
+
+fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
+    use serde_json::json;
+    let n = d.x_m.len();
+    let fs = d.sample_rate_hz;
+    let y: Vec<f64> = d.a_m_per_s2.iter().map(|a| a * d.mass_kg).collect();
+    // Detail: 0.12 s around the largest displacement.
+    let imax = (0..n)
+        .max_by(|&a, &b| d.x_m[a].abs().total_cmp(&d.x_m[b].abs()))
+        .unwrap_or(0);
+    let half = ((0.06 * fs) as usize).max(1);
+    let (s, e) = (imax.saturating_sub(half), (imax + half).min(n));
+    let step = ((e - s) / 600).max(1);
+    let idx: Vec<usize> = (s..e).step_by(step).collect();
+    let detail = json!({
+        "t_s": idx.iter().map(|&i| d.t0_s + i as f64 / fs).collect::<Vec<_>>(),
+        "x_m": idx.iter().map(|&i| d.x_m[i]).collect::<Vec<_>>(),
+        "measured_force_n": idx.iter().map(|&i| y[i]).collect::<Vec<_>>(),
+        "modelled_force_n": idx.iter().map(|&i| r.modelled_force_n[i]).collect::<Vec<_>>(),
+        "base_modelled_force_n": idx.iter().map(|&i| y[i] - r.base_residual_n[i]).collect::<Vec<_>>(),
+    });
+    // Envelope: RMS per bucket over the whole record.
+    let buckets = 200.min(n);
+    let rms = |sig: &[f64], a: usize, b: usize| {
+        (sig[a..b].iter().map(|v| v * v).sum::<f64>() / (b - a).max(1) as f64).sqrt()
+    };
+    let mut env_t = Vec::new();
+    let (mut env_m, mut env_r, mut env_b) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..buckets {
+        let (a, b) = (k * n / buckets, (k + 1) * n / buckets);
+        if b <= a {
+            continue;
+        }
+        env_t.push(d.t0_s + (a + b) as f64 / 2.0 / fs);
+        env_m.push(rms(&y, a, b));
+        env_r.push(rms(&r.residual_n, a, b));
+        env_b.push(rms(&r.base_residual_n, a, b));
+    }
+    let nb = 24;
+    let (xlo, xhi) = d
+        .x_m
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let (vlo, vhi) = d
+        .v_m_per_s
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let centres = |lo: f64, hi: f64| -> Vec<f64> {
+        (0..nb)
+            .map(|b| lo + (b as f64 + 0.5) * (hi - lo) / nb as f64)
+            .collect()
+    };
+    let v = &d.v_m_per_s;
+    let vs_x = |res: &[f64]| {
+        json!({
+            "positive_v_n": mean_by_bins(&d.x_m, res, |i| v[i] > 0.0, xlo, xhi, nb),
+            "negative_v_n": mean_by_bins(&d.x_m, res, |i| v[i] <= 0.0, xlo, xhi, nb),
+        })
+    };
+    let vs_v = |res: &[f64]| mean_by_bins(v, res, |_| true, vlo, vhi, nb);
+    // Samples per bin: a bin mean of white noise of RMS sigma scatters by sigma / sqrt(count).
+    let counts = |key: &[f64], mask: &dyn Fn(usize) -> bool, lo: f64, hi: f64| -> Vec<f64> {
+        let w = (hi - lo) / nb as f64;
+        let mut c = vec![0.0; nb];
+        for (i, &k) in key.iter().enumerate() {
+            if mask(i) && w > 0.0 {
+                c[(((k - lo) / w) as usize).min(nb - 1)] += 1.0;
+            }
+        }
+        c
+    };
+    let noise_rms_n = r.spectrum.noise_variance.max(0.0).sqrt();
+    // The base model's residual spectrum on the same bins as the final one.
+    let base_sp = &r.base_spectrum;
+    // Spectrum on about 300 log-spaced points.
+    let sp = &r.spectrum;
+    let (mut f_out, mut p_out, mut n_out, mut b_out) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    if sp.freq_hz.len() > 2 {
+        let f1 = sp.freq_hz[1];
+        let f2 = *sp.freq_hz.last().expect("non-empty");
+        let pts = 300;
+        let mut k = 1;
+        for j in 1..=pts {
+            let edge = f1 * (f2 / f1).powf(j as f64 / pts as f64);
+            let start = k;
+            while k < sp.freq_hz.len() && sp.freq_hz[k] <= edge {
+                k += 1;
+            }
+            if k > start {
+                let m = (k - start) as f64;
+                f_out.push(sp.freq_hz[start..k].iter().sum::<f64>() / m);
+                p_out.push(sp.psd[start..k].iter().sum::<f64>() / m);
+                n_out.push(sp.noise_psd[start..k].iter().sum::<f64>() / m);
+                b_out.push(if base_sp.psd.len() == sp.psd.len() {
+                    base_sp.psd[start..k].iter().sum::<f64>() / m
+                } else {
+                    f64::NAN
+                });
+            }
+        }
+    }
+    let bands: Vec<[f64; 2]> = match fundamental_range_hz(&d.x_m, fs) {
+        Some((lo, hi)) => (1..=10).map(|h| [h as f64 * lo, h as f64 * hi]).collect(),
+        None => vec![],
+    };
+    json!({
+        "detail": detail,
+        "envelope": {"t_s": env_t, "measured_rms_n": env_m, "residual_rms_n": env_r, "base_residual_rms_n": env_b},
+        "noise_rms_n": noise_rms_n,
+        "residual_vs_x": {"x_m": centres(xlo, xhi), "final": vs_x(&r.residual_n), "base": vs_x(&r.base_residual_n),
+            "positive_v_count": counts(&d.x_m, &|i| v[i] > 0.0, xlo, xhi),
+            "negative_v_count": counts(&d.x_m, &|i| v[i] <= 0.0, xlo, xhi)},
+        "residual_vs_v": {"v_m_per_s": centres(vlo, vhi), "final_n": vs_v(&r.residual_n), "base_n": vs_v(&r.base_residual_n),
+            "count": counts(v, &|_| true, vlo, vhi)},
+        "spectrum": {"freq_hz": f_out, "psd_n2_per_hz": p_out, "base_psd_n2_per_hz": b_out.into_iter().map(|v| v.is_finite().then_some(v)).collect::<Vec<_>>(),
+            "noise_psd_n2_per_hz": n_out, "harmonic_bands_hz": bands},
+    })
+}
