@@ -15,7 +15,7 @@
 //!
 //! By default one seed of every class on spider_4in (the CI run), and the
 //! two parts of the acceptance (creep on passive_radiator, a second
-//! mode on spider_4in); `SPRINGBENCH_BAD_SEEDS=3 SPRINGBENCH_BAD_PRESETS=all` is
+//! mode on spider_4in) over 3 seeds; `SPRINGBENCH_BAD_SEEDS=3 SPRINGBENCH_BAD_PRESETS=all` is
 //! the whole suite (3 seeds per case, every preset) whose figures are in
 //! docs/diagnostics.md.
 use rand::{Rng, SeedableRng};
@@ -289,9 +289,13 @@ fn run_case(name: &str, case: Case, seed: u64) -> Vec<(String, Vec<Check>)> {
         );
         let c = checks(&part, r, &what);
         eprintln!(
-            "{what}: model {:?}, small-signal {:?}",
+            "{what}: model {:?} (model error {:.2} %, noise floor {:.2} %), small-signal {:?} (misfit {:.2} %, reliable {:?})",
             r.model.effects.ids(),
-            r.small_signal.as_ref().map(|s| s.effects.ids())
+            r.model.model_error_percent,
+            r.model.noise_floor_percent,
+            r.small_signal.as_ref().map(|s| s.effects.ids()),
+            r.small_signal.as_ref().map_or(f64::NAN, |s| s.misfit_percent),
+            r.small_signal.as_ref().map(|s| s.reliable),
         );
         for k in &c {
             eprintln!(
@@ -308,6 +312,27 @@ fn run_case(name: &str, case: Case, seed: u64) -> Vec<(String, Vec<Check>)> {
     out
 }
 
+/// The valid values of `checks` outside their bound, one line each.
+fn out_of_bound(what: &str, checks: &[Check]) -> Vec<String> {
+    checks
+        .iter()
+        .filter(|k| k.state == State::Valid)
+        .filter(|k| k.error_percent.is_nan() || k.error_percent.abs() > k.bound_percent)
+        .map(|k| {
+            format!(
+                "{what}: {} valid but {:+.3} % off (bound {} %)",
+                k.name, k.error_percent, k.bound_percent
+            )
+        })
+        .collect()
+}
+
+/// Seeds of the two acceptance parts: 3 by default (the issue's
+/// acceptance), `SPRINGBENCH_BAD_SEEDS` otherwise.
+fn acceptance_seeds() -> u64 {
+    env_usize("SPRINGBENCH_BAD_SEEDS", 3) as u64
+}
+
 /// Runs every case of `class` over the seeds and presets; fails with every
 /// valid value outside its bound.
 fn check_class(class: &str) {
@@ -318,21 +343,14 @@ fn check_class(class: &str) {
         for seed in 0..seeds {
             for case in cases(seed).into_iter().filter(|c| c.class() == class) {
                 for (what, checks) in run_case(&name, case, seed) {
-                    for k in checks {
-                        if k.state == State::Valid {
-                            let e = k.error_percent.abs();
-                            let w = worst.entry(k.name).or_insert((0.0, String::new()));
-                            if e > w.0 {
-                                *w = (e, what.clone());
-                            }
-                            if e.is_nan() || e > k.bound_percent {
-                                failures.push(format!(
-                                    "{what}: {} valid but {:+.3} % off (bound {} %)",
-                                    k.name, k.error_percent, k.bound_percent
-                                ));
-                            }
+                    for k in checks.iter().filter(|k| k.state == State::Valid) {
+                        let e = k.error_percent.abs();
+                        let w = worst.entry(k.name).or_insert((0.0, String::new()));
+                        if e > w.0 {
+                            *w = (e, what.clone());
                         }
                     }
+                    failures.extend(out_of_bound(&what, &checks));
                 }
             }
         }
@@ -382,9 +400,9 @@ fn creep_on_the_passive_radiator() {
         k_n_per_m: 0.12 * k0,
         tau_s: 0.02,
     });
-    for seed in 0..env_usize("SPRINGBENCH_BAD_SEEDS", 1) as u64 {
+    for seed in 0..acceptance_seeds() {
         let sim = simulate(&part, 300 + seed, &SimulateOptions::default()).unwrap();
-        let d = diagnose(&sim.set, &DiagnoseOptions::default())
+        let mut d = diagnose(&sim.set, &DiagnoseOptions::default())
             .unwrap()
             .report;
         let ss = d.small_signal.as_ref().unwrap();
@@ -409,11 +427,21 @@ fn creep_on_the_passive_radiator() {
         assert!((c.k_n_per_m / (0.12 * k0) - 1.0).abs() < 0.25, "{c:?}");
         // The plain analysis of the same recording marks its (creep-biased)
         // linear resonator.
-        let plain = analyze(&sim.set, &AnalyzeOptions::default()).unwrap();
-        let ps = plain.small_signal.unwrap();
+        let mut plain = analyze(&sim.set, &AnalyzeOptions::default()).unwrap();
+        let ps = plain.small_signal.clone().unwrap();
         let pe = pct(ps.k0_n_per_m.unwrap(), k0);
         eprintln!("  plain k0 {pe:+.2} % {:?}", ps.validity.k0_n_per_m);
         assert!(pe.abs() <= 3.0 || !ps.validity.k0_n_per_m.is_valid());
+        // Every headline value of both documents (with Keff at an 8 mm
+        // target, as a job's) is within its stated accuracy or marked: the
+        // plain analysis's K(x), R and Keff are biased by the creep it
+        // cannot hold (K(x) +9 %, R +27 % before they were marked).
+        for (doc, r) in [("plain", &mut plain), ("diagnosed", &mut d)] {
+            springbench::qc::set_keff_at_target(r, Some(TARGET_M));
+            let what = format!("passive_radiator creep seed {seed} {doc}");
+            let bad = out_of_bound(&what, &checks(&part, r, &what));
+            assert!(bad.is_empty(), "{bad:#?}");
+        }
     }
 }
 
@@ -431,7 +459,7 @@ fn second_mode_on_the_spider_is_named() {
         f_hz: f2,
         q: 5.0,
     });
-    for seed in 0..env_usize("SPRINGBENCH_BAD_SEEDS", 1) as u64 {
+    for seed in 0..acceptance_seeds() {
         let sim = simulate(&part, 400 + seed, &SimulateOptions::default()).unwrap();
         let r = diagnose(&sim.set, &DiagnoseOptions::default())
             .unwrap()
@@ -459,5 +487,37 @@ fn second_mode_on_the_spider_is_named() {
         assert_eq!(r.stiffness.validity.k_of_x.state, State::Unreliable);
         let why = r.stiffness.validity.k_of_x.reason.as_deref().unwrap();
         assert!(why.contains("resonance at"), "{why}");
+    }
+}
+
+/// A strongly hardening spider (spider_3in) on a good day: its
+/// pre-measurement at 1.5 mm already bends K(x) by about 3 %, so the linear
+/// resonator's k0 (+3.3 % of K(0) before) is either within k0's stated 3 %
+/// or marked with the bend as its reason, in both documents.
+#[test]
+fn hardening_spider_small_signal_k0_at_its_level() {
+    let part = preset("spider_3in").unwrap();
+    let sim = simulate(&part, 500, &SimulateOptions::default()).unwrap();
+    let plain = analyze(&sim.set, &AnalyzeOptions::default()).unwrap();
+    let diag = diagnose(&sim.set, &DiagnoseOptions::default())
+        .unwrap()
+        .report;
+    for (doc, r) in [("plain", &plain), ("diagnosed", &diag)] {
+        let what = format!("spider_3in seed 500 {doc}");
+        let c = checks(&part, r, &what);
+        for k in c.iter().filter(|k| k.name == "k0") {
+            eprintln!(
+                "{what}: k0 {:+.3} % {} {:?}",
+                k.error_percent,
+                k.state.as_str(),
+                k.reason
+            );
+        }
+        let bad = out_of_bound(&what, &c);
+        assert!(bad.is_empty(), "{bad:#?}");
+    }
+    let v = &plain.small_signal.as_ref().unwrap().validity.k0_n_per_m;
+    if !v.is_valid() {
+        assert!(v.reason.as_deref().unwrap().contains("bends K(x)"), "{v:?}");
     }
 }

@@ -292,8 +292,8 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
     let p = prep::prepare(set)?;
-    let mut r = analyze_prepared(set, &p, opts, None)?;
-    validity::judge_plain(&mut r);
+    let (mut r, creep) = analyze_prepared(set, &p, opts, None)?;
+    validity::judge_plain(&mut r, creep.as_deref());
     Ok(r)
 }
 
@@ -304,8 +304,8 @@ pub fn analyze_with_force_balance(
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
     let p = prep::prepare(set)?;
-    let mut report = analyze_prepared(set, &p, opts, None)?;
-    validity::judge_plain(&mut report);
+    let (mut report, creep) = analyze_prepared(set, &p, opts, None)?;
+    validity::judge_plain(&mut report, creep.as_deref());
     Ok((report, force_balance_of(&p, false)))
 }
 
@@ -350,7 +350,9 @@ pub fn analyze_for_diagnosis(
     let p = prep::prepare(set)?;
     small::check(&set.pre)?;
     let (sx, sm) = prep::spectra(&set.pre);
-    let report = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
+    // The diagnostics fit creep themselves: the plain analysis's mark for it
+    // is not theirs.
+    let (report, _) = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
     Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
@@ -359,17 +361,17 @@ fn analyze_prepared(
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
     pre_spectra: Option<(&crate::dsp::Spectrum, &crate::dsp::Spectrum)>,
-) -> Result<Report, AnalyzeError> {
+) -> Result<(Report, Option<String>), AnalyzeError> {
     let mut warnings = Vec::new();
 
     let fitted = match pre_spectra {
         Some((sx, sm)) => small::fit_spectra(&set.pre, p.mass_kg, sx, sm),
         None => small::fit(&set.pre, p.mass_kg),
     };
-    let small_signal = match fitted {
+    let (mut small_signal, creep) = match fitted {
         Ok(f) => {
             warnings.extend(f.warnings);
-            Some(f.result)
+            (Some(f.result), f.creep)
         }
         Err(e) => return Err(e),
     };
@@ -404,6 +406,9 @@ fn analyze_prepared(
         }
     }
     let large_signal = large_signal(p, &kf, &mut warnings)?;
+    if let Some(ss) = small_signal.as_mut() {
+        mark_pre_level_bend(ss, &set.pre.displacement_m, &kf.k);
+    }
     let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
     let k0 = kf.k_of_x(0.0);
     let xc = [xc_side(&kf, k0, xlo), xc_side(&kf, k0, xhi)];
@@ -463,15 +468,56 @@ fn analyze_prepared(
             .max(0.0)
             .sqrt(),
     };
-    Ok(Report {
-        small_signal,
-        large_signal,
-        stiffness,
-        model,
-        warnings,
-        diagnostics: None,
-        series: None,
-    })
+    Ok((
+        Report {
+            small_signal,
+            large_signal,
+            stiffness,
+            model,
+            warnings,
+            diagnostics: None,
+            series: None,
+        },
+        creep,
+    ))
+}
+
+/// How far K(x) may bend over the pre-measurement's excursion before the
+/// small-signal k0 and f0 (a linear resonator fitted at that level) are no
+/// longer the part's stiffness at rest within k0's stated accuracy (3 %,
+/// docs/diagnostics.md "Bad parts"; f0 half of it).
+pub const PRE_LEVEL_BEND_LIMIT: f64 = 0.03;
+
+/// Marks k0 and f0 `unreliable` when the main sweep's K(x) shows that the
+/// pre-measurement's level already bends the stiffness by more than
+/// [`PRE_LEVEL_BEND_LIMIT`]: the linear resonator then measures Keff at that
+/// level, not k0 (a strongly hardening spider at 1.5 mm: +3.3 %, issue 22).
+fn mark_pre_level_bend(ss: &mut SmallSignal, pre_x_m: &[f64], k: &[f64]) {
+    // The excursion from the 0.1 % and 99.9 % quantiles: a laser's noise
+    // spikes do not widen it (the resonance holds the peak for many periods).
+    let mut xs: Vec<f64> = pre_x_m.iter().copied().filter(|x| x.is_finite()).collect();
+    if xs.len() < 1000 {
+        return;
+    }
+    xs.sort_by(f64::total_cmp);
+    let q = |p: f64| xs[((xs.len() - 1) as f64 * p).round() as usize];
+    let (lo, hi) = (q(0.001), q(0.999));
+    let k0 = k.first().copied().unwrap_or(f64::NAN);
+    let keff = large::describing_function_keff(k, lo, hi);
+    let bend = keff / k0 - 1.0;
+    if !(bend.is_finite() && k0 > 0.0) || bend.abs() <= PRE_LEVEL_BEND_LIMIT {
+        return;
+    }
+    let why = format!(
+        "the pre-measurement's excursion {:.2} .. {:.2} mm already bends K(x) of the main sweep by {:+.1} % (Keff there against K(0)): the linear resonator measures the stiffness at that level, not at rest; measure the pre-measurement at a lower level",
+        lo * 1e3,
+        hi * 1e3,
+        100.0 * bend
+    );
+    ss.validity
+        .k0_n_per_m
+        .mark(validity::State::Unreliable, &why);
+    ss.validity.f0_hz.mark(validity::State::Unreliable, &why);
 }
 
 /// Prepares the force-balance data of the main sweep of `set` (band limiting,

@@ -19,6 +19,10 @@ pub const COHERENCE_LIMIT: f64 = 0.95;
 pub struct SmallFit {
     pub result: SmallSignal,
     pub warnings: Vec<String>,
+    /// Why the whole pre-measurement band points to creep (its corner in
+    /// the band), when it does: the part creeps in the main sweep too, so a
+    /// plain analysis marks its large-signal values as well.
+    pub creep: Option<String>,
 }
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
@@ -191,6 +195,7 @@ pub fn fit_spectra(
     // limit: the whole band tells (issue 22).
     // (A fit already unreliable keeps its reason: a sticking part's misfit
     // is partly "explained" by creep too.)
+    let mut creep = None;
     if let Some(wb) = reliable
         .then(|| wide_band(pre, mass_kg, sx, sm, false))
         .flatten()
@@ -210,10 +215,15 @@ pub fn fit_spectra(
                 .validity
                 .mark_all(super::validity::State::Unreliable, &why);
             warnings.push(format!("small signal: {why}"));
+            creep = Some(why);
         }
     }
     super::validity::judge_small_signal(&mut result);
-    Ok(SmallFit { result, warnings })
+    Ok(SmallFit {
+        result,
+        warnings,
+        creep,
+    })
 }
 
 fn smooth_mean(v: &[f64], w: usize) -> Vec<f64> {

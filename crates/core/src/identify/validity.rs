@@ -366,7 +366,22 @@ pub fn judge(r: &mut Report) {
 /// it either: creep put k0 10-12 % high on the virtual bench with a
 /// misfit below 10 %). Called by [`super::analyze`], not by the
 /// diagnostics, which judge their own model.
-pub fn judge_plain(r: &mut Report) {
+///
+/// `creep`: why the small-signal fit's whole band points to creep (its
+/// corner in the band); the part creeps in the main sweep as well, which
+/// the base model cannot hold either (K(x) 7-10 % high on the virtual
+/// bench, R 16-27 % high, with a model error below the structure ratio).
+pub fn judge_plain(r: &mut Report, creep: Option<&str>) {
+    if let Some(c) = creep {
+        let why =
+            format!("the pre-measurement points to creep, which the base model does not hold: {c}");
+        let s = &mut r.stiffness.validity;
+        s.k_of_x.mark(State::Unreliable, &why);
+        s.r_ns_per_m.mark(State::Unreliable, &why);
+        let l = &mut r.large_signal.validity;
+        l.resonance_hz.mark(State::Unreliable, &why);
+        l.keff_n_per_m.mark(State::Unreliable, &why);
+    }
     let m = &r.model;
     if m.effects.is_empty() && m.model_error_percent > STRUCTURE_RATIO * m.noise_floor_percent {
         let why = format!(
