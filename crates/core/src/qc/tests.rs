@@ -1,7 +1,8 @@
 use super::limits::{propose, GoldenUnit, ProposalOptions, Spread};
 use super::spc::{compute, SpcPoint};
+use super::verdict::judge_values;
 use super::*;
-use crate::identify::{LargeSignal, Model, SmallSignal, Stiffness};
+use crate::identify::{LargeSignal, Method, Model, Report, SmallSignal, Stiffness};
 
 /// A result document with K(x) = k0 + k1 x + k2 x^2 measured over +-8 mm.
 fn report(k0: f64, k1: f64, k2: f64, q: f64) -> Report {
