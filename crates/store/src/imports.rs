@@ -1,6 +1,7 @@
 //! Imports with an idempotency key (migration `0190_import_idempotency.sql`).
 
-use super::{insert_measurement_rows, now, NewMeasurement, Store, StoreResult};
+use super::measurements::insert_measurement_rows;
+use super::{now, NewMeasurement, Store, StoreResult};
 use springbench_core::recording::ChannelScale;
 use sqlx::Row;
 use std::path::Path;

@@ -1,0 +1,254 @@
+//! Measurements: the rows of a finished measurement with its recordings
+//! (written in the caller's transaction), a measurement read back, listings.
+
+use crate::{now, parse_json, Store, StoreError, StoreResult};
+use serde::Serialize;
+use serde_json::Value;
+use sqlx::sqlite::SqliteRow;
+use sqlx::Row;
+
+macro_rules! meas_select {
+    () => {
+        "SELECT m.seq, m.id, m.part_serial, m.job_id, m.source, m.bench_id, m.software_version, \
+     m.target_xpeak_m, m.repeat_index, m.level_index, m.analysis_error, m.created_at, m.config_json, \
+     json_object('keff_n_per_m', json_extract(m.result_json, '$.large_signal.keff_n_per_m'), \
+                 'xpeak_m', json_extract(m.result_json, '$.large_signal.xpeak_m'), \
+                 'resonance_hz', json_extract(m.result_json, '$.large_signal.resonance_hz'), \
+                 'k0_n_per_m', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 THEN NULL \
+                                    ELSE json_extract(m.result_json, '$.small_signal.k0_n_per_m') END, \
+                 'k0_null_reason', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 \
+                                    THEN printf('small_signal.reliable is false (k0 %.1f +- %.1f N/m, misfit %.2f %%): not a plain number', \
+                                         json_extract(m.result_json, '$.small_signal.k0_n_per_m'), \
+                                         json_extract(m.result_json, '$.small_signal.k0_se_n_per_m'), \
+                                         json_extract(m.result_json, '$.small_signal.misfit_percent')) END) AS summary"
+    };
+}
+
+/// A measurement's listing entry (the result document itself is `result`).
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct MeasurementInfo {
+    pub id: String,
+    pub part_serial: String,
+    pub job_id: Option<String>,
+    /// "bench" or "import".
+    pub source: String,
+    pub bench_id: Option<String>,
+    pub software_version: String,
+    pub target_xpeak_m: Option<f64>,
+    pub repeat_index: Option<i64>,
+    pub level_index: Option<i64>,
+    /// Why the analysis failed (the recordings are kept and can be fitted again).
+    pub analysis_error: Option<String>,
+    pub created_at: String,
+    /// Configuration used (procedure and analysis options).
+    pub config: Value,
+    /// Headline numbers from the result, for listings.
+    pub summary: Value,
+    #[serde(skip)]
+    pub seq: i64,
+}
+
+/// A new measurement to store.
+#[derive(Debug, Clone)]
+pub struct NewMeasurement {
+    pub id: String,
+    pub part_serial: String,
+    pub job_id: Option<String>,
+    pub source: &'static str,
+    pub bench_id: Option<String>,
+    pub config: Value,
+    pub meta: Value,
+    pub result: Option<Value>,
+    pub analysis_error: Option<String>,
+    pub target_xpeak_m: Option<f64>,
+    pub repeat_index: Option<i64>,
+    pub level_index: Option<i64>,
+    /// Index into the `recordings` list handed to the same call.
+    pub pre: usize,
+    pub main: usize,
+}
+
+/// A recording to store: FLAC (or WAV) bytes and their channel scale
+/// ([`springbench_recording::codec`]).
+#[derive(Debug, Clone)]
+pub struct NewRecording {
+    pub kind: &'static str,
+    pub sample_rate_hz: f64,
+    pub frames: i64,
+    pub stored: springbench_recording::codec::Stored,
+}
+
+impl Store {
+    /// Stores measurements without a job (multipart import), in one transaction.
+    pub async fn insert_measurements(
+        &self,
+        part: (&str, Option<&str>, Option<&str>),
+        recordings: Vec<NewRecording>,
+        measurements: Vec<NewMeasurement>,
+    ) -> StoreResult<()> {
+        self.upsert_part(part.0, part.1, part.2).await?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        insert_results(&mut tx, recordings, measurements).await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    pub async fn counts(&self) -> StoreResult<(i64, i64)> {
+        let r =
+            sqlx::query("SELECT (SELECT COUNT(*) FROM parts), (SELECT COUNT(*) FROM measurements)")
+                .fetch_one(&self.pool)
+                .await?;
+        Ok((r.get(0), r.get(1)))
+    }
+
+    pub async fn get_measurement(
+        &self,
+        id: &str,
+    ) -> StoreResult<Option<(MeasurementInfo, Option<Value>, Value)>> {
+        let row = sqlx::query(concat!(
+            meas_select!(),
+            ", m.result_json, m.meta_json FROM measurements m WHERE m.id = ?"
+        ))
+        .bind(id.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        let Some(r) = row else { return Ok(None) };
+        let info = meas_from_row(&r)?;
+        let result = r
+            .get::<Option<String>, _>("result_json")
+            .map(|s| parse_json(&s))
+            .transpose()?;
+        let meta = parse_json(&r.get::<String, _>("meta_json"))?;
+        Ok(Some((info, result, meta)))
+    }
+
+    /// Measurements newest first, optionally of one part or one job.
+    pub async fn list_measurements(
+        &self,
+        part: Option<&str>,
+        job: Option<&str>,
+        before_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<MeasurementInfo>> {
+        self.list_measurements_since(part, job, None, before_seq, limit)
+            .await
+    }
+
+    /// [`Store::list_measurements`] of measurements stored at or after `since` (RFC 3339 UTC, ms).
+    pub async fn list_measurements_since(
+        &self,
+        part: Option<&str>,
+        job: Option<&str>,
+        since: Option<&str>,
+        before_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<MeasurementInfo>> {
+        let rows = sqlx::query(concat!(
+            meas_select!(),
+            " FROM measurements m WHERE (? IS NULL OR m.part_serial = ?) \
+             AND (? IS NULL OR m.job_id = ?) AND (? IS NULL OR m.created_at >= ?) \
+             AND (? IS NULL OR m.seq < ?) ORDER BY m.seq DESC LIMIT ?"
+        ))
+        .bind(part.map(str::to_string))
+        .bind(part.map(str::to_string))
+        .bind(job.map(str::to_string))
+        .bind(job.map(str::to_string))
+        .bind(since.map(str::to_string))
+        .bind(since.map(str::to_string))
+        .bind(before_seq)
+        .bind(before_seq)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(meas_from_row).collect()
+    }
+}
+
+pub(crate) async fn insert_results(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    recordings: Vec<NewRecording>,
+    measurements: Vec<NewMeasurement>,
+) -> StoreResult<Vec<i64>> {
+    let t = now();
+    let mut rec_ids = Vec::with_capacity(recordings.len());
+    for r in recordings {
+        let row = sqlx::query(
+            "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, channel_scale_json, created_at) VALUES (?, ?, ?, ?, ?, ?) RETURNING id",
+        )
+        .bind(r.kind)
+        .bind(r.sample_rate_hz)
+        .bind(r.frames)
+        .bind(r.stored.bytes)
+        .bind(
+            r.stored
+                .channel_scale
+                .map(|c| serde_json::to_string(&c).unwrap_or_default()),
+        )
+        .bind(t.clone())
+        .fetch_one(&mut **tx)
+        .await?;
+        rec_ids.push(row.get::<i64, _>(0));
+    }
+    insert_measurement_rows(tx, measurements, &rec_ids).await?;
+    Ok(rec_ids)
+}
+
+/// The measurement rows; `pre` / `main` index into `rec_ids`.
+pub(crate) async fn insert_measurement_rows(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    measurements: Vec<NewMeasurement>,
+    rec_ids: &[i64],
+) -> StoreResult<()> {
+    let t = now();
+    for m in measurements {
+        let pre = *rec_ids.get(m.pre).ok_or_else(|| {
+            StoreError::Corrupt("measurement names a missing pre recording".into())
+        })?;
+        let main = *rec_ids.get(m.main).ok_or_else(|| {
+            StoreError::Corrupt("measurement names a missing main recording".into())
+        })?;
+        sqlx::query(
+            "INSERT INTO measurements (id, part_serial, job_id, source, bench_id, software_version, config_json, meta_json, \
+             result_json, analysis_error, target_xpeak_m, repeat_index, level_index, pre_recording_id, main_recording_id, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(m.id)
+        .bind(m.part_serial)
+        .bind(m.job_id)
+        .bind(m.source)
+        .bind(m.bench_id)
+        .bind(springbench_core::VERSION)
+        .bind(m.config.to_string())
+        .bind(m.meta.to_string())
+        .bind(m.result.map(|v| v.to_string()))
+        .bind(m.analysis_error)
+        .bind(m.target_xpeak_m)
+        .bind(m.repeat_index)
+        .bind(m.level_index)
+        .bind(pre)
+        .bind(main)
+        .bind(t.clone())
+        .execute(&mut **tx)
+        .await?;
+    }
+    Ok(())
+}
+
+fn meas_from_row(r: &SqliteRow) -> StoreResult<MeasurementInfo> {
+    Ok(MeasurementInfo {
+        seq: r.get("seq"),
+        id: r.get("id"),
+        part_serial: r.get("part_serial"),
+        job_id: r.get("job_id"),
+        source: r.get("source"),
+        bench_id: r.get("bench_id"),
+        software_version: r.get("software_version"),
+        target_xpeak_m: r.get("target_xpeak_m"),
+        repeat_index: r.get("repeat_index"),
+        level_index: r.get("level_index"),
+        analysis_error: r.get("analysis_error"),
+        created_at: r.get("created_at"),
+        config: parse_json(&r.get::<String, _>("config_json"))?,
+        summary: parse_json(&r.get::<String, _>("summary"))?,
+    })
+}

@@ -1,0 +1,87 @@
+//! Parts: one row per serial, with its measurement count and newest verdict.
+
+use crate::{now, Store, StoreResult};
+use serde::Serialize;
+use sqlx::sqlite::SqliteRow;
+use sqlx::Row;
+
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Part {
+    pub serial: String,
+    pub kind: Option<String>,
+    pub notes: Option<String>,
+    pub created_at: String,
+    pub updated_at: String,
+    pub measurement_count: i64,
+    /// The QC verdict of the part's newest job judged under a recipe (`pass`,
+    /// `fail`, `invalid`, `no_limits`); null when no job was judged.
+    #[schema(value_type = Option<springbench_core::qc::VerdictKind>)]
+    pub verdict: Option<String>,
+}
+
+impl Store {
+    /// Creates the part if new; updates kind/notes when given.
+    pub async fn upsert_part(
+        &self,
+        serial: &str,
+        kind: Option<&str>,
+        notes: Option<&str>,
+    ) -> StoreResult<()> {
+        let t = now();
+        sqlx::query(
+            "INSERT INTO parts (serial, kind, notes, created_at, updated_at) VALUES (?, ?, ?, ?, ?) \
+             ON CONFLICT(serial) DO UPDATE SET kind = COALESCE(excluded.kind, parts.kind), \
+             notes = COALESCE(excluded.notes, parts.notes), \
+             updated_at = CASE WHEN excluded.kind IS NULL AND excluded.notes IS NULL THEN parts.updated_at ELSE excluded.updated_at END",
+        )
+        .bind(serial.to_string())
+        .bind(kind.map(str::to_string))
+        .bind(notes.map(str::to_string))
+        .bind(t.clone())
+        .bind(t)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    pub async fn get_part(&self, serial: &str) -> StoreResult<Option<Part>> {
+        let row = sqlx::query(
+            "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
+             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
+             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
+             FROM parts p WHERE p.serial = ?",
+        )
+        .bind(serial.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(row.map(|r| part_from_row(&r)))
+    }
+
+    /// Parts ordered by serial; `after` is the last serial of the previous page.
+    pub async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
+        let rows = sqlx::query(
+            "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
+             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
+             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
+             FROM parts p WHERE (? IS NULL OR p.serial > ?) ORDER BY p.serial LIMIT ?",
+        )
+        .bind(after.map(str::to_string))
+        .bind(after.map(str::to_string))
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows.iter().map(part_from_row).collect())
+    }
+}
+
+fn part_from_row(r: &SqliteRow) -> Part {
+    Part {
+        serial: r.get(0),
+        kind: r.get(1),
+        notes: r.get(2),
+        created_at: r.get(3),
+        updated_at: r.get(4),
+        measurement_count: r.get(5),
+        verdict: r.get(6),
+    }
+}
