@@ -77,7 +77,7 @@ pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> A
     summary = "The bench's calibration records (self-checks), newest first (at most 100).",
     params(("id" = String, Path, description = "Bench id")),
     responses(
-        (status = 200, description = "Calibration records", body = super::openapi::CalibrationList),
+        (status = 200, description = "Calibration records", body = super::schema::CalibrationList),
         (status = 404, description = "No such bench")))]
 pub async fn calibrations(
     State(st): State<AppState>,

@@ -13,6 +13,7 @@ use super::problem::{ApiResult, Problem};
 use super::AppState;
 use crate::diagnose;
 use crate::store::Derived;
+use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde_json::json;
@@ -158,4 +159,53 @@ fn problem_item(name: String, p: Problem) -> Derived {
         content_type: "application/problem+json".into(),
         body: p.body().to_string().into_bytes(),
     }
+}
+
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/diagnostics", tag = "measurements",
+    summary = "Model diagnostics of the stored recordings (candidate effects, model ladder, plot data and links); computed once, then served from the store.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "Diagnostics", body = super::schema::DiagnosticsDocument),
+        (status = 404, description = "No such measurement"),
+        (status = 410, description = "The retention policy removed the raw signals"),
+        (status = 422, description = "The diagnosis fails on this data")))]
+/// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the
+/// base model (computed once, then served from the store: this module).
+pub async fn diagnostics(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    answer(&st, &id, DIAGNOSTICS).await
+}
+
+#[utoipa::path(get, path = "/api/v1/measurements/{id}/plots/{file}", tag = "measurements",
+    summary = "A diagnostic plot as SVG (`{name}.svg`, names listed by the diagnostics).",
+    params(("id" = String, Path, description = "Measurement id"),
+        ("file" = String, Path, pattern = "^[a-z0-9_]+\\.svg$", description = "Plot file name")),
+    responses(
+        (status = 200, description = "SVG", content_type = "image/svg+xml", body = String),
+        (status = 404, description = "No such measurement or plot"),
+        (status = 410, description = "The retention policy removed the raw signals"),
+        (status = 422, description = "The diagnosis fails on this data")))]
+/// `GET /api/v1/measurements/{id}/plots/{name}.svg` (stored like the diagnostics).
+pub async fn plot(
+    State(st): State<AppState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    file.strip_suffix(".svg")
+        .filter(|n| diagnose::plot_names().contains(n))
+        .ok_or_else(|| {
+            Problem::not_found(
+                &format!(
+                    "plot (plots: {})",
+                    diagnose::plot_names()
+                        .iter()
+                        .map(|n| format!("{n}.svg"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+                &file,
+            )
+        })?;
+    answer(&st, &id, &file).await
 }

@@ -29,7 +29,7 @@ fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
     summary = "Submit a measurement job (queued; runs when its bench is free, priority first, then FIFO).",
     params(("Idempotency-Key" = Option<String>, Header, max_length = 255,
         description = "Same key and same body give the same job (200, header `Idempotent-Replayed`); another body gives 409.")),
-    request_body(content = super::openapi::JobRequest, content_type = "application/json",
+    request_body(content = super::schema::JobRequest, content_type = "application/json",
         example = json!({"part": {"serial": "SN-0001", "kind": "spider"}, "target_xpeak_m": 0.008})),
     responses(
         (status = 202, description = "Queued", body = crate::store::Job,
@@ -147,7 +147,7 @@ pub struct JobQuery {
     summary = "Jobs, newest first.",
     params(JobQuery),
     responses(
-        (status = 200, description = "A page of jobs", body = super::openapi::JobPage),
+        (status = 200, description = "A page of jobs", body = super::schema::JobPage),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/jobs?state=&part=&limit=&cursor=`: newest first.
 pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Json<Value>> {
@@ -182,7 +182,7 @@ pub async fn list(State(st): State<AppState>, Q(q): Q<JobQuery>) -> ApiResult<Js
     summary = "One job (state, step, progress, eta, problem, measurements) with its QC verdict.",
     params(("id" = String, Path, description = "Job id")),
     responses(
-        (status = 200, description = "The job", body = super::openapi::JobWithVerdict),
+        (status = 200, description = "The job", body = super::schema::JobWithVerdict),
         (status = 404, description = "No such job")))]
 /// `GET /api/v1/jobs/{id}`: the job, with `verdict` (pass / fail / invalid /
 /// no_limits, or null without a recipe; details at `/api/v1/jobs/{id}/verdict`).
@@ -244,7 +244,7 @@ pub struct PageQuery {
     summary = "Parts, by serial.",
     params(PageQuery),
     responses(
-        (status = 200, description = "A page of parts", body = super::openapi::PartPage),
+        (status = 200, description = "A page of parts", body = super::schema::PartPage),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/parts`: by serial.
 pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiResult<Json<Value>> {
@@ -263,7 +263,7 @@ pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiRe
     summary = "One part.",
     params(("serial" = String, Path, description = "Part serial")),
     responses(
-        (status = 200, description = "The part", body = super::openapi::PartDocument),
+        (status = 200, description = "The part", body = super::schema::PartDocument),
         (status = 404, description = "No such part")))]
 pub async fn get_part(
     State(st): State<AppState>,
@@ -283,7 +283,7 @@ pub async fn get_part(
     summary = "Measurements of a part, newest first.",
     params(("serial" = String, Path, description = "Part serial"), PageQuery),
     responses(
-        (status = 200, description = "A page of measurements", body = super::openapi::MeasurementPage),
+        (status = 200, description = "A page of measurements", body = super::schema::MeasurementPage),
         (status = 404, description = "No such part"),
         (status = 422, description = "A bad query parameter")))]
 pub async fn part_measurements(

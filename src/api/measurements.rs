@@ -59,7 +59,7 @@ pub async fn list_page(
     summary = "Measurements, newest first.",
     params(MeasQuery),
     responses(
-        (status = 200, description = "A page of measurements", body = super::openapi::MeasurementPage),
+        (status = 200, description = "A page of measurements", body = super::schema::MeasurementPage),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/measurements?part=&job=&limit=&cursor=`: newest first.
 pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<Json<Value>> {
@@ -95,7 +95,7 @@ pub(super) fn document(info: &MeasurementInfo, result: Option<Value>, meta: Valu
     summary = "The result document (the same as `springbench analyze --json`) plus the measurement record and its QC verdict.",
     params(("id" = String, Path, description = "Measurement id")),
     responses(
-        (status = 200, description = "The result", body = super::openapi::MeasurementDocumentSchema),
+        (status = 200, description = "The result", body = super::schema::MeasurementDocumentSchema),
         (status = 404, description = "No such measurement")))]
 pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
     let (info, result, meta) = st
@@ -387,7 +387,7 @@ pub fn fit_request(body: &Value) -> Result<FitRequest, Vec<FieldError>> {
 #[utoipa::path(post, path = "/api/v1/measurements/{id}/fits", tag = "measurements",
     summary = "Fit the stored recordings again with the given effects and order; every fit is kept, the same fit asked again is returned (200) instead of stored twice.",
     params(("id" = String, Path, description = "Measurement id")),
-    request_body(content = super::openapi::FitBody, content_type = "application/json"),
+    request_body(content = super::schema::FitBody, content_type = "application/json"),
     responses(
         (status = 201, description = "The fit", body = crate::store::Fit,
             headers(("Location" = String, description = "The measurement's fits"))),
@@ -458,7 +458,7 @@ fn fit_response(status: StatusCode, id: &str, fit: &crate::store::Fit) -> Respon
 #[utoipa::path(put, path = "/api/v1/measurements/{id}/headline", tag = "measurements",
     summary = "Choose which stored fit supplies the measurement's headline figures (`fit_id` null: its own result); who chose it and when is recorded, every choice is kept.",
     params(("id" = String, Path, description = "Measurement id")),
-    request_body(content = super::openapi::HeadlineBody, content_type = "application/json"),
+    request_body(content = super::schema::HeadlineBody, content_type = "application/json"),
     responses(
         (status = 200, description = "The choice", body = crate::store::HeadlineChoice),
         (status = 404, description = "No such measurement"),
@@ -507,7 +507,7 @@ pub async fn choose_headline(
     summary = "The fits of a measurement, oldest first.",
     params(("id" = String, Path, description = "Measurement id")),
     responses(
-        (status = 200, description = "Fits", body = super::openapi::FitList),
+        (status = 200, description = "Fits", body = super::schema::FitList),
         (status = 404, description = "No such measurement")))]
 pub async fn list_fits(
     State(st): State<AppState>,
@@ -537,53 +537,4 @@ pub(super) async fn diagnose_stored(
     .await
     .map_err(Problem::internal)?
     .map_err(|e| numeric_failure("Diagnostics failed", e))
-}
-
-#[utoipa::path(get, path = "/api/v1/measurements/{id}/diagnostics", tag = "measurements",
-    summary = "Model diagnostics of the stored recordings (candidate effects, model ladder, plot data and links); computed once, then served from the store.",
-    params(("id" = String, Path, description = "Measurement id")),
-    responses(
-        (status = 200, description = "Diagnostics", body = super::openapi::DiagnosticsDocument),
-        (status = 404, description = "No such measurement"),
-        (status = 410, description = "The retention policy removed the raw signals"),
-        (status = 422, description = "The diagnosis fails on this data")))]
-/// `GET /api/v1/measurements/{id}/diagnostics`: candidates and ladder of the
-/// base model (computed once, then served from the store: [`super::derived`]).
-pub async fn diagnostics(
-    State(st): State<AppState>,
-    Path(id): Path<String>,
-) -> ApiResult<Response> {
-    super::derived::answer(&st, &id, super::derived::DIAGNOSTICS).await
-}
-
-#[utoipa::path(get, path = "/api/v1/measurements/{id}/plots/{file}", tag = "measurements",
-    summary = "A diagnostic plot as SVG (`{name}.svg`, names listed by the diagnostics).",
-    params(("id" = String, Path, description = "Measurement id"),
-        ("file" = String, Path, pattern = "^[a-z0-9_]+\\.svg$", description = "Plot file name")),
-    responses(
-        (status = 200, description = "SVG", content_type = "image/svg+xml", body = String),
-        (status = 404, description = "No such measurement or plot"),
-        (status = 410, description = "The retention policy removed the raw signals"),
-        (status = 422, description = "The diagnosis fails on this data")))]
-/// `GET /api/v1/measurements/{id}/plots/{name}.svg` (stored like the diagnostics).
-pub async fn plot(
-    State(st): State<AppState>,
-    Path((id, file)): Path<(String, String)>,
-) -> ApiResult<Response> {
-    file.strip_suffix(".svg")
-        .filter(|n| diagnose::plot_names().contains(n))
-        .ok_or_else(|| {
-            Problem::not_found(
-                &format!(
-                    "plot (plots: {})",
-                    diagnose::plot_names()
-                        .iter()
-                        .map(|n| format!("{n}.svg"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-                &file,
-            )
-        })?;
-    super::derived::answer(&st, &id, &file).await
 }

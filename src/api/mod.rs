@@ -19,6 +19,7 @@ pub mod ops;
 pub mod problem;
 pub mod qc;
 pub mod report;
+pub mod schema;
 pub mod server;
 pub mod session;
 
@@ -148,12 +149,12 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/measurements/{id}/diagnostics",
-        get(measurements::diagnostics),
+        get(derived::diagnostics),
     )
     .add(
         "get",
         "/api/v1/measurements/{id}/plots/{file}",
-        get(measurements::plot),
+        get(derived::plot),
     )
     .add("get", "/api/v1/events", get(events::events))
     .add(

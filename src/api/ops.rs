@@ -11,7 +11,7 @@ use std::fmt::Write;
 
 #[utoipa::path(get, path = "/healthz", tag = "operations",
     summary = "Liveness (always 200 while the process serves).",
-    responses((status = 200, description = "Serving", body = super::openapi::Health)))]
+    responses((status = 200, description = "Serving", body = super::schema::Health)))]
 pub async fn healthz() -> Json<Value> {
     Json(json!({"status": "ok", "version": crate::VERSION}))
 }
@@ -20,8 +20,8 @@ pub async fn healthz() -> Json<Value> {
 #[utoipa::path(get, path = "/readyz", tag = "operations",
     summary = "Readiness: the database takes a committed write, the disk has room, no bench stopped, not shutting down.",
     responses(
-        (status = 200, description = "Ready", body = super::openapi::Ready),
-        (status = 503, description = "Not ready (database lost or full disk, shutting down, a bench stopped)", body = super::openapi::Ready)))]
+        (status = 200, description = "Ready", body = super::schema::Ready),
+        (status = 503, description = "Not ready (database lost or full disk, shutting down, a bench stopped)", body = super::schema::Ready)))]
 pub async fn readyz(State(st): State<AppState>) -> Response {
     // A committed write: a full disk or a lost database file is not ready.
     let db = match st.store.ping().await {
@@ -49,7 +49,7 @@ pub async fn readyz(State(st): State<AppState>) -> Response {
 
 #[utoipa::path(get, path = "/api/v1/benches", tag = "operations",
     summary = "The benches and what they are doing.",
-    responses((status = 200, description = "Benches", body = super::openapi::BenchList)))]
+    responses((status = 200, description = "Benches", body = super::schema::BenchList)))]
 pub async fn benches(State(st): State<AppState>) -> Json<Value> {
     Json(json!({"items": st.runner.bench_statuses()}))
 }

@@ -133,7 +133,7 @@ fn if_match(
     summary = "Create a QC recipe (version 1). 409 when the name exists (use PUT for a new version).",
     request_body(content = crate::qc::Recipe, content_type = "application/json"),
     responses(
-        (status = 201, description = "Created", body = super::openapi::RecipeDocument,
+        (status = 201, description = "Created", body = super::schema::RecipeDocument,
             headers(("Location" = String, description = "The recipe"))),
         (status = 409, description = "A recipe of this name exists"),
         (status = 422, description = "Invalid fields")))]
@@ -184,8 +184,8 @@ pub async fn create(
         ("If-Match" = Option<String>, Header, description = "The ETag of the version this change is made on (from GET); 412 when the recipe moved on")),
     request_body(content = crate::qc::Recipe, content_type = "application/json"),
     responses(
-        (status = 200, description = "Unchanged", body = super::openapi::RecipeDocument),
-        (status = 201, description = "New version", body = super::openapi::RecipeDocument,
+        (status = 200, description = "Unchanged", body = super::schema::RecipeDocument),
+        (status = 201, description = "New version", body = super::schema::RecipeDocument,
             headers(("Location" = String, description = "The new version"))),
         (status = 412, description = "`If-Match` does not name the newest version"),
         (status = 422, description = "Invalid fields, or `name` differs from the path")))]
@@ -229,7 +229,7 @@ pub async fn update(
 
 #[utoipa::path(get, path = "/api/v1/recipes", tag = "qc",
     summary = "The newest version of every recipe.",
-    responses((status = 200, description = "Recipes", body = super::openapi::RecipeList)))]
+    responses((status = 200, description = "Recipes", body = super::schema::RecipeList)))]
 pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     let items: Vec<Value> = st
         .store
@@ -245,7 +245,7 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     summary = "The newest version of a recipe.",
     params(("name" = String, Path, description = "Recipe name")),
     responses(
-        (status = 200, description = "Recipe", body = super::openapi::RecipeDocument,
+        (status = 200, description = "Recipe", body = super::schema::RecipeDocument,
             headers(("ETag" = String, description = "The version's ETag, for `If-Match` on PUT"))),
         (status = 404, description = "No such recipe")))]
 pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Response> {
@@ -261,7 +261,7 @@ pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> Ap
     summary = "Every version of a recipe, oldest first (origin created / edited / limits_approved, who, when, hash).",
     params(("name" = String, Path, description = "Recipe name")),
     responses(
-        (status = 200, description = "Versions", body = super::openapi::RecipeList),
+        (status = 200, description = "Versions", body = super::schema::RecipeList),
         (status = 404, description = "No such recipe")))]
 pub async fn versions(
     State(st): State<AppState>,
@@ -279,7 +279,7 @@ pub async fn versions(
     summary = "One version of a recipe.",
     params(("name" = String, Path, description = "Recipe name"), ("version" = i64, Path, description = "Version number (from 1)")),
     responses(
-        (status = 200, description = "Recipe version", body = super::openapi::RecipeDocument),
+        (status = 200, description = "Recipe version", body = super::schema::RecipeDocument),
         (status = 404, description = "No such recipe version")))]
 pub async fn version(
     State(st): State<AppState>,
@@ -504,7 +504,7 @@ pub async fn propose(
     summary = "The recipe's newest 50 limit proposals (all states), newest first.",
     params(("name" = String, Path, description = "Recipe name")),
     responses(
-        (status = 200, description = "Proposals", body = super::openapi::ProposalList),
+        (status = 200, description = "Proposals", body = super::schema::ProposalList),
         (status = 404, description = "No such recipe")))]
 /// `GET /api/v1/recipes/{name}/limit-proposals`: the recipe's newest 50
 /// proposals (all states), newest first.
@@ -552,7 +552,7 @@ fn decided(p: &crate::store::qc::ProposalRow) -> Problem {
     summary = "Approve a proposal: a new recipe version with its limits (origin limits_approved); approver and time are recorded on the proposal.",
     params(("id" = String, Path, description = "Proposal id")),
     responses(
-        (status = 201, description = "The new recipe version", body = super::openapi::RecipeDocument,
+        (status = 201, description = "The new recipe version", body = super::schema::RecipeDocument,
             headers(("Location" = String, description = "The new version"))),
         (status = 404, description = "No such proposal"),
         (status = 409, description = "Decided already, or not made on the current version of a live recipe")))]
@@ -647,7 +647,7 @@ pub async fn part_verdict(
     summary = "A job's verdict and, under `measurements`, the verdict of each of its measurements.",
     params(("id" = String, Path, description = "Job id")),
     responses(
-        (status = 200, description = "Verdicts", body = super::openapi::JobVerdict),
+        (status = 200, description = "Verdicts", body = super::schema::JobVerdict),
         (status = 404, description = "No verdict for this job")))]
 pub async fn job_verdict(
     State(st): State<AppState>,
@@ -704,7 +704,7 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
     params(("name" = String, Path, description = "Recipe name"), SpcQuery),
     responses(
         (status = 200, description = "SPC", content(
-            (super::openapi::SpcDocument = "application/json"),
+            (super::schema::SpcDocument = "application/json"),
             (String = "text/csv"))),
         (status = 404, description = "No such recipe"),
         (status = 422, description = "A bad or missing query parameter")))]
@@ -819,7 +819,7 @@ pub struct OutboxQuery {
     summary = "MES outbox deliveries, oldest first (default pending and failed), with the totals.",
     params(OutboxQuery),
     responses(
-        (status = 200, description = "Outbox", body = super::openapi::Outbox),
+        (status = 200, description = "Outbox", body = super::schema::Outbox),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/outbox?state=`: deliveries (default: pending and failed), oldest first.
 pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResult<Json<Value>> {

@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 
 #[utoipa::path(get, path = "/api/v1/session", tag = "operations",
     summary = "Who the caller is (token name and role); open, so a client can tell whether it needs a token. The web UI shows the controls of this role.",
-    responses((status = 200, description = "The caller", body = super::openapi::Session)))]
+    responses((status = 200, description = "The caller", body = super::schema::Session)))]
 pub async fn session(State(st): State<AppState>, headers: HeaderMap) -> Json<Value> {
     if st.cfg.open_access() {
         // No tokens configured: everything is open (loopback only).
