@@ -29,7 +29,7 @@ fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
     summary = "Submit a measurement job (queued; runs when its bench is free, priority first, then FIFO).",
     params(("Idempotency-Key" = Option<String>, Header, max_length = 255,
         description = "Same key and same body give the same job (200, header `Idempotent-Replayed`); another body gives 409.")),
-    request_body(content = super::schema::JobRequest, content_type = "application/json",
+    request_body(content = crate::job::JobRequest, content_type = "application/json",
         example = json!({"part": {"serial": "SN-0001", "kind": "spider"}, "target_xpeak_m": 0.008})),
     responses(
         (status = 202, description = "Queued", body = crate::store::Job,
@@ -63,10 +63,18 @@ pub async fn submit(
     st.store.check_space(st.cfg.min_free_bytes)?;
     // serde_json maps are sorted: the text is canonical for equal bodies.
     let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
-    // A recipe fills in its procedure settings (and names the version judged by).
-    let mut body = body;
-    let recipe = super::qc::apply_recipe(&st, &mut body).await?;
-    let mut spec = job::validate(&body, &st.cfg).map_err(Problem::validation)?;
+    // Parsed once into the typed request; a recipe fills in its procedure
+    // settings (and names the version judged by), read once.
+    let parsed = crate::job::parse_lenient::<job::JobRequest>(&body);
+    let recipe = match parsed.0.as_ref().and_then(|r| r.recipe.as_deref()) {
+        Some(name) => Some(super::qc::recipe_for_job(&st, name).await?),
+        None => None,
+    };
+    let mut spec = job::JobRequest::check(parsed, &job::admission(&st.cfg), |r| match &recipe {
+        Some(rc) => rc.recipe.procedure.apply_to(&rc.reference.name, r),
+        None => Ok(()),
+    })
+    .map_err(Problem::validation)?;
     // The space the queue and this job will need (503 when it is not there).
     let measurements = spec.levels_m.len().max(1) as u64 * u64::from(spec.repeats.max(1));
     st.store
@@ -74,11 +82,9 @@ pub async fn submit(
         .await?;
     // A part measured under a recipe is of the recipe's kind unless the job says otherwise.
     if let (None, Some(r)) = (&spec.part.kind, &recipe) {
-        if let Some(row) = st.store.get_recipe(&r.name, Some(r.version)).await? {
-            spec.part.kind = row.recipe["part_kind"].as_str().map(str::to_string);
-        }
+        spec.part.kind = r.recipe.part_kind.clone();
     }
-    spec.recipe = recipe;
+    spec.recipe = recipe.map(|r| r.reference);
     spec.submitted_by = caller.0;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
     let id = new_id();

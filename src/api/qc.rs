@@ -16,15 +16,8 @@ use axum::{Extension, Json};
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-fn field_errors(e: Vec<crate::qc::FieldError>) -> Problem {
-    Problem::validation(
-        e.into_iter()
-            .map(|e| FieldError {
-                field: e.field,
-                message: e.message,
-            })
-            .collect(),
-    )
+fn field_errors(e: Vec<FieldError>) -> Problem {
+    Problem::validation(e)
 }
 
 /// Parses a JSON body into `T`; a failure is a 422 naming the field it
@@ -309,73 +302,33 @@ pub async fn retire(State(st): State<AppState>, Path(name): Path<String>) -> Api
     }
 }
 
-/// The recipe a job names: fills the procedure settings into the body
-/// (fields the body gives must agree) and returns its reference.
-pub async fn apply_recipe(
-    st: &AppState,
-    body: &mut Value,
-) -> ApiResult<Option<crate::runner::job::RecipeRef>> {
-    let Some(name) = body
-        .get("recipe")
-        .and_then(|v| v.as_str())
-        .map(str::to_string)
-    else {
-        return Ok(None);
-    };
+/// The recipe a job names, read once at submission: its newest version
+/// (never a retired one), with the reference the verdict will name.
+pub struct JobRecipe {
+    pub reference: crate::runner::job::RecipeRef,
+    pub recipe: Recipe,
+}
+
+/// Looks up the recipe `name` for a job (422 naming `recipe` when there is
+/// none or it is retired).
+pub async fn recipe_for_job(st: &AppState, name: &str) -> ApiResult<JobRecipe> {
     let row = st
         .store
-        .get_recipe(&name, None)
+        .get_recipe(name, None)
         .await?
         .filter(|r| !r.retired)
         .ok_or_else(|| {
             Problem::field("recipe", format!("no recipe '{name}' (or it is retired)"))
         })?;
-    let r: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
-    let p = &r.procedure;
-    let mut settings = vec![
-        ("levels_m", json!(p.levels_m)),
-        (
-            "method",
-            serde_json::to_value(p.method).map_err(Problem::internal)?,
-        ),
-        ("repeats", json!(p.repeats)),
-    ];
-    if let Some(o) = p.order {
-        settings.push(("order", json!(o)));
-    }
-    if let Some(m) = p.moving_mass_kg {
-        settings.push(("moving_mass_kg", json!(m)));
-    }
-    let Some(obj) = body.as_object_mut() else {
-        return Ok(None);
-    };
-    let mut errors = vec![];
-    if obj.contains_key("target_xpeak_m") {
-        errors.push(FieldError {
-            field: "target_xpeak_m".into(),
-            message: format!("recipe '{name}' sets the levels"),
-        });
-    }
-    for (k, v) in settings {
-        match obj.get(k) {
-            None | Some(Value::Null) => {
-                obj.insert(k.into(), v);
-            }
-            Some(given) if given == &v => {}
-            Some(_) => errors.push(FieldError {
-                field: k.into(),
-                message: format!("recipe '{name}' sets {k} = {v}; leave it out"),
-            }),
-        }
-    }
-    if !errors.is_empty() {
-        return Err(Problem::validation(errors));
-    }
-    Ok(Some(crate::runner::job::RecipeRef {
-        name,
-        version: row.version,
-        sha256: row.sha256,
-    }))
+    let recipe: Recipe = serde_json::from_value(row.recipe).map_err(Problem::internal)?;
+    Ok(JobRecipe {
+        reference: crate::runner::job::RecipeRef {
+            name: name.to_string(),
+            version: row.version,
+            sha256: row.sha256,
+        },
+        recipe,
+    })
 }
 
 #[derive(Deserialize, utoipa::ToSchema)]

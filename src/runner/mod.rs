@@ -402,16 +402,17 @@ impl Runner {
         if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
             self.fault_bench(slot, &job.id, p).await?;
         }
-        let (bench_time, log, warnings, recs, meas, verdicts) = match done {
+        let (bench_time, log, warnings, recs, meas, reports, verdicts) = match done {
             Some(d) => (
                 Some(d.bench_time_s),
                 d.log,
                 d.warnings,
                 d.recordings,
                 d.measurements,
+                d.reports,
                 d.verdicts,
             ),
-            None => (None, vec![], vec![], vec![], vec![], vec![]),
+            None => (None, vec![], vec![], vec![], vec![], vec![], vec![]),
         };
         let records = self.job_records(
             &slot.cfg,
@@ -422,6 +423,7 @@ impl Runner {
             state,
             prob.as_ref(),
             &meas,
+            &reports,
             verdicts,
         );
         let job_verdict = records
@@ -531,6 +533,7 @@ impl Runner {
         state: JobState,
         prob: Option<&Value>,
         meas: &[NewMeasurement],
+        reports: &[Option<identify::Report>],
         verdicts: Vec<(String, crate::qc::Verdict)>,
     ) -> crate::store::qc::JobRecords {
         use crate::qc::{combine, invalid_job, Verdict};
@@ -621,18 +624,12 @@ impl Runner {
         // MES messages of every job that ran (WorkStarted, UnitsTested, WorkCompleted).
         let tested = meas
             .iter()
-            .map(|m| {
-                let res = m.result.as_ref();
-                let pick = |p: &str| res.and_then(|r| r.pointer(p)).and_then(|v| v.as_f64());
-                let values = [
-                    ("k0", "/small_signal/k0_n_per_m", "N/m"),
-                    ("keff", "/large_signal/keff_n_per_m", "N/m"),
-                    ("xpeak", "/large_signal/xpeak_m", "m"),
-                    ("resonance", "/large_signal/resonance_hz", "Hz"),
-                ]
-                .iter()
-                .filter_map(|(n, p, u)| pick(p).map(|v| (n.to_string(), v, u.to_string())))
-                .collect();
+            .zip(reports.iter().map(Some).chain(std::iter::repeat(None)))
+            .map(|(m, rep)| {
+                let values = rep
+                    .and_then(|r| r.as_ref())
+                    .map(crate::qc::cfx::tested_values)
+                    .unwrap_or_default();
                 crate::qc::cfx::TestedMeasurement {
                     measurement_id: m.id.clone(),
                     target_xpeak_m: m.target_xpeak_m,
@@ -740,6 +737,11 @@ struct Done {
     warnings: Vec<String>,
     recordings: Vec<NewRecording>,
     measurements: Vec<NewMeasurement>,
+    /// The result document of each measurement (index-aligned with
+    /// `measurements`), typed until the repeat is stored: the series is
+    /// attached to it and the MES messages read it, then it is serialized
+    /// once into the measurement's `result`.
+    reports: Vec<Option<identify::Report>>,
     /// Verdict of each measurement under the job's recipe (by measurement id).
     verdicts: Vec<(String, crate::qc::Verdict)>,
 }
@@ -990,6 +992,7 @@ fn execute(
         warnings: vec![],
         recordings: vec![],
         measurements: vec![],
+        reports: vec![],
         verdicts: vec![],
     };
     for r in 0..spec.repeats {
@@ -1098,12 +1101,12 @@ fn execute(
                 done.verdicts
                     .push((mid.clone(), crate::qc::judge(r, &facts)));
             }
-            let (result, analysis_error) = match analysed {
+            let (report, analysis_error) = match analysed {
                 // Never stored with a non-finite number written as null
                 // (issue 11): the result is refused, the reason kept. QC has
                 // judged the report above with its own rules.
-                Ok(rep) => match crate::finite::to_value(&rep) {
-                    Ok(v) => (Some(v), None),
+                Ok(rep) => match crate::finite::check(&rep) {
+                    Ok(()) => (Some(rep), None),
                     Err(e) => {
                         let e = format!("result refused: {e}");
                         done.log.push(format!(
@@ -1124,7 +1127,7 @@ fn execute(
                     (None, Some(e))
                 }
             };
-            if let (Some(data), Some(_)) = (fb, &result) {
+            if let (Some(data), Some(_)) = (fb, &report) {
                 series_in.push(series::Level {
                     measurement: done.measurements.len(),
                     measurement_id: mid.clone(),
@@ -1149,7 +1152,8 @@ fn execute(
                 bench_id: Some(bench_cfg.id.clone()),
                 config: cfg_m,
                 meta: serde_json::to_value(&set.meta).unwrap_or(Value::Null),
-                result,
+                // serialized once the repeat is complete (below)
+                result: None,
                 analysis_error,
                 target_xpeak_m: Some(sweep.target_xpeak_m),
                 repeat_index: Some(r as i64),
@@ -1157,11 +1161,12 @@ fn execute(
                 pre: pre_index,
                 main: main_index,
             });
+            done.reports.push(report);
         }
         if want_series {
             obs.send_progress(Step::Fit, obs.overall(0.99), 0.0);
             let log = series::attach(
-                &mut done.measurements[first_measurement..],
+                &mut done.reports[first_measurement..],
                 first_measurement,
                 series_in,
                 spec.order,
@@ -1178,6 +1183,13 @@ fn execute(
         // The repeat's recordings and measurements go to the store now: a
         // series of 16 levels x 10 repeats no longer holds every recording
         // until the end, and what is measured is kept.
+        for (m, rep) in done.measurements[first_measurement..]
+            .iter_mut()
+            .zip(&done.reports[first_measurement..])
+        {
+            // checked finite above (and the series before it was attached)
+            m.result = rep.as_ref().and_then(|r| serde_json::to_value(r).ok());
+        }
         let batch = Batch {
             recordings: std::mem::take(&mut done.recordings),
             measurements: done.measurements[first_measurement..].to_vec(),
@@ -1287,6 +1299,7 @@ impl Runner {
                 state,
                 Some(p),
                 &[],
+                &[],
                 vec![],
             );
             match self
@@ -1342,6 +1355,7 @@ impl Runner {
                 &started_at,
                 state,
                 Some(&p),
+                &[],
                 &[],
                 vec![],
             );

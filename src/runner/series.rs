@@ -6,8 +6,7 @@
 
 use crate::diagnose::engine::EngineOptions;
 use crate::diagnose::series::fit_series;
-use crate::identify::ForceBalanceData;
-use crate::store::NewMeasurement;
+use crate::identify::{ForceBalanceData, Report};
 
 /// One analysed level of a repeat.
 pub struct Level {
@@ -19,11 +18,11 @@ pub struct Level {
 }
 
 /// Fits the series of `levels` (the analysed levels of one repeat, in the
-/// order measured) and puts it into the results of `measurements` (that
-/// repeat's measurements; `offset` is the job index of the first). Returns
-/// log lines; a series that cannot be fitted leaves the results as they are.
+/// order measured) and puts it into the result documents `reports` (that
+/// repeat's; `offset` is the job index of the first). Returns log lines; a
+/// series that cannot be fitted leaves the results as they are.
 pub fn attach(
-    measurements: &mut [NewMeasurement],
+    reports: &mut [Option<Report>],
     offset: usize,
     levels: Vec<Level>,
     order: Option<usize>,
@@ -32,7 +31,7 @@ pub fn attach(
         return vec![format!(
             "level series: {} of {} levels analysed, no joint fit (it needs two)",
             levels.len(),
-            measurements.len()
+            reports.len()
         )];
     }
     let data: Vec<ForceBalanceData> = levels.iter().map(|l| l.data.clone()).collect();
@@ -49,16 +48,12 @@ pub fn attach(
         lf.measurement_id = Some(l.measurement_id.clone());
         lf.target_xpeak_m = Some(l.target_xpeak_m);
     }
-    let value = match crate::finite::to_value(&fit) {
-        Ok(v) => v,
-        Err(e) => return vec![format!("level series: joint fit refused: {e}")],
-    };
+    if let Err(e) = crate::finite::check(&fit) {
+        return vec![format!("level series: joint fit refused: {e}")];
+    }
     for l in &levels {
-        if let Some(serde_json::Value::Object(m)) = measurements
-            .get_mut(l.measurement - offset)
-            .and_then(|m| m.result.as_mut())
-        {
-            m.insert("series".into(), value.clone());
+        if let Some(Some(r)) = reports.get_mut(l.measurement - offset) {
+            r.series = Some(fit.clone());
         }
     }
     let j = &fit.joint;

@@ -30,14 +30,9 @@ pub mod simulate;
 pub mod truth;
 pub mod virtual_bench;
 
-/// Hard limits of a bench; a procedure never exceeds them.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Limits {
-    /// Largest allowed |x| of the part (m).
-    pub max_displacement_m: f64,
-    /// Largest allowed amplifier output amplitude (V peak).
-    pub max_drive_v: f64,
-}
+/// Hard limits of a bench; a procedure never exceeds them (defined with the
+/// job specification, which a job's tighter limits are part of).
+pub use springbench_core::job::Limits;
 
 /// One captured block, handed to the observer while a sweep runs.
 #[derive(Debug, Clone, Copy)]

@@ -29,6 +29,26 @@ pub struct TestedMeasurement {
     pub values: Vec<(String, f64, String)>,
 }
 
+/// The headline values a job's `UnitsTested` carries without a recipe, from
+/// the typed result document: (name, value, unit). A small-signal k0 that
+/// was not determined is left out (it is null in the document).
+pub fn tested_values(r: &crate::identify::Report) -> Vec<(String, f64, String)> {
+    let l = &r.large_signal;
+    [
+        (
+            "k0",
+            r.small_signal.as_ref().and_then(|s| s.k0_n_per_m),
+            "N/m",
+        ),
+        ("keff", Some(l.keff_n_per_m), "N/m"),
+        ("xpeak", Some(l.xpeak_m), "m"),
+        ("resonance", Some(l.resonance_hz), "Hz"),
+    ]
+    .into_iter()
+    .filter_map(|(n, v, u)| v.map(|v| (n.to_string(), v, u.to_string())))
+    .collect()
+}
+
 /// What the messages of one job say.
 #[derive(Debug, Clone)]
 pub struct JobFacts {

@@ -12,6 +12,7 @@
 //!   tolerance, and a K(x) mask over the measured range).
 //! - [`spc`]: n, mean, sigma, Cp, Cpk, Pp, Ppk, yield and control-chart data.
 
+mod apply;
 pub mod cfx;
 pub mod limits;
 mod recipe;

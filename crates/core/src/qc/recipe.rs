@@ -212,12 +212,8 @@ pub struct Recipe {
     pub kx_mask: Option<KxMask>,
 }
 
-/// One message per bad field (as the job validation does).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FieldError {
-    pub field: String,
-    pub message: String,
-}
+/// One message per bad field (the job request's type).
+pub use crate::job::FieldError;
 
 fn ferr(field: impl Into<String>, message: impl Into<String>) -> FieldError {
     FieldError {

@@ -23,3 +23,16 @@ pub fn valid_serial(s: &str) -> bool {
 /// The rule of [`valid_serial`] in words (problem documents, CLI).
 pub const SERIAL_RULE: &str =
     "1-64 characters: letters, digits, '-', '_', '.', starting with a letter or digit";
+
+/// Smallest target peak displacement (m): 10 µm. The laser's noise is a few
+/// µm at full bandwidth (docs/method-notes.md), so a smaller target measures
+/// noise; 1e-300 m was accepted and fitted before.
+pub const MIN_TARGET_XPEAK_M: f64 = 1e-5;
+
+mod parse;
+mod request;
+mod spec;
+
+pub use parse::{parse_all, parse_lenient, FieldError};
+pub use request::{JobLimits, JobPart, JobProduction, JobRequest};
+pub use spec::{production_part, Admission, BenchOffer, JobSpec, Limits, RecipeRef};

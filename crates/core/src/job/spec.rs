@@ -1,0 +1,90 @@
+//! The job as accepted: every default filled in, everything checked. Stored
+//! with the job, read back by the runner.
+
+use super::request::{JobPart, JobProduction};
+use crate::identify::Method;
+use crate::physics::PartSpec;
+use serde::{Deserialize, Serialize};
+
+/// Hard limits of a bench; a procedure never exceeds them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Limits {
+    /// Largest allowed |x| of the part (m).
+    pub max_displacement_m: f64,
+    /// Largest allowed amplifier output amplitude (V peak).
+    pub max_drive_v: f64,
+}
+
+/// A job as accepted: every default filled in, everything checked.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JobSpec {
+    pub part: JobPart,
+    /// Bench that runs the job.
+    pub bench: String,
+    /// Moving mass of part plus inner clamp (kg).
+    pub moving_mass_kg: f64,
+    /// Target peak displacement of each narrow sweep (m): one measurement per level and repeat.
+    pub levels_m: Vec<f64>,
+    pub method: Method,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub order: Option<usize>,
+    /// How often the whole procedure runs.
+    pub repeats: u32,
+    /// Higher runs first; equal priorities run in submission order.
+    pub priority: i64,
+    /// Virtual bench: the preset mounted (when `part_spec` is absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+    /// Virtual bench: the physical parameters of the part mounted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_spec: Option<PartSpec>,
+    /// Limits of this job (the bench's, or tighter).
+    pub limits: Limits,
+    /// The QC recipe (version and hash) the job runs and is judged by.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe: Option<RecipeRef>,
+    /// Virtual bench: a part of a production lot (preset with manufacturing spread).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub production: Option<JobProduction>,
+    /// Name of the token that submitted the job (traceability); None with open access.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub submitted_by: Option<String>,
+}
+
+/// The recipe version a job runs (`"recipe": NAME` in the request; filled in at submission).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecipeRef {
+    pub name: String,
+    pub version: i64,
+    pub sha256: String,
+}
+
+/// A bench a job may run on, as the station's configuration offers it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchOffer {
+    pub id: String,
+    pub limits: Limits,
+    /// Virtual bench: the preset mounted when the job names no part.
+    pub preset: String,
+}
+
+/// What a request is checked against and completed from: the benches (the
+/// first is the default) and the station's defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Admission {
+    pub benches: Vec<BenchOffer>,
+    pub target_xpeak_m: f64,
+    pub method: Method,
+    pub order: Option<usize>,
+}
+
+/// The part a [`JobProduction`] describes.
+pub fn production_part(p: &JobProduction) -> Result<PartSpec, String> {
+    let nominal = crate::physics::preset(&p.preset)?;
+    Ok(crate::physics::production::part(
+        &nominal,
+        &crate::physics::production::Spread::default(),
+        p.seed,
+        p.defect,
+    ))
+}
