@@ -750,6 +750,8 @@ fn plain_job(serial: &str) -> Value {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_redirecting_receiver_is_a_failed_attempt() {
     let (url, seen) = receiver(Receiver::Redirect).await;
+    // credentials in the URL (userinfo and a query token) are secrets too
+    let url = url.replacen("http://", "http://mes:pw-0123456789@", 1) + "?token=tk-0123456789";
     let d = Daemon::start(&format!(
         "[mes]\ninitial_backoff_s = 0.2\nmax_backoff_s = 0.5\n{}",
         webhook("mes", &url)
@@ -803,6 +805,12 @@ async fn a_redirecting_receiver_is_a_failed_attempt() {
         cfg["mes"]
     );
     assert!(!cfg.to_string().contains("mes-secret-0123456789"));
+    for secret in ["pw-0123456789", "tk-0123456789"] {
+        assert!(!cfg.to_string().contains(secret), "{}", cfg["mes"]);
+    }
+    // the rest of the URL stays readable (which receiver it is)
+    let shown = cfg["mes"]["webhooks"][0]["url"].as_str().unwrap();
+    assert!(shown.ends_with("/cfx?redacted"), "{shown}");
 }
 
 /// One receiver that accepts connections and never answers, beside two

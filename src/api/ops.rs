@@ -115,7 +115,7 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
 }
 
 #[utoipa::path(get, path = "/api/v1/config", tag = "operations",
-    summary = "The configuration in effect (token and webhook secrets redacted).",
+    summary = "The configuration in effect (token and webhook secrets, and credentials in webhook URLs, redacted).",
     responses((status = 200, description = "The configuration (the TOML file's structure as JSON)", body = Object)))]
 /// The configuration in effect, token and webhook secrets left out (admin only).
 pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
@@ -127,5 +127,34 @@ pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
             }
         }
     }
+    if let Some(hooks) = v
+        .pointer_mut("/mes/webhooks")
+        .and_then(|t| t.as_array_mut())
+    {
+        for h in hooks {
+            if let Some(u) = h["url"].as_str() {
+                h["url"] = json!(redact_url(u));
+            }
+        }
+    }
     Ok(Json(v))
+}
+
+/// A receiver's URL without its secrets: the password of the user info and
+/// the query (tokens often ride there) become `redacted`; scheme, host, port
+/// and path stay, so the operator still sees which receiver it is.
+fn redact_url(s: &str) -> String {
+    let Ok(mut u) = url::Url::parse(s) else {
+        return "<redacted>".to_string();
+    };
+    if u.password().is_some() {
+        let _ = u.set_password(Some("redacted"));
+    }
+    if u.query().is_some() {
+        u.set_query(Some("redacted"));
+    }
+    if u.fragment().is_some() {
+        u.set_fragment(Some("redacted"));
+    }
+    u.to_string()
 }

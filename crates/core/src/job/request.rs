@@ -221,9 +221,17 @@ impl JobRequest {
             }
             (None, None) => vec![("target_xpeak_m".to_string(), adm.target_xpeak_m)],
         };
-        for (f, x) in &levels {
+        for (i, (f, x)) in levels.iter().enumerate() {
             // (JSON numbers are finite: no NaN reaches here)
-            if *x < MIN_TARGET_XPEAK_M {
+            if i > 0 && *x <= levels[i - 1].1 {
+                e.push(FieldError::new(
+                    f,
+                    format!(
+                        "levels must rise strictly: {x} m after {} m",
+                        levels[i - 1].1
+                    ),
+                ));
+            } else if *x < MIN_TARGET_XPEAK_M {
                 e.push(FieldError::new(
                     f,
                     format!(
@@ -510,6 +518,22 @@ mod tests {
         assert!(
             check(json!({"part": {"serial": "S"}, "target_xpeak_m": MIN_TARGET_XPEAK_M})).is_ok()
         );
+    }
+
+    #[test]
+    fn levels_must_rise_strictly() {
+        // as a recipe's levels must (qc::recipe): a repeated or falling
+        // level is a typo, not a series
+        for (levels, field) in [
+            (json!([0.004, 0.004]), "levels_m[1]"),
+            (json!([0.008, 0.004]), "levels_m[1]"),
+            (json!([0.002, 0.006, 0.005]), "levels_m[2]"),
+        ] {
+            let e = check(json!({"part": {"serial": "S"}, "levels_m": levels})).unwrap_err();
+            assert_eq!(fields(&e), [field], "{levels}");
+            assert!(e[0].message.contains("m"), "{}", e[0].message);
+        }
+        assert!(check(json!({"part": {"serial": "S"}, "levels_m": [0.002, 0.004]})).is_ok());
     }
 
     #[test]
