@@ -16,6 +16,7 @@ use crate::identify::{self, AnalyzeOptions, Method};
 use crate::recording::stream::{self, Streamed};
 use crate::recording::{Meta, RecordingSet};
 use crate::runner::{job::valid_serial, new_id, FieldError};
+use crate::store::MeasurementReads;
 use crate::store::{ImportInserted, NewMeasurement, RecordingFile};
 use axum::extract::multipart::{MultipartError, MultipartRejection};
 use axum::extract::{Multipart, State};

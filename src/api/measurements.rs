@@ -11,6 +11,7 @@ use crate::recording::codec::{self, WavStream};
 use crate::recording::{Meta, RecordingSet};
 use crate::runner::{new_id, FieldError};
 use crate::store::MeasurementInfo;
+use crate::store::{FitReads, MeasurementReads, VerdictReads};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};

@@ -9,6 +9,7 @@ use crate::qc::limits::{GoldenUnit, ProposalOptions};
 use crate::qc::{Recipe, RunFacts};
 use crate::runner::FieldError;
 use crate::store::qc::{Approval, RecipeExpect, RecipeRow, RecipeWrite};
+use crate::store::{RecipeReads, VerdictReads};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};

@@ -11,6 +11,7 @@
 use super::problem::{ApiResult, Problem};
 use super::AppState;
 use crate::diagnose::svg::{xy_chart, Curve};
+use crate::store::{FitReads, MeasurementReads, PartReads, VerdictReads};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue};
 use axum::response::{IntoResponse, Response};

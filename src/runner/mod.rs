@@ -21,6 +21,7 @@ use crate::identify::{self, AnalyzeOptions};
 use crate::physics::PartSpec;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError, Step};
 use crate::recording::{Meta, RecordingSet};
+use crate::store::RecipeReads;
 use crate::store::{Job, JobState, NewMeasurement, NewRecording, Store, StoreResult};
 pub use events::EventBus;
 pub use job::{FieldError, JobSpec};

@@ -1,34 +1,10 @@
 //! Fits of a stored measurement and the choice of the one that supplies its
 //! headline figures (who, when; every choice kept).
 
+use crate::results::{Fit, FitReads, HeadlineChoice};
 use crate::{now, parse_json, Store, StoreResult};
-use serde::Serialize;
 use serde_json::Value;
 use sqlx::Row;
-
-/// A fit of a stored measurement.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct Fit {
-    pub id: String,
-    pub measurement_id: String,
-    /// `{"effects": [...], "order": ..., "method": ...}` as accepted.
-    pub request: Value,
-    /// The refitted result document (with `model` and `diagnostics`).
-    #[schema(value_type = springbench_core::identify::Report)]
-    pub result: Value,
-    pub software_version: String,
-    pub created_at: String,
-}
-
-/// Which fit supplies a measurement's headline figures, chosen by whom and when.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct HeadlineChoice {
-    /// The fit (`GET /api/v1/measurements/{id}/fits`); null: the measurement's own result.
-    pub fit_id: Option<String>,
-    /// The token name of who chose it (null with open access).
-    pub chosen_by: Option<String>,
-    pub chosen_at: String,
-}
 
 impl Store {
     /// Keeps a fit of a stored measurement (effects, order, the refitted report).
@@ -62,29 +38,6 @@ impl Store {
         })
     }
 
-    /// The fits of a measurement, oldest first.
-    pub async fn list_fits(&self, measurement_id: &str) -> StoreResult<Vec<Fit>> {
-        let rows = sqlx::query(
-            "SELECT id, measurement_id, request_json, result_json, software_version, created_at \
-             FROM fits WHERE measurement_id = ? ORDER BY seq",
-        )
-        .bind(measurement_id.to_string())
-        .fetch_all(&self.pool)
-        .await?;
-        rows.iter()
-            .map(|r| {
-                Ok(Fit {
-                    id: r.get(0),
-                    measurement_id: r.get(1),
-                    request: parse_json(&r.get::<String, _>(2))?,
-                    result: parse_json(&r.get::<String, _>(3))?,
-                    software_version: r.get(4),
-                    created_at: r.get(5),
-                })
-            })
-            .collect()
-    }
-
     /// Records who chose which fit (None: the measurement's own result) to
     /// supply the measurement's headline; every choice is kept.
     pub async fn choose_headline(
@@ -109,12 +62,34 @@ impl Store {
             chosen_at: t,
         })
     }
+}
+
+impl FitReads for Store {
+    /// The fits of a measurement, oldest first.
+    async fn list_fits(&self, measurement_id: &str) -> StoreResult<Vec<Fit>> {
+        let rows = sqlx::query(
+            "SELECT id, measurement_id, request_json, result_json, software_version, created_at \
+             FROM fits WHERE measurement_id = ? ORDER BY seq",
+        )
+        .bind(measurement_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|r| {
+                Ok(Fit {
+                    id: r.get(0),
+                    measurement_id: r.get(1),
+                    request: parse_json(&r.get::<String, _>(2))?,
+                    result: parse_json(&r.get::<String, _>(3))?,
+                    software_version: r.get(4),
+                    created_at: r.get(5),
+                })
+            })
+            .collect()
+    }
 
     /// The newest headline choice of a measurement (None: never chosen).
-    pub async fn headline_choice(
-        &self,
-        measurement_id: &str,
-    ) -> StoreResult<Option<HeadlineChoice>> {
+    async fn headline_choice(&self, measurement_id: &str) -> StoreResult<Option<HeadlineChoice>> {
         let row = sqlx::query(
             "SELECT fit_id, chosen_by, chosen_at FROM headline_choices \
              WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1",

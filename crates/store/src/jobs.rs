@@ -534,6 +534,7 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::results::{MeasurementReads, PartReads};
     use serde_json::json;
 
     fn rec(kind: &'static str) -> NewRecording {

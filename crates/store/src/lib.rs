@@ -18,16 +18,19 @@ mod measurements;
 mod parts;
 pub mod qc;
 mod raw;
+pub mod results;
 
 pub use blob::BlobRef;
 pub use derived::Derived;
 pub use events::Event;
-pub use fits::{Fit, HeadlineChoice};
 pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobState};
-pub use measurements::{MeasurementInfo, NewMeasurement, NewRecording};
-pub use parts::Part;
+pub use measurements::{NewMeasurement, NewRecording};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};
+pub use results::{
+    FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads, Part,
+    PartReads, RecipeReads, ResultIngest, ResultStore, StoredMeasurement, Upserted, VerdictReads,
+};
 
 use serde_json::Value;
 use sqlx::sqlite::{
@@ -47,6 +50,9 @@ pub enum StoreError {
     Migrate(#[from] sqlx::migrate::MigrateError),
     #[error("{0}")]
     Corrupt(String),
+    /// Data handed to the store that contradicts itself (nothing was written).
+    #[error("{0}")]
+    Invalid(String),
 }
 
 /// Current time as RFC 3339 UTC with milliseconds.

@@ -1,8 +1,11 @@
 //! Measurements: the rows of a finished measurement with its recordings
 //! (written in the caller's transaction), a measurement read back, listings.
 
+use crate::results::{
+    FinishedMeasurement, MeasurementInfo, MeasurementReads, ResultIngest, StoredMeasurement,
+    Upserted,
+};
 use crate::{now, parse_json, Store, StoreError, StoreResult};
-use serde::Serialize;
 use serde_json::Value;
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
@@ -22,30 +25,6 @@ macro_rules! meas_select {
                                          json_extract(m.result_json, '$.small_signal.k0_se_n_per_m'), \
                                          json_extract(m.result_json, '$.small_signal.misfit_percent')) END) AS summary"
     };
-}
-
-/// A measurement's listing entry (the result document itself is `result`).
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct MeasurementInfo {
-    pub id: String,
-    pub part_serial: String,
-    pub job_id: Option<String>,
-    /// "bench" or "import".
-    pub source: String,
-    pub bench_id: Option<String>,
-    pub software_version: String,
-    pub target_xpeak_m: Option<f64>,
-    pub repeat_index: Option<i64>,
-    pub level_index: Option<i64>,
-    /// Why the analysis failed (the recordings are kept and can be fitted again).
-    pub analysis_error: Option<String>,
-    pub created_at: String,
-    /// Configuration used (procedure and analysis options).
-    pub config: Value,
-    /// Headline numbers from the result, for listings.
-    pub summary: Value,
-    #[serde(skip)]
-    pub seq: i64,
 }
 
 /// A new measurement to store.
@@ -100,11 +79,126 @@ impl Store {
                 .await?;
         Ok((r.get(0), r.get(1)))
     }
+}
 
-    pub async fn get_measurement(
-        &self,
-        id: &str,
-    ) -> StoreResult<Option<(MeasurementInfo, Option<Value>, Value)>> {
+pub(crate) async fn insert_results(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    recordings: Vec<NewRecording>,
+    measurements: Vec<NewMeasurement>,
+) -> StoreResult<Vec<i64>> {
+    insert_results_at(
+        tx,
+        recordings,
+        measurements,
+        springbench_core::VERSION,
+        &now(),
+    )
+    .await
+}
+
+/// [`insert_results`] made by `software_version` at `t` (a measurement
+/// ingested from a station keeps the station's).
+async fn insert_results_at(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    recordings: Vec<NewRecording>,
+    measurements: Vec<NewMeasurement>,
+    software_version: &str,
+    t: &str,
+) -> StoreResult<Vec<i64>> {
+    let mut rec_ids = Vec::with_capacity(recordings.len());
+    for r in recordings {
+        let row = sqlx::query(
+            "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, channel_scale_json, created_at) VALUES (?, ?, ?, ?, ?, ?) RETURNING id",
+        )
+        .bind(r.kind)
+        .bind(r.sample_rate_hz)
+        .bind(r.frames)
+        .bind(r.stored.bytes)
+        .bind(
+            r.stored
+                .channel_scale
+                .map(|c| serde_json::to_string(&c).unwrap_or_default()),
+        )
+        .bind(t.to_string())
+        .fetch_one(&mut **tx)
+        .await?;
+        rec_ids.push(row.get::<i64, _>(0));
+    }
+    insert_measurement_rows_at(tx, measurements, &rec_ids, software_version, t).await?;
+    Ok(rec_ids)
+}
+
+/// The measurement rows; `pre` / `main` index into `rec_ids`.
+pub(crate) async fn insert_measurement_rows(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    measurements: Vec<NewMeasurement>,
+    rec_ids: &[i64],
+) -> StoreResult<()> {
+    insert_measurement_rows_at(tx, measurements, rec_ids, springbench_core::VERSION, &now()).await
+}
+
+async fn insert_measurement_rows_at(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    measurements: Vec<NewMeasurement>,
+    rec_ids: &[i64],
+    software_version: &str,
+    t: &str,
+) -> StoreResult<()> {
+    for m in measurements {
+        let pre = *rec_ids.get(m.pre).ok_or_else(|| {
+            StoreError::Corrupt("measurement names a missing pre recording".into())
+        })?;
+        let main = *rec_ids.get(m.main).ok_or_else(|| {
+            StoreError::Corrupt("measurement names a missing main recording".into())
+        })?;
+        sqlx::query(
+            "INSERT INTO measurements (id, part_serial, job_id, source, bench_id, software_version, config_json, meta_json, \
+             result_json, analysis_error, target_xpeak_m, repeat_index, level_index, pre_recording_id, main_recording_id, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(m.id)
+        .bind(m.part_serial)
+        .bind(m.job_id)
+        .bind(m.source)
+        .bind(m.bench_id)
+        .bind(software_version.to_string())
+        .bind(m.config.to_string())
+        .bind(m.meta.to_string())
+        .bind(m.result.map(|v| v.to_string()))
+        .bind(m.analysis_error)
+        .bind(m.target_xpeak_m)
+        .bind(m.repeat_index)
+        .bind(m.level_index)
+        .bind(pre)
+        .bind(main)
+        .bind(t.to_string())
+        .execute(&mut **tx)
+        .await?;
+    }
+    Ok(())
+}
+
+fn meas_from_row(r: &SqliteRow) -> StoreResult<MeasurementInfo> {
+    Ok(MeasurementInfo {
+        seq: r.get("seq"),
+        id: r.get("id"),
+        part_serial: r.get("part_serial"),
+        job_id: r.get("job_id"),
+        source: r.get("source"),
+        bench_id: r.get("bench_id"),
+        software_version: r.get("software_version"),
+        target_xpeak_m: r.get("target_xpeak_m"),
+        repeat_index: r.get("repeat_index"),
+        level_index: r.get("level_index"),
+        analysis_error: r.get("analysis_error"),
+        created_at: r.get("created_at"),
+        config: parse_json(&r.get::<String, _>("config_json"))?,
+        summary: parse_json(&r.get::<String, _>("summary"))?,
+    })
+}
+
+impl MeasurementReads for Store {
+    async fn get_measurement(&self, id: &str) -> StoreResult<Option<StoredMeasurement>> {
         let row = sqlx::query(concat!(
             meas_select!(),
             ", m.result_json, m.meta_json FROM measurements m WHERE m.id = ?"
@@ -122,20 +216,8 @@ impl Store {
         Ok(Some((info, result, meta)))
     }
 
-    /// Measurements newest first, optionally of one part or one job.
-    pub async fn list_measurements(
-        &self,
-        part: Option<&str>,
-        job: Option<&str>,
-        before_seq: Option<i64>,
-        limit: i64,
-    ) -> StoreResult<Vec<MeasurementInfo>> {
-        self.list_measurements_since(part, job, None, before_seq, limit)
-            .await
-    }
-
     /// [`Store::list_measurements`] of measurements stored at or after `since` (RFC 3339 UTC, ms).
-    pub async fn list_measurements_since(
+    async fn list_measurements_since(
         &self,
         part: Option<&str>,
         job: Option<&str>,
@@ -164,91 +246,55 @@ impl Store {
     }
 }
 
-pub(crate) async fn insert_results(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    recordings: Vec<NewRecording>,
-    measurements: Vec<NewMeasurement>,
-) -> StoreResult<Vec<i64>> {
-    let t = now();
-    let mut rec_ids = Vec::with_capacity(recordings.len());
-    for r in recordings {
-        let row = sqlx::query(
-            "INSERT INTO recordings (kind, sample_rate_hz, frames, wav, channel_scale_json, created_at) VALUES (?, ?, ?, ?, ?, ?) RETURNING id",
-        )
-        .bind(r.kind)
-        .bind(r.sample_rate_hz)
-        .bind(r.frames)
-        .bind(r.stored.bytes)
-        .bind(
-            r.stored
-                .channel_scale
-                .map(|c| serde_json::to_string(&c).unwrap_or_default()),
-        )
-        .bind(t.clone())
-        .fetch_one(&mut **tx)
-        .await?;
-        rec_ids.push(row.get::<i64, _>(0));
-    }
-    insert_measurement_rows(tx, measurements, &rec_ids).await?;
-    Ok(rec_ids)
-}
-
-/// The measurement rows; `pre` / `main` index into `rec_ids`.
-pub(crate) async fn insert_measurement_rows(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    measurements: Vec<NewMeasurement>,
-    rec_ids: &[i64],
-) -> StoreResult<()> {
-    let t = now();
-    for m in measurements {
-        let pre = *rec_ids.get(m.pre).ok_or_else(|| {
-            StoreError::Corrupt("measurement names a missing pre recording".into())
-        })?;
-        let main = *rec_ids.get(m.main).ok_or_else(|| {
-            StoreError::Corrupt("measurement names a missing main recording".into())
-        })?;
+impl ResultIngest for Store {
+    async fn upsert_measurement(&self, f: &FinishedMeasurement) -> StoreResult<Upserted> {
+        let m = &f.measurement;
+        if m.part_serial != f.part.0 {
+            return Err(StoreError::Invalid(format!(
+                "measurement {} is of part '{}', not of '{}'",
+                m.id, m.part_serial, f.part.0
+            )));
+        }
+        if let Some(v) = f
+            .verdicts
+            .iter()
+            .find(|v| v.measurement_id.as_deref() != Some(m.id.as_str()))
+        {
+            return Err(StoreError::Invalid(format!(
+                "verdict {} is not of measurement {}",
+                v.id, m.id
+            )));
+        }
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let known: Option<i64> = sqlx::query_scalar("SELECT 1 FROM measurements WHERE id = ?")
+            .bind(m.id.clone())
+            .fetch_optional(&mut *tx)
+            .await?;
+        if known.is_some() {
+            return Ok(Upserted::AlreadyStored);
+        }
         sqlx::query(
-            "INSERT INTO measurements (id, part_serial, job_id, source, bench_id, software_version, config_json, meta_json, \
-             result_json, analysis_error, target_xpeak_m, repeat_index, level_index, pre_recording_id, main_recording_id, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO parts (serial, kind, notes, created_at, updated_at) VALUES (?, ?, ?, ?, ?) \
+             ON CONFLICT(serial) DO UPDATE SET kind = COALESCE(excluded.kind, parts.kind), \
+             notes = COALESCE(excluded.notes, parts.notes), updated_at = excluded.updated_at",
         )
-        .bind(m.id)
-        .bind(m.part_serial)
-        .bind(m.job_id)
-        .bind(m.source)
-        .bind(m.bench_id)
-        .bind(springbench_core::VERSION)
-        .bind(m.config.to_string())
-        .bind(m.meta.to_string())
-        .bind(m.result.map(|v| v.to_string()))
-        .bind(m.analysis_error)
-        .bind(m.target_xpeak_m)
-        .bind(m.repeat_index)
-        .bind(m.level_index)
-        .bind(pre)
-        .bind(main)
-        .bind(t.clone())
-        .execute(&mut **tx)
+        .bind(f.part.0.clone())
+        .bind(f.part.1.clone())
+        .bind(f.part.2.clone())
+        .bind(f.created_at.clone())
+        .bind(f.created_at.clone())
+        .execute(&mut *tx)
         .await?;
+        insert_results_at(
+            &mut tx,
+            f.recordings.clone(),
+            vec![m.clone()],
+            &f.software_version,
+            &f.created_at,
+        )
+        .await?;
+        crate::qc::insert_verdicts(&mut tx, &f.verdicts, &f.created_at).await?;
+        tx.commit().await?;
+        Ok(Upserted::Inserted)
     }
-    Ok(())
-}
-
-fn meas_from_row(r: &SqliteRow) -> StoreResult<MeasurementInfo> {
-    Ok(MeasurementInfo {
-        seq: r.get("seq"),
-        id: r.get("id"),
-        part_serial: r.get("part_serial"),
-        job_id: r.get("job_id"),
-        source: r.get("source"),
-        bench_id: r.get("bench_id"),
-        software_version: r.get("software_version"),
-        target_xpeak_m: r.get("target_xpeak_m"),
-        repeat_index: r.get("repeat_index"),
-        level_index: r.get("level_index"),
-        analysis_error: r.get("analysis_error"),
-        created_at: r.get("created_at"),
-        config: parse_json(&r.get::<String, _>("config_json"))?,
-        summary: parse_json(&r.get::<String, _>("summary"))?,
-    })
 }

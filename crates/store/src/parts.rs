@@ -1,23 +1,9 @@
 //! Parts: one row per serial, with its measurement count and newest verdict.
 
+use crate::results::{Part, PartReads};
 use crate::{now, Store, StoreResult};
-use serde::Serialize;
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
-
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct Part {
-    pub serial: String,
-    pub kind: Option<String>,
-    pub notes: Option<String>,
-    pub created_at: String,
-    pub updated_at: String,
-    pub measurement_count: i64,
-    /// The QC verdict of the part's newest job judged under a recipe (`pass`,
-    /// `fail`, `invalid`, `no_limits`); null when no job was judged.
-    #[schema(value_type = Option<springbench_core::qc::VerdictKind>)]
-    pub verdict: Option<String>,
-}
 
 impl Store {
     /// Creates the part if new; updates kind/notes when given.
@@ -43,8 +29,22 @@ impl Store {
         .await?;
         Ok(())
     }
+}
 
-    pub async fn get_part(&self, serial: &str) -> StoreResult<Option<Part>> {
+fn part_from_row(r: &SqliteRow) -> Part {
+    Part {
+        serial: r.get(0),
+        kind: r.get(1),
+        notes: r.get(2),
+        created_at: r.get(3),
+        updated_at: r.get(4),
+        measurement_count: r.get(5),
+        verdict: r.get(6),
+    }
+}
+
+impl PartReads for Store {
+    async fn get_part(&self, serial: &str) -> StoreResult<Option<Part>> {
         let row = sqlx::query(
             "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
              (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
@@ -58,7 +58,7 @@ impl Store {
     }
 
     /// Parts ordered by serial; `after` is the last serial of the previous page.
-    pub async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
+    async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
         let rows = sqlx::query(
             "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
              (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
@@ -71,17 +71,5 @@ impl Store {
         .fetch_all(&self.pool)
         .await?;
         Ok(rows.iter().map(part_from_row).collect())
-    }
-}
-
-fn part_from_row(r: &SqliteRow) -> Part {
-    Part {
-        serial: r.get(0),
-        kind: r.get(1),
-        notes: r.get(2),
-        created_at: r.get(3),
-        updated_at: r.get(4),
-        measurement_count: r.get(5),
-        verdict: r.get(6),
     }
 }

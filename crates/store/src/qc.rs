@@ -4,27 +4,12 @@
 //! result transaction ([`super::Store::finish_job_qc`]).
 
 use super::{now, parse_json, Store, StoreError, StoreResult};
+use crate::results::{RecipeReads, VerdictReads};
+pub use crate::results::{RecipeRow, VerdictRow};
 use serde::Serialize;
 use serde_json::Value;
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
-
-/// A stored recipe version.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct RecipeRow {
-    pub name: String,
-    pub version: i64,
-    pub sha256: String,
-    /// The recipe document ([`crate::qc::Recipe`]).
-    #[schema(value_type = springbench_core::qc::Recipe)]
-    pub recipe: Value,
-    /// `created`, `edited` or `limits_approved`.
-    pub origin: String,
-    pub proposal_id: Option<String>,
-    pub retired: bool,
-    pub created_by: Option<String>,
-    pub created_at: String,
-}
 
 /// A golden-unit limit proposal.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
@@ -58,32 +43,6 @@ pub struct NewVerdict {
     /// [`springbench_core::qc::Verdict`].
     pub detail: Value,
     pub trace: Value,
-}
-
-/// A stored verdict.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
-pub struct VerdictRow {
-    pub id: String,
-    pub job_id: Option<String>,
-    /// None for the verdict of a whole job.
-    pub measurement_id: Option<String>,
-    pub part_serial: String,
-    pub recipe_name: String,
-    pub recipe_version: i64,
-    pub recipe_sha256: String,
-    /// `pass`, `fail`, `invalid` or `no_limits`.
-    pub verdict: String,
-    /// Failures, invalid reasons, every parameter's value / limits / result.
-    #[schema(value_type = springbench_core::qc::Verdict)]
-    pub detail: Value,
-    /// Software version, recipe, bench, calibration, sensors, submitter, timestamps.
-    pub traceability: Value,
-    pub created_at: String,
-    #[serde(skip)]
-    pub seq: i64,
-    /// The measurement's level in a series (read by [`Store::recipe_verdicts`] only).
-    #[serde(skip)]
-    pub level_index: Option<i64>,
 }
 
 /// An MES message to store (IPC-CFX envelope).
@@ -203,13 +162,13 @@ macro_rules! delivery_select {
     };
 }
 
-/// Writes verdicts, messages and deliveries inside a job's result transaction.
-pub(super) async fn insert_job_records(
+/// Writes verdicts made at `t` inside the caller's transaction.
+pub(crate) async fn insert_verdicts(
     tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    rec: &JobRecords,
+    verdicts: &[NewVerdict],
+    t: &str,
 ) -> StoreResult<()> {
-    let t = now();
-    for v in &rec.verdicts {
+    for v in verdicts {
         sqlx::query(
             "INSERT INTO qc_verdicts (id, job_id, measurement_id, part_serial, recipe_name, recipe_version, recipe_sha256, \
              verdict, detail_json, trace_json, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -224,10 +183,20 @@ pub(super) async fn insert_job_records(
         .bind(v.verdict)
         .bind(v.detail.to_string())
         .bind(v.trace.to_string())
-        .bind(t.clone())
+        .bind(t.to_string())
         .execute(&mut **tx)
         .await?;
     }
+    Ok(())
+}
+
+/// Writes verdicts, messages and deliveries inside a job's result transaction.
+pub(super) async fn insert_job_records(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    rec: &JobRecords,
+) -> StoreResult<()> {
+    let t = now();
+    insert_verdicts(tx, &rec.verdicts, &t).await?;
     for m in &rec.messages {
         let row = sqlx::query(
             "INSERT INTO mes_messages (unique_id, message_name, part_serial, job_id, body_json, created_at) \
@@ -288,42 +257,6 @@ impl Store {
         let row = insert_recipe_tx(&mut tx, name, sha256, body, origin, None, created_by).await?;
         tx.commit().await?;
         Ok(RecipeWrite::Stored(row))
-    }
-
-    /// A recipe version (the newest when `version` is None).
-    pub async fn get_recipe(
-        &self,
-        name: &str,
-        version: Option<i64>,
-    ) -> StoreResult<Option<RecipeRow>> {
-        let row = sqlx::query(
-            "SELECT * FROM qc_recipes WHERE name = ? AND (? IS NULL OR version = ?) ORDER BY version DESC LIMIT 1",
-        )
-        .bind(name.to_string())
-        .bind(version)
-        .bind(version)
-        .fetch_optional(&self.pool)
-        .await?;
-        row.map(|r| recipe_from_row(&r)).transpose()
-    }
-
-    /// The newest version of every recipe, by name.
-    pub async fn list_recipes(&self) -> StoreResult<Vec<RecipeRow>> {
-        let rows = sqlx::query(
-            "SELECT r.* FROM qc_recipes r WHERE r.version = (SELECT MAX(version) FROM qc_recipes x WHERE x.name = r.name) ORDER BY r.name",
-        )
-        .fetch_all(&self.pool)
-        .await?;
-        rows.iter().map(recipe_from_row).collect()
-    }
-
-    /// Every version of a recipe, oldest first.
-    pub async fn recipe_versions(&self, name: &str) -> StoreResult<Vec<RecipeRow>> {
-        let rows = sqlx::query("SELECT * FROM qc_recipes WHERE name = ? ORDER BY version")
-            .bind(name.to_string())
-            .fetch_all(&self.pool)
-            .await?;
-        rows.iter().map(recipe_from_row).collect()
     }
 
     /// Retires a recipe (every version stays for traceability); false when unknown.
@@ -458,67 +391,6 @@ impl Store {
     }
 
     // ---- verdicts ----
-
-    /// The newest job verdict of a part (any recipe).
-    pub async fn part_verdict(&self, serial: &str) -> StoreResult<Option<VerdictRow>> {
-        let row = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE part_serial = ? AND measurement_id IS NULL ORDER BY seq DESC LIMIT 1"))
-        .bind(serial.to_string())
-        .fetch_optional(&self.pool)
-        .await?;
-        row.map(|r| verdict_from_row(&r)).transpose()
-    }
-
-    /// The verdicts of a job: the job's (measurement_id None) first, then per measurement.
-    pub async fn job_verdicts(&self, job_id: &str) -> StoreResult<Vec<VerdictRow>> {
-        let rows = sqlx::query(concat!(
-            "SELECT ",
-            verdict_cols!(),
-            " FROM qc_verdicts WHERE job_id = ? ORDER BY measurement_id IS NOT NULL, seq"
-        ))
-        .bind(job_id.to_string())
-        .fetch_all(&self.pool)
-        .await?;
-        rows.iter().map(verdict_from_row).collect()
-    }
-
-    pub async fn measurement_verdict(
-        &self,
-        measurement_id: &str,
-    ) -> StoreResult<Option<VerdictRow>> {
-        let row = sqlx::query(concat!(
-            "SELECT ",
-            verdict_cols!(),
-            " FROM qc_verdicts WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1"
-        ))
-        .bind(measurement_id.to_string())
-        .fetch_optional(&self.pool)
-        .await?;
-        row.map(|r| verdict_from_row(&r)).transpose()
-    }
-
-    /// Measurement verdicts of a recipe (any version), oldest first: the
-    /// newest `last` of them, or those made in [since, until).
-    pub async fn recipe_verdicts(
-        &self,
-        recipe: &str,
-        since: Option<&str>,
-        until: Option<&str>,
-        last: Option<i64>,
-    ) -> StoreResult<Vec<VerdictRow>> {
-        let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), ", \
-             (SELECT m.level_index FROM measurements m WHERE m.id = qc_verdicts.measurement_id) AS level_index \
-             FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
-             AND (? IS NULL OR created_at >= ?) AND (? IS NULL OR created_at < ?) ORDER BY seq DESC LIMIT ?) ORDER BY seq"))
-        .bind(recipe.to_string())
-        .bind(since.map(str::to_string))
-        .bind(since.map(str::to_string))
-        .bind(until.map(str::to_string))
-        .bind(until.map(str::to_string))
-        .bind(last.unwrap_or(-1))
-        .fetch_all(&self.pool)
-        .await?;
-        rows.iter().map(verdict_from_row).collect()
-    }
 
     /// The newest job of `serial` judged under `recipe` whose verdict is not
     /// invalid: its measurements (id, result, analysis error, target, level, config).
@@ -785,4 +657,98 @@ async fn insert_recipe_tx(
         created_by: created_by.map(str::to_string),
         created_at: t,
     })
+}
+
+impl RecipeReads for Store {
+    /// A recipe version (the newest when `version` is None).
+    async fn get_recipe(&self, name: &str, version: Option<i64>) -> StoreResult<Option<RecipeRow>> {
+        let row = sqlx::query(
+            "SELECT * FROM qc_recipes WHERE name = ? AND (? IS NULL OR version = ?) ORDER BY version DESC LIMIT 1",
+        )
+        .bind(name.to_string())
+        .bind(version)
+        .bind(version)
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| recipe_from_row(&r)).transpose()
+    }
+
+    /// The newest version of every recipe, by name.
+    async fn list_recipes(&self) -> StoreResult<Vec<RecipeRow>> {
+        let rows = sqlx::query(
+            "SELECT r.* FROM qc_recipes r WHERE r.version = (SELECT MAX(version) FROM qc_recipes x WHERE x.name = r.name) ORDER BY r.name",
+        )
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(recipe_from_row).collect()
+    }
+
+    /// Every version of a recipe, oldest first.
+    async fn recipe_versions(&self, name: &str) -> StoreResult<Vec<RecipeRow>> {
+        let rows = sqlx::query("SELECT * FROM qc_recipes WHERE name = ? ORDER BY version")
+            .bind(name.to_string())
+            .fetch_all(&self.pool)
+            .await?;
+        rows.iter().map(recipe_from_row).collect()
+    }
+}
+
+impl VerdictReads for Store {
+    /// The newest job verdict of a part (any recipe).
+    async fn part_verdict(&self, serial: &str) -> StoreResult<Option<VerdictRow>> {
+        let row = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE part_serial = ? AND measurement_id IS NULL ORDER BY seq DESC LIMIT 1"))
+        .bind(serial.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| verdict_from_row(&r)).transpose()
+    }
+
+    /// The verdicts of a job: the job's (measurement_id None) first, then per measurement.
+    async fn job_verdicts(&self, job_id: &str) -> StoreResult<Vec<VerdictRow>> {
+        let rows = sqlx::query(concat!(
+            "SELECT ",
+            verdict_cols!(),
+            " FROM qc_verdicts WHERE job_id = ? ORDER BY measurement_id IS NOT NULL, seq"
+        ))
+        .bind(job_id.to_string())
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(verdict_from_row).collect()
+    }
+
+    async fn measurement_verdict(&self, measurement_id: &str) -> StoreResult<Option<VerdictRow>> {
+        let row = sqlx::query(concat!(
+            "SELECT ",
+            verdict_cols!(),
+            " FROM qc_verdicts WHERE measurement_id = ? ORDER BY seq DESC LIMIT 1"
+        ))
+        .bind(measurement_id.to_string())
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| verdict_from_row(&r)).transpose()
+    }
+
+    /// Measurement verdicts of a recipe (any version), oldest first: the
+    /// newest `last` of them, or those made in [since, until).
+    async fn recipe_verdicts(
+        &self,
+        recipe: &str,
+        since: Option<&str>,
+        until: Option<&str>,
+        last: Option<i64>,
+    ) -> StoreResult<Vec<VerdictRow>> {
+        let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), ", \
+             (SELECT m.level_index FROM measurements m WHERE m.id = qc_verdicts.measurement_id) AS level_index \
+             FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
+             AND (? IS NULL OR created_at >= ?) AND (? IS NULL OR created_at < ?) ORDER BY seq DESC LIMIT ?) ORDER BY seq"))
+        .bind(recipe.to_string())
+        .bind(since.map(str::to_string))
+        .bind(since.map(str::to_string))
+        .bind(until.map(str::to_string))
+        .bind(until.map(str::to_string))
+        .bind(last.unwrap_or(-1))
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(verdict_from_row).collect()
+    }
 }

@@ -305,6 +305,7 @@ impl Default for Retention {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::results::{FitReads, MeasurementReads};
     use crate::{NewMeasurement, NewRecording};
     use serde_json::json;
 
