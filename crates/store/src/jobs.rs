@@ -2,7 +2,8 @@
 //! owner per bench, idempotency keys), the end written with the run's
 //! results, verdicts and MES messages in one transaction.
 
-use crate::measurements::{insert_results, NewMeasurement, NewRecording};
+use crate::measurements::insert_results;
+use crate::results::{NewMeasurement, NewRecording};
 use crate::{now, parse_json, qc, Store, StoreError, StoreResult};
 use serde::Serialize;
 use serde_json::Value;

@@ -25,11 +25,11 @@ pub use derived::Derived;
 pub use events::Event;
 pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobState};
-pub use measurements::{NewMeasurement, NewRecording};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};
 pub use results::{
-    FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads, Part,
-    PartReads, RecipeReads, ResultIngest, ResultStore, StoredMeasurement, Upserted, VerdictReads,
+    FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads,
+    NewMeasurement, NewRecording, Part, PartReads, RecipeReads, ResultIngest, ResultStore,
+    StoredMeasurement, Upserted, VerdictReads,
 };
 
 use serde_json::Value;

@@ -2,11 +2,10 @@
 //! (written in the caller's transaction), a measurement read back, listings.
 
 use crate::results::{
-    FinishedMeasurement, MeasurementInfo, MeasurementReads, ResultIngest, StoredMeasurement,
-    Upserted,
+    FinishedMeasurement, MeasurementInfo, MeasurementReads, NewMeasurement, NewRecording,
+    ResultIngest, StoredMeasurement, Upserted,
 };
 use crate::{now, parse_json, Store, StoreError, StoreResult};
-use serde_json::Value;
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
@@ -25,36 +24,6 @@ macro_rules! meas_select {
                                          json_extract(m.result_json, '$.small_signal.k0_se_n_per_m'), \
                                          json_extract(m.result_json, '$.small_signal.misfit_percent')) END) AS summary"
     };
-}
-
-/// A new measurement to store.
-#[derive(Debug, Clone)]
-pub struct NewMeasurement {
-    pub id: String,
-    pub part_serial: String,
-    pub job_id: Option<String>,
-    pub source: &'static str,
-    pub bench_id: Option<String>,
-    pub config: Value,
-    pub meta: Value,
-    pub result: Option<Value>,
-    pub analysis_error: Option<String>,
-    pub target_xpeak_m: Option<f64>,
-    pub repeat_index: Option<i64>,
-    pub level_index: Option<i64>,
-    /// Index into the `recordings` list handed to the same call.
-    pub pre: usize,
-    pub main: usize,
-}
-
-/// A recording to store: FLAC (or WAV) bytes and their channel scale
-/// ([`springbench_recording::codec`]).
-#[derive(Debug, Clone)]
-pub struct NewRecording {
-    pub kind: &'static str,
-    pub sample_rate_hz: f64,
-    pub frames: i64,
-    pub stored: springbench_recording::codec::Stored,
 }
 
 impl Store {

@@ -4,8 +4,8 @@
 //! result transaction ([`super::Store::finish_job_qc`]).
 
 use super::{now, parse_json, Store, StoreError, StoreResult};
+pub use crate::results::{NewVerdict, RecipeRow, VerdictRow};
 use crate::results::{RecipeReads, VerdictReads};
-pub use crate::results::{RecipeRow, VerdictRow};
 use serde::Serialize;
 use serde_json::Value;
 use sqlx::sqlite::SqliteRow;
@@ -27,22 +27,6 @@ pub struct ProposalRow {
     pub decided_by: Option<String>,
     pub decided_at: Option<String>,
     pub approved_version: Option<i64>,
-}
-
-/// A verdict to store.
-#[derive(Debug, Clone)]
-pub struct NewVerdict {
-    pub id: String,
-    pub job_id: Option<String>,
-    pub measurement_id: Option<String>,
-    pub part_serial: String,
-    pub recipe_name: String,
-    pub recipe_version: i64,
-    pub recipe_sha256: String,
-    pub verdict: &'static str,
-    /// [`springbench_core::qc::Verdict`].
-    pub detail: Value,
-    pub trace: Value,
 }
 
 /// An MES message to store (IPC-CFX envelope).

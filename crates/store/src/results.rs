@@ -21,8 +21,7 @@
 //! measurement's `summary`). `crates/store/tests/results.rs` runs one suite,
 //! generic over [`ResultStore`], against each backend.
 
-use crate::qc::NewVerdict;
-use crate::{NewMeasurement, NewRecording, StoreResult};
+use crate::StoreResult;
 use serde::Serialize;
 use serde_json::Value;
 use std::future::Future;
@@ -130,6 +129,52 @@ pub struct VerdictRow {
     /// The measurement's level in a series (read by [`Store::recipe_verdicts`] only).
     #[serde(skip)]
     pub level_index: Option<i64>,
+}
+
+/// A new measurement to store.
+#[derive(Debug, Clone)]
+pub struct NewMeasurement {
+    pub id: String,
+    pub part_serial: String,
+    pub job_id: Option<String>,
+    pub source: &'static str,
+    pub bench_id: Option<String>,
+    pub config: Value,
+    pub meta: Value,
+    pub result: Option<Value>,
+    pub analysis_error: Option<String>,
+    pub target_xpeak_m: Option<f64>,
+    pub repeat_index: Option<i64>,
+    pub level_index: Option<i64>,
+    /// Index into the `recordings` list handed to the same call.
+    pub pre: usize,
+    pub main: usize,
+}
+
+/// A recording to store: FLAC (or WAV) bytes and their channel scale
+/// ([`springbench_recording::codec`]).
+#[derive(Debug, Clone)]
+pub struct NewRecording {
+    pub kind: &'static str,
+    pub sample_rate_hz: f64,
+    pub frames: i64,
+    pub stored: springbench_recording::codec::Stored,
+}
+
+/// A verdict to store.
+#[derive(Debug, Clone)]
+pub struct NewVerdict {
+    pub id: String,
+    pub job_id: Option<String>,
+    pub measurement_id: Option<String>,
+    pub part_serial: String,
+    pub recipe_name: String,
+    pub recipe_version: i64,
+    pub recipe_sha256: String,
+    pub verdict: &'static str,
+    /// [`springbench_core::qc::Verdict`].
+    pub detail: Value,
+    pub trace: Value,
 }
 
 /// A measurement read back: its record, its result document (None when
