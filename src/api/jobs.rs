@@ -3,8 +3,8 @@
 use super::problem::{ApiResult, Problem};
 use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
 use crate::runner::{job, new_id, CancelOutcome};
+use crate::store::PartReads;
 use crate::store::{Inserted, Job, JobState};
-use crate::store::{PartReads, RecipeReads};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
