@@ -203,3 +203,62 @@ fn diagnose_keeps_the_main_tables() {
         assert!(stdout.contains(needle), "'{needle}' missing in:\n{stdout}");
     }
 }
+
+/// Issue 22, same state everywhere: on a part whose drive hit its limit at
+/// 1 % of the target (spider_4in on the virtual bench), every headline
+/// value that `analyze --json` marks carries the same state and reason in
+/// the table (`[STATE]` on its line, `STATE: <value> <STATE>: <reason>`
+/// below), and a `not_determined` one shows no number.
+#[test]
+fn the_table_shows_the_states_of_the_json() {
+    use springbench::bench::simulate::{simulate, SimulateOptions};
+    let part = springbench::physics::preset("spider_4in").unwrap();
+    let mut l = springbench::bench::virtual_bench::DEFAULT_LIMITS;
+    l.max_drive_v = 0.5; // about 1 % of the 50 V the 8 mm target takes
+    let opts = SimulateOptions {
+        limits: Some(l),
+        ..Default::default()
+    };
+    let sim = simulate(&part, 7, &opts).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    sim.set.write_dir(tmp.path()).unwrap();
+    let (code, json, stderr) = analyze(tmp.path(), &["--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let (code, table, stderr) = analyze(tmp.path(), &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let fields = [
+        ("f0", "small_signal", "f0_hz"),
+        ("k0", "small_signal", "k0_n_per_m"),
+        ("small-signal R", "small_signal", "r_ns_per_m"),
+        ("Q", "small_signal", "q"),
+        ("fR", "large_signal", "resonance_hz"),
+        ("Keff", "large_signal", "keff_n_per_m"),
+        ("K(x)", "stiffness", "k_of_x"),
+        ("R", "stiffness", "r_ns_per_m"),
+    ];
+    let mut marked = 0;
+    for (label, section, key) in fields {
+        let s = &v[section]["validity"][key];
+        let state = s["state"]
+            .as_str()
+            .unwrap_or_else(|| panic!("{label}: {s}"));
+        let word = state.replace('_', " ").to_uppercase();
+        let note = format!("STATE: {label} {word}: ");
+        if state == "valid" {
+            assert!(!table.contains(&note), "{label} valid in the JSON: {table}");
+            continue;
+        }
+        marked += 1;
+        let line = table
+            .lines()
+            .find(|l| l.starts_with(&note))
+            .unwrap_or_else(|| panic!("no '{note}' in {table}"));
+        assert!(line.contains(s["reason"].as_str().unwrap()), "{line}");
+    }
+    eprintln!("{table}");
+    assert!(
+        marked >= 3,
+        "a drive-limited part marks its large-signal values: {table}"
+    );
+}

@@ -1463,3 +1463,200 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
     b.assert_no_console_errors("on the reports").await;
     b.quit().await;
 }
+
+/// The headline values of a result document and the element that shows
+/// each on the measurement page: (API field, validity path, element id).
+const HEADLINE: [(&str, &str, &str); 9] = [
+    (
+        "large_signal.keff_n_per_m",
+        "large_signal.validity.keff_n_per_m",
+        "fig-keff",
+    ),
+    (
+        "large_signal.keff_at_target_n_per_m",
+        "large_signal.validity.keff_at_target_n_per_m",
+        "keff-at-target",
+    ),
+    (
+        "large_signal.resonance_hz",
+        "large_signal.validity.resonance_hz",
+        "fig-resonance",
+    ),
+    ("stiffness.k_of_x", "stiffness.validity.k_of_x", "fig-kx"),
+    (
+        "stiffness.r_ns_per_m",
+        "stiffness.validity.r_ns_per_m",
+        "fig-r",
+    ),
+    (
+        "small_signal.f0_hz",
+        "small_signal.validity.f0_hz",
+        "fig-f0",
+    ),
+    (
+        "small_signal.k0_n_per_m",
+        "small_signal.validity.k0_n_per_m",
+        "fig-k0",
+    ),
+    (
+        "small_signal.r_ns_per_m",
+        "small_signal.validity.r_ns_per_m",
+        "fig-r-small",
+    ),
+    ("small_signal.q", "small_signal.validity.q", "fig-q"),
+];
+
+fn at<'a>(v: &'a Value, path: &str) -> &'a Value {
+    path.split('.').fold(v, |v, k| &v[k])
+}
+
+/// Issue 22, same state everywhere: a part whose drive hit its limit far
+/// below the target and a part with a dark surface (laser noise 60 um), each
+/// measured by a job: every headline value on the measurement page, in the
+/// printable report (UI and API) and in the exported parameters shows the
+/// state the result document gives it, with its reason; a value
+/// `not_determined` shows no number. (Before: plain numbers, "valid".)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_parts_show_the_state_of_every_headline_value() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    b.login(&d.base, VIEWER, "viewer").await;
+    let parts = [
+        // The 8 mm target of spider_4in takes about 50 V: 0.5 V is 1 %.
+        (
+            "SN-DRIVE-1PCT",
+            json!({"part": {"serial": "SN-DRIVE-1PCT"}, "limits": {"max_drive_v": 0.5}}),
+        ),
+        (
+            "SN-DARK",
+            json!({"part": {"serial": "SN-DARK"}, "production": {"preset": "spider_4in", "seed": 3, "defect": "dark_surface"}}),
+        ),
+    ];
+    for (serial, body) in parts {
+        let id = post_job(&d, body).await;
+        let j = finished(&d, &id).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let mid = j["measurement_ids"][0].as_str().unwrap().to_string();
+        let doc = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+        // The document's states: at least one value is not valid (else this
+        // test would check nothing), and Keff at the target has a state.
+        let states: Vec<(&str, String, String)> = HEADLINE
+            .iter()
+            .filter_map(|(_, vpath, el)| {
+                let v = at(&doc, vpath);
+                let reason = v["reason"].as_str().unwrap_or("").to_string();
+                v["state"].as_str().map(|s| (*el, s.to_string(), reason))
+            })
+            .collect();
+        eprintln!("{serial}: {states:?}");
+        assert!(
+            states.iter().any(|(_, s, _)| s != "valid"),
+            "{serial}: {doc}"
+        );
+        assert!(
+            states.iter().any(|(e, _, _)| *e == "keff-at-target"),
+            "{serial}: {doc}"
+        );
+        b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
+        b.wait_js(
+            "document.querySelector('#figures #fig-keff')",
+            LONG,
+            "the figures",
+        )
+        .await;
+        for (el, state, reason) in &states {
+            let shown = b
+                .js(
+                    "const e = document.getElementById(arguments[0]); return e ? [e.dataset.state, e.textContent] : null;",
+                    vec![json!(el)],
+                )
+                .await;
+            assert_eq!(shown[0], json!(state), "{serial} #{el}: {shown}");
+            let text = shown[1].as_str().unwrap();
+            if state != "valid" {
+                let word = state.replace('_', " ").to_uppercase();
+                assert!(text.contains(&word), "{serial} #{el}: {text}");
+                assert!(
+                    text.contains(reason.as_str()),
+                    "{serial} #{el}: the reason '{reason}' in {text}"
+                );
+            }
+            if state == "not_determined" {
+                assert!(
+                    text.starts_with("NOT DETERMINED"),
+                    "{serial} #{el}: no number before the state: {text}"
+                );
+            }
+        }
+        b.screenshot(&format!("trust-{}", serial.to_lowercase()))
+            .await;
+        // The printable report (UI) and the exported parameters: the
+        // validity column says the same.
+        b.goto(&format!("{}/#/report/{mid}", d.base)).await;
+        b.wait_js(
+            "document.querySelector('#report-parameters tbody tr')",
+            LONG,
+            "the report's parameters",
+        )
+        .await;
+        let rows = b
+            .js(
+                "return [...document.querySelectorAll('#report-parameters tbody tr')].map(r => [r.dataset.field, r.cells[1].textContent, r.cells[2].textContent]);",
+                vec![],
+            )
+            .await;
+        let html = common::client()
+            .get(d.url(&format!("/api/v1/measurements/{mid}/report")))
+            .bearer_auth(VIEWER)
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        for (field, vpath, _) in HEADLINE.iter().filter(|(f, _, _)| *f != "stiffness.k_of_x") {
+            let v = at(&doc, vpath);
+            let Some(state) = v["state"].as_str() else {
+                continue;
+            };
+            let want = if state == "valid" {
+                "valid".to_string()
+            } else {
+                format!(
+                    "{}: {}",
+                    state.replace('_', " ").to_uppercase(),
+                    v["reason"].as_str().unwrap()
+                )
+            };
+            let row = rows
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|r| r[0] == json!(field))
+                .unwrap_or_else(|| panic!("{serial}: no report row for {field}: {rows}"));
+            assert_eq!(row[2], json!(want), "{serial} {field}: {row}");
+            if state == "not_determined" {
+                assert_eq!(
+                    row[1],
+                    json!("\u{2013}"),
+                    "{serial} {field}: no number: {row}"
+                );
+            }
+            let esc = want
+                .replace('&', "&amp;")
+                .replace('<', "&lt;")
+                .replace('>', "&gt;")
+                .replace('"', "&quot;");
+            assert!(
+                html.contains(&format!("<td>{esc}</td>")),
+                "{serial} {field}: the API report says {want}"
+            );
+        }
+        b.assert_no_console_errors(&format!("the pages of {serial}"))
+            .await;
+    }
+    b.quit().await;
+}

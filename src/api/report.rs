@@ -103,79 +103,180 @@ fn limits(lower: Option<f64>, upper: Option<f64>, unit: &str) -> String {
     }
 }
 
-/// (parameter, value +- se with unit, validity) rows of a result document.
-fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
+/// The state of a headline value of a result document (issue 22):
+/// `<section>.validity.<name>` as (state, reason, fit value); a document
+/// from before the states: valid, or unreliable with an unreliable
+/// small-signal fit. The same reading as the UI's `validityOf`.
+fn validity_of(doc: &Value, section: &str, name: &str) -> (String, Option<String>, Option<f64>) {
+    let v = &doc[section]["validity"][name];
+    if let Some(state) = v["state"].as_str() {
+        return (
+            state.to_string(),
+            v["reason"].as_str().map(str::to_string),
+            f(&v["fit_value"]),
+        );
+    }
+    let ss = &doc["small_signal"];
+    if section == "small_signal" && ss["reliable"].as_bool() == Some(false) {
+        return (
+            "unreliable".into(),
+            Some(format!(
+                "the small-signal fit is unreliable (misfit {} %)",
+                sig(f(&ss["misfit_percent"]).unwrap_or(f64::NAN), 3)
+            )),
+            None,
+        );
+    }
+    ("valid".into(), None, None)
+}
+
+/// "valid", or the state in capitals with its reason.
+fn state_text(state: &str, reason: Option<&str>) -> String {
+    if state == "valid" {
+        return "valid".into();
+    }
+    format!(
+        "{}: {}",
+        state.replace('_', " ").to_uppercase(),
+        reason.unwrap_or("no reason given")
+    )
+}
+
+/// One row of the parameter table: what people read, the value, its state,
+/// and whether that state is not `valid` (shown marked).
+struct Row {
+    name: String,
+    value: String,
+    validity: String,
+    marked: bool,
+}
+
+/// The parameter rows of a result document, each headline value with its
+/// state; a `not_determined` value shows no number, the fit's own number in
+/// a row named as a diagnostic (the UI's export.js `parameters`).
+fn parameter_rows(doc: &Value) -> Vec<Row> {
     let mut out = vec![];
-    let mut push = |name: &str, v: &Value, se: &Value, unit: &str, scale: f64, valid: &str| {
+    let plain = |out: &mut Vec<Row>,
+                 name: &str,
+                 v: &Value,
+                 se: &Value,
+                 unit: &str,
+                 scale: f64,
+                 valid: &str| {
         if let Some(x) = f(v) {
-            out.push((
-                name.to_string(),
-                with_se(x * scale, f(se).map(|s| s * scale), unit),
-                valid.to_string(),
-            ));
+            out.push(Row {
+                name: name.to_string(),
+                value: with_se(x * scale, f(se).map(|s| s * scale), unit),
+                validity: valid.to_string(),
+                marked: false,
+            });
+        }
+    };
+    // A headline value with its state (`section.validity.key`).
+    let headline = |out: &mut Vec<Row>,
+                    name: &str,
+                    section: &str,
+                    key: &str,
+                    se: &Value,
+                    unit: &str,
+                    scale: f64| {
+        let v = &doc[section][key];
+        let (state, reason, fit_value) = validity_of(doc, section, key);
+        let text = state_text(&state, reason.as_deref());
+        if state == "not_determined" {
+            out.push(Row {
+                name: name.to_string(),
+                value: "not determined".into(),
+                validity: text,
+                marked: true,
+            });
+            if let Some(x) = fit_value.or_else(|| f(v)) {
+                out.push(Row {
+                    name: format!("{name}: fit value (diagnostic, not a measurement)"),
+                    value: with_se(x * scale, None, unit),
+                    validity: "diagnostic".into(),
+                    marked: false,
+                });
+            }
+        } else if let Some(x) = f(v) {
+            out.push(Row {
+                name: name.to_string(),
+                value: with_se(x * scale, f(se).map(|s| s * scale), unit),
+                marked: state != "valid",
+                validity: text,
+            });
         }
     };
     let ss = &doc["small_signal"];
     if ss.is_object() {
-        let valid = if ss["reliable"].as_bool() == Some(false) {
-            format!(
-                "unreliable (misfit {} %)",
-                sig(f(&ss["misfit_percent"]).unwrap_or(f64::NAN), 3)
-            )
-        } else {
-            "valid".into()
-        };
-        push(
+        headline(
+            &mut out,
             "resonance f0 (small signal)",
-            &ss["f0_hz"],
+            "small_signal",
+            "f0_hz",
             &ss["f0_se_hz"],
             "Hz",
             1.0,
-            &valid,
         );
-        push(
+        headline(
+            &mut out,
             "stiffness k0 (small signal)",
-            &ss["k0_n_per_m"],
+            "small_signal",
+            "k0_n_per_m",
             &ss["k0_se_n_per_m"],
             "N/mm",
             1e-3,
-            &valid,
         );
-        push(
+        headline(
+            &mut out,
             "mechanical resistance R (small signal)",
-            &ss["r_ns_per_m"],
+            "small_signal",
+            "r_ns_per_m",
             &ss["r_se_ns_per_m"],
             "N\u{b7}s/m",
             1.0,
-            &valid,
         );
-        push(
+        headline(
+            &mut out,
             "quality factor Q (small signal)",
-            &ss["q"],
+            "small_signal",
+            "q",
             &ss["q_se"],
             "",
             1.0,
-            &valid,
         );
+        if f(&ss["q"]).is_none() && !out.iter().any(|r| r.name.starts_with("quality factor Q")) {
+            out.push(Row {
+                name: "quality factor Q (small signal)".into(),
+                value: "not determined".into(),
+                validity: state_text("not_determined", ss["q_null_reason"].as_str()),
+                marked: true,
+            });
+        }
     }
     let ls = &doc["large_signal"];
-    push(
+    headline(
+        &mut out,
         "effective stiffness Keff at Xpeak",
-        &ls["keff_n_per_m"],
+        "large_signal",
+        "keff_n_per_m",
         &ls["keff_se_n_per_m"],
         "N/mm",
         1e-3,
-        "valid",
     );
-    push(
-        "Keff at the target Xpeak (judged by QC)",
-        &ls["keff_at_target_n_per_m"],
-        &Value::Null,
-        "N/mm",
-        1e-3,
-        "valid",
-    );
-    push(
+    if f(&ls["target_xpeak_m"]).is_some() {
+        headline(
+            &mut out,
+            "Keff at the target Xpeak (judged by QC)",
+            "large_signal",
+            "keff_at_target_n_per_m",
+            &Value::Null,
+            "N/mm",
+            1e-3,
+        );
+    }
+    plain(
+        &mut out,
         "peak displacement Xpeak",
         &ls["xpeak_m"],
         &Value::Null,
@@ -183,15 +284,17 @@ fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
         1e3,
         "valid",
     );
-    push(
+    headline(
+        &mut out,
         "resonance (large signal)",
-        &ls["resonance_hz"],
+        "large_signal",
+        "resonance_hz",
         &Value::Null,
         "Hz",
         1.0,
-        "valid",
     );
-    push(
+    plain(
+        &mut out,
         "moving mass",
         &ls["moving_mass_kg"],
         &Value::Null,
@@ -206,6 +309,18 @@ fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
         f(&vr[0]).unwrap_or(f64::NAN) * 1e3,
         f(&vr[1]).unwrap_or(f64::NAN) * 1e3
     );
+    let (kstate, kreason, _) = validity_of(doc, "stiffness", "k_of_x");
+    let kvalid = if kstate == "valid" {
+        range
+    } else {
+        format!("{} ({range})", state_text(&kstate, kreason.as_deref()))
+    };
+    // A K(x) not determined: its coefficients are the fit's, named so.
+    let kname = if kstate == "not_determined" {
+        "K(x) fit coefficient (diagnostic, not a measurement)"
+    } else {
+        "K(x) coefficient"
+    };
     if let Some(c) = st["coefficients_n_per_m_pow_i_plus_1"].as_array() {
         for (i, k) in c.iter().enumerate() {
             let unit = if i == 0 {
@@ -213,26 +328,33 @@ fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
             } else {
                 format!("N/mm^{}", i + 1)
             };
-            push(
-                &format!("K(x) coefficient k{i}"),
+            let n = out.len();
+            plain(
+                &mut out,
+                &format!("{kname} k{i}"),
                 k,
                 &st["coefficients_se_n_per_m_pow_i_plus_1"][i],
                 &unit,
                 1e-3f64.powi(i as i32 + 1),
-                &range,
+                &kvalid,
             );
+            if let Some(r) = out.get_mut(n) {
+                r.marked = kstate != "valid";
+            }
         }
     }
-    push(
+    headline(
+        &mut out,
         "mechanical resistance R (large signal)",
-        &st["r_ns_per_m"],
+        "stiffness",
+        "r_ns_per_m",
         &st["r_se_ns_per_m"],
         "N\u{b7}s/m",
         1.0,
-        "valid",
     );
     let m = &doc["model"];
-    push(
+    plain(
+        &mut out,
         "model error",
         &m["model_error_percent"],
         &Value::Null,
@@ -240,7 +362,8 @@ fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
         1.0,
         "valid",
     );
-    push(
+    plain(
+        &mut out,
         "noise floor",
         &m["noise_floor_percent"],
         &Value::Null,
@@ -249,6 +372,24 @@ fn parameter_rows(doc: &Value) -> Vec<(String, String, String)> {
         "valid",
     );
     out
+}
+
+/// The parameters section: every row with its state, a value not valid
+/// marked.
+fn parameter_table(doc: &Value) -> String {
+    let mut s = String::from("<section id=\"parameters\"><h2>Parameters</h2><table><tr><th>parameter</th><th>value \u{b1} standard error</th><th>validity</th></tr>");
+    for r in parameter_rows(doc) {
+        let _ = write!(
+            s,
+            "<tr{}><td>{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
+            if r.marked { " class=\"marked\"" } else { "" },
+            esc(&r.name),
+            esc(&r.value),
+            esc(&r.validity)
+        );
+    }
+    s.push_str("</table></section>");
+    s
 }
 
 fn horner(c: &[f64], x: f64) -> f64 {
@@ -341,7 +482,7 @@ th{color:#555;font-weight:600}tr.fail td{color:#b3261e;font-weight:600}.num{font
 .two{display:grid;grid-template-columns:1fr 1fr;gap:0 14px}.plots{display:grid;grid-template-columns:1fr 1fr;gap:4px 10px}\
 .plots svg{width:100%;height:auto}.word{font-size:16px;font-weight:800;padding:0 6px;border-radius:3px}\
 .pass{background:#137333;color:#fff}.fail-w{background:#b3261e;color:#fff}.invalid{background:#f2a900}\
-.muted{color:#5d6b7a}.mono{font-family:'DejaVu Sans Mono',monospace}section{break-inside:avoid}\
+.marked td:last-child{color:#8a5a00;font-weight:600}.muted{color:#5d6b7a}.mono{font-family:'DejaVu Sans Mono',monospace}section{break-inside:avoid}\
 @page{margin:11mm 10mm}@media print{*{-webkit-print-color-adjust:exact;print-color-adjust:exact}}";
 
 /// The report page of a measurement.
@@ -483,17 +624,7 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
         }
     }
     s.push_str("</section></div>");
-    s.push_str("<section id=\"parameters\"><h2>Parameters</h2><table><tr><th>parameter</th><th>value \u{b1} standard error</th><th>validity</th></tr>");
-    for (name, value, valid) in parameter_rows(&doc) {
-        let _ = write!(
-            s,
-            "<tr><td>{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
-            esc(&name),
-            esc(&value),
-            esc(&valid)
-        );
-    }
-    s.push_str("</table></section>");
+    s.push_str(&parameter_table(&doc));
     s.push_str("<section id=\"plots\"><h2>Curves over the measured (valid) range</h2><div class=\"plots\">");
     for p in plots(&doc, &levels) {
         // Drawn 760 px wide and printed about 90 mm wide: larger type (the
@@ -584,5 +715,88 @@ mod tests {
             "1 \u{2026} 8 N/mm"
         );
         assert_eq!(limits(Some(2.0), None, "1"), "\u{2265} 2");
+    }
+
+    /// Issue 22: the printable report shows each headline value's state as
+    /// the result document states it (before: "valid" for every value, a
+    /// null k0 and a null Keff at the target left out without a word).
+    #[test]
+    fn the_parameters_carry_the_states_of_the_result_document() {
+        let why_k0 = "the fit gave k0 = -5.0000e0 N/m <= 0: no physical stiffness";
+        let why_noise = "the measurement's noise floor is 93.0 % of the inertia force";
+        let why_far = "Keff at the target 8.000 mm is judged over -8.0 .. 8.0 mm, 1500 % of the measured range's half-span beyond it";
+        let doc = serde_json::json!({
+            "small_signal": {
+                "f0_hz": null, "k0_n_per_m": null, "r_ns_per_m": 1.2, "q": null,
+                "k0_se_n_per_m": 3.0, "r_se_ns_per_m": 0.01, "misfit_percent": 2.0, "reliable": true,
+                "validity": {
+                    "f0_hz": {"state": "not_determined", "reason": why_k0},
+                    "k0_n_per_m": {"state": "not_determined", "reason": why_k0, "fit_value": -5.0},
+                    "r_ns_per_m": {"state": "valid"},
+                    "q": {"state": "not_determined", "reason": why_k0}
+                }
+            },
+            "large_signal": {
+                "keff_n_per_m": 2500.0, "xpeak_m": 0.0005, "resonance_hz": 35.0,
+                "moving_mass_kg": 0.05, "target_xpeak_m": 0.008, "keff_at_target_n_per_m": null,
+                "validity": {
+                    "resonance_hz": {"state": "unreliable", "reason": why_noise},
+                    "keff_n_per_m": {"state": "unreliable", "reason": why_noise},
+                    "keff_at_target_n_per_m": {"state": "not_determined", "reason": why_far}
+                }
+            },
+            "stiffness": {
+                "coefficients_n_per_m_pow_i_plus_1": [2400.0, 1.0e5],
+                "valid_range_m": [-0.0005, 0.0005], "r_ns_per_m": -0.4,
+                "validity": {
+                    "k_of_x": {"state": "unreliable", "reason": why_noise},
+                    "r_ns_per_m": {"state": "not_determined", "reason": "the fit gave R = -4.0000e-1 N s/m <= 0: no physical damping", "fit_value": -0.4}
+                }
+            },
+            "model": {"model_error_percent": 10.0, "noise_floor_percent": 93.0}
+        });
+        let t = parameter_table(&doc);
+        let row = |name: &str| -> String {
+            let i = t
+                .find(&format!("<td>{}</td>", esc(name)))
+                .unwrap_or_else(|| panic!("{name} in {t}"));
+            let j = t[..i].rfind("<tr").unwrap();
+            let k = i + t[i..].find("</tr>").unwrap();
+            t[j..k].to_string()
+        };
+        let k0 = row("stiffness k0 (small signal)");
+        assert!(
+            k0.contains("not determined")
+                && k0.contains(&esc(&format!("NOT DETERMINED: {why_k0}"))),
+            "{k0}"
+        );
+        assert!(k0.contains("class=\"marked\""), "{k0}");
+        let fit = row("stiffness k0 (small signal): fit value (diagnostic, not a measurement)");
+        assert!(fit.contains("-0.005 N/mm"), "{fit}");
+        let kt = row("Keff at the target Xpeak (judged by QC)");
+        assert!(
+            kt.contains(&esc(&format!("NOT DETERMINED: {why_far}"))),
+            "{kt}"
+        );
+        let keff = row("effective stiffness Keff at Xpeak");
+        assert!(
+            keff.contains("2.5 N/mm") && keff.contains(&esc(&format!("UNRELIABLE: {why_noise}"))),
+            "{keff}"
+        );
+        let r = row("mechanical resistance R (large signal)");
+        assert!(
+            r.contains(">not determined<") && !r.contains("-0.4 "),
+            "{r}"
+        );
+        let k = row("K(x) coefficient k0");
+        assert!(
+            k.contains("UNRELIABLE") && k.contains("class=\"marked\""),
+            "{k}"
+        );
+        let rs = row("mechanical resistance R (small signal)");
+        assert!(
+            rs.contains("<td>valid</td>") && !rs.contains("marked"),
+            "{rs}"
+        );
     }
 }

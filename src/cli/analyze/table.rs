@@ -2,6 +2,11 @@
 use crate::identify::validity::HeadlineValidity;
 use crate::identify::Report;
 
+/// A state as the tables and pages write it: "NOT DETERMINED", "UNRELIABLE"...
+fn state_word(v: &HeadlineValidity) -> String {
+    v.state.as_str().replace('_', " ").to_uppercase()
+}
+
 /// The readable table: SI and the conventional units of the field.
 pub fn table(r: &Report) -> String {
     use std::fmt::Write;
@@ -16,17 +21,27 @@ pub fn table(r: &Report) -> String {
         }
         let mut note = format!(
             "{what} {}: {}",
-            v.state.as_str().to_uppercase(),
+            state_word(v),
             v.reason.as_deref().unwrap_or("-")
         );
         if let Some(f) = v.fit_value {
             note.push_str(&format!(" (the fit gave {f:.6e})"));
         }
         notes.push(note);
-        format!("   [{}]", v.state.as_str().to_uppercase())
+        format!("   [{}]", state_word(v))
     };
     let num = |v: Option<f64>, prec: usize| {
         v.map_or("not determined".to_string(), |x| format!("{x:.prec$}"))
+    };
+    // A number the document still carries for a value `not_determined`
+    // (the large-signal ones are plain numbers) is not shown as measured:
+    // the note below the table gives the fit's number as a diagnostic.
+    let shown = |x: f64, v: &HeadlineValidity| {
+        (v.state != crate::identify::validity::State::NotDetermined).then_some(x)
+    };
+    let nd_fit = |v: &HeadlineValidity, x: f64| HeadlineValidity {
+        fit_value: v.fit_value.or(Some(x).filter(|x| x.is_finite())),
+        ..v.clone()
     };
     if let Some(s) = &r.small_signal {
         let _ = writeln!(
@@ -91,26 +106,29 @@ pub fn table(r: &Report) -> String {
         l.moving_mass_kg
     );
     let from_model = l.keff_method.as_deref() == Some("chosen_model");
+    let lv = &l.validity;
     let _ = writeln!(
         o,
-        "  fR      {:>10.3} Hz   ({}){}",
-        l.resonance_hz,
+        "  fR      {:>10} Hz   ({}){}",
+        num(shown(l.resonance_hz, &lv.resonance_hz), 3),
         if from_model {
             "Keff of the chosen model's K(x) resonating with m"
         } else {
             "x lags the force by 90 degrees"
         },
-        tag("fR", &l.validity.resonance_hz)
+        tag("fR", &nd_fit(&lv.resonance_hz, l.resonance_hz))
     );
+    let keff = shown(l.keff_n_per_m, &lv.keff_n_per_m);
     let _ = writeln!(
         o,
-        "  Keff    {:>10.1} N/m{}   ({:.4} N/mm) @ Xpeak = {:.3} mm{}",
-        l.keff_n_per_m,
+        "  Keff    {:>10} N/m{}   ({} N/mm) @ Xpeak = {:.3} mm{}",
+        num(keff, 1),
         l.keff_se_n_per_m
+            .filter(|_| keff.is_some())
             .map_or(String::new(), |se| format!(" ± {se:.1}")),
-        l.keff_n_per_m * 1e-3,
+        num(keff.map(|k| k * 1e-3), 4),
         mm(l.xpeak_m),
-        tag("Keff", &l.validity.keff_n_per_m)
+        tag("Keff", &nd_fit(&lv.keff_n_per_m, l.keff_n_per_m))
     );
     if let Some(xt) = l.target_xpeak_m {
         let st = l
@@ -170,9 +188,14 @@ pub fn table(r: &Report) -> String {
     let k = &r.stiffness;
     let _ = writeln!(
         o,
-        "Stiffness K(x) = sum k_i x^i ({}, order {}), valid for x in [{:.3}, {:.3}] mm{}",
+        "Stiffness K(x) = sum k_i x^i ({}, order {}), {} x in [{:.3}, {:.3}] mm{}",
         k.method,
         k.order,
+        if k.validity.k_of_x.state == crate::identify::validity::State::NotDetermined {
+            "NOT DETERMINED: the fit's coefficients below are a diagnostic, not a measurement, for"
+        } else {
+            "valid for"
+        },
         mm(k.valid_range_m[0]),
         mm(k.valid_range_m[1]),
         tag("K(x)", &k.validity.k_of_x)
@@ -196,9 +219,9 @@ pub fn table(r: &Report) -> String {
     }
     let _ = writeln!(
         o,
-        "  R  {:>10.4} N s/m{}",
-        k.r_ns_per_m,
-        tag("R", &k.validity.r_ns_per_m)
+        "  R  {:>10} N s/m{}",
+        num(shown(k.r_ns_per_m, &k.validity.r_ns_per_m), 4),
+        tag("R", &nd_fit(&k.validity.r_ns_per_m, k.r_ns_per_m))
     );
     if let Some(s) = k.force_per_mic_v_n_per_v {
         let _ = writeln!(o, "  force per mic volt {s:.5} N/V");
@@ -254,4 +277,49 @@ pub fn table(r: &Report) -> String {
         let _ = writeln!(o, "WARNING: {w}");
     }
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::validity::State;
+
+    /// Issue 22: a large-signal value `not_determined` (a plain number in
+    /// the document: R, Keff, fR) shows no number on its line; the fit's
+    /// number only in the state note, named as the fit's (before: R printed
+    /// as -0.4000 N s/m with the tag beside it).
+    #[test]
+    fn a_value_not_determined_shows_no_number() {
+        let mut r = Report::default();
+        r.stiffness.coefficients_n_per_m_pow_i_plus_1 = vec![2400.0];
+        r.stiffness.valid_range_m = [-0.001, 0.001];
+        r.stiffness.r_ns_per_m = -0.4;
+        r.large_signal.keff_n_per_m = 2512.5;
+        crate::identify::validity::judge(&mut r);
+        r.large_signal
+            .validity
+            .keff_n_per_m
+            .mark(State::NotDetermined, "test: Keff not determined");
+        assert_eq!(r.stiffness.validity.r_ns_per_m.state, State::NotDetermined);
+        let t = table(&r);
+        let line = |p: &str| {
+            t.lines()
+                .find(|l| l.trim_start().starts_with(p))
+                .unwrap()
+                .to_string()
+        };
+        let rl = line("R ");
+        assert!(
+            rl.contains("not determined") && !rl.contains("-0.4"),
+            "{rl}"
+        );
+        assert!(rl.contains("[NOT DETERMINED]"), "{rl}");
+        let kl = line("Keff ");
+        assert!(
+            kl.contains("not determined") && !kl.contains("2512"),
+            "{kl}"
+        );
+        assert!(t.contains("the fit gave -4.000000e-1"), "{t}");
+        assert!(t.contains("the fit gave 2.512500e3"), "{t}");
+    }
 }

@@ -2,7 +2,7 @@
 // each drawn over its own valid range only, with their headline figures.
 
 import { api } from './api.js';
-import { h, put, q, when, shortId, poly, linspace } from './util.js';
+import { h, put, q, when, shortId, poly, linspace, validityOf, stated } from './util.js';
 import { chart, COLORS } from './plots.js';
 import { stiffnessMm } from './measurement.js';
 import { keffChart } from './report.js';
@@ -89,8 +89,8 @@ export async function render(main, ctx) {
       h('td', {}, h('a', { href: `#/measurement/${d.measurement.id}` }, shortId(d.measurement.id))),
       h('td', {}, when(d.measurement.created_at)),
       h('td', {}, q(ls.xpeak_m, 'mm', 1e3, 3)),
-      h('td', {}, q(ls.keff_n_per_m, 'N/mm', 1e-3)),
-      h('td', {}, q(s.c[0], 'N/mm')),
+      h('td', {}, stated(q(ls.keff_n_per_m, 'N/mm', 1e-3), validityOf(d, 'large_signal.keff_n_per_m'), { unit: 'N/mm', scale: 1e-3, raw: ls.keff_n_per_m })),
+      h('td', {}, stated(q(s.c[0], 'N/mm'), validityOf(d, 'stiffness.k_of_x'), { unit: 'N/mm', raw: s.c[0] })),
       h('td', {}, `${q(s.lo, 'mm', 1, 3)} \u2026 ${q(s.hi, 'mm', 1, 3)}`),
       h('td', {}, remove));
   }));

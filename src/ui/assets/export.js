@@ -4,7 +4,7 @@
 // written with full precision (shortest round-trip decimal), so a file
 // reproduces the API's numbers.
 
-import { pick } from './util.js';
+import { pick, validityOf, stateText } from './util.js';
 
 /** Grid points of the exported curves (both ends of the valid range included). */
 export const GRID_POINTS = 201;
@@ -36,7 +36,23 @@ function prow(name, field, value, se, unit, validity) {
   return { parameter: name, api_field: field, value, standard_error: se, unit, validity };
 }
 
-/** The parameter table of a result document (SI, with standard errors and validity). */
+/**
+ * The rows of a headline value with its state (issue 22): the value and
+ * 'valid' or 'UNRELIABLE: <reason>' ...; a not_determined value has no
+ * value, and the fit's number comes in a row of its own named as a
+ * diagnostic.
+ */
+function hrows(doc, name, field, value, se, unit, vfield = field) {
+  const v = validityOf(doc, vfield);
+  if (v.state !== 'not_determined') return [prow(name, field, value, se, unit, stateText(v))];
+  const [sec, key] = vfield.split('.');
+  const fit = Number.isFinite(v.fit_value) ? v.fit_value : value;
+  const out = [prow(name, field, null, null, unit, stateText(v))];
+  if (Number.isFinite(fit)) out.push(prow(`${name}: fit value (diagnostic, not a measurement)`, Number.isFinite(v.fit_value) ? `${sec}.validity.${key}.fit_value` : field, fit, null, unit, 'diagnostic'));
+  return out;
+}
+
+/** The parameter table of a result document (SI, with standard errors and each value's state). */
 export function parameters(doc) {
   const out = [];
   const ss = doc.small_signal;
@@ -44,25 +60,30 @@ export function parameters(doc) {
   const st = doc.stiffness || {};
   const m = doc.model || {};
   if (ss) {
-    const v = ss.reliable ? 'valid' : `unreliable (misfit ${Number(ss.misfit_percent).toPrecision(3)} %)`;
-    out.push(prow('resonance f0 (small signal)', 'small_signal.f0_hz', ss.f0_hz, ss.f0_se_hz, 'Hz', v));
-    out.push(prow('stiffness k0 (small signal)', 'small_signal.k0_n_per_m', ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/m', v));
-    out.push(prow('mechanical resistance R (small signal)', 'small_signal.r_ns_per_m', ss.r_ns_per_m, ss.r_se_ns_per_m, 'N s/m', v));
-    out.push(prow('quality factor Q (small signal)', 'small_signal.q', ss.q, ss.q_se, '1', Number.isFinite(ss.q) ? v : `not determined: ${ss.q_null_reason || 'no value'}`));
+    out.push(...hrows(doc, 'resonance f0 (small signal)', 'small_signal.f0_hz', ss.f0_hz, ss.f0_se_hz, 'Hz'));
+    out.push(...hrows(doc, 'stiffness k0 (small signal)', 'small_signal.k0_n_per_m', ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/m'));
+    out.push(...hrows(doc, 'mechanical resistance R (small signal)', 'small_signal.r_ns_per_m', ss.r_ns_per_m, ss.r_se_ns_per_m, 'N s/m'));
+    const qv = validityOf(doc, 'small_signal.q');
+    if (qv.state === 'valid' && !Number.isFinite(ss.q)) out.push(prow('quality factor Q (small signal)', 'small_signal.q', null, null, '1', `NOT DETERMINED: ${ss.q_null_reason || 'no value'}`));
+    else out.push(...hrows(doc, 'quality factor Q (small signal)', 'small_signal.q', ss.q, ss.q_se, '1'));
   }
-  out.push(prow('effective stiffness Keff at Xpeak', 'large_signal.keff_n_per_m', ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/m', 'valid'));
-  if (Number.isFinite(ls.keff_at_target_n_per_m)) {
-    out.push(prow('Keff at the target Xpeak (judged by QC)', 'large_signal.keff_at_target_n_per_m', ls.keff_at_target_n_per_m, null, 'N/m', 'valid'));
+  out.push(...hrows(doc, 'effective stiffness Keff at Xpeak', 'large_signal.keff_n_per_m', ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/m'));
+  if (Number.isFinite(ls.target_xpeak_m)) {
+    out.push(...hrows(doc, 'Keff at the target Xpeak (judged by QC)', 'large_signal.keff_at_target_n_per_m', ls.keff_at_target_n_per_m, null, 'N/m'));
   }
   out.push(prow('peak displacement Xpeak', 'large_signal.xpeak_m', ls.xpeak_m, null, 'm', 'valid'));
-  out.push(prow('resonance (large signal)', 'large_signal.resonance_hz', ls.resonance_hz, null, 'Hz', 'valid'));
+  out.push(...hrows(doc, 'resonance (large signal)', 'large_signal.resonance_hz', ls.resonance_hz, null, 'Hz'));
   out.push(prow('moving mass', 'large_signal.moving_mass_kg', ls.moving_mass_kg, null, 'kg', 'entered'));
   const c = st.coefficients_n_per_m_pow_i_plus_1 || [];
   const se = st.coefficients_se_n_per_m_pow_i_plus_1 || [];
   const vr = st.valid_range_m || [];
+  const kv = validityOf(doc, 'stiffness.k_of_x');
   const range = `valid for ${Number(vr[0] * 1e3).toFixed(3)} .. ${Number(vr[1] * 1e3).toFixed(3)} mm`;
-  c.forEach((k, i) => out.push(prow(`K(x) coefficient k${i}`, `stiffness.coefficients_n_per_m_pow_i_plus_1[${i}]`, k, se[i], i === 0 ? 'N/m' : `N/m^${i + 1}`, range)));
-  out.push(prow('mechanical resistance R (large signal)', 'stiffness.r_ns_per_m', st.r_ns_per_m, st.r_se_ns_per_m, 'N s/m', 'valid'));
+  const kstate = kv.state === 'valid' ? range : `${stateText(kv)} (${range})`;
+  // A K(x) not determined: its coefficients are the fit's, named as diagnostics.
+  const kname = kv.state === 'not_determined' ? 'K(x) fit coefficient (diagnostic, not a measurement)' : 'K(x) coefficient';
+  c.forEach((k, i) => out.push(prow(`${kname} k${i}`, `stiffness.coefficients_n_per_m_pow_i_plus_1[${i}]`, k, se[i], i === 0 ? 'N/m' : `N/m^${i + 1}`, kstate)));
+  out.push(...hrows(doc, 'mechanical resistance R (large signal)', 'stiffness.r_ns_per_m', st.r_ns_per_m, st.r_se_ns_per_m, 'N s/m'));
   out.push(prow('model error', 'model.model_error_percent', m.model_error_percent, null, '%', 'valid'));
   out.push(prow('noise floor', 'model.noise_floor_percent', m.noise_floor_percent, null, '%', 'valid'));
   for (const [effect, ps] of Object.entries(m.effects || pick(doc, 'model.effects') || {})) {

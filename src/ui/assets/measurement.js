@@ -6,7 +6,7 @@
 // clipboard), the printable report and the recordings to download.
 
 import { api, download } from './api.js';
-import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm } from './util.js';
+import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated } from './util.js';
 import { chart } from './plots.js';
 import { verdictCard } from './verdict.js';
 import { parametersCsv, curvesCsv, exportJson, saveText, copyText, GRID_POINTS } from './export.js';
@@ -74,28 +74,34 @@ async function recipeMask(verdict) {
   }
 }
 
-/** The figures table: each value rounded to its uncertainty, the unit after the \u00b1. */
+/**
+ * The figures table: each value rounded to its uncertainty, the unit after
+ * the \u00b1, and each headline value with its state (issue 22): a value not
+ * valid shows its state and reason; a not_determined one no number.
+ */
 export function figuresTable(doc) {
   const ls = doc.large_signal || {};
   const ss = doc.small_signal || null;
   const model = doc.model || {};
   const st = doc.stiffness || {};
-  const unrel = ss && !ss.reliable ? h('span', { class: 'flag', title: 'the small-signal fit is unreliable' }, ' unreliable') : null;
+  const vr = st.valid_range_m || [NaN, NaN];
+  const v = (field) => validityOf(doc, field);
   return h('table', { class: 'kv', id: 'figures' },
-    row('Keff at Xpeak', h('span', { id: 'fig-keff' }, withSe(ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/mm', 1e-3))),
-    Number.isFinite(ls.keff_at_target_n_per_m)
-      ? row(`Keff at the target ${q(ls.target_xpeak_m, 'mm', 1e3)} (judged by QC)`, h('span', { id: 'keff-at-target' }, q(ls.keff_at_target_n_per_m, 'N/mm', 1e-3)))
+    row('Keff at Xpeak', stated(withSe(ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/mm', 1e-3), v('large_signal.keff_n_per_m'), { unit: 'N/mm', scale: 1e-3, raw: ls.keff_n_per_m, id: 'fig-keff' })),
+    Number.isFinite(ls.target_xpeak_m)
+      ? row(`Keff at the target ${q(ls.target_xpeak_m, 'mm', 1e3)} (judged by QC)`, stated(q(ls.keff_at_target_n_per_m, 'N/mm', 1e-3), v('large_signal.keff_at_target_n_per_m'), { unit: 'N/mm', scale: 1e-3, id: 'keff-at-target' }))
       : null,
     row('Ceff at Xpeak', q(ls.ceff_m_per_n, 'mm/N', 1e3)),
     row('Xpeak', q(ls.xpeak_m, 'mm', 1e3)),
     row('x range', `${q(ls.x_min_m, 'mm', 1e3)} \u2026 ${q(ls.x_max_m, 'mm', 1e3)}`),
-    row('resonance (large signal)', q(ls.resonance_hz, 'Hz')),
+    row('resonance (large signal)', stated(q(ls.resonance_hz, 'Hz'), v('large_signal.resonance_hz'), { unit: 'Hz', raw: ls.resonance_hz, id: 'fig-resonance' })),
+    row('K(x) over its valid range', stated(`${q(vr[0], 'mm', 1e3, 3)} \u2026 ${q(vr[1], 'mm', 1e3, 3)}`, v('stiffness.k_of_x'), { id: 'fig-kx' })),
     row('moving mass', q(ls.moving_mass_kg, 'g', 1e3)),
-    ss ? row('f0 (small signal)', h('span', {}, withSe(ss.f0_hz, ss.f0_se_hz, 'Hz'), unrel)) : null,
-    ss ? row('k0 (small signal)', h('span', {}, withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3), unrel)) : null,
-    ss ? row('R (small signal)', h('span', {}, withSe(ss.r_ns_per_m, ss.r_se_ns_per_m, 'N\u00b7s/m'), unrel)) : null,
-    ss ? row('Q (small signal)', Number.isFinite(ss.q) ? h('span', {}, withSe(ss.q, ss.q_se), unrel) : `not determined${ss.q_null_reason ? `: ${ss.q_null_reason}` : ''}`) : null,
-    row('R (large signal)', withSe(st.r_ns_per_m, st.r_se_ns_per_m, 'N\u00b7s/m')),
+    ss ? row('f0 (small signal)', stated(withSe(ss.f0_hz, ss.f0_se_hz, 'Hz'), v('small_signal.f0_hz'), { unit: 'Hz', id: 'fig-f0' })) : null,
+    ss ? row('k0 (small signal)', stated(withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3), v('small_signal.k0_n_per_m'), { unit: 'N/mm', scale: 1e-3, id: 'fig-k0' })) : null,
+    ss ? row('R (small signal)', stated(withSe(ss.r_ns_per_m, ss.r_se_ns_per_m, 'N\u00b7s/m'), v('small_signal.r_ns_per_m'), { unit: 'N\u00b7s/m', id: 'fig-r-small' })) : null,
+    ss ? row('Q (small signal)', stated(withSe(ss.q, ss.q_se), qValidity(doc), { id: 'fig-q' })) : null,
+    row('R (large signal)', stated(withSe(st.r_ns_per_m, st.r_se_ns_per_m, 'N\u00b7s/m'), v('stiffness.r_ns_per_m'), { unit: 'N\u00b7s/m', raw: st.r_ns_per_m, id: 'fig-r' })),
     row('model error', h('span', { id: 'fig-model-error' }, q(model.model_error_percent, '% of RMS(m\u00b7x\u2033)', 1, 3))),
     row('noise floor', q(model.noise_floor_percent, '%', 1, 3)),
     row('effects in the model', effectsText(model.effects)),
@@ -103,13 +109,24 @@ export function figuresTable(doc) {
   );
 }
 
+/** Q's state; a document from before the states with a null Q: not determined with its reason. */
+function qValidity(doc) {
+  const ss = doc.small_signal || {};
+  const v = validityOf(doc, 'small_signal.q');
+  if (v.state === 'valid' && !Number.isFinite(ss.q)) return { state: 'not_determined', reason: ss.q_null_reason || 'no value' };
+  return v;
+}
 
 /** K(x) coefficients with standard errors (N/mm^(i+1)). */
 export function coefficientTable(doc) {
   const { c } = stiffnessMm(doc);
   const se = pick(doc, 'stiffness.coefficients_se_n_per_m_pow_i_plus_1', 'stiffness.coefficients_se') || [];
-  return h('table', { class: 'list', id: 'coefficients' },
-    h('thead', {}, h('tr', {}, h('th', {}, 'K(x) coefficient'), h('th', {}, 'value \u00b1 standard error'))),
+  // K(x)'s state above the table; a K(x) not determined is the fit's, not a measurement.
+  const v = validityOf(doc, 'stiffness.k_of_x');
+  const nd = v.state === 'not_determined';
+  return h('table', { class: 'list', id: 'coefficients', dataset: { state: v.state } },
+    v.state !== 'valid' ? h('caption', {}, stated('', v)) : null,
+    h('thead', {}, h('tr', {}, h('th', {}, nd ? 'K(x) fit coefficient (diagnostic, not a measurement)' : 'K(x) coefficient'), h('th', {}, 'value \u00b1 standard error'))),
     h('tbody', {}, c.map((k, i) => h('tr', {}, h('td', {}, `k${i}`), h('td', { class: 'num' }, withSe(k, (se[i] ?? NaN) * 1e-3 ** (i + 1), coefUnitMm(i)))))));
 }
 

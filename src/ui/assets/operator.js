@@ -7,7 +7,7 @@
 // the recent jobs with their verdicts.
 
 import { api, events, ApiError, Unreachable } from './api.js';
-import { h, put, q, dur, when, shortId, pick, VERDICT_WORDS } from './util.js';
+import { h, put, q, dur, when, shortId, pick, VERDICT_WORDS, validityOf, stated } from './util.js';
 import { rankReasons, reasonText, failureText } from './verdict.js';
 import { chart } from './plots.js';
 
@@ -370,9 +370,9 @@ export async function render(main, ctx) {
     if (verdictFor !== `${j.id}:${j.state}`) return;
     const ls = (m && m.large_signal) || {};
     const figures = h('table', { class: 'kv' },
-      h('tr', {}, h('th', {}, 'Keff at Xpeak'), h('td', {}, q(ls.keff_n_per_m, 'N/mm', 1e-3))),
+      h('tr', {}, h('th', {}, 'Keff at Xpeak'), h('td', {}, stated(q(ls.keff_n_per_m, 'N/mm', 1e-3), validityOf(m, 'large_signal.keff_n_per_m'), { unit: 'N/mm', scale: 1e-3, raw: ls.keff_n_per_m }))),
       h('tr', {}, h('th', {}, 'Xpeak'), h('td', {}, q(ls.xpeak_m, 'mm', 1e3))),
-      h('tr', {}, h('th', {}, 'resonance'), h('td', {}, q(ls.resonance_hz, 'Hz'))),
+      h('tr', {}, h('th', {}, 'resonance'), h('td', {}, stated(q(ls.resonance_hz, 'Hz'), validityOf(m, 'large_signal.resonance_hz'), { unit: 'Hz', raw: ls.resonance_hz }))),
     );
     if (m && m.measurement && m.measurement.analysis_error) {
       put(verdictEl, head('not-measured', 'NO RESULT', h('p', { class: 'verdict-why' }, `analysis failed: ${m.measurement.analysis_error}`)));

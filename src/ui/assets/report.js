@@ -6,7 +6,7 @@
 // curves overlaid. Print it with the browser (Ctrl+P, or "Print" here).
 
 import { api } from './api.js';
-import { h, put, q, when, shortId, poly, polyIntegral, linspace, withSe, displayUnit, coefUnitMm, VERDICT_WORDS } from './util.js';
+import { h, put, q, when, shortId, poly, polyIntegral, linspace, withSe, displayUnit, coefUnitMm, VERDICT_WORDS, validityOf, stated } from './util.js';
 import { chart, COLORS } from './plots.js';
 import { stiffnessMm, headlineDoc, drawCurves, drawLevels, effectsText } from './measurement.js';
 import { parameters } from './export.js';
@@ -33,7 +33,7 @@ function parameterRows(doc) {
       return h('tr', { dataset: { field: p.api_field } },
         h('td', {}, p.parameter),
         h('td', { class: 'num' }, withSe(p.value, p.standard_error, unit, scale)),
-        h('td', {}, p.validity));
+        h('td', { class: p.validity === 'valid' || p.validity === 'entered' || p.validity === 'diagnostic' || /^valid for /.test(p.validity) ? '' : 'validity-word' }, p.validity));
     })));
 }
 
@@ -136,10 +136,10 @@ async function comparisonReport(main, ctx, ids) {
             h('td', { class: 'mono' }, shortId(d.measurement.id)),
             h('td', {}, when(d.measurement.created_at)),
             h('td', {}, v ? `${VERDICT_WORDS[v.verdict] || v.verdict} (${v.recipe_name} v${v.recipe_version}, ${String(v.recipe_sha256 || '').slice(0, 12)})` : 'not judged'),
-            h('td', { class: 'num' }, withSe(ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/mm', 1e-3)),
+            h('td', { class: 'num' }, stated(withSe(ls.keff_n_per_m, ls.keff_se_n_per_m, 'N/mm', 1e-3), validityOf(d, 'large_signal.keff_n_per_m'), { unit: 'N/mm', scale: 1e-3, raw: ls.keff_n_per_m })),
             h('td', { class: 'num' }, q(ls.xpeak_m, 'mm', 1e3)),
-            h('td', { class: 'num' }, withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3)),
-            h('td', { class: 'num' }, withSe(ss.f0_hz, ss.f0_se_hz, 'Hz')),
+            h('td', { class: 'num' }, stated(withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3), validityOf(d, 'small_signal.k0_n_per_m'), { unit: 'N/mm', scale: 1e-3 })),
+            h('td', { class: 'num' }, stated(withSe(ss.f0_hz, ss.f0_se_hz, 'Hz'), validityOf(d, 'small_signal.f0_hz'), { unit: 'Hz' })),
             h('td', { class: 'num' }, q((d.model || {}).model_error_percent, '%', 1, 3)),
             h('td', {}, d.measurement.software_version));
         }))),

@@ -229,3 +229,51 @@ const SUPERSCRIPT = { 2: '\u00b2', 3: '\u00b3', 4: '\u2074', 5: '\u2075', 6: '\u
 export function coefUnitMm(i) {
   return i === 0 ? 'N/mm' : `N/mm${SUPERSCRIPT[i + 1] || `^${i + 1}`}`;
 }
+
+// --- headline values and their states (issue 22, decision 0032) ---------------
+
+/** How each state of a headline value is written (a value not valid: capitals). */
+export const STATE_WORDS = { valid: 'valid', extrapolated: 'EXTRAPOLATED', unreliable: 'UNRELIABLE', not_determined: 'NOT DETERMINED' };
+
+/**
+ * The state of a headline value of a result document, by its API field
+ * ('small_signal.k0_n_per_m', 'large_signal.keff_at_target_n_per_m',
+ * 'stiffness.k_of_x', 'stiffness.r_ns_per_m', ...): {state, reason,
+ * fit_value}, as `<section>.validity.<name>` states it. A document from
+ * before the states: valid, or unreliable with an unreliable small-signal fit.
+ */
+export function validityOf(doc, field) {
+  const [sec, name] = String(field).split('.');
+  const v = pick(doc || {}, `${sec}.validity.${name}`);
+  if (v && v.state) return v;
+  const ss = (doc || {}).small_signal;
+  if (sec === 'small_signal' && ss && ss.reliable === false) {
+    return { state: 'unreliable', reason: `the small-signal fit is unreliable (misfit ${num(ss.misfit_percent, 3)} %)` };
+  }
+  return { state: 'valid' };
+}
+
+/** The state as one line of text: 'valid', or 'UNRELIABLE: <reason>'. */
+export function stateText(v) {
+  if (!v || !v.state || v.state === 'valid') return 'valid';
+  return `${STATE_WORDS[v.state] || v.state}: ${v.reason || 'no reason given'}`;
+}
+
+/**
+ * A headline value as every page shows it: `text` (the formatted number)
+ * when valid; with its state word and reason visible when not; a
+ * `not_determined` value shows no number, the fit's own number (the
+ * state's fit_value, else `raw`, SI) only under a named diagnostic label.
+ */
+export function stated(text, v, { unit = '', scale = 1, raw, id } = {}) {
+  const state = (v && v.state) || 'valid';
+  if (state === 'valid') return h('span', { id, class: 'validity validity-valid', dataset: { state } }, text);
+  const word = h('span', { class: 'validity-word' }, STATE_WORDS[state] || state);
+  const why = h('span', { class: 'validity-reason' }, v.reason || 'no reason given');
+  if (state === 'not_determined') {
+    const f = Number.isFinite(v.fit_value) ? v.fit_value : raw;
+    const fit = Number.isFinite(f) ? h('span', { class: 'validity-fit' }, `fit value (diagnostic, not a measurement): ${num(f * scale, 4)}${unit ? ` ${unit}` : ''}`) : null;
+    return h('span', { id, class: `validity validity-${state}`, dataset: { state } }, word, h('br'), why, fit ? [h('br'), fit] : null);
+  }
+  return h('span', { id, class: `validity validity-${state}`, dataset: { state } }, text, ' ', word, h('br'), why);
+}

@@ -19,6 +19,7 @@ const INVALID = [
   ['non_finite_value', 'The result held an invalid number', 'Call the engineer.'],
   ['small_signal_unreliable', 'The small-signal fit is unreliable', 'Measure it again; if it repeats, call the engineer.'],
   ['model_error_high', 'The model does not fit this part', 'Measure it again; if it repeats, call the engineer.'],
+  ['value_not_determined', 'A judged value could not be determined from this measurement', 'Measure it again; if it repeats, call the engineer.'],
   ['outside_measured_range', 'A judged point lies outside the measured range', 'Call the engineer: the recipe judges K(x) where this part was not measured.'],
   ['mask_coverage', 'The K(x) mask lies outside the measured range', 'Call the engineer: the recipe\u2019s mask is wider than the range measured.'],
 ];

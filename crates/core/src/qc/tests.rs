@@ -540,3 +540,58 @@ fn a_non_finite_value_makes_the_verdict_invalid_not_null() {
     let doc = crate::finite::to_value(&v).unwrap();
     assert_eq!(doc["verdict"], "invalid");
 }
+
+/// Issue 22: a part that reached 0.5 mm of an 8 mm target (a drive limit):
+/// Keff at the target would be K(x) extrapolated 16 times past the measured
+/// range, `not_determined` in the result. QC does not judge the fit's
+/// number (before: `pass` or `fail` on it beside the invalid reasons): the
+/// verdict is invalid with the reason, and no Keff parameter is judged.
+#[test]
+fn a_keff_at_target_not_determined_is_invalid_not_judged() {
+    let mut r = report(2400.0, 0.0, 3.0e7, 6.0);
+    r.stiffness.valid_range_m = [-0.0005, 0.0005];
+    r.large_signal.xpeak_m = 0.0005;
+    r.large_signal.x_min_at_resonance_m = -0.0005;
+    r.large_signal.x_max_at_resonance_m = 0.0005;
+    let mut rc = recipe();
+    rc.parameters = vec![param("Keff", Quantity::Keff, None, Some(1.0), Some(1e12))];
+    rc.kx_mask = None;
+    rc.validity.min_xpeak_ratio = 0.0;
+    let v = judge(&rc, &facts(r.clone()));
+    assert_eq!(v.verdict, VerdictKind::Invalid, "{v:?}");
+    assert!(v.parameters.iter().all(|p| p.name != "Keff"), "{v:?}");
+    let why = v
+        .invalid_reasons
+        .iter()
+        .find(|x| x.code == "value_not_determined")
+        .unwrap_or_else(|| panic!("{v:?}"));
+    assert!(why.detail.starts_with("Keff: not determined"), "{why:?}");
+    assert!(why.detail.contains("measure at a level"), "{why:?}");
+    // The same part measured to 7.8 mm: judged (and passes these limits).
+    r.stiffness.valid_range_m = [-0.0078, 0.0078];
+    r.large_signal.x_min_at_resonance_m = -0.0078;
+    r.large_signal.x_max_at_resonance_m = 0.0078;
+    let v = judge(&rc, &facts(r));
+    assert_eq!(v.verdict, VerdictKind::Pass, "{v:?}");
+}
+
+/// Issue 22: k0 that the result marks `not_determined` (the fit gave
+/// k0 <= 0; the headline is null) is invalid with the result's reason, not
+/// an anonymous `analysis_failed`.
+#[test]
+fn a_small_signal_value_not_determined_names_its_reason() {
+    let mut r = report(2400.0, 0.0, 3.0e7, 6.0);
+    let ss = r.small_signal.as_mut().unwrap();
+    ss.k0_n_per_m = Some(-5.0);
+    crate::identify::validity::judge_small_signal(ss);
+    let mut rc = recipe();
+    rc.parameters = vec![param("k0", Quantity::K0, None, Some(1.0), Some(1e6))];
+    rc.kx_mask = None;
+    let v = judge(&rc, &facts(r));
+    assert_eq!(v.verdict, VerdictKind::Invalid);
+    let codes: Vec<&str> = v.invalid_reasons.iter().map(|x| x.code.as_str()).collect();
+    assert_eq!(codes, ["value_not_determined"], "{v:?}");
+    assert!(v.invalid_reasons[0]
+        .detail
+        .contains("no physical stiffness"));
+}

@@ -62,7 +62,8 @@ pub struct InvalidReason {
     /// `analysis_failed`, `target_not_reached`, `small_signal_unreliable`,
     /// `model_error_high`, `noise_high`, `clipping`, `alignment`,
     /// `outside_measured_range`, `mask_coverage`, `job_failed`, `hardware_fault`,
-    /// `interrupted`, `non_finite_value`.
+    /// `interrupted`, `non_finite_value`, `value_not_determined` (a judged
+    /// value whose state in the result is `not_determined`, issue 22).
     pub code: String,
     pub detail: String,
 }
@@ -278,6 +279,34 @@ pub fn set_keff_at_target(r: &mut crate::identify::Report, target_xpeak_m: Optio
     crate::identify::validity::judge(r);
 }
 
+/// The state of the value QC judges for `q`, as the result document states
+/// it: the small-signal values', K(x)'s, and for Keff that of Keff at the
+/// target (with a target; [`set_keff_at_target`] states it the same way) or
+/// of the measured Keff.
+fn judged_validity(
+    r: &crate::identify::Report,
+    q: Quantity,
+    target_xpeak_m: Option<f64>,
+) -> Option<crate::identify::validity::HeadlineValidity> {
+    let ss = r.small_signal.as_ref().map(|s| &s.validity);
+    match q {
+        Quantity::K0 => ss.map(|v| v.k0_n_per_m.clone()),
+        Quantity::F0 => ss.map(|v| v.f0_hz.clone()),
+        Quantity::Q => ss.map(|v| v.q.clone()),
+        Quantity::R => ss.map(|v| v.r_ns_per_m.clone()),
+        Quantity::Keff => match target_xpeak_m.filter(|x| x.is_finite() && *x > 0.0) {
+            Some(xt) => {
+                let mut c = r.clone();
+                set_keff_at_target(&mut c, Some(xt));
+                c.large_signal.validity.keff_at_target_n_per_m
+            }
+            None => Some(r.large_signal.validity.keff_n_per_m.clone()),
+        },
+        Quantity::KAtX | Quantity::KAsymmetry => Some(r.stiffness.validity.k_of_x.clone()),
+        Quantity::ModelError | Quantity::EffectSize => None,
+    }
+}
+
 /// The verdict of one measurement under a recipe.
 pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
     finite_verdict(judge_values(recipe, facts))
@@ -316,6 +345,23 @@ pub(super) fn judge_values(recipe: &Recipe, facts: &RunFacts) -> Verdict {
             continue;
         }
         let ss = r.small_signal.as_ref();
+        // A value the result marks `not_determined` (unphysical, or Keff at
+        // a target far outside the measured range) is no measurement: the
+        // verdict is invalid with its reason, never pass or fail on the
+        // fit's number (issue 22).
+        if let Some(v) = judged_validity(r, p.quantity, facts.target_xpeak_m)
+            .filter(|v| v.state == crate::identify::validity::State::NotDetermined)
+        {
+            invalid.push(reason(
+                "value_not_determined",
+                format!(
+                    "{}: not determined: {}",
+                    p.name,
+                    v.reason.as_deref().unwrap_or("no reason given")
+                ),
+            ));
+            continue;
+        }
         let value = match p.quantity {
             Quantity::K0 => ss.and_then(|s| s.k0_n_per_m),
             Quantity::F0 => ss.and_then(|s| s.f0_hz),
@@ -365,8 +411,19 @@ pub(super) fn judge_values(recipe: &Recipe, facts: &RunFacts) -> Verdict {
             )),
         }
     }
+    let kx = &r.stiffness.validity.k_of_x;
     if let Some(m) = &recipe.kx_mask {
-        if m.level_index.is_none_or(|li| li == facts.level_index) {
+        if kx.state == crate::identify::validity::State::NotDetermined
+            && m.level_index.is_none_or(|li| li == facts.level_index)
+        {
+            invalid.push(reason(
+                "value_not_determined",
+                format!(
+                    "{KX_MASK}: K(x) not determined: {}",
+                    kx.reason.as_deref().unwrap_or("no reason given")
+                ),
+            ));
+        } else if m.level_index.is_none_or(|li| li == facts.level_index) {
             let mut judged = 0usize;
             let mut worst: Option<(f64, ParamOutcome)> = None;
             for i in 0..m.x_m.len() {
