@@ -1,5 +1,6 @@
-//! Measurements: listing, result documents, raw recordings, import, fits,
-//! diagnostics and plots. The numeric work (analyze, diagnose, plot) runs on
+//! Measurements: listing, result documents, raw recordings, fits and the
+//! headline choice (the diagnostics and plots are served by `derived.rs`,
+//! the import by `import.rs`). The numeric work (analyze, diagnose) runs on
 //! blocking threads.
 
 use super::problem::{ApiResult, Problem};

@@ -65,7 +65,6 @@ impl Store {
 }
 
 impl FitReads for Store {
-    /// The fits of a measurement, oldest first.
     async fn list_fits(&self, measurement_id: &str) -> StoreResult<Vec<Fit>> {
         let rows = sqlx::query(
             "SELECT id, measurement_id, request_json, result_json, software_version, created_at \
@@ -88,7 +87,6 @@ impl FitReads for Store {
             .collect()
     }
 
-    /// The newest headline choice of a measurement (None: never chosen).
     async fn headline_choice(&self, measurement_id: &str) -> StoreResult<Option<HeadlineChoice>> {
         let row = sqlx::query(
             "SELECT fit_id, chosen_by, chosen_at FROM headline_choices \

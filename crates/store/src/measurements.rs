@@ -185,7 +185,6 @@ impl MeasurementReads for Store {
         Ok(Some((info, result, meta)))
     }
 
-    /// [`Store::list_measurements`] of measurements stored at or after `since` (RFC 3339 UTC, ms).
     async fn list_measurements_since(
         &self,
         part: Option<&str>,

@@ -57,7 +57,6 @@ impl PartReads for Store {
         Ok(row.map(|r| part_from_row(&r)))
     }
 
-    /// Parts ordered by serial; `after` is the last serial of the previous page.
     async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
         let rows = sqlx::query(
             "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \

@@ -644,7 +644,6 @@ async fn insert_recipe_tx(
 }
 
 impl RecipeReads for Store {
-    /// A recipe version (the newest when `version` is None).
     async fn get_recipe(&self, name: &str, version: Option<i64>) -> StoreResult<Option<RecipeRow>> {
         let row = sqlx::query(
             "SELECT * FROM qc_recipes WHERE name = ? AND (? IS NULL OR version = ?) ORDER BY version DESC LIMIT 1",
@@ -657,7 +656,6 @@ impl RecipeReads for Store {
         row.map(|r| recipe_from_row(&r)).transpose()
     }
 
-    /// The newest version of every recipe, by name.
     async fn list_recipes(&self) -> StoreResult<Vec<RecipeRow>> {
         let rows = sqlx::query(
             "SELECT r.* FROM qc_recipes r WHERE r.version = (SELECT MAX(version) FROM qc_recipes x WHERE x.name = r.name) ORDER BY r.name",
@@ -667,7 +665,6 @@ impl RecipeReads for Store {
         rows.iter().map(recipe_from_row).collect()
     }
 
-    /// Every version of a recipe, oldest first.
     async fn recipe_versions(&self, name: &str) -> StoreResult<Vec<RecipeRow>> {
         let rows = sqlx::query("SELECT * FROM qc_recipes WHERE name = ? ORDER BY version")
             .bind(name.to_string())
@@ -678,7 +675,6 @@ impl RecipeReads for Store {
 }
 
 impl VerdictReads for Store {
-    /// The newest job verdict of a part (any recipe).
     async fn part_verdict(&self, serial: &str) -> StoreResult<Option<VerdictRow>> {
         let row = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE part_serial = ? AND measurement_id IS NULL ORDER BY seq DESC LIMIT 1"))
         .bind(serial.to_string())
@@ -687,7 +683,6 @@ impl VerdictReads for Store {
         row.map(|r| verdict_from_row(&r)).transpose()
     }
 
-    /// The verdicts of a job: the job's (measurement_id None) first, then per measurement.
     async fn job_verdicts(&self, job_id: &str) -> StoreResult<Vec<VerdictRow>> {
         let rows = sqlx::query(concat!(
             "SELECT ",
@@ -712,8 +707,6 @@ impl VerdictReads for Store {
         row.map(|r| verdict_from_row(&r)).transpose()
     }
 
-    /// Measurement verdicts of a recipe (any version), oldest first: the
-    /// newest `last` of them, or those made in [since, until).
     async fn recipe_verdicts(
         &self,
         recipe: &str,
