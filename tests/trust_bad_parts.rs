@@ -288,8 +288,10 @@ fn run_case(name: &str, case: Case, seed: u64) -> Vec<(String, Vec<Check>)> {
             reached * 1e3
         );
         let c = checks(&part, r, &what);
-        eprintln!(
-            "{what}: model {:?} (model error {:.2} %, noise floor {:.2} %), small-signal {:?} (misfit {:.2} %, reliable {:?})",
+        // One write per document, so that the lines of parallel tests do not
+        // interleave (the figures in docs/diagnostics.md are read from them).
+        let mut text = format!(
+            "{what}: model {:?} (model error {:.2} %, noise floor {:.2} %), small-signal {:?} (misfit {:.2} %, reliable {:?})\n",
             r.model.effects.ids(),
             r.model.model_error_percent,
             r.model.noise_floor_percent,
@@ -298,15 +300,16 @@ fn run_case(name: &str, case: Case, seed: u64) -> Vec<(String, Vec<Check>)> {
             r.small_signal.as_ref().map(|s| s.reliable),
         );
         for k in &c {
-            eprintln!(
-                "    {:<15} {:>+9.3} % (bound {:>4}) {:<14} {}",
+            text.push_str(&format!(
+                "    {:<15} {:>+9.3} % (bound {:>4}) {:<14} {}\n",
                 k.name,
                 k.error_percent,
                 k.bound_percent,
                 k.state.as_str(),
                 k.reason.as_deref().unwrap_or("")
-            );
+            ));
         }
+        eprint!("{text}");
         out.push((what, c));
     }
     out

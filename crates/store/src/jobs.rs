@@ -601,7 +601,8 @@ mod tests {
             bench_id: Some("b1".into()),
             config: json!({"method": "two-signal"}),
             meta: json!({"moving_mass_kg": 0.05}),
-            result: Some(json!({"large_signal": {"keff_n_per_m": 1234.5},
+            result: Some(json!({"large_signal": {"keff_n_per_m": 1234.5,
+                "validity": {"keff_n_per_m": {"state": "unreliable", "reason": "noise"}}},
                 "small_signal": {"k0_n_per_m": 1792.0, "k0_se_n_per_m": 210.0,
                                  "misfit_percent": 12.5, "reliable": false}})),
             analysis_error: None,
@@ -634,6 +635,12 @@ mod tests {
         assert_eq!(j.progress, 1.0);
         let (info, result, _) = s.get_measurement("m1").await.unwrap().unwrap();
         assert_eq!(info.summary["keff_n_per_m"], json!(1234.5));
+        // Its state beside it (issue 22): a list shows it with the value.
+        assert_eq!(
+            info.summary["keff_validity"],
+            json!({"state": "unreliable", "reason": "noise"})
+        );
+        assert_eq!(info.summary["resonance_validity"], json!(null));
         // An unreliable small-signal k0 is never a plain number in the summary.
         assert_eq!(info.summary["k0_n_per_m"], json!(null));
         assert_eq!(

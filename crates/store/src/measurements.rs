@@ -14,6 +14,8 @@ macro_rules! meas_select {
         "SELECT m.seq, m.id, m.part_serial, m.job_id, m.source, m.bench_id, m.software_version, \
      m.target_xpeak_m, m.repeat_index, m.level_index, m.analysis_error, m.created_at, m.config_json, \
      json_object('keff_n_per_m', json_extract(m.result_json, '$.large_signal.keff_n_per_m'), \
+                 'keff_validity', json_extract(m.result_json, '$.large_signal.validity.keff_n_per_m'), \
+                 'resonance_validity', json_extract(m.result_json, '$.large_signal.validity.resonance_hz'), \
                  'xpeak_m', json_extract(m.result_json, '$.large_signal.xpeak_m'), \
                  'resonance_hz', json_extract(m.result_json, '$.large_signal.resonance_hz'), \
                  'k0_n_per_m', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 THEN NULL \

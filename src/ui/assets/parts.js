@@ -3,7 +3,7 @@
 // traceability, its measurements and jobs, with a selection to compare.
 
 import { api } from './api.js';
-import { h, put, q, when, shortId, VERDICT_WORDS } from './util.js';
+import { h, put, q, when, shortId, VERDICT_WORDS, stated } from './util.js';
 import { verdictCard } from './verdict.js';
 
 /** A verdict badge (or a dash for a part never judged). */
@@ -136,8 +136,8 @@ export async function renderPart(main, ctx) {
       h('td', {}, m.source),
       h('td', {}, q(m.target_xpeak_m, 'mm', 1e3, 3)),
       h('td', {}, q(s.xpeak_m, 'mm', 1e3, 3)),
-      h('td', {}, q(s.keff_n_per_m, 'N/mm', 1e-3)),
-      h('td', {}, q(s.resonance_hz, 'Hz', 1, 3)),
+      h('td', {}, stated(q(s.keff_n_per_m, 'N/mm', 1e-3), s.keff_validity, { unit: 'N/mm', scale: 1e-3, raw: s.keff_n_per_m })),
+      h('td', {}, stated(q(s.resonance_hz, 'Hz', 1, 3), s.resonance_validity, { unit: 'Hz', raw: s.resonance_hz })),
       h('td', {}, m.analysis_error ? h('span', { class: 'error' }, 'analysis failed') : h('a', { href: `#/diagnostics/${m.id}` }, 'diagnostics')),
     );
   });
