@@ -116,7 +116,7 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
         Some(result(1234.5, 1500.0, true)),
         vec![verdict("m-1", "P-1", "pass")],
     );
-    let m2 = finished(
+    let mut m2 = finished(
         "m-2",
         "P-1",
         None,
@@ -125,6 +125,10 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
         Some(result(1100.0, 1490.0, false)),
         vec![verdict("m-2", "P-1", "fail")],
     );
+    let keff_state = json!({"state": "unreliable", "reason": "noise floor 4.2 %"});
+    if let Some(doc) = m2.measurement.result.as_mut() {
+        doc["large_signal"]["validity"] = json!({"keff_n_per_m": keff_state});
+    }
     let m3 = finished("m-3", "P-2", Some("cone"), T3, None, None, vec![]);
     assert_eq!(s.upsert_measurement(&m1).await.unwrap(), Upserted::Inserted);
     // A delivery repeated after a lost acknowledgement stores nothing twice.
@@ -176,9 +180,13 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
     assert_eq!(info.summary["resonance_hz"], json!(31.5));
     assert_eq!(info.summary["k0_n_per_m"], json!(1500.0));
     assert_eq!(info.summary["k0_null_reason"], Value::Null);
+    assert_eq!(info.summary["keff_validity"], Value::Null);
     // An unreliable k0 is no plain number in a listing, and says why.
     let (info2, _, _) = s.get_measurement("m-2").await.unwrap().expect("m-2");
     assert_eq!(info2.summary["k0_n_per_m"], Value::Null);
+    // A headline value's state stands beside it in a listing (issue 22).
+    assert_eq!(info2.summary["keff_validity"], keff_state);
+    assert_eq!(info2.summary["resonance_validity"], Value::Null);
     assert_eq!(
         info2.summary["k0_null_reason"],
         json!("small_signal.reliable is false (k0 1490.0 +- 12.0 N/m, misfit 0.50 %): not a plain number")
