@@ -347,6 +347,16 @@ pub fn noise_problem(noise_floor_percent: f64) -> Option<String> {
     })
 }
 
+/// Marks the main sweep's values (K(x), R, fR, Keff) `unreliable` for `why`.
+fn mark_main_sweep(r: &mut Report, why: &str) {
+    let s = &mut r.stiffness.validity;
+    s.k_of_x.mark(State::Unreliable, why);
+    s.r_ns_per_m.mark(State::Unreliable, why);
+    let l = &mut r.large_signal.validity;
+    l.resonance_hz.mark(State::Unreliable, why);
+    l.keff_n_per_m.mark(State::Unreliable, why);
+}
+
 /// Adds the report-level states to every headline value (idempotent:
 /// states only get worse; a hidden number stays hidden).
 pub fn judge(r: &mut Report) {
@@ -375,12 +385,7 @@ pub fn judge_plain(r: &mut Report, creep: Option<&str>) {
     if let Some(c) = creep {
         let why =
             format!("the pre-measurement points to creep, which the base model does not hold: {c}");
-        let s = &mut r.stiffness.validity;
-        s.k_of_x.mark(State::Unreliable, &why);
-        s.r_ns_per_m.mark(State::Unreliable, &why);
-        let l = &mut r.large_signal.validity;
-        l.resonance_hz.mark(State::Unreliable, &why);
-        l.keff_n_per_m.mark(State::Unreliable, &why);
+        mark_main_sweep(r, &why);
     }
     let m = &r.model;
     if m.effects.is_empty() && m.model_error_percent > STRUCTURE_RATIO * m.noise_floor_percent {
@@ -388,12 +393,7 @@ pub fn judge_plain(r: &mut Report, creep: Option<&str>) {
             "the base model leaves structure (model error {:.2} % over a noise floor of {:.2} %): an effect outside it biases the fit; the diagnostics (--diagnose) tell which",
             m.model_error_percent, m.noise_floor_percent
         );
-        let s = &mut r.stiffness.validity;
-        s.k_of_x.mark(State::Unreliable, &why);
-        s.r_ns_per_m.mark(State::Unreliable, &why);
-        let l = &mut r.large_signal.validity;
-        l.resonance_hz.mark(State::Unreliable, &why);
-        l.keff_n_per_m.mark(State::Unreliable, &why);
+        mark_main_sweep(r, &why);
         if let Some(ss) = r.small_signal.as_mut() {
             ss.validity.mark_all(State::Unreliable, &why);
         }
