@@ -188,12 +188,16 @@ export async function drawLevels(el, doc, id, { height } = {}) {
   if (info.job_id) {
     try {
       const sib = await api(`/api/v1/measurements?job=${encodeURIComponent(info.job_id)}&limit=200`);
-      levels = sib.items.filter((m) => m.summary && Number.isFinite(m.summary.xpeak_m) && Number.isFinite(m.summary.keff_n_per_m));
+      // A Keff not determined is no point of the curve (issue 22).
+      levels = sib.items.filter((m) => m.summary && Number.isFinite(m.summary.xpeak_m) && Number.isFinite(m.summary.keff_n_per_m)
+        && (m.summary.keff_validity || {}).state !== 'not_determined');
     } catch {
       levels = [];
     }
   }
-  if (!levels.length && Number.isFinite(ls.xpeak_m)) levels = [{ id, summary: { xpeak_m: ls.xpeak_m, keff_n_per_m: ls.keff_n_per_m } }];
+  if (!levels.length && Number.isFinite(ls.xpeak_m) && validityOf(doc, 'large_signal.keff_n_per_m').state !== 'not_determined') {
+    levels = [{ id, summary: { xpeak_m: ls.xpeak_m, keff_n_per_m: ls.keff_n_per_m } }];
+  }
   levels.sort((a, b) => a.summary.xpeak_m - b.summary.xpeak_m);
   const lx = levels.map((m) => m.summary.xpeak_m * 1e3);
   const ly = levels.map((m) => m.summary.keff_n_per_m * 1e-3);
