@@ -34,5 +34,7 @@ mod request;
 mod spec;
 
 pub use parse::{parse_all, parse_lenient, FieldError};
-pub use request::{JobLimits, JobPart, JobProduction, JobRequest};
-pub use spec::{production_part, Admission, BenchOffer, JobSpec, Limits, RecipeRef};
+pub use request::{JobLimits, JobRequest};
+pub use spec::{
+    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, RecipeRef,
+};

@@ -5,7 +5,9 @@
 //! values.
 
 use super::parse::FieldError;
-use super::spec::{production_part, Admission, BenchOffer, JobSpec, Limits};
+use super::spec::{
+    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits,
+};
 use super::{
     valid_serial, MAX_LEVELS, MAX_ORDER, MAX_REPEATS, MIN_MOVING_MASS_KG, MIN_TARGET_XPEAK_M,
     SERIAL_RULE,
@@ -13,19 +15,6 @@ use super::{
 use crate::identify::Method;
 use crate::physics::PartSpec;
 use serde::{Deserialize, Serialize};
-
-/// The part a job measures.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct JobPart {
-    /// Part serial (letters, digits and `._-`, not `.` or `..`).
-    #[schema(pattern = "^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")]
-    pub serial: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub kind: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub notes: Option<String>,
-}
 
 /// Tighter limits than the bench's.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
@@ -35,21 +24,6 @@ pub struct JobLimits {
     pub max_displacement_m: Option<f64>,
     /// At most the bench's (V).
     pub max_drive_v: Option<f64>,
-}
-
-/// One part of a production lot on the virtual bench: the nominal `preset`
-/// with the lot's spread drawn from `seed`, and an optional defect.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct JobProduction {
-    /// The lot's nominal preset.
-    pub preset: String,
-    /// Draws the part's spread.
-    pub seed: u64,
-    /// A defect of this part (`physics::production::Defect`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = Option<Object>)]
-    pub defect: Option<crate::physics::production::Defect>,
 }
 
 /// `POST /api/v1/jobs`: a measurement job. Defaults come from the bench and

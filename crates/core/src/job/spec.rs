@@ -1,10 +1,37 @@
 //! The job as accepted: every default filled in, everything checked. Stored
 //! with the job, read back by the runner.
 
-use super::request::{JobPart, JobProduction};
 use crate::identify::Method;
 use crate::physics::PartSpec;
 use serde::{Deserialize, Serialize};
+
+/// The part a job measures.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JobPart {
+    /// Part serial (letters, digits and `._-`, not `.` or `..`).
+    #[schema(pattern = "^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")]
+    pub serial: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub notes: Option<String>,
+}
+
+/// One part of a production lot on the virtual bench: the nominal `preset`
+/// with the lot's spread drawn from `seed`, and an optional defect.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JobProduction {
+    /// The lot's nominal preset.
+    pub preset: String,
+    /// Draws the part's spread.
+    pub seed: u64,
+    /// A defect of this part (`physics::production::Defect`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub defect: Option<crate::physics::production::Defect>,
+}
 
 /// Hard limits of a bench; a procedure never exceeds them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -1,0 +1,350 @@
+//! The job's end: the verdicts (per measurement and for the job) with their
+//! traceability, the MES messages, and the paths that end a job `failed` or
+//! `interrupted` once the store can write (each in one transaction).
+
+use super::*;
+
+impl Runner {
+    /// The recipe version a job names; Err (a message) when it is gone or changed.
+    pub(super) async fn load_recipe(
+        &self,
+        r: &job::RecipeRef,
+    ) -> StoreResult<Result<crate::qc::Recipe, String>> {
+        let Some(row) = self.store.get_recipe(&r.name, Some(r.version)).await? else {
+            return Ok(Err(format!(
+                "recipe {} version {} is not stored",
+                r.name, r.version
+            )));
+        };
+        Ok(
+            match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
+                Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
+                Ok(_) => Err(format!(
+                    "recipe {} version {} does not have the hash {} any more",
+                    r.name, r.version, r.sha256
+                )),
+                Err(e) => Err(format!(
+                    "recipe {} version {} unreadable: {e}",
+                    r.name, r.version
+                )),
+            },
+        )
+    }
+
+    /// Verdicts (per measurement and for the job) with traceability, and the
+    /// job's MES messages: written in the result transaction.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn job_records(
+        &self,
+        bench: &BenchConfig,
+        job: &Job,
+        spec: Option<&JobSpec>,
+        _recipe: Option<&crate::qc::Recipe>,
+        started_at: &str,
+        state: JobState,
+        prob: Option<&Value>,
+        meas: &[NewMeasurement],
+        reports: &[Option<identify::Report>],
+        verdicts: Vec<(String, crate::qc::Verdict)>,
+    ) -> crate::store::qc::JobRecords {
+        use crate::qc::{combine, invalid_job, Verdict};
+        let finished_at = crate::store::now();
+        let mut rec = crate::store::qc::JobRecords {
+            webhooks: self.mes.webhooks.iter().map(|w| w.name.clone()).collect(),
+            ..Default::default()
+        };
+        let rref = spec.and_then(|s| s.recipe.clone());
+        let job_verdict: Option<Verdict> = match (&rref, state) {
+            (None, _) => None,
+            (Some(_), JobState::Succeeded) => Some(combine(
+                &verdicts.iter().map(|v| v.1.clone()).collect::<Vec<_>>(),
+            )),
+            (Some(_), JobState::Interrupted) => Some(invalid_job(
+                "interrupted",
+                prob.and_then(|p| p["detail"].as_str())
+                    .unwrap_or("the job was interrupted")
+                    .to_string(),
+            )),
+            (Some(_), JobState::Failed) => {
+                let kind = prob
+                    .and_then(|p| p["type"].as_str())
+                    .unwrap_or("")
+                    .to_string();
+                let detail = prob
+                    .and_then(|p| p["detail"].as_str())
+                    .unwrap_or("the job failed")
+                    .to_string();
+                Some(invalid_job(
+                    if kind.ends_with("/bench") {
+                        "hardware_fault"
+                    } else {
+                        "job_failed"
+                    },
+                    detail,
+                ))
+            }
+            (Some(_), _) => None,
+        };
+        if let (Some(r), Some(jv)) = (&rref, &job_verdict) {
+            let trace = |m: Option<&NewMeasurement>| {
+                json!({
+                    "software_version": crate::VERSION,
+                    "recipe": {"name": r.name, "version": r.version, "sha256": r.sha256},
+                    "bench_id": bench.id,
+                    "bench_kind": bench.kind,
+                    "bench_description": m.and_then(|m| m.config.get("bench_description").cloned()),
+                    // The virtual bench has no calibration record and no sensor identities;
+                    // hardware benches put theirs here.
+                    "calibration": Value::Null,
+                    "sensors": [],
+                    "submitted_by": spec.and_then(|s| s.submitted_by.clone()),
+                    "job_created_at": job.created_at,
+                    "job_started_at": started_at,
+                    "judged_at": finished_at,
+                    "measurement_id": m.map(|m| m.id.clone()),
+                })
+            };
+            for (mid, v) in &verdicts {
+                let m = meas.iter().find(|m| &m.id == mid);
+                rec.verdicts.push(crate::store::qc::NewVerdict {
+                    id: new_id(),
+                    job_id: Some(job.id.clone()),
+                    measurement_id: Some(mid.clone()),
+                    part_serial: job.part_serial.clone(),
+                    recipe_name: r.name.clone(),
+                    recipe_version: r.version,
+                    recipe_sha256: r.sha256.clone(),
+                    verdict: v.verdict.as_str(),
+                    detail: verdict_json(v),
+                    trace: trace(m),
+                });
+            }
+            rec.verdicts.push(crate::store::qc::NewVerdict {
+                id: new_id(),
+                job_id: Some(job.id.clone()),
+                measurement_id: None,
+                part_serial: job.part_serial.clone(),
+                recipe_name: r.name.clone(),
+                recipe_version: r.version,
+                recipe_sha256: r.sha256.clone(),
+                verdict: jv.verdict.as_str(),
+                detail: verdict_json(jv),
+                trace: trace(meas.first()),
+            });
+        }
+        // MES messages of every job that ran (WorkStarted, UnitsTested, WorkCompleted).
+        let tested = meas
+            .iter()
+            .zip(reports.iter().map(Some).chain(std::iter::repeat(None)))
+            .map(|(m, rep)| {
+                let values = rep
+                    .and_then(|r| r.as_ref())
+                    .map(crate::qc::cfx::tested_values)
+                    .unwrap_or_default();
+                crate::qc::cfx::TestedMeasurement {
+                    measurement_id: m.id.clone(),
+                    target_xpeak_m: m.target_xpeak_m,
+                    level_index: m.level_index,
+                    repeat_index: m.repeat_index,
+                    verdict: verdicts.iter().find(|v| v.0 == m.id).map(|v| v.1.clone()),
+                    values,
+                }
+            })
+            .collect();
+        let facts = crate::qc::cfx::JobFacts {
+            job_id: job.id.clone(),
+            part_serial: job.part_serial.clone(),
+            source: format!("{}/{}", self.mes.source, bench.id),
+            started_at: started_at.to_string(),
+            finished_at: finished_at.clone(),
+            state: state.as_str().to_string(),
+            recipe: rref
+                .as_ref()
+                .map(|r| (format!("{}@{}", r.name, r.version), r.sha256.clone())),
+            job_verdict,
+            operator: spec.and_then(|s| s.submitted_by.clone()),
+            measurements: tested,
+        };
+        for (uid, name, body) in
+            crate::qc::cfx::job_messages(&facts, [new_id(), new_id(), new_id()])
+        {
+            rec.messages.push(crate::store::qc::NewMessage {
+                unique_id: uid,
+                message_name: name,
+                part_serial: job.part_serial.clone(),
+                job_id: Some(job.id.clone()),
+                body,
+            });
+        }
+        rec
+    }
+}
+
+impl Runner {
+    pub(super) async fn finish_failed(&self, slot: &Slot, job: &Job, p: Value) -> StoreResult<()> {
+        self.finish_failed_after(slot, job, &p, None, &[], &[])
+            .await
+    }
+
+    /// Ends a running job `failed` with problem `p`, keeping what the bench
+    /// did before (its time, log and warnings), with its verdict (`invalid`
+    /// under a recipe) and its MES messages, and announces it. The one way
+    /// every runner path fails a job. While the store cannot write (full
+    /// disk), tried again until it can (or the daemon stops: the restart
+    /// then ends the job `interrupted`).
+    pub(super) async fn finish_failed_after(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        p: &Value,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+    ) -> StoreResult<()> {
+        let ended = self
+            .end_running_until_stored(
+                &slot.cfg,
+                job,
+                JobState::Failed,
+                p,
+                bench_time_s,
+                log,
+                warnings,
+            )
+            .await?;
+        if ended {
+            let _ = self
+                .events
+                .publish(
+                    "job.state",
+                    Some(&job.id),
+                    json!({"state": "failed", "problem": p}),
+                )
+                .await
+                .map_err(|e| tracing::warn!(job = %job.id, "job.state event not stored: {e}"));
+        }
+        Ok(())
+    }
+
+    /// [`Store::end_running_job`] with the job's records, tried again every
+    /// few seconds while the store cannot write. False when the job was not
+    /// running (never started, or ended before).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) async fn end_running_until_stored(
+        &self,
+        bench: &BenchConfig,
+        job: &Job,
+        state: JobState,
+        p: &Value,
+        bench_time_s: Option<f64>,
+        log: &[String],
+        warnings: &[String],
+    ) -> StoreResult<bool> {
+        let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let mut wait = Duration::from_millis(250);
+        loop {
+            let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
+            let records = self.job_records(
+                bench,
+                job,
+                spec.as_ref(),
+                None,
+                &started_at,
+                state,
+                Some(p),
+                &[],
+                &[],
+                vec![],
+            );
+            match self
+                .store
+                .end_running_job(
+                    &job.id,
+                    state,
+                    Some(p),
+                    bench_time_s,
+                    log,
+                    warnings,
+                    &records,
+                )
+                .await
+            {
+                Ok(ended) => {
+                    if ended && !records.messages.is_empty() && !records.webhooks.is_empty() {
+                        self.outbox.notify_one();
+                    }
+                    return Ok(ended);
+                }
+                Err(e) if self.shutdown.load(Ordering::SeqCst) => return Err(e),
+                Err(e) => {
+                    tracing::error!(job = %job.id, "ending the job {} failed, trying again: {e}", state.as_str());
+                    tokio::time::sleep(wait).await;
+                    wait = (wait * 2).min(Duration::from_secs(2));
+                }
+            }
+        }
+    }
+
+    /// At start: every job still `running` was cut off by a crash or a kill.
+    /// Each ends `interrupted` (never re-run silently) with its verdict
+    /// (`invalid`, reason `interrupted`, under a recipe) and its MES messages.
+    pub(super) async fn end_interrupted(&self, cfg: &Config) -> StoreResult<()> {
+        let p = Store::interrupted_problem();
+        for job in self.store.running_jobs().await? {
+            let bench = cfg
+                .benches
+                .iter()
+                .find(|b| b.id == job.bench_id)
+                .cloned()
+                .or_else(|| serde_json::from_value(json!({"id": job.bench_id})).ok());
+            let Some(bench) = bench else { continue };
+            let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+            let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
+            let state = JobState::Interrupted;
+            let records = self.job_records(
+                &bench,
+                &job,
+                spec.as_ref(),
+                None,
+                &started_at,
+                state,
+                Some(&p),
+                &[],
+                &[],
+                vec![],
+            );
+            if !self
+                .store
+                .end_running_job(&job.id, state, Some(&p), None, &[], &[], &records)
+                .await?
+            {
+                continue;
+            }
+            if !records.messages.is_empty() && !records.webhooks.is_empty() {
+                self.outbox.notify_one();
+            }
+            let verdict = records
+                .verdicts
+                .iter()
+                .find(|v| v.measurement_id.is_none())
+                .map(|v| v.verdict);
+            self.events
+                .publish(
+                    "job.state",
+                    Some(&job.id),
+                    json!({"state": "interrupted", "problem": p, "verdict": verdict}),
+                )
+                .await?;
+            tracing::warn!(job = %job.id, "job was running when the daemon stopped: marked interrupted");
+        }
+        Ok(())
+    }
+}
+
+/// A verdict as stored: through the store's finite check (issue 11; `judge`
+/// already turns a non-finite verdict into an invalid one, this is the last
+/// guard before the database).
+pub(super) fn verdict_json(v: &crate::qc::Verdict) -> Value {
+    let v = crate::qc::finite_verdict(v.clone());
+    crate::finite::to_value(&v).unwrap_or(Value::Null)
+}
