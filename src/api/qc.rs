@@ -17,10 +17,6 @@ use axum::{Extension, Json};
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-fn field_errors(e: Vec<FieldError>) -> Problem {
-    Problem::validation(e)
-}
-
 /// Parses a JSON body into `T`; a failure is a 422 naming the field it
 /// failed at (`procedure.levels_m[2]`; `body` for the document itself).
 pub fn parse_body<T: serde::de::DeserializeOwned>(body: Value) -> ApiResult<T> {
@@ -48,7 +44,7 @@ fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
         }
     }
     let r: Recipe = parse_body(body)?;
-    r.validate().map_err(field_errors)?;
+    r.validate().map_err(Problem::validation)?;
     Ok(r)
 }
 
@@ -398,7 +394,7 @@ pub async fn propose(
         });
     }
     if !errors.is_empty() {
-        return Err(field_errors(errors));
+        return Err(Problem::validation(errors));
     }
     let row = st
         .store

@@ -33,7 +33,7 @@ mod parse;
 mod request;
 mod spec;
 
-pub use parse::{parse_all, parse_lenient, FieldError};
+pub use parse::{check_chars, parse_lenient, FieldError};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, RecipeRef,

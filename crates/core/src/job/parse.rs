@@ -1,7 +1,7 @@
 //! A typed request from a JSON body, with one message per bad field.
 //!
 //! serde stops at the first error. A client fixing a request wants every bad
-//! field at once, so [`parse_all`] records the error with its JSON path
+//! field at once, so [`parse_lenient`] records the error with its JSON path
 //! (`serde_path_to_error`), drops the member at fault and tries again, until
 //! the body parses or an error repeats. The typed struct stays the one
 //! definition of the request's shape (`deny_unknown_fields`, its schema).
@@ -19,11 +19,19 @@ pub struct FieldError {
 }
 
 impl FieldError {
-    pub fn new(field: &str, message: impl Into<String>) -> FieldError {
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> FieldError {
         FieldError {
-            field: field.to_string(),
+            field: field.into(),
             message: message.into(),
         }
+    }
+}
+
+/// Refuses a text longer than `max` characters (Unicode scalar values, as
+/// the schema's `maxLength` counts them).
+pub fn check_chars(text: Option<&str>, field: &str, max: usize, errors: &mut Vec<FieldError>) {
+    if text.is_some_and(|t| t.chars().count() > max) {
+        errors.push(FieldError::new(field, format!("at most {max} characters")));
     }
 }
 
@@ -88,14 +96,6 @@ fn wording(msg: &str) -> String {
         return format!("must be {want}, got {got}");
     }
     msg.to_string()
-}
-
-/// Parses `body` into `T`, collecting one [`FieldError`] per bad member.
-pub fn parse_all<T: DeserializeOwned>(body: &Value) -> Result<T, Vec<FieldError>> {
-    match parse_lenient(body) {
-        (Some(t), e) if e.is_empty() => Ok(t),
-        (_, e) => Err(e),
-    }
 }
 
 /// Parses `body` into `T` with one [`FieldError`] per bad member, and the
@@ -218,6 +218,13 @@ mod tests {
         mass_kg: Option<f64>,
         levels_m: Option<Vec<f64>>,
         mode: Option<Mode>,
+    }
+
+    fn parse_all(body: &serde_json::Value) -> Result<Body, Vec<FieldError>> {
+        match parse_lenient(body) {
+            (Some(t), e) if e.is_empty() => Ok(t),
+            (_, e) => Err(e),
+        }
     }
 
     fn fields(r: Result<Body, Vec<FieldError>>) -> Vec<(String, String)> {

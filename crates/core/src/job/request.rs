@@ -4,7 +4,7 @@
 //! with units, cross-field rules, a bench's limits, physically meaningless
 //! values.
 
-use super::parse::FieldError;
+use super::parse::{check_chars, FieldError};
 use super::spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits,
 };
@@ -84,12 +84,6 @@ fn tighter(
     }
 }
 
-fn text(v: &Option<String>, field: &str, max: usize, errors: &mut Vec<FieldError>) {
-    if v.as_ref().is_some_and(|s| s.chars().count() > max) {
-        errors.push(FieldError::new(field, format!("at most {max} characters")));
-    }
-}
-
 impl JobRequest {
     /// A job body checked whole: every bad member and every bad value named
     /// in one answer. `parsed` is [`super::parse_lenient`]'s answer; `recipe`
@@ -129,8 +123,8 @@ impl JobRequest {
         if !valid_serial(&self.part.serial) {
             e.push(FieldError::new("part.serial", SERIAL_RULE));
         }
-        text(&self.part.kind, "part.kind", 64, e);
-        text(&self.part.notes, "part.notes", 4096, e);
+        check_chars(self.part.kind.as_deref(), "part.kind", 64, e);
+        check_chars(self.part.notes.as_deref(), "part.notes", 4096, e);
 
         let bench: Option<&BenchOffer> = match &self.bench {
             None => adm.benches.first(),

@@ -215,13 +215,6 @@ pub struct Recipe {
 /// One message per bad field (the job request's type).
 pub use crate::job::FieldError;
 
-fn ferr(field: impl Into<String>, message: impl Into<String>) -> FieldError {
-    FieldError {
-        field: field.into(),
-        message: message.into(),
-    }
-}
-
 fn finite(v: f64) -> bool {
     v.is_finite()
 }
@@ -244,14 +237,14 @@ impl Recipe {
     pub fn validate(&self) -> Result<(), Vec<FieldError>> {
         let mut e = Vec::new();
         if !crate::job::valid_serial(&self.name) {
-            e.push(ferr(
+            e.push(FieldError::new(
                 "name",
                 "1-64 characters: letters, digits, '-', '_', '.'",
             ));
         }
         let p = &self.procedure;
         if p.levels_m.is_empty() || p.levels_m.len() > crate::job::MAX_LEVELS {
-            e.push(ferr(
+            e.push(FieldError::new(
                 "procedure.levels_m",
                 format!(
                     "give 1 to {} target peak displacements (m)",
@@ -261,12 +254,12 @@ impl Recipe {
         }
         for (i, &l) in p.levels_m.iter().enumerate() {
             if !(finite(l) && (MIN_LEVEL_M..=0.1).contains(&l)) {
-                e.push(ferr(
+                e.push(FieldError::new(
                     format!("procedure.levels_m[{i}]"),
                     format!("must be in [{MIN_LEVEL_M}, 0.1] m, got {l}"),
                 ));
             } else if i > 0 && l <= p.levels_m[i - 1] {
-                e.push(ferr(
+                e.push(FieldError::new(
                     format!("procedure.levels_m[{i}]"),
                     format!(
                         "must be above the level before it ({} m): levels rise, without repeats",
@@ -279,34 +272,32 @@ impl Recipe {
             ("description", &self.description, MAX_DESCRIPTION_CHARS),
             ("part_kind", &self.part_kind, MAX_PART_KIND_CHARS),
         ] {
-            if text.as_ref().is_some_and(|t| t.chars().count() > max) {
-                e.push(ferr(field, format!("at most {max} characters")));
-            }
+            crate::job::check_chars(text.as_deref(), field, max, &mut e);
         }
         if let Some(o) = p.order {
             if !(1..=crate::job::MAX_ORDER).contains(&o) {
-                e.push(ferr(
+                e.push(FieldError::new(
                     "procedure.order",
                     format!("must be 1 to {}", crate::job::MAX_ORDER),
                 ));
             }
         }
         if !(1..=crate::job::MAX_REPEATS).contains(&p.repeats) {
-            e.push(ferr(
+            e.push(FieldError::new(
                 "procedure.repeats",
                 format!("must be 1 to {}", crate::job::MAX_REPEATS),
             ));
         }
         if let Some(m) = p.moving_mass_kg {
             if !(finite(m) && (MIN_MOVING_MASS_KG..=10.0).contains(&m)) {
-                e.push(ferr(
+                e.push(FieldError::new(
                     "procedure.moving_mass_kg",
                     format!("must be in [{MIN_MOVING_MASS_KG}, 10] kg, got {m}"),
                 ));
             }
         }
         if self.parameters.len() > MAX_PARAMETERS {
-            e.push(ferr(
+            e.push(FieldError::new(
                 "parameters",
                 format!("at most {MAX_PARAMETERS} parameters"),
             ));
@@ -315,55 +306,60 @@ impl Recipe {
         for (i, ps) in self.parameters.iter().enumerate() {
             let f = |s: &str| format!("parameters[{i}].{s}");
             if !crate::job::valid_serial(&ps.name) {
-                e.push(ferr(
+                e.push(FieldError::new(
                     f("name"),
                     "1-64 characters: letters, digits, '-', '_', '.'",
                 ));
             } else if !names.insert(ps.name.as_str()) || ps.name == KX_MASK {
-                e.push(ferr(
+                e.push(FieldError::new(
                     f("name"),
                     format!("'{}' is used twice or reserved", ps.name),
                 ));
             }
             let needs_x = matches!(ps.quantity, Quantity::KAtX | Quantity::KAsymmetry);
             match ps.x_m {
-                Some(x) if needs_x && !(finite(x) && x > 0.0 && x <= 0.1) => {
-                    e.push(ferr(f("x_m"), format!("must be in (0, 0.1] m, got {x}")))
+                Some(x) if needs_x && !(finite(x) && x > 0.0 && x <= 0.1) => e.push(
+                    FieldError::new(f("x_m"), format!("must be in (0, 0.1] m, got {x}")),
+                ),
+                None if needs_x => e.push(FieldError::new(
+                    f("x_m"),
+                    "required for k_at_x and k_asymmetry",
+                )),
+                Some(_) if !needs_x => {
+                    e.push(FieldError::new(f("x_m"), "only for k_at_x and k_asymmetry"))
                 }
-                None if needs_x => e.push(ferr(f("x_m"), "required for k_at_x and k_asymmetry")),
-                Some(_) if !needs_x => e.push(ferr(f("x_m"), "only for k_at_x and k_asymmetry")),
                 _ => {}
             }
             if ps.quantity == Quantity::EffectSize {
                 match (&ps.effect, &ps.effect_parameter) {
                     (Some(eff), Some(par)) => match crate::effects::EffectId::parse(eff) {
                         Ok(id) if id.parameter_names().contains(&par.as_str()) => {}
-                        Ok(id) => e.push(ferr(
+                        Ok(id) => e.push(FieldError::new(
                             f("effect_parameter"),
                             format!(
                                 "'{par}' is not a parameter of {eff} ({})",
                                 id.parameter_names().join(", ")
                             ),
                         )),
-                        Err(m) => e.push(ferr(f("effect"), m)),
+                        Err(m) => e.push(FieldError::new(f("effect"), m)),
                     },
-                    _ => e.push(ferr(
+                    _ => e.push(FieldError::new(
                         f("effect"),
                         "effect_size needs effect and effect_parameter",
                     )),
                 }
             } else if ps.effect.is_some() || ps.effect_parameter.is_some() {
-                e.push(ferr(f("effect"), "only for effect_size"));
+                e.push(FieldError::new(f("effect"), "only for effect_size"));
             }
             if let Some(li) = ps.level_index {
                 if li >= p.levels_m.len() {
-                    e.push(ferr(f("level_index"), "beyond the level series"));
+                    e.push(FieldError::new(f("level_index"), "beyond the level series"));
                 }
             }
             for (n, v) in [("lower", ps.lower), ("upper", ps.upper)] {
                 if let Some(v) = v {
                     if !(finite(v) && v.abs() <= MAX_LIMIT) {
-                        e.push(ferr(
+                        e.push(FieldError::new(
                             f(n),
                             format!("must be a finite number within +-{MAX_LIMIT:e}, got {v}"),
                         ));
@@ -372,7 +368,10 @@ impl Recipe {
             }
             if let (Some(lo), Some(hi)) = (ps.lower, ps.upper) {
                 if lo > hi {
-                    e.push(ferr(f("lower"), format!("lower {lo} is above upper {hi}")));
+                    e.push(FieldError::new(
+                        f("lower"),
+                        format!("lower {lo} is above upper {hi}"),
+                    ));
                 }
             }
         }
@@ -394,38 +393,41 @@ impl Recipe {
             ("validity.min_mask_coverage", v.min_mask_coverage, 0.0, 1.0),
         ] {
             if !(finite(x) && x >= lo && x <= hi) {
-                e.push(ferr(n, format!("must be in [{lo}, {hi}], got {x}")));
+                e.push(FieldError::new(
+                    n,
+                    format!("must be in [{lo}, {hi}], got {x}"),
+                ));
             }
         }
         if let Some(m) = &self.kx_mask {
             let n = m.x_m.len();
             if n == 0 || n > MAX_MASK_POINTS {
-                e.push(ferr(
+                e.push(FieldError::new(
                     "kx_mask.x_m",
                     format!("1 to {MAX_MASK_POINTS} points"),
                 ));
             }
             if m.lower_n_per_m.len() != n || m.upper_n_per_m.len() != n {
-                e.push(ferr(
+                e.push(FieldError::new(
                     "kx_mask",
                     "x_m, lower_n_per_m and upper_n_per_m must have the same length",
                 ));
             }
             let all = m.x_m.iter().chain(&m.lower_n_per_m).chain(&m.upper_n_per_m);
             if all.clone().any(|v| !(finite(*v) && v.abs() <= MAX_LIMIT)) {
-                e.push(ferr(
+                e.push(FieldError::new(
                     "kx_mask",
                     format!("every value must be a finite number within +-{MAX_LIMIT:e}"),
                 ));
             }
             for (i, &x) in m.x_m.iter().enumerate() {
                 if !(finite(x) && x.abs() <= 0.1) {
-                    e.push(ferr(
+                    e.push(FieldError::new(
                         format!("kx_mask.x_m[{i}]"),
                         format!("must be within +-0.1 m, got {x}"),
                     ));
                 } else if i > 0 && x <= m.x_m[i - 1] {
-                    e.push(ferr(
+                    e.push(FieldError::new(
                         format!("kx_mask.x_m[{i}]"),
                         format!(
                             "must be above the point before it ({} m): x_m rises",
@@ -439,11 +441,17 @@ impl Recipe {
                 .zip(&m.upper_n_per_m)
                 .any(|(a, b)| a > b)
             {
-                e.push(ferr("kx_mask", "a lower bound is above its upper bound"));
+                e.push(FieldError::new(
+                    "kx_mask",
+                    "a lower bound is above its upper bound",
+                ));
             }
             if let Some(li) = m.level_index {
                 if li >= p.levels_m.len() {
-                    e.push(ferr("kx_mask.level_index", "beyond the level series"));
+                    e.push(FieldError::new(
+                        "kx_mask.level_index",
+                        "beyond the level series",
+                    ));
                 }
             }
         }
