@@ -88,6 +88,12 @@ pub struct Config {
     /// MES delivery: CFX `Source` and the webhooks of the outbox worker.
     pub mes: crate::mes::MesConfig,
     pub retention: Retention,
+    /// The fleet role's central database (`postgres://...`): set it, with
+    /// `benches = []`, and the daemon serves the fleet (every station's
+    /// results) instead of benches. Absent on a station.
+    pub database: Option<String>,
+    /// A station of a fleet (`[fleet]`): where and how it replicates.
+    pub fleet: Option<FleetConfig>,
 }
 
 impl Default for Config {
@@ -113,6 +119,8 @@ impl Default for Config {
             min_free_bytes: 64 * 1024 * 1024,
             mes: crate::mes::MesConfig::default(),
             retention: Retention::default(),
+            database: None,
+            fleet: None,
         }
     }
 }
@@ -134,8 +142,24 @@ impl Config {
 
     /// Checks everything that would otherwise fail later (or, worse, silently).
     pub fn validate(&self) -> Result<(), String> {
-        if self.benches.is_empty() {
-            return Err("at least one [[benches]] entry is needed".into());
+        if let Some(db) = &self.database {
+            check_postgres_url("database", db)?;
+            if !self.benches.is_empty() {
+                return Err(format!(
+                    "database = \"{}\" starts the fleet role, which runs no bench: set benches = [] (a station keeps its SQLite in data_dir and names the center in [fleet] center)",
+                    redact_url_password(db)
+                ));
+            }
+            if self.fleet.is_some() {
+                return Err(
+                    "[fleet] is a station's table; the fleet role (database = ...) has none".into(),
+                );
+            }
+        } else if self.benches.is_empty() {
+            return Err("at least one [[benches]] entry is needed (or database = \"postgres://...\" for the fleet role)".into());
+        }
+        if let Some(f) = &self.fleet {
+            f.validate()?;
         }
         let mut ids = std::collections::HashSet::new();
         for b in &self.benches {
@@ -219,6 +243,11 @@ impl Config {
         Ok(())
     }
 
+    /// True when the daemon runs the fleet role (a central database, no benches).
+    pub fn is_fleet_role(&self) -> bool {
+        self.database.is_some()
+    }
+
     /// True when no tokens are configured: the daemon then binds to loopback only.
     pub fn open_access(&self) -> bool {
         self.auth.tokens.is_empty()
@@ -293,6 +322,127 @@ impl HttpConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// What a station sends to the center with each measurement (`[fleet] recordings`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RecordingsPolicy {
+    /// The FLAC recordings themselves: the center can fit them again.
+    #[default]
+    Full,
+    /// Only a reference (station, measurement id, kind, size, SHA-256): the
+    /// recordings stay on the station (and its retention policy applies).
+    Reference,
+}
+
+/// `[fleet]`: a station replicating its finished measurements to the
+/// fleet's central PostgreSQL (docs/fleet.md, README "Running a fleet").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FleetConfig {
+    /// The center's database, `postgres://user[:password]@host[:port]/db`.
+    pub center: String,
+    /// This station's name in the fleet (letters, digits, '-', '_', '.';
+    /// at most 64): every row the center shows carries it. Never reuse one
+    /// station's id for another.
+    pub station_id: String,
+    /// `full` (default) or `reference`.
+    #[serde(default)]
+    pub recordings: RecordingsPolicy,
+    /// Items sent to the center per transaction (1..=1000, default 50).
+    #[serde(default = "default_batch_items")]
+    pub batch_items: usize,
+    /// Longest wait between two attempts while the center is unreachable
+    /// (s, 1..=3600, default 30); the wait doubles from 1 s up to it.
+    #[serde(default = "default_retry_max_s")]
+    pub retry_max_s: f64,
+    /// How often the station asks the center for new recipe versions and
+    /// retirements (s, 5..=86400, default 60).
+    #[serde(default = "default_recipe_poll_s")]
+    pub recipe_poll_s: f64,
+}
+
+fn default_batch_items() -> usize {
+    50
+}
+fn default_retry_max_s() -> f64 {
+    30.0
+}
+fn default_recipe_poll_s() -> f64 {
+    60.0
+}
+
+impl FleetConfig {
+    fn validate(&self) -> Result<(), String> {
+        check_postgres_url("fleet.center", &self.center)?;
+        let id = &self.station_id;
+        if id.is_empty()
+            || id.len() > 64
+            || !id
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+        {
+            return Err(format!(
+                "fleet.station_id '{id}': 1 to 64 letters, digits, '-', '_' or '.'"
+            ));
+        }
+        if !(1..=1000).contains(&self.batch_items) {
+            return Err(format!(
+                "fleet.batch_items must be in 1..=1000, got {}",
+                self.batch_items
+            ));
+        }
+        let r = self.retry_max_s;
+        if !(r.is_finite() && (1.0..=3600.0).contains(&r)) {
+            return Err(format!("fleet.retry_max_s must be in [1, 3600] s, got {r}"));
+        }
+        let p = self.recipe_poll_s;
+        if !(p.is_finite() && (5.0..=86400.0).contains(&p)) {
+            return Err(format!(
+                "fleet.recipe_poll_s must be in [5, 86400] s, got {p}"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A PostgreSQL URL as sqlx takes it; `key` names the configuration key.
+fn check_postgres_url(key: &str, s: &str) -> Result<(), String> {
+    let u = url::Url::parse(s).map_err(|e| {
+        format!("{key}: not a URL ({e}); expected postgres://user@host:5432/database")
+    })?;
+    if !matches!(u.scheme(), "postgres" | "postgresql") {
+        return Err(format!(
+            "{key}: scheme '{}' is not PostgreSQL; expected postgres://user@host:5432/database",
+            u.scheme()
+        ));
+    }
+    let socket = u.query_pairs().any(|(k, _)| k == "host");
+    if u.host_str().is_none_or(str::is_empty) && !socket {
+        return Err(format!(
+            "{key}: no host; expected postgres://user@host:5432/database"
+        ));
+    }
+    if u.path().trim_start_matches('/').is_empty() {
+        return Err(format!(
+            "{key}: no database name; expected postgres://user@host:5432/database"
+        ));
+    }
+    Ok(())
+}
+
+/// A database URL fit for a log line or an error: the password replaced.
+pub fn redact_url_password(s: &str) -> String {
+    match url::Url::parse(s) {
+        Ok(mut u) => {
+            if u.password().is_some() {
+                let _ = u.set_password(Some("redacted"));
+            }
+            u.to_string()
+        }
+        Err(_) => "<not a URL>".to_string(),
     }
 }
 
@@ -400,6 +550,46 @@ mod tests {
         assert!(e.contains("published example"), "{e}");
         let e = Config::parse("[http]\nallowed_origins = [\"mes.lab\"]").unwrap_err();
         assert!(e.contains("allowed_origins"), "{e}");
+    }
+
+    #[test]
+    fn fleet_keys_are_checked_with_one_line_each() {
+        let station = Config::parse(
+            "[fleet]\ncenter = \"postgres://sb:pw@center.lab:5432/springbench\"\nstation_id = \"line-3\"\nrecordings = \"reference\"",
+        )
+        .unwrap();
+        let f = station.fleet.as_ref().unwrap();
+        assert_eq!(f.station_id, "line-3");
+        assert_eq!(f.recordings, RecordingsPolicy::Reference);
+        assert_eq!((f.batch_items, f.retry_max_s), (50, 30.0));
+        assert!(!station.is_fleet_role());
+        let center =
+            Config::parse("database = \"postgres://sb@center.lab/springbench\"\nbenches = []")
+                .unwrap();
+        assert!(center.is_fleet_role());
+        for (text, needle) in [
+            ("database = \"postgres://sb@h/db\"", "benches = []"),
+            ("benches = []", "at least one [[benches]]"),
+            ("database = \"mysql://h/db\"\nbenches = []", "scheme 'mysql'"),
+            ("database = \"postgres://sb@h\"\nbenches = []", "no database name"),
+            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"line 3\"", "fleet.station_id"),
+            ("[fleet]\ncenter = \"sqlite://x\"\nstation_id = \"a\"", "fleet.center"),
+            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nrecordings = \"some\"", "some"),
+            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nretry_max_s = 0", "fleet.retry_max_s"),
+            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nbatch_items = 0", "fleet.batch_items"),
+            ("[fleet]\nstation_id = \"a\"", "center"),
+            ("database = \"postgres://h/db\"\nbenches = []\n[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"", "station's table"),
+        ] {
+            let e = Config::parse(text).unwrap_err();
+            assert!(e.contains(needle), "{text}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
+        // The password never appears in an error.
+        let e = Config::parse("database = \"postgres://sb:hunter22@h/db\"").unwrap_err();
+        assert!(!e.contains("hunter22") && e.contains("redacted"), "{e}");
+        // A Unix-socket URL (host in the query) is a URL sqlx takes.
+        Config::parse("database = \"postgres://sb@localhost:55432/db?host=/tmp/pg\"\nbenches = []")
+            .unwrap();
     }
 
     #[test]

@@ -137,6 +137,12 @@ pub async fn config(State(st): State<AppState>) -> ApiResult<Json<Value>> {
             }
         }
     }
+    // A station's center URL: its password (the fleet role never serves this route's state).
+    if let Some(c) = v.pointer_mut("/fleet/center") {
+        if let Some(u) = c.as_str() {
+            *c = json!(crate::config::redact_url_password(u));
+        }
+    }
     Ok(Json(v))
 }
 

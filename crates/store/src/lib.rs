@@ -15,6 +15,7 @@ pub mod health;
 mod imports;
 mod jobs;
 mod measurements;
+pub mod outbox;
 mod parts;
 pub mod qc;
 mod raw;
