@@ -1,12 +1,12 @@
 //! Hardware benches: calibration records (self-checks) and bench faults.
 
 use super::{now, Store, StoreResult};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use sqlx::Row;
 
 /// A stored self-check.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct CalibrationRecord {
     pub id: String,
     pub bench_id: String,

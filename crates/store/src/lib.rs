@@ -10,6 +10,7 @@ mod blob;
 mod derived;
 mod events;
 mod fits;
+pub mod fleet;
 pub mod hardware;
 pub mod health;
 mod imports;
@@ -24,6 +25,10 @@ pub mod results;
 pub use blob::BlobRef;
 pub use derived::Derived;
 pub use events::Event;
+pub use fleet::{
+    CenterIngest, IngestReport, ItemBody, MeasurementItem, ReplicationItem, StationHello,
+    StationStatus,
+};
 pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobState};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};

@@ -22,7 +22,7 @@
 //! generic over [`ResultStore`], against each backend.
 
 use crate::StoreResult;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::future::Future;
 
@@ -89,7 +89,7 @@ pub struct HeadlineChoice {
 }
 
 /// A stored recipe version.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct RecipeRow {
     pub name: String,
     pub version: i64,
