@@ -19,6 +19,7 @@
 //! (`springbench-store-pg`) ingests them.
 
 use crate::hardware::CalibrationRecord;
+pub use crate::outbox::Correction;
 use crate::results::{FinishedMeasurement, NewMeasurement, NewRecording, NewVerdict, RecipeRow};
 use crate::StoreResult;
 use serde::{Deserialize, Serialize};
@@ -108,21 +109,20 @@ pub enum ItemBody {
     Measurement(Box<MeasurementItem>),
     /// A job's verdicts of a whole job (measurement_id None), at the job's end.
     JobVerdicts(JobVerdictsItem),
-    /// An admin's correction of a part's serial or kind.
-    PartCorrection(PartCorrection),
-    /// An admin's void of a measurement (it stays stored, marked void).
-    MeasurementVoid(MeasurementVoid),
+    /// An admin's correction of a part's serial or kind, or the void of a
+    /// measurement (it stays stored, marked void), with reason, who, when:
+    /// a row of the station's audit log (`corrections`).
+    Correction(Correction),
 }
 
 impl ReplicationItem {
     /// The idempotency key of the item across the fleet:
-    /// `measurement:<id>`, `job_verdicts:<job id>`, `correction:<id>`, `void:<id>`.
+    /// `measurement:<id>`, `job_verdicts:<job id>`, `correction:<id>`.
     pub fn item_id(&self) -> String {
         match &self.body {
             ItemBody::Measurement(m) => format!("measurement:{}", m.id),
             ItemBody::JobVerdicts(j) => format!("job_verdicts:{}", j.job_id),
-            ItemBody::PartCorrection(c) => format!("correction:{}", c.id),
-            ItemBody::MeasurementVoid(v) => format!("void:{}", v.id),
+            ItemBody::Correction(c) => format!("correction:{}", c.id),
         }
     }
 
@@ -216,36 +216,6 @@ pub struct JobVerdictsItem {
     pub job_id: String,
     pub part_serial: String,
     pub verdicts: Vec<VerdictItem>,
-}
-
-/// A part's serial or kind corrected by an admin, with the reason.
-/// Nothing is deleted: the audit row keeps the old values.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PartCorrection {
-    pub id: String,
-    /// The serial as stored before the correction.
-    pub serial: String,
-    /// The right serial (its measurements and verdicts move to it).
-    #[serde(default)]
-    pub new_serial: Option<String>,
-    /// The right kind.
-    #[serde(default)]
-    pub new_kind: Option<String>,
-    pub reason: String,
-    /// The token name of who corrected it.
-    pub by: Option<String>,
-    pub at: String,
-}
-
-/// A measurement voided by an admin, with the reason: it stays stored and
-/// readable, marked void, and is left out of SPC and yield.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MeasurementVoid {
-    pub id: String,
-    pub measurement_id: String,
-    pub reason: String,
-    pub by: Option<String>,
-    pub at: String,
 }
 
 /// What the center did with a batch.
