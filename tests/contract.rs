@@ -1324,6 +1324,7 @@ fn request_body_schemas_agree_with_the_validators() {
             "part_spec",
             "limits",
             "recipe",
+            "procedure",
             "production",
         ])
     );
@@ -1351,6 +1352,8 @@ fn request_body_schemas_agree_with_the_validators() {
         ),
         ("production", json!({"preset": preset, "seed": 7})),
         ("recipe", json!("spider-4in")),
+        // `production` needs a recipe (the validator names `procedure` without one)
+        ("procedure", json!("full")),
         (
             "limits",
             json!({"max_displacement_m": 0.012, "max_drive_v": 50.0}),

@@ -110,6 +110,63 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
             u8::from(b.state == "running")
         );
     }
+    out.push_str(
+        "# HELP springbench_parts_measured_total Parts measured (procedure runs), by bench and procedure.\n\
+         # TYPE springbench_parts_measured_total counter\n",
+    );
+    let tp = st.runner.throughput();
+    for (b, mode, t) in &tp {
+        let _ = writeln!(
+            out,
+            "springbench_parts_measured_total{{bench=\"{b}\",procedure=\"{mode}\"}} {}",
+            t.parts
+        );
+    }
+    for (name, help, get) in [
+        (
+            "springbench_production_fallbacks_total",
+            "Production runs that fell back to the full procedure.",
+            (|t: &crate::runner::Throughput| t.fallbacks as f64)
+                as fn(&crate::runner::Throughput) -> f64,
+        ),
+        (
+            "springbench_bench_time_seconds_total",
+            "Stimulus time played and captured (s).",
+            |t| t.bench_time_s,
+        ),
+        (
+            "springbench_analysis_seconds_total",
+            "Fit and judging time of the measured parts (s).",
+            |t| t.analysis_s,
+        ),
+        (
+            "springbench_job_wall_seconds_total",
+            "Wall time of the finished jobs, start to end (s).",
+            |t| t.wall_s,
+        ),
+    ] {
+        let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} counter");
+        for (b, mode, t) in &tp {
+            let _ = writeln!(
+                out,
+                "{name}{{bench=\"{b}\",procedure=\"{mode}\"}} {}",
+                get(t)
+            );
+        }
+    }
+    out.push_str(
+        "# HELP springbench_parts_per_hour Parts per hour of a busy bench: 3600 x parts / job wall time.\n\
+         # TYPE springbench_parts_per_hour gauge\n",
+    );
+    for (b, mode, t) in &tp {
+        if t.wall_s > 0.0 {
+            let _ = writeln!(
+                out,
+                "springbench_parts_per_hour{{bench=\"{b}\",procedure=\"{mode}\"}} {:.1}",
+                3600.0 * t.parts as f64 / t.wall_s
+            );
+        }
+    }
     st.metrics.render(&mut out);
     Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response())
 }

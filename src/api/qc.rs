@@ -360,6 +360,10 @@ fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
             .config
             .pointer("/limits/max_drive_v")
             .and_then(|v| v.as_f64()),
+        pre_drive_v: g
+            .config
+            .pointer("/pre_sweep/drive_v")
+            .and_then(|v| v.as_f64()),
     }
 }
 

@@ -6,6 +6,11 @@ use super::*;
 
 pub(super) struct Done {
     pub(super) bench_time_s: f64,
+    /// Wall time of the analyses (fits, judging) of the job's sweeps (s).
+    pub(super) analysis_s: f64,
+    /// Repeats measured, and those that fell back to the full procedure.
+    pub(super) parts: u32,
+    pub(super) fallbacks: u32,
     pub(super) log: Vec<String>,
     pub(super) warnings: Vec<String>,
     pub(super) recordings: Vec<NewRecording>,
@@ -257,10 +262,16 @@ pub(super) fn execute(
         method: spec.method,
         order: spec.order,
     };
-    let config = json!({"procedure": pcfg, "analysis": opts, "limits": spec.limits,
+    // The production procedure's reference: the golden units of the recipe.
+    let golden = recipe.and_then(|r| r.procedure.golden.as_ref());
+    let config = json!({"procedure": pcfg, "procedure_mode": spec.procedure.as_str(),
+                        "analysis": opts, "limits": spec.limits,
                         "bench": bench_cfg.id, "seed": seed, "bench_description": bench.describe()});
     let mut done = Done {
         bench_time_s: 0.0,
+        analysis_s: 0.0,
+        parts: 0,
+        fallbacks: 0,
         log: vec![],
         warnings: vec![],
         recordings: vec![],
@@ -271,11 +282,38 @@ pub(super) fn execute(
     for r in 0..spec.repeats {
         obs.repeat = r;
         let runs_before = bench.run_records().len();
-        let outcome = procedure::run(bench.as_mut(), &pcfg, obs).map_err(procedure_stop)?;
+        let outcome = match spec.procedure {
+            crate::job::ProcedureMode::Full => procedure::run(bench.as_mut(), &pcfg, obs),
+            crate::job::ProcedureMode::Production => {
+                procedure::run_production(bench.as_mut(), &pcfg, golden, obs)
+            }
+        }
+        .map_err(procedure_stop)?;
         if obs.cancelled() {
             return Err(Stop::Aborted);
         }
+        let analysis_started = Instant::now();
         done.bench_time_s += outcome.bench_time_s;
+        done.parts += 1;
+        // What ran, for the result and the verdict's traceability.
+        let procedure_run = json!({
+            "mode": spec.procedure.as_str(),
+            "fallback": outcome.production.as_ref().and_then(|p| p.fallback.clone()),
+            "bench_time_s": outcome.bench_time_s,
+        });
+        if let Some(why) = outcome
+            .production
+            .as_ref()
+            .and_then(|p| p.fallback.as_ref())
+        {
+            done.fallbacks += 1;
+            let w = format!("production procedure fell back to the full procedure: {why}");
+            done.warnings.push(if spec.repeats > 1 {
+                format!("repeat {}: {w}", r + 1)
+            } else {
+                w
+            });
+        }
         if spec.repeats > 1 {
             done.log
                 .extend(outcome.log.iter().map(|l| format!("repeat {}: {l}", r + 1)));
@@ -370,6 +408,7 @@ pub(super) fn execute(
                     level_index: li,
                     drive_v: Some(sweep.drive_v),
                     max_drive_v: Some(spec.limits.max_drive_v),
+                    pre_drive_v: Some(outcome.pre_sweep.amplitude_v),
                 };
                 done.verdicts
                     .push((mid.clone(), crate::qc::judge(r, &facts)));
@@ -412,8 +451,14 @@ pub(super) fn execute(
             done.recordings
                 .push(recording("main", &sweep.signals, res.as_ref())?);
             let mut cfg_m = config.clone();
+            cfg_m["procedure_run"] = procedure_run.clone();
             cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
-                                           "f_end_hz": sweep.f_end_hz});
+                                           "f_end_hz": sweep.f_end_hz,
+                                           "duration_s": sweep.sweep.duration_s});
+            cfg_m["pre_sweep"] = json!({"drive_v": outcome.pre_sweep.amplitude_v,
+                                        "f_start_hz": outcome.pre_sweep.f_start_hz,
+                                        "f_end_hz": outcome.pre_sweep.f_end_hz,
+                                        "duration_s": outcome.pre_sweep.duration_s});
             if let Some(h) = hw_record {
                 cfg_m["hardware"] = h;
             }
@@ -451,6 +496,21 @@ pub(super) fn execute(
                     l
                 }
             }));
+        }
+        let analysis_s = analysis_started.elapsed().as_secs_f64();
+        done.analysis_s += analysis_s;
+        done.log.push(format!(
+            "{}procedure {}: bench time {:.2} s, analysis {analysis_s:.2} s",
+            if spec.repeats > 1 {
+                format!("repeat {}: ", r + 1)
+            } else {
+                String::new()
+            },
+            spec.procedure.as_str(),
+            outcome.bench_time_s
+        ));
+        for m in &mut done.measurements[first_measurement..] {
+            m.config["procedure_run"]["analysis_s"] = json!(analysis_s);
         }
         obs.flush_samples();
         // The repeat's recordings and measurements go to the store now: a

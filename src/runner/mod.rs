@@ -62,6 +62,23 @@ struct Slot {
     cfg: BenchConfig,
     notify: Notify,
     status: Mutex<BenchStatus>,
+    /// Throughput of the finished jobs, by procedure (`full`, `production`).
+    throughput: Mutex<std::collections::BTreeMap<&'static str, Throughput>>,
+}
+
+/// What a bench's finished jobs of one procedure took (for `/metrics`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Throughput {
+    /// Parts measured (repeats of the procedure).
+    pub parts: u64,
+    /// Production runs that fell back to the full procedure.
+    pub fallbacks: u64,
+    /// Stimulus time played and captured (s).
+    pub bench_time_s: f64,
+    /// Fits and judging on the job's thread (s).
+    pub analysis_s: f64,
+    /// Wall time from the job's start to its end, storage included (s).
+    pub wall_s: f64,
 }
 
 /// Result of a cancel request.
@@ -126,6 +143,7 @@ impl Runner {
                             preset: b.preset.clone(),
                             fault: None,
                         }),
+                        throughput: Mutex::default(),
                     }),
                 )
             })
@@ -187,6 +205,18 @@ impl Runner {
             .map(|s| s.status.lock().unwrap().clone())
             .collect();
         v.sort_by(|a, b| a.id.cmp(&b.id));
+        v
+    }
+
+    /// Throughput per bench and procedure of the jobs finished since the start.
+    pub fn throughput(&self) -> Vec<(String, &'static str, Throughput)> {
+        let mut v = vec![];
+        for s in self.slots.values() {
+            for (mode, t) in s.throughput.lock().unwrap().iter() {
+                v.push((s.cfg.id.clone(), *mode, *t));
+            }
+        }
+        v.sort_by(|a, b| (&a.0, a.1).cmp(&(&b.0, b.1)));
         v
     }
 
@@ -405,6 +435,15 @@ impl Runner {
         };
         if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
             self.fault_bench(slot, &job.id, p).await?;
+        }
+        if let (Some(d), Ok(sp)) = (&done, &spec) {
+            let mut t = slot.throughput.lock().unwrap();
+            let e = t.entry(sp.procedure.as_str()).or_default();
+            e.parts += u64::from(d.parts);
+            e.fallbacks += u64::from(d.fallbacks);
+            e.bench_time_s += d.bench_time_s;
+            e.analysis_s += d.analysis_s;
+            e.wall_s += started.elapsed().as_secs_f64();
         }
         let (bench_time, log, warnings, recs, meas, reports, verdicts) = match done {
             Some(d) => (

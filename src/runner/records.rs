@@ -93,6 +93,8 @@ impl Runner {
                     "bench_id": bench.id,
                     "bench_kind": bench.kind,
                     "bench_description": m.and_then(|m| m.config.get("bench_description").cloned()),
+                    // full or production, and a production run's fall-back with its reason
+                    "procedure": m.and_then(|m| m.config.get("procedure_run").cloned()),
                     // The virtual bench has no calibration record and no sensor identities;
                     // hardware benches put theirs here.
                     "calibration": Value::Null,

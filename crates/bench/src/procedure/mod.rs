@@ -4,6 +4,11 @@
 //! through the large-signal resonance, per target Xpeak. The fit (4) is done
 //! by the caller with [`springbench_core::identify`].
 //!
+//! The production procedure ([`run_production`], `production.rs`) replaces
+//! (1)-(3) by a short pre-measurement and one short narrow sweep per level at
+//! what golden units established, and falls back to [`run`] when the part is
+//! too far from them.
+//!
 //! Used by `springbench simulate` and by the daemon's runner alike.
 //! CONTRACT (owned by the virtual-bench work): types and `run` signature are
 //! shared with the daemon; change them only together.
@@ -68,6 +73,19 @@ pub struct Outcome {
     pub bench_time_s: f64,
     /// Human-readable log of the decisions taken (levels, resonances found).
     pub log: Vec<String>,
+    /// Set when the production procedure ran (None: the full procedure was asked for).
+    pub production: Option<ProductionRun>,
+}
+
+/// How a production run went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ProductionRun {
+    /// Why the part fell back to the full procedure (one line); None when the
+    /// short procedure measured it.
+    pub fallback: Option<String>,
+    /// Bench time spent in the short procedure before a fall-back (s); the
+    /// whole run's is `Outcome::bench_time_s`.
+    pub short_bench_time_s: f64,
 }
 
 #[derive(Debug, Clone)]
@@ -114,7 +132,10 @@ pub enum ProcedureError {
     Failed(String),
 }
 
+pub mod pace;
+pub mod production;
 mod run;
 pub mod sweep;
+pub use production::run_production;
 pub use run::run;
 pub use sweep::SweepSpec;

@@ -13,36 +13,36 @@ const PROBE_V: f64 = 0.5;
 const SEARCH_S: f64 = 3.0;
 const MAX_SEARCH: usize = 3;
 /// Silence after probe and search sweeps (s).
-const SHORT_SILENCE_S: f64 = 0.2;
+pub(super) const SHORT_SILENCE_S: f64 = 0.2;
 /// Xpeak within this fraction of the target ends the search.
-const SEARCH_TOL: f64 = 0.08;
+pub(super) const SEARCH_TOL: f64 = 0.08;
 /// Narrow sweep: this many octaves below and above the large-signal resonance found.
-const NARROW_BELOW_OCT: f64 = 0.45;
-const NARROW_ABOVE_OCT: f64 = 0.4;
+pub(super) const NARROW_BELOW_OCT: f64 = 0.45;
+pub(super) const NARROW_ABOVE_OCT: f64 = 0.4;
 
-enum Stop {
+pub(super) enum Stop {
     Completed,
     Limit,
     Early,
 }
 
-struct Played {
-    sig: Signals,
-    stop: Stop,
+pub(super) struct Played {
+    pub(super) sig: Signals,
+    pub(super) stop: Stop,
 }
 
-struct Ctx<'a> {
-    bench: &'a mut dyn Bench,
-    obs: &'a mut dyn Observer,
-    fs: f64,
-    limits: Limits,
-    elapsed_s: f64,
-    est_total_s: f64,
-    log: Vec<String>,
+pub(super) struct Ctx<'a> {
+    pub(super) bench: &'a mut dyn Bench,
+    pub(super) obs: &'a mut dyn Observer,
+    pub(super) fs: f64,
+    pub(super) limits: Limits,
+    pub(super) elapsed_s: f64,
+    pub(super) est_total_s: f64,
+    pub(super) log: Vec<String>,
 }
 
 impl Ctx<'_> {
-    fn play(
+    pub(super) fn play(
         &mut self,
         step: Step,
         spec: &SweepSpec,
@@ -134,15 +134,18 @@ impl Ctx<'_> {
 }
 
 /// What a sweep tells: fundamental amplitude peak, resonance, gain.
-struct SweepInfo {
+pub(super) struct SweepInfo {
     /// Largest fundamental amplitude of x (m).
-    x_fund_peak_m: f64,
+    pub(super) x_fund_peak_m: f64,
     /// Largest |x| (m).
-    xpeak_m: f64,
+    pub(super) xpeak_m: f64,
     /// Peak of |X/Mic| (Hz).
-    resonance_hz: f64,
+    pub(super) resonance_hz: f64,
     /// |X/U| at the resonance (m/V).
-    gain_m_per_v: f64,
+    pub(super) gain_m_per_v: f64,
+    /// |X/Mic| fell below 1/sqrt(2) of its peak after the peak (within the
+    /// faded-in part): the sweep crossed the resonance.
+    pub(super) crossed: bool,
 }
 
 fn smooth(c: &[Cycle], i: usize, ch: usize, half: usize) -> (f64, f64) {
@@ -157,7 +160,7 @@ fn smooth(c: &[Cycle], i: usize, ch: usize, half: usize) -> (f64, f64) {
     (re / n, im / n)
 }
 
-fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
+pub(super) fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
     let drive = sig.drive_v.as_deref()?;
     let cyc = cycles(
         spec,
@@ -175,16 +178,21 @@ fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
     }
     let mut best = (f64::NEG_INFINITY, 0usize);
     let mut x_fund_peak: f64 = 0.0;
+    let mut hs = Vec::with_capacity(idx.len());
     for &i in &idx {
         let x = smooth(&cyc, i, 0, 2);
         let m = smooth(&cyc, i, 1, 2);
         x_fund_peak = x_fund_peak.max(abs(x));
         let h = abs(div(x, m));
+        hs.push((i, h));
         if h.is_finite() && h > best.0 {
             best = (h, i);
         }
     }
     let i = best.1;
+    let crossed = hs
+        .iter()
+        .any(|&(j, h)| j > i && h < best.0 * std::f64::consts::FRAC_1_SQRT_2);
     let g = abs(div(smooth(&cyc, i, 0, 2), smooth(&cyc, i, 2, 2)));
     Some(SweepInfo {
         x_fund_peak_m: x_fund_peak,
@@ -194,12 +202,13 @@ fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
             .fold(0.0f64, |a, x| a.max(x.abs())),
         resonance_hz: cyc[i].f_hz,
         gain_m_per_v: g,
+        crossed,
     })
 }
 
 /// The warning of a narrow sweep whose Xpeak stayed more than the search
 /// tolerance below its target; None when the target was reached.
-fn target_warning(
+pub(super) fn target_warning(
     target_m: f64,
     reached_m: f64,
     drive_v: f64,
@@ -224,7 +233,7 @@ fn target_warning(
     ))
 }
 
-fn validate(cfg: &ProcedureConfig, limits: &Limits) -> Result<(), ProcedureError> {
+pub(super) fn validate(cfg: &ProcedureConfig, limits: &Limits) -> Result<(), ProcedureError> {
     let bad = |m: String| Err(ProcedureError::Invalid(m));
     if !(cfg.moving_mass_kg.is_finite() && cfg.moving_mass_kg > 0.0) {
         return bad(format!(
@@ -484,5 +493,6 @@ pub fn run(
         narrow,
         bench_time_s,
         log: cx.log,
+        production: None,
     })
 }

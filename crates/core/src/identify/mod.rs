@@ -282,6 +282,7 @@ mod small;
 mod stiffness;
 pub mod validity;
 
+pub use small::{fit as small_signal_fit, SmallFit};
 pub use small::{WideBandResonance, COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
 pub use stiffness::{MAX_AUTO_ORDER, MAX_ORDER};
 

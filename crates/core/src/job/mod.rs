@@ -36,5 +36,6 @@ mod spec;
 pub use parse::{check_chars, parse_lenient, FieldError};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
-    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, RecipeRef,
+    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
+    RecipeRef,
 };

@@ -6,7 +6,7 @@
 
 use super::parse::{check_chars, FieldError};
 use super::spec::{
-    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits,
+    production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
 };
 use super::{
     valid_serial, MAX_LEVELS, MAX_ORDER, MAX_REPEATS, MIN_MOVING_MASS_KG, MIN_TARGET_XPEAK_M,
@@ -59,6 +59,10 @@ pub struct JobRequest {
     pub production: Option<JobProduction>,
     /// QC recipe name: its newest version's procedure settings are filled in and the job ends with a verdict.
     pub recipe: Option<String>,
+    /// `full` or `production` (needs a recipe; its golden units' reference
+    /// paces the short procedure); default: the recipe's `procedure.mode`,
+    /// else `full`. A gauge study runs both on the same parts.
+    pub procedure: Option<ProcedureMode>,
     /// Tighter limits than the bench's.
     pub limits: Option<JobLimits>,
 }
@@ -292,6 +296,12 @@ impl JobRequest {
                 e.push(FieldError::new("recipe", "must be a recipe name"));
             }
         }
+        if self.procedure == Some(ProcedureMode::Production) && self.recipe.is_none() {
+            e.push(FieldError::new(
+                "procedure",
+                "production needs a recipe: its golden units tell the resonances and drive levels",
+            ));
+        }
 
         let moving_mass_kg = match self.moving_mass_kg {
             // On the virtual bench it defaults to the mounted part's.
@@ -346,6 +356,7 @@ impl JobRequest {
                 method: self.method.unwrap_or(adm.method),
                 order,
                 repeats,
+                procedure: self.procedure.unwrap_or_default(),
                 priority,
                 preset: self.preset,
                 part_spec: self.part_spec,

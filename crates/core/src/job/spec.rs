@@ -33,6 +33,32 @@ pub struct JobProduction {
     pub defect: Option<crate::physics::production::Defect>,
 }
 
+/// Which procedure a job runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ProcedureMode {
+    /// Level probe, 16 s pre-measurement, resonance search, 10 s narrow
+    /// sweep per level (about 33 s of bench time for one level).
+    #[default]
+    Full,
+    /// A short pre-measurement and one short narrow sweep per level at the
+    /// golden units' resonance and drive (`procedure.golden`); falls back to
+    /// the full procedure when the part is too far from the golden units.
+    Production,
+}
+
+impl ProcedureMode {
+    pub fn is_full(&self) -> bool {
+        *self == ProcedureMode::Full
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ProcedureMode::Full => "full",
+            ProcedureMode::Production => "production",
+        }
+    }
+}
+
 /// Hard limits of a bench; a procedure never exceeds them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Limits {
@@ -57,6 +83,9 @@ pub struct JobSpec {
     pub order: Option<usize>,
     /// How often the whole procedure runs.
     pub repeats: u32,
+    /// `full` or `production` (the request's `procedure`, else the recipe's `procedure.mode`).
+    #[serde(default, skip_serializing_if = "ProcedureMode::is_full")]
+    pub procedure: ProcedureMode,
     /// Higher runs first; equal priorities run in submission order.
     pub priority: i64,
     /// Virtual bench: the preset mounted (when `part_spec` is absent).

@@ -55,6 +55,11 @@ impl ProcedureSettings {
         if let Some(o) = &self.order {
             fill(&mut req.order, o, "order", recipe, &mut errors);
         }
+        // The procedure is the recipe's unless the job names one (a gauge
+        // study runs both procedures on the same parts under one recipe).
+        if req.procedure.is_none() {
+            req.procedure = Some(self.mode);
+        }
         if let Some(m) = &self.moving_mass_kg {
             fill(
                 &mut req.moving_mass_kg,
@@ -85,6 +90,8 @@ mod tests {
             order: Some(6),
             repeats: 2,
             moving_mass_kg: None,
+            mode: Default::default(),
+            golden: None,
         }
     }
 

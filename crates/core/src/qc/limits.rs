@@ -361,6 +361,14 @@ pub fn propose(
         }
         out.kx_mask = Some(mask);
     }
+    // The production procedure's reference, when every golden unit has its
+    // drives and resonances (a recipe's own deviation bound is kept).
+    if let Some(mut g) = super::GoldenReference::from_golden(golden, levels) {
+        if let Some(old) = &recipe.procedure.golden {
+            g.max_f0_deviation_percent = old.max_f0_deviation_percent;
+        }
+        out.procedure.golden = Some(g);
+    }
     if let Err(e) = out.validate() {
         let msgs: Vec<String> = e
             .iter()

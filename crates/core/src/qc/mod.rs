@@ -15,10 +15,12 @@
 mod apply;
 pub mod cfx;
 pub mod limits;
+pub mod production;
 mod recipe;
 pub mod spc;
 mod verdict;
 
+pub use production::{GoldenLevel, GoldenReference, ProcedureMode};
 pub use recipe::{
     FieldError, KxMask, ParamSpec, ProcedureSettings, Quantity, Recipe, Validity, KX_MASK,
     MAX_DESCRIPTION_CHARS, MAX_LIMIT, MAX_MASK_POINTS, MAX_PARAMETERS, MAX_PART_KIND_CHARS,

@@ -1,6 +1,7 @@
 //! Recipes: the procedure settings of a part type and the parameters judged,
 //! each with a unit and limits; their validation and content hash.
 
+use super::production::{GoldenReference, ProcedureMode};
 use crate::identify::Method;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -36,6 +37,14 @@ pub struct ProcedureSettings {
     /// virtual bench, the mounted part's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub moving_mass_kg: Option<f64>,
+    /// `full` (default) or `production`: the short procedure that uses
+    /// `golden` (a job request's `procedure` overrides it per job).
+    #[serde(default, skip_serializing_if = "ProcedureMode::is_full")]
+    pub mode: ProcedureMode,
+    /// What the golden units established (resonances, Q, drive levels),
+    /// filled in by a limit proposal; the production procedure's reference.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub golden: Option<GoldenReference>,
 }
 
 fn one() -> u32 {
@@ -294,6 +303,13 @@ impl Recipe {
                     "procedure.moving_mass_kg",
                     format!("must be in [{MIN_MOVING_MASS_KG}, 10] kg, got {m}"),
                 ));
+            }
+        }
+        if let Some(g) = &p.golden {
+            if let Err(ge) = g.validate(p.levels_m.len()) {
+                for (f, m) in ge {
+                    e.push(FieldError::new(format!("procedure.golden.{f}"), m));
+                }
             }
         }
         if self.parameters.len() > MAX_PARAMETERS {

@@ -72,6 +72,8 @@ fn recipe() -> Recipe {
             order: Some(4),
             repeats: 1,
             moving_mass_kg: Some(0.05),
+            mode: Default::default(),
+            golden: None,
         },
         parameters: vec![
             param("k0", Quantity::K0, None, Some(2300.0), Some(2500.0)),

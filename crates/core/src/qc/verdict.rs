@@ -101,6 +101,9 @@ pub struct RunFacts {
     /// Drive of the narrow sweep and the drive limit (V).
     pub drive_v: Option<f64>,
     pub max_drive_v: Option<f64>,
+    /// Drive of the pre-measurement (V): with `drive_v` the production
+    /// procedure's reference (`qc::production`).
+    pub pre_drive_v: Option<f64>,
 }
 
 /// K(x) from the result's polynomial (x in m, K in N/m).

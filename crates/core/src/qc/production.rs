@@ -1,0 +1,144 @@
+//! The production procedure's data: what the approved golden units
+//! established (their small-signal and large-signal resonances, Q and the
+//! drive levels that reached the target), stored with the approved limits in
+//! the recipe's `procedure.golden`, and the recipe's choice of procedure
+//! (`procedure.mode`). Pure: the bench crate's `procedure::production` runs it.
+
+use super::limits::GoldenUnit;
+use serde::{Deserialize, Serialize};
+
+pub use crate::job::ProcedureMode;
+
+/// Default of [`GoldenReference::max_f0_deviation_percent`]: a part whose
+/// small-signal f0 lies further than this from the golden units' mean falls
+/// back to the full procedure (10 % in k0 at equal mass is 4.9 % in f0; the
+/// lot's k0 spread is 1.5 %, a 25 % stiffer part is 11.8 % off in f0).
+pub const DEFAULT_MAX_F0_DEVIATION_PERCENT: f64 = 5.0;
+
+fn default_max_f0_dev() -> f64 {
+    DEFAULT_MAX_F0_DEVIATION_PERCENT
+}
+
+/// One level of the golden units (index-aligned with `procedure.levels_m`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GoldenLevel {
+    /// Mean large-signal resonance of the golden units' narrow sweeps (Hz).
+    pub resonance_hz: f64,
+    /// Mean drive amplitude that reached the target Xpeak (V).
+    pub drive_v: f64,
+}
+
+/// What the golden units established, stored with the approved limits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GoldenReference {
+    /// How many golden units the means are over.
+    pub units: usize,
+    /// Mean small-signal resonance (Hz).
+    pub f0_hz: f64,
+    /// Mean small-signal Q (1): with f0 it gives the ringing time constant
+    /// Q / (pi f0) that paces the short sweeps.
+    pub q: f64,
+    /// Mean drive amplitude of the pre-measurement (V).
+    pub pre_drive_v: f64,
+    pub levels: Vec<GoldenLevel>,
+    /// A part whose f0 deviates further than this from `f0_hz` (%) falls back to the full procedure.
+    #[serde(default = "default_max_f0_dev")]
+    pub max_f0_deviation_percent: f64,
+}
+
+impl GoldenReference {
+    /// The means over the golden units' measurements (each unit: every level
+    /// with its report, narrow-sweep drive and pre-measurement drive). None
+    /// when any of them lacks a number (units measured before the drives were
+    /// stored, or a small-signal value not determined).
+    pub fn from_golden(golden: &[GoldenUnit], levels: usize) -> Option<GoldenReference> {
+        if golden.is_empty() || levels == 0 {
+            return None;
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let (mut f0, mut q, mut pre) = (vec![], vec![], vec![]);
+        let mut res = vec![vec![]; levels];
+        let mut drv = vec![vec![]; levels];
+        for g in golden {
+            for li in 0..levels {
+                let f = g.measurements.iter().find(|m| m.level_index == li)?;
+                let rep = f.report.as_ref()?;
+                if li == 0 {
+                    let ss = rep.small_signal.as_ref()?;
+                    f0.push(ss.f0_hz?);
+                    q.push(ss.q?);
+                    pre.push(f.pre_drive_v?);
+                }
+                res[li].push(rep.large_signal.resonance_hz);
+                drv[li].push(f.drive_v?);
+            }
+        }
+        let g = GoldenReference {
+            units: golden.len(),
+            f0_hz: mean(&f0),
+            q: mean(&q),
+            pre_drive_v: mean(&pre),
+            levels: (0..levels)
+                .map(|li| GoldenLevel {
+                    resonance_hz: mean(&res[li]),
+                    drive_v: mean(&drv[li]),
+                })
+                .collect(),
+            max_f0_deviation_percent: DEFAULT_MAX_F0_DEVIATION_PERCENT,
+        };
+        g.validate(levels).is_ok().then_some(g)
+    }
+
+    /// One message per bad member (field names relative to `procedure.golden`).
+    pub fn validate(&self, levels: usize) -> Result<(), Vec<(String, String)>> {
+        let mut e = vec![];
+        let pos = |v: f64| v.is_finite() && v > 0.0 && v <= super::MAX_LIMIT;
+        for (n, v) in [
+            ("f0_hz", self.f0_hz),
+            ("q", self.q),
+            ("pre_drive_v", self.pre_drive_v),
+        ] {
+            if !pos(v) {
+                e.push((n.to_string(), format!("must be a positive number, got {v}")));
+            }
+        }
+        if self.units == 0 {
+            e.push(("units".into(), "must be at least 1".into()));
+        }
+        if !(self.max_f0_deviation_percent.is_finite()
+            && self.max_f0_deviation_percent > 0.0
+            && self.max_f0_deviation_percent <= 50.0)
+        {
+            e.push((
+                "max_f0_deviation_percent".into(),
+                format!("must be in (0, 50], got {}", self.max_f0_deviation_percent),
+            ));
+        }
+        if self.levels.len() != levels {
+            e.push((
+                "levels".into(),
+                format!(
+                    "one entry per level of procedure.levels_m ({levels}), got {}",
+                    self.levels.len()
+                ),
+            ));
+        }
+        for (i, l) in self.levels.iter().enumerate() {
+            for (n, v) in [("resonance_hz", l.resonance_hz), ("drive_v", l.drive_v)] {
+                if !pos(v) {
+                    e.push((
+                        format!("levels[{i}].{n}"),
+                        format!("must be a positive number, got {v}"),
+                    ));
+                }
+            }
+        }
+        if e.is_empty() {
+            Ok(())
+        } else {
+            Err(e)
+        }
+    }
+}
