@@ -8,7 +8,7 @@
 //! - `springbench-store`: schema, migrations, queries ([`store`])
 //!
 //! Here: [`config`], [`runner`] (job queue, one owner per bench), [`mes`]
-//! (the delivery worker), [`api`] (HTTP + websocket), [`ui`] (web pages
+//! (the delivery worker), [`fleet`] (replication to the fleet's center, the fleet role), [`api`] (HTTP + websocket), [`ui`] (web pages
 //! compiled in), [`cli`]. The lower crates are re-exported under their usual
 //! names, so that `springbench::identify::Report` and
 //! `springbench_core::identify::Report` are one type.
@@ -22,6 +22,7 @@ pub use springbench_store as store;
 pub mod api;
 pub mod cli;
 pub mod config;
+pub mod fleet;
 pub mod mes;
 pub mod runner;
 pub mod ui;

@@ -42,6 +42,8 @@ pub struct AppState {
     pub metrics: Arc<metrics::Metrics>,
     /// Becomes true when the daemon shuts down (websockets close).
     pub shutdown: watch::Receiver<bool>,
+    /// The link to the fleet's center (a station with `[fleet]`).
+    pub fleet: Option<Arc<crate::fleet::Link>>,
 }
 
 struct Reg {

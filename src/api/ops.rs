@@ -167,6 +167,9 @@ pub async fn metrics(State(st): State<AppState>) -> ApiResult<Response> {
             );
         }
     }
+    if let Some(link) = &st.fleet {
+        crate::fleet::render_metrics(&st.store, link, &mut out).await?;
+    }
     st.metrics.render(&mut out);
     Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response())
 }

@@ -153,6 +153,7 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         cfg: Arc::new(cfg),
         metrics: Default::default(),
         shutdown: stop_rx.clone(),
+        fleet: None,
     };
     let http = state.cfg.http.clone();
     let (max_conn, fd_note) = api::server::fit_connection_limit(http.max_connections);

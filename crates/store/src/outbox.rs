@@ -11,7 +11,8 @@
 //! delivered or refused, and reads back what an event carries
 //! ([`Store::finished_measurement`], [`Store::correction`]).
 
-use crate::results::{FinishedMeasurement, NewMeasurement, NewRecording, NewVerdict};
+use crate::fleet::{ItemBody, JobVerdictsItem, MeasurementItem, ReplicationItem, VerdictItem};
+use crate::results::{FinishedMeasurement, NewMeasurement, NewRecording, NewVerdict, RecipeRow};
 use crate::{now, parse_json, Store, StoreError, StoreResult};
 use serde::Serialize;
 use sqlx::sqlite::SqliteRow;
@@ -217,6 +218,16 @@ impl Store {
         Ok(())
     }
 
+    /// Notes what the center said of a delivered item (a conflict).
+    pub async fn outbox_note(&self, seq: i64, note: &str) -> StoreResult<()> {
+        sqlx::query("UPDATE fleet_outbox SET last_error = ? WHERE seq = ?")
+            .bind(note.to_string())
+            .bind(seq)
+            .execute(&self.pool)
+            .await?;
+        Ok(())
+    }
+
     /// Refused events are offered again (at the worker's start: a center
     /// fixed meanwhile takes them).
     pub async fn outbox_retry_refused(&self) -> StoreResult<u64> {
@@ -404,6 +415,135 @@ impl Store {
             .iter()
             .map(|r| (r.get("seq"), correction_from_row(r)))
             .collect())
+    }
+}
+
+/// What [`Store::apply_center_recipes`] changed.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct RecipeSync {
+    /// Versions the station did not hold and now does.
+    pub added: u64,
+    /// Versions the center has retired that the station now holds retired.
+    pub retired: u64,
+    /// Versions the station holds with another content than the center's
+    /// (same name and version, another hash): left as they are, named here.
+    pub conflicts: Vec<String>,
+}
+
+impl Store {
+    /// The replication items of outbox rows, in their order: a measurement
+    /// with its verdicts, calibration record and recordings (their bytes
+    /// when `with_bytes`, otherwise a reference: length and SHA-256); a
+    /// job's own verdicts; a correction.
+    pub async fn outbox_items(
+        &self,
+        rows: &[OutboxRow],
+        with_bytes: bool,
+    ) -> StoreResult<Vec<ReplicationItem>> {
+        let mut items = Vec::with_capacity(rows.len());
+        for r in rows {
+            let missing = |what: &str| {
+                StoreError::Corrupt(format!(
+                    "outbox item {} names {what} '{}', which is not stored",
+                    r.seq, r.ref_id
+                ))
+            };
+            let body = match r.kind {
+                OutboxKind::Measurement => {
+                    let f = self
+                        .finished_measurement(&r.ref_id, true)
+                        .await?
+                        .ok_or_else(|| missing("measurement"))?;
+                    let calibration = match self.measurement_calibration_id(&r.ref_id).await? {
+                        Some(id) => self.get_calibration(&id).await?,
+                        None => None,
+                    };
+                    let mut m = MeasurementItem::from_finished(&f, calibration, with_bytes)
+                        .map_err(StoreError::Corrupt)?;
+                    // Each verdict with the time it was made (the job's end).
+                    let times = self.verdict_times(&r.ref_id).await?;
+                    for v in &mut m.verdicts {
+                        if let Some((_, t)) = times.iter().find(|(id, _)| *id == v.id) {
+                            v.created_at = t.clone();
+                        }
+                    }
+                    ItemBody::Measurement(Box::new(m))
+                }
+                OutboxKind::JobVerdicts => ItemBody::JobVerdicts(JobVerdictsItem {
+                    job_id: r.ref_id.clone(),
+                    part_serial: r.part_serial.clone(),
+                    verdicts: self
+                        .job_verdict_rows(&r.ref_id)
+                        .await?
+                        .iter()
+                        .map(|(v, t)| VerdictItem::from_new(v, t))
+                        .collect(),
+                }),
+                OutboxKind::Correction => ItemBody::Correction(
+                    self.correction(&r.ref_id)
+                        .await?
+                        .ok_or_else(|| missing("correction"))?,
+                ),
+            };
+            items.push(ReplicationItem { seq: r.seq, body });
+        }
+        Ok(items)
+    }
+
+    /// Takes the center's recipe versions: the versions the station lacks
+    /// are stored with the center's version number, hash and content; a
+    /// version the center retired is retired here too (a station never
+    /// judges with it while it can reach the center). A local version with
+    /// the same number and another hash is left alone and named.
+    pub async fn apply_center_recipes(&self, rows: &[RecipeRow]) -> StoreResult<RecipeSync> {
+        let mut out = RecipeSync::default();
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        for r in rows {
+            let held: Option<(String, i64)> = sqlx::query_as(
+                "SELECT sha256, retired FROM qc_recipes WHERE name = ? AND version = ?",
+            )
+            .bind(r.name.clone())
+            .bind(r.version)
+            .fetch_optional(&mut *tx)
+            .await?;
+            match held {
+                None => {
+                    sqlx::query(
+                        "INSERT INTO qc_recipes (name, version, sha256, body_json, origin, proposal_id, retired, created_by, created_at) \
+                         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    )
+                    .bind(r.name.clone())
+                    .bind(r.version)
+                    .bind(r.sha256.clone())
+                    .bind(r.recipe.to_string())
+                    .bind(r.origin.clone())
+                    .bind(r.proposal_id.clone())
+                    .bind(i64::from(r.retired))
+                    .bind(r.created_by.clone())
+                    .bind(r.created_at.clone())
+                    .execute(&mut *tx)
+                    .await?;
+                    out.added += 1;
+                }
+                Some((sha, _)) if sha != r.sha256 => {
+                    out.conflicts.push(format!(
+                        "recipe '{}' version {}: the station holds sha256 {sha}, the center {}",
+                        r.name, r.version, r.sha256
+                    ));
+                }
+                Some((_, retired)) if r.retired && retired == 0 => {
+                    sqlx::query("UPDATE qc_recipes SET retired = 1 WHERE name = ? AND version = ?")
+                        .bind(r.name.clone())
+                        .bind(r.version)
+                        .execute(&mut *tx)
+                        .await?;
+                    out.retired += 1;
+                }
+                Some(_) => {}
+            }
+        }
+        tx.commit().await?;
+        Ok(out)
     }
 }
 
