@@ -20,6 +20,7 @@ pub mod outbox;
 mod parts;
 pub mod qc;
 mod raw;
+mod replication;
 pub mod results;
 
 pub use blob::BlobRef;
