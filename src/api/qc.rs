@@ -364,6 +364,10 @@ fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
             .config
             .pointer("/pre_sweep/drive_v")
             .and_then(|v| v.as_f64()),
+        pre_q_drive_to_x: g
+            .config
+            .pointer("/pre_sweep/q_drive_to_x")
+            .and_then(|v| v.as_f64()),
     }
 }
 

@@ -409,6 +409,7 @@ pub(super) fn execute(
                     drive_v: Some(sweep.drive_v),
                     max_drive_v: Some(spec.limits.max_drive_v),
                     pre_drive_v: Some(outcome.pre_sweep.amplitude_v),
+                    pre_q_drive_to_x: outcome.pre_q_drive_to_x,
                 };
                 done.verdicts
                     .push((mid.clone(), crate::qc::judge(r, &facts)));
@@ -458,7 +459,8 @@ pub(super) fn execute(
             cfg_m["pre_sweep"] = json!({"drive_v": outcome.pre_sweep.amplitude_v,
                                         "f_start_hz": outcome.pre_sweep.f_start_hz,
                                         "f_end_hz": outcome.pre_sweep.f_end_hz,
-                                        "duration_s": outcome.pre_sweep.duration_s});
+                                        "duration_s": outcome.pre_sweep.duration_s,
+                                        "q_drive_to_x": outcome.pre_q_drive_to_x});
             if let Some(h) = hw_record {
                 cfg_m["hardware"] = h;
             }

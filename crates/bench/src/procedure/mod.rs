@@ -67,6 +67,12 @@ pub struct Outcome {
     pub pre_sweep: SweepSpec,
     /// Small-signal resonance read off the pre-measurement (peak of |X/Mic|, Hz).
     pub f0_hz: f64,
+    /// Quality of the drive-to-displacement response |X/U| around the
+    /// resonance in the pre-measurement (its peak frequency over its
+    /// half-power bandwidth): with the exciter and the box it differs from
+    /// the part's Q, and it sets how far a short sweep builds up the
+    /// resonance. None when the sweep did not reach both half-power points.
+    pub pre_q_drive_to_x: Option<f64>,
     /// One narrow sweep per requested level, in the order of `levels_m`.
     pub narrow: Vec<NarrowSweep>,
     /// Stimulus time a real bench would need for all sweeps played, searches included (s).

@@ -13,9 +13,10 @@
 //!    half-power bandwidth f/Q in [`N_TAU`] decay times tau = Q / (pi f)
 //!    (production-notes: 3-5 tau). The level is checked inside the sweep: a
 //!    large-signal resonance outside the sweep's band (the upper branch was
-//!    not ridden from at least 1/3 octave below) falls back; an Xpeak more
-//!    than the full procedure's search tolerance off the target gives one
-//!    corrected sweep.
+//!    not ridden from at least 1/3 octave below, or not crossed) falls
+//!    back; an Xpeak more than the full procedure's search tolerance off the
+//!    target gives one corrected sweep, and falls back when that one misses
+//!    too.
 //!
 //! The safety rules are the full procedure's (`Ctx::play`): every block is
 //! checked against the displacement limit and ramps the drive down; a sweep
@@ -42,14 +43,25 @@ const PRE_OCT: f64 = 1.5;
 pub const N_TAU: f64 = 3.0;
 /// Shortest narrow sweep (s): its fades take 0.5 s.
 const MIN_NARROW_S: f64 = 1.0;
+/// Fewest periods a short narrow sweep holds: the analysis needs 20 periods
+/// found along the main sweep (`identify`'s preparation), and the fades'
+/// quiet ends hold some that are not found.
+pub const MIN_NARROW_PERIODS: f64 = 30.0;
 
-/// Length (s) of a log sweep over `band_oct` octaves that crosses the
-/// half-power bandwidth of a resonance at `f_hz` with quality `q` in
+/// Length (s) of a log sweep over `band_oct` octaves around a resonance at
+/// `f_hz` with quality `q` that crosses its half-power bandwidth in
 /// [`N_TAU`] decay times: rate r (oct/s) gives df/dt = f ln2 r, the
-/// bandwidth f/Q is crossed in 1/(Q ln2 r) >= N tau = N Q/(pi f).
-pub fn narrow_duration_s(f_hz: f64, q: f64, band_oct: f64) -> f64 {
+/// bandwidth f/Q is crossed in 1/(Q ln2 r) >= N tau = N Q/(pi f). At least
+/// [`MIN_NARROW_PERIODS`] periods (a log sweep from f1 to f2 in T holds
+/// T (f2 - f1) / ln(f2/f1) of them) and [`MIN_NARROW_S`].
+pub fn narrow_duration_s(f_hz: f64, q: f64, below_oct: f64, above_oct: f64) -> f64 {
+    let band_oct = below_oct + above_oct;
     let rate_oct_per_s = std::f64::consts::PI * f_hz / (N_TAU * q * q * std::f64::consts::LN_2);
-    (band_oct / rate_oct_per_s).max(MIN_NARROW_S)
+    let (f1, f2) = (f_hz * 2f64.powf(-below_oct), f_hz * 2f64.powf(above_oct));
+    let for_periods = MIN_NARROW_PERIODS * (f2 / f1).ln() / (f2 - f1);
+    (band_oct / rate_oct_per_s)
+        .max(for_periods)
+        .max(MIN_NARROW_S)
 }
 
 /// Peak |x| of a linear resonator (resonance `f_hz`, quality `q`, unit
@@ -134,11 +146,13 @@ pub fn run_production(
     }
     let fs = bench.sample_rate_hz();
     let vmax = limits.max_drive_v;
-    let band_oct = NARROW_BELOW_OCT + NARROW_ABOVE_OCT;
     let narrow_s: Vec<f64> = g
         .levels
         .iter()
-        .map(|l| narrow_duration_s(l.resonance_hz, g.q, band_oct).min(cfg.narrow_duration_s))
+        .map(|l| {
+            narrow_duration_s(l.resonance_hz, g.q, NARROW_BELOW_OCT, NARROW_ABOVE_OCT)
+                .min(cfg.narrow_duration_s)
+        })
         .collect();
     let est_total_s = PRE_S + SHORT_SILENCE_S + narrow_s.iter().map(|d| d + 0.5).sum::<f64>();
     let mut cx = Ctx {
@@ -176,8 +190,11 @@ pub fn run_production(
         cfg.pre_duration_s,
         1.0,
     );
+    // The build-up is the drive-to-displacement response's (exciter and box
+    // included), as the golden units' full pre-measurement showed it.
+    let q_pre = g.pre_q_drive_to_x.unwrap_or(g.q);
     let mut pre_v =
-        equivalent_drive(g.pre_drive_v, &full_pre, &pre_spec_at(1.0), g.f0_hz, g.q).min(vmax);
+        equivalent_drive(g.pre_drive_v, &full_pre, &pre_spec_at(1.0), g.f0_hz, q_pre).min(vmax);
     cx.log.push(format!(
         "pre-measurement drive {pre_v:.3} V: the golden units' {:.3} V in the full procedure's sweep",
         g.pre_drive_v
@@ -205,13 +222,13 @@ pub fn run_production(
         ));
         let ok = (0.5..=2.0).contains(&ratio) || attempt == 2 || (ratio < 0.5 && pre_v >= vmax);
         if ok || info.x_fund_peak_m <= 0.0 {
-            pre = Some((spec, played.sig));
+            pre = Some((spec, played.sig, info.q_drive_to_x));
             break;
         }
         pre_v = (pre_v / ratio).min(vmax);
         cx.log.push(format!("level far off: redo at {pre_v:.3} V"));
     }
-    let Some((pre_spec, pre_sig)) = pre else {
+    let Some((pre_spec, pre_sig, pre_q)) = pre else {
         let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
         return fall_back(
             cx.bench,
@@ -349,6 +366,27 @@ pub fn run_production(
                     continue;
                 }
             }
+            if (ratio - 1.0).abs() > SEARCH_TOL && !lowered {
+                // Two short sweeps did not hit the level: the part is too far
+                // from the golden units for their drive; the full search decides
+                // (and says when the target cannot be reached).
+                let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
+                return fall_back(
+                    cx.bench,
+                    cfg,
+                    cx.obs,
+                    t,
+                    log,
+                    format!(
+                        "Xpeak {:.3} mm at level {} is {:.0} % of the target {:.3} mm at {v:.3} V{}",
+                        info.xpeak_m * 1e3,
+                        li + 1,
+                        100.0 / ratio,
+                        level * 1e3,
+                        if corrected { " in the corrected short sweep" } else { " (drive limit)" }
+                    ),
+                );
+            }
             let warning = target_warning(level, info.xpeak_m, v, vmax, lowered);
             if let Some(w) = &warning {
                 cx.log.push(w.clone());
@@ -379,6 +417,7 @@ pub fn run_production(
         pre: pre_sig,
         pre_sweep: pre_spec,
         f0_hz: f0,
+        pre_q_drive_to_x: pre_q,
         narrow,
         bench_time_s,
         log: cx.log,

@@ -146,6 +146,10 @@ pub(super) struct SweepInfo {
     /// |X/Mic| fell below 1/sqrt(2) of its peak after the peak (within the
     /// faded-in part): the sweep crossed the resonance.
     pub(super) crossed: bool,
+    /// Quality of |X/U| (drive to displacement) around its peak: the peak
+    /// frequency over its half-power bandwidth; None when the sweep does not
+    /// reach both half-power points.
+    pub(super) q_drive_to_x: Option<f64>,
 }
 
 fn smooth(c: &[Cycle], i: usize, ch: usize, half: usize) -> (f64, f64) {
@@ -190,9 +194,34 @@ pub(super) fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
         }
     }
     let i = best.1;
-    let crossed = hs
+    // The sweep crossed the resonance when |X/Mic| fell below its half-power
+    // point after the peak (the fade-out included: a ratio of two channels
+    // does not depend on the drive's amplitude).
+    let half = best.0 * std::f64::consts::FRAC_1_SQRT_2;
+    let crossed = (i + 1..cyc.len())
+        .filter(|&j| cyc[j].t_s < spec.duration_s)
+        .any(|j| abs(div(smooth(&cyc, j, 0, 2), smooth(&cyc, j, 1, 2))) < half);
+    // |X/U| and its half-power points around its peak (faded-in part).
+    let gu: Vec<(f64, f64)> = idx
         .iter()
-        .any(|&(j, h)| j > i && h < best.0 * std::f64::consts::FRAC_1_SQRT_2);
+        .map(|&j| {
+            (
+                cyc[j].f_hz,
+                abs(div(smooth(&cyc, j, 0, 2), smooth(&cyc, j, 2, 2))),
+            )
+        })
+        .collect();
+    let q_drive_to_x = gu
+        .iter()
+        .enumerate()
+        .filter(|(_, (_, g))| g.is_finite())
+        .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))
+        .and_then(|(k, &(fp, gp))| {
+            let h = gp * std::f64::consts::FRAC_1_SQRT_2;
+            let lo = gu[..k].iter().rev().find(|(_, g)| *g < h)?.0;
+            let hi = gu[k..].iter().find(|(_, g)| *g < h)?.0;
+            (hi > lo).then(|| fp / (hi - lo))
+        });
     let g = abs(div(smooth(&cyc, i, 0, 2), smooth(&cyc, i, 2, 2)));
     Some(SweepInfo {
         x_fund_peak_m: x_fund_peak,
@@ -203,6 +232,7 @@ pub(super) fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
         resonance_hz: cyc[i].f_hz,
         gain_m_per_v: g,
         crossed,
+        q_drive_to_x,
     })
 }
 
@@ -490,6 +520,7 @@ pub fn run(
         pre: pre_sig,
         pre_sweep: pre_spec,
         f0_hz: pre_info.resonance_hz,
+        pre_q_drive_to_x: pre_info.q_drive_to_x,
         narrow,
         bench_time_s,
         log: cx.log,

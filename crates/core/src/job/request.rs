@@ -400,6 +400,24 @@ mod tests {
     }
 
     #[test]
+    fn the_procedure_is_full_unless_named_and_production_needs_a_recipe() {
+        let j = check(json!({"part": {"serial": "SN-1"}})).unwrap();
+        assert_eq!(j.procedure, ProcedureMode::Full);
+        // full is the default and is not written: jobs stored before read back the same
+        assert!(serde_json::to_value(&j).unwrap().get("procedure").is_none());
+        let e = check(json!({"part": {"serial": "SN-1"}, "procedure": "production"})).unwrap_err();
+        assert_eq!(fields(&e), ["procedure"]);
+        let j = check(
+            json!({"part": {"serial": "SN-1"}, "procedure": "production",
+                             "recipe": "spider-4in"}),
+        )
+        .unwrap();
+        assert_eq!(j.procedure, ProcedureMode::Production);
+        let e = check(json!({"part": {"serial": "SN-1"}, "procedure": "fast"})).unwrap_err();
+        assert_eq!(fields(&e), ["procedure"]);
+    }
+
+    #[test]
     fn minimal_job_takes_the_defaults() {
         let j = check(json!({"part": {"serial": "SN-1"}, "moving_mass_kg": 0.02})).unwrap();
         assert_eq!(j.bench, "virtual-1");

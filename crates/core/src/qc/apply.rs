@@ -115,6 +115,14 @@ mod tests {
         assert_eq!((r.order, r.repeats), (Some(6), Some(2)));
         // the recipe sets no mass: the request's stays
         assert_eq!(r.moving_mass_kg, Some(0.02));
+        // the recipe's procedure unless the job names one (a gauge study runs both)
+        assert_eq!(r.procedure, Some(crate::job::ProcedureMode::Full));
+        let mut p = request();
+        p.procedure = Some(crate::job::ProcedureMode::Production);
+        let mut s = settings();
+        s.mode = crate::job::ProcedureMode::Full;
+        s.apply_to("r", &mut p).unwrap();
+        assert_eq!(p.procedure, Some(crate::job::ProcedureMode::Production));
         // a request that agrees is accepted as is
         let before = r.clone();
         settings().apply_to("r", &mut r).unwrap();

@@ -42,6 +42,11 @@ pub struct GoldenReference {
     pub q: f64,
     /// Mean drive amplitude of the pre-measurement (V).
     pub pre_drive_v: f64,
+    /// Mean quality of the pre-measurement's drive-to-displacement response
+    /// |X/U| (exciter and box included): how far a short sweep builds up the
+    /// resonance; absent: `q` stands in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pre_q_drive_to_x: Option<f64>,
     pub levels: Vec<GoldenLevel>,
     /// A part whose f0 deviates further than this from `f0_hz` (%) falls back to the full procedure.
     #[serde(default = "default_max_f0_dev")]
@@ -59,6 +64,7 @@ impl GoldenReference {
         }
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
         let (mut f0, mut q, mut pre) = (vec![], vec![], vec![]);
+        let mut q_xu: Vec<Option<f64>> = vec![];
         let mut res = vec![vec![]; levels];
         let mut drv = vec![vec![]; levels];
         for g in golden {
@@ -70,6 +76,7 @@ impl GoldenReference {
                     f0.push(ss.f0_hz?);
                     q.push(ss.q?);
                     pre.push(f.pre_drive_v?);
+                    q_xu.push(f.pre_q_drive_to_x);
                 }
                 res[li].push(rep.large_signal.resonance_hz);
                 drv[li].push(f.drive_v?);
@@ -80,6 +87,11 @@ impl GoldenReference {
             f0_hz: mean(&f0),
             q: mean(&q),
             pre_drive_v: mean(&pre),
+            pre_q_drive_to_x: q_xu
+                .iter()
+                .copied()
+                .collect::<Option<Vec<f64>>>()
+                .map(|v| mean(&v)),
             levels: (0..levels)
                 .map(|li| GoldenLevel {
                     resonance_hz: mean(&res[li]),
@@ -99,6 +111,7 @@ impl GoldenReference {
             ("f0_hz", self.f0_hz),
             ("q", self.q),
             ("pre_drive_v", self.pre_drive_v),
+            ("pre_q_drive_to_x", self.pre_q_drive_to_x.unwrap_or(self.q)),
         ] {
             if !pos(v) {
                 e.push((n.to_string(), format!("must be a positive number, got {v}")));
@@ -140,5 +153,92 @@ impl GoldenReference {
         } else {
             Err(e)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::{LargeSignal, Report, SmallSignal};
+    use crate::qc::RunFacts;
+
+    fn unit(f0: f64, q: f64, fr: f64, drive: f64, pre: f64, q_xu: Option<f64>) -> GoldenUnit {
+        GoldenUnit {
+            serial: format!("G-{f0}"),
+            measurements: vec![RunFacts {
+                report: Some(Report {
+                    small_signal: Some(SmallSignal {
+                        f0_hz: Some(f0),
+                        q: Some(q),
+                        ..Default::default()
+                    }),
+                    large_signal: LargeSignal {
+                        resonance_hz: fr,
+                        ..Default::default()
+                    },
+                    ..Default::default()
+                }),
+                drive_v: Some(drive),
+                pre_drive_v: Some(pre),
+                pre_q_drive_to_x: q_xu,
+                ..Default::default()
+            }],
+        }
+    }
+
+    #[test]
+    fn the_reference_is_the_golden_units_means() {
+        let g = GoldenReference::from_golden(
+            &[
+                unit(35.0, 6.0, 45.0, 50.0, 7.0, Some(8.0)),
+                unit(36.0, 6.4, 46.0, 48.0, 7.4, Some(9.0)),
+            ],
+            1,
+        )
+        .unwrap();
+        assert_eq!(g.units, 2);
+        assert!((g.f0_hz - 35.5).abs() < 1e-12 && (g.q - 6.2).abs() < 1e-12);
+        assert!((g.pre_drive_v - 7.2).abs() < 1e-12);
+        assert_eq!(g.pre_q_drive_to_x, Some(8.5));
+        assert_eq!(
+            g.levels,
+            [GoldenLevel {
+                resonance_hz: 45.5,
+                drive_v: 49.0
+            }]
+        );
+        assert_eq!(g.max_f0_deviation_percent, DEFAULT_MAX_F0_DEVIATION_PERCENT);
+        // One unit without its |X/U| quality: the part's Q stands in (None).
+        let g = GoldenReference::from_golden(
+            &[
+                unit(35.0, 6.0, 45.0, 50.0, 7.0, None),
+                unit(36.0, 6.4, 46.0, 48.0, 7.4, Some(9.0)),
+            ],
+            1,
+        )
+        .unwrap();
+        assert_eq!(g.pre_q_drive_to_x, None);
+        // A unit measured before the drives were stored gives no reference.
+        let mut old = unit(35.0, 6.0, 45.0, 50.0, 7.0, None);
+        old.measurements[0].pre_drive_v = None;
+        assert!(GoldenReference::from_golden(&[old], 1).is_none());
+        // ... nor one whose level is missing
+        assert!(
+            GoldenReference::from_golden(&[unit(35.0, 6.0, 45.0, 50.0, 7.0, None)], 2).is_none()
+        );
+    }
+
+    #[test]
+    fn a_bad_reference_is_named_by_field() {
+        let mut g =
+            GoldenReference::from_golden(&[unit(35.0, 6.0, 45.0, 50.0, 7.0, None)], 1).unwrap();
+        g.levels[0].drive_v = -1.0;
+        g.max_f0_deviation_percent = 80.0;
+        let e = g.validate(2).unwrap_err();
+        let f: Vec<&str> = e.iter().map(|(f, _)| f.as_str()).collect();
+        assert_eq!(
+            f,
+            ["max_f0_deviation_percent", "levels", "levels[0].drive_v"]
+        );
     }
 }

@@ -104,6 +104,9 @@ pub struct RunFacts {
     /// Drive of the pre-measurement (V): with `drive_v` the production
     /// procedure's reference (`qc::production`).
     pub pre_drive_v: Option<f64>,
+    /// Quality of the pre-measurement's drive-to-displacement response |X/U|
+    /// around the resonance (`procedure::Outcome::pre_q_drive_to_x`).
+    pub pre_q_drive_to_x: Option<f64>,
 }
 
 /// K(x) from the result's polynomial (x in m, K in N/m).
