@@ -121,7 +121,11 @@ fn bench_and_store_do_not_see_each_other_or_the_daemon() {
     let daemon_only = ["axum", "hyper", "tower-http", "reqwest", "springbench"];
     let bad = forbidden_in(
         "springbench-bench",
-        &[&daemon_only[..], &["sqlx", "springbench-store"]].concat(),
+        &[
+            &daemon_only[..],
+            &["sqlx", "springbench-store", "springbench-store-pg"],
+        ]
+        .concat(),
     );
     assert!(bad.is_empty(), "springbench-bench depends on {bad:?}");
     let bad = forbidden_in(
@@ -133,6 +137,16 @@ fn bench_and_store_do_not_see_each_other_or_the_daemon() {
         .concat(),
     );
     assert!(bad.is_empty(), "springbench-store depends on {bad:?}");
+    // The fleet's center on PostgreSQL is a store like the station's.
+    let bad = forbidden_in(
+        "springbench-store-pg",
+        &[
+            &daemon_only[..],
+            &["springbench-bench", "cpal", "tokio-serial"],
+        ]
+        .concat(),
+    );
+    assert!(bad.is_empty(), "springbench-store-pg depends on {bad:?}");
 }
 
 /// The crates of the workspace and their source folders.

@@ -165,6 +165,7 @@ fn meas_from_row(r: &SqliteRow) -> StoreResult<MeasurementInfo> {
         created_at: r.get("created_at"),
         config: parse_json(&r.get::<String, _>("config_json"))?,
         summary: parse_json(&r.get::<String, _>("summary"))?,
+        station_id: None,
     })
 }
 

@@ -40,6 +40,7 @@ fn part_from_row(r: &SqliteRow) -> Part {
         updated_at: r.get(4),
         measurement_count: r.get(5),
         verdict: r.get(6),
+        station_id: None,
     }
 }
 

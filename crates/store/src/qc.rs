@@ -113,6 +113,7 @@ fn verdict_from_row(r: &SqliteRow) -> StoreResult<VerdictRow> {
         traceability: parse_json(&r.get::<String, _>("trace_json"))?,
         created_at: r.get("created_at"),
         level_index: r.try_get("level_index").ok().flatten(),
+        station_id: None,
     })
 }
 

@@ -38,6 +38,9 @@ pub struct Part {
     /// `fail`, `invalid`, `no_limits`); null when no job was judged.
     #[schema(value_type = Option<springbench_core::qc::VerdictKind>)]
     pub verdict: Option<String>,
+    /// The station of the part's newest measurement (a fleet's center answers it; absent on a station).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub station_id: Option<String>,
 }
 
 /// A measurement's listing entry (the result document itself is `result`).
@@ -60,6 +63,9 @@ pub struct MeasurementInfo {
     pub config: Value,
     /// Headline numbers from the result, for listings.
     pub summary: Value,
+    /// The station that made it (a fleet's center answers it; absent on a station).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub station_id: Option<String>,
     #[serde(skip)]
     pub seq: i64,
 }
@@ -124,6 +130,9 @@ pub struct VerdictRow {
     /// Software version, recipe, bench, calibration, sensors, submitter, timestamps.
     pub traceability: Value,
     pub created_at: String,
+    /// The station that judged it (a fleet's center answers it; absent on a station).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub station_id: Option<String>,
     #[serde(skip)]
     pub seq: i64,
     /// The measurement's level in a series (read by [`Store::recipe_verdicts`] only).

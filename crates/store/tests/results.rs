@@ -1,9 +1,10 @@
 //! The results interface's conformance suite (decision 0034): one set of
 //! assertions, generic over the traits of `springbench_store::results`, that
 //! every backend must pass after the same ingests. The SQLite store runs it
-//! here (in memory and on a file, as a station opens it); the PostgreSQL
-//! backend of issue 20 adds one test that hands its store to the same
-//! functions.
+//! here (in memory and on a file, as a station opens it), the center's
+//! PostgreSQL store (`springbench-store-pg`) in a fresh schema per test on
+//! the server `SPRINGBENCH_PG_URL` names (without one it prints why and
+//! skips, unless `SPRINGBENCH_PG_TESTS=require`, as `.ci/run` sets).
 //!
 //! The figures are the ones ingested: what goes in through
 //! `upsert_measurement` must come out of every read, with the station's
@@ -375,6 +376,48 @@ async fn sqlite_station_file_passes_the_results_suite() {
     let s = Store::open(dir.path()).await.unwrap();
     results_suite(&s).await;
     seed_sqlite(&s).await;
+    recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
+    s.close().await;
+}
+
+/// The center's writes of recipes and fits for [`recipe_and_fit_reads`].
+async fn seed_pg(s: &springbench_store_pg::PgStore) {
+    for v in 1..=2 {
+        s.write_recipe(
+            "R",
+            &format!("{v:064}"),
+            &json!({"version": v}),
+            "created",
+            Some("qe"),
+            RecipeExpect::Any,
+        )
+        .await
+        .unwrap();
+    }
+    s.insert_fit(
+        "f-1",
+        "m-1",
+        &json!({"effects": []}),
+        &result(1200.0, 1500.0, true),
+    )
+    .await
+    .unwrap();
+    s.choose_headline("m-1", Some("f-1"), Some("engineer"))
+        .await
+        .unwrap();
+}
+
+#[tokio::test]
+async fn postgres_passes_the_results_suite() {
+    use springbench_store_pg::test_server::{fresh_schema, url_or_skip};
+    let Some(url) = url_or_skip("postgres_passes_the_results_suite") else {
+        return;
+    };
+    let s = springbench_store_pg::PgStore::connect_schema(&url, Some(&fresh_schema("results")))
+        .await
+        .unwrap();
+    results_suite(&s).await;
+    seed_pg(&s).await;
     recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
     s.close().await;
 }

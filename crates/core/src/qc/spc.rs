@@ -104,7 +104,10 @@ pub struct Spc {
     pub points: Vec<SpcPoint>,
 }
 
-fn capability(
+/// Cp and Cpk (or Pp and Ppk) of `mean` and the sigma `s` against the
+/// limits; None without a positive finite sigma (Cp: without both limits).
+/// Also the center's SPC from SQL aggregates (`springbench-store-pg`).
+pub fn capability(
     lower: Option<f64>,
     upper: Option<f64>,
     mean: f64,

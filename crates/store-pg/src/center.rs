@@ -1,0 +1,415 @@
+//! What only the center answers: SPC of a recipe across stations and per
+//! station (the station as a subgroup) and yield per station and day, both
+//! as SQL aggregates over an index range (never the rows themselves); a
+//! station's measurements in keyset pages; the audit trail of corrections;
+//! the center's recipes (written here, pulled by the stations).
+
+use crate::ingest::apply_correction;
+use crate::reads::{meas_from_row, meas_select, recipe_cols, recipe_from_row};
+use crate::PgStore;
+use serde::Serialize;
+use springbench_core::qc::spc::{capability, D2};
+use springbench_store::fleet::Correction;
+use springbench_store::qc::{RecipeExpect, RecipeWrite};
+use springbench_store::results::MeasurementInfo;
+use springbench_store::{now, StoreResult};
+use sqlx::Row;
+
+/// The statistics of one parameter over a window, computed by PostgreSQL
+/// exactly as `core::qc::spc::compute` defines them: one point per part
+/// and job (and level), its repeats averaged; sigma the sample standard
+/// deviation; sigma_within the mean moving range / d2 in time order.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct SpcSummary {
+    pub n: i64,
+    pub mean: Option<f64>,
+    pub sigma: Option<f64>,
+    pub sigma_within: Option<f64>,
+    pub lower: Option<f64>,
+    pub upper: Option<f64>,
+    pub cp: Option<f64>,
+    pub cpk: Option<f64>,
+    pub pp: Option<f64>,
+    pub ppk: Option<f64>,
+    /// Passed / (passed + failed) over the points; None without either.
+    pub yield_fraction: Option<f64>,
+    pub passed: i64,
+    pub failed: i64,
+    /// Invalid verdicts in the window (they carry no value).
+    pub invalid: i64,
+}
+
+/// The SPC of one subgroup: a station, or (None) every station together.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct SpcGroup {
+    pub station_id: Option<String>,
+    #[serde(flatten)]
+    pub spc: SpcSummary,
+}
+
+/// Job verdicts of a recipe on one station and one day (UTC).
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct YieldDay {
+    pub station_id: Option<String>,
+    /// `YYYY-MM-DD` (UTC).
+    pub day: String,
+    pub passed: i64,
+    pub failed: i64,
+    pub invalid: i64,
+    pub no_limits: i64,
+    /// passed / (passed + failed); None without either.
+    pub yield_fraction: Option<f64>,
+}
+
+/// A row of the audit trail.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct AuditEntry {
+    /// The cursor of the audit log's pages.
+    pub seq: i64,
+    /// The station it was made on; None: at the center.
+    pub station_id: Option<String>,
+    #[serde(flatten)]
+    pub correction: Correction,
+    /// When the center applied it.
+    pub applied_at: String,
+}
+
+fn summary(r: &sqlx::postgres::PgRow, lower: Option<f64>, upper: Option<f64>) -> SpcSummary {
+    let n: i64 = r.try_get("n").ok().flatten().unwrap_or(0);
+    let mean: Option<f64> = r.try_get("mean").ok().flatten();
+    let sigma: Option<f64> = r.try_get("sigma").ok().flatten();
+    let mr: Option<f64> = r.try_get("mr").ok().flatten();
+    let sigma_within = mr.map(|m| m / D2);
+    let passed: i64 = r.try_get("passed").ok().flatten().unwrap_or(0);
+    let failed: i64 = r.try_get("failed").ok().flatten().unwrap_or(0);
+    let (cp, cpk) = match (mean, sigma_within) {
+        (Some(m), Some(s)) => capability(lower, upper, m, s),
+        _ => (None, None),
+    };
+    let (pp, ppk) = match (mean, sigma) {
+        (Some(m), Some(s)) => capability(lower, upper, m, s),
+        _ => (None, None),
+    };
+    SpcSummary {
+        n,
+        mean,
+        sigma,
+        sigma_within,
+        lower,
+        upper,
+        cp,
+        cpk,
+        pp,
+        ppk,
+        yield_fraction: (passed + failed > 0).then(|| passed as f64 / (passed + failed) as f64),
+        passed,
+        failed,
+        invalid: r.try_get("invalid").ok().flatten().unwrap_or(0),
+    }
+}
+
+impl PgStore {
+    /// SPC of `parameter` of recipe `recipe` (any version) over its newest
+    /// `last` measurement verdicts (or those made in [since, until)),
+    /// voided measurements left out: every station together
+    /// (`per_station` false: one group, station None) or each station as a
+    /// subgroup of the same window (one group per station, by id).
+    /// `lower` / `upper`: the recipe's limits of the parameter.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn spc(
+        &self,
+        recipe: &str,
+        parameter: &str,
+        lower: Option<f64>,
+        upper: Option<f64>,
+        since: Option<&str>,
+        until: Option<&str>,
+        last: Option<i64>,
+        per_station: bool,
+    ) -> StoreResult<Vec<SpcGroup>> {
+        let rows = sqlx::query(
+            "WITH w AS ( \
+               SELECT seq, station_id, job_id, level_index, verdict FROM qc_verdicts \
+               WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided \
+                 AND ($3::text IS NULL OR created_at >= $3) AND ($4::text IS NULL OR created_at < $4) \
+               ORDER BY seq DESC LIMIT $5), \
+             pts AS ( \
+               SELECT CASE WHEN $6 THEN w.station_id END AS g, MIN(w.seq) AS first_seq, AVG(x.value) AS value, \
+                      CASE WHEN bool_or(w.verdict = 'fail') THEN 'fail' \
+                           ELSE (array_agg(w.verdict ORDER BY w.seq))[1] END AS verdict \
+               FROM w JOIN verdict_values x ON x.verdict_seq = w.seq AND x.parameter = $2 \
+               WHERE w.verdict <> 'invalid' \
+               GROUP BY 1, w.station_id, COALESCE(w.job_id, 'seq:' || w.seq::text), w.level_index), \
+             d AS ( \
+               SELECT g, value, verdict, value - LAG(value) OVER (PARTITION BY g ORDER BY first_seq) AS step FROM pts), \
+             s AS ( \
+               SELECT g, COUNT(*) AS n, AVG(value) AS mean, STDDEV_SAMP(value) AS sigma, AVG(ABS(step)) AS mr, \
+                      COUNT(*) FILTER (WHERE verdict = 'pass') AS passed, \
+                      COUNT(*) FILTER (WHERE verdict = 'fail') AS failed FROM d GROUP BY g), \
+             inv AS ( \
+               SELECT CASE WHEN $6 THEN station_id END AS g, COUNT(*) AS invalid FROM w \
+               WHERE verdict = 'invalid' GROUP BY 1) \
+             SELECT COALESCE(s.g, inv.g) AS g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
+             FROM s FULL JOIN inv ON s.g IS NOT DISTINCT FROM inv.g ORDER BY 1 NULLS FIRST",
+        )
+        .bind(recipe)
+        .bind(parameter)
+        .bind(since)
+        .bind(until)
+        .bind(last)
+        .bind(per_station)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out: Vec<SpcGroup> = rows
+            .iter()
+            .map(|r| SpcGroup {
+                station_id: r.get("g"),
+                spc: summary(r, lower, upper),
+            })
+            .collect();
+        if out.is_empty() && !per_station {
+            out.push(SpcGroup {
+                station_id: None,
+                spc: SpcSummary {
+                    n: 0,
+                    mean: None,
+                    sigma: None,
+                    sigma_within: None,
+                    lower,
+                    upper,
+                    cp: None,
+                    cpk: None,
+                    pp: None,
+                    ppk: None,
+                    yield_fraction: None,
+                    passed: 0,
+                    failed: 0,
+                    invalid: 0,
+                },
+            });
+        }
+        Ok(out)
+    }
+
+    /// Yield of recipe `recipe` per station and day (UTC) over its job
+    /// verdicts made in [since, until), oldest day first.
+    pub async fn yield_per_day(
+        &self,
+        recipe: &str,
+        since: &str,
+        until: &str,
+    ) -> StoreResult<Vec<YieldDay>> {
+        let rows = sqlx::query(
+            "SELECT station_id, substr(created_at, 1, 10) AS day, \
+             COUNT(*) FILTER (WHERE verdict = 'pass') AS passed, COUNT(*) FILTER (WHERE verdict = 'fail') AS failed, \
+             COUNT(*) FILTER (WHERE verdict = 'invalid') AS invalid, COUNT(*) FILTER (WHERE verdict = 'no_limits') AS no_limits \
+             FROM qc_verdicts WHERE recipe_name = $1 AND measurement_id IS NULL AND NOT voided \
+             AND created_at >= $2 AND created_at < $3 GROUP BY 1, 2 ORDER BY 2, 1",
+        )
+        .bind(recipe)
+        .bind(since)
+        .bind(until)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .iter()
+            .map(|r| {
+                let (passed, failed): (i64, i64) = (r.get("passed"), r.get("failed"));
+                YieldDay {
+                    station_id: r.get("station_id"),
+                    day: r.get("day"),
+                    passed,
+                    failed,
+                    invalid: r.get("invalid"),
+                    no_limits: r.get("no_limits"),
+                    yield_fraction: (passed + failed > 0)
+                        .then(|| passed as f64 / (passed + failed) as f64),
+                }
+            })
+            .collect())
+    }
+
+    /// A station's measurements, newest first, in keyset pages (`before_seq`).
+    pub async fn station_measurements(
+        &self,
+        station: &str,
+        before_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<MeasurementInfo>> {
+        let rows = sqlx::query(concat!(
+            meas_select!(),
+            " FROM measurements m WHERE m.station_id = $1 AND ($2::bigint IS NULL OR m.seq < $2) \
+             ORDER BY m.seq DESC LIMIT $3"
+        ))
+        .bind(station)
+        .bind(before_seq)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(meas_from_row).collect()
+    }
+
+    /// Applies a correction made at the center (audit row with station
+    /// None), in one transaction; false when its id is stored already.
+    pub async fn correct(&self, c: &Correction) -> StoreResult<bool> {
+        let mut tx = self.pool.begin().await?;
+        let done = apply_correction(&mut tx, None, c).await?;
+        tx.commit().await?;
+        Ok(done)
+    }
+
+    /// The audit trail, oldest first, in keyset pages (`after_seq`); of one
+    /// part when `part` is given (also the corrections that gave it its serial).
+    pub async fn audit_log(
+        &self,
+        part: Option<&str>,
+        after_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<AuditEntry>> {
+        let rows = sqlx::query(
+            "SELECT * FROM corrections WHERE ($1::text IS NULL OR part_serial = $1 \
+             OR (kind = 'part_serial' AND new_value = $1)) AND ($2::bigint IS NULL OR seq > $2) ORDER BY seq LIMIT $3",
+        )
+        .bind(part)
+        .bind(after_seq)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .iter()
+            .map(|r| AuditEntry {
+                seq: r.get("seq"),
+                station_id: r.get("station_id"),
+                correction: Correction {
+                    id: r.get("id"),
+                    kind: r.get("kind"),
+                    part_serial: r.get("part_serial"),
+                    measurement_id: r.get("measurement_id"),
+                    old_value: r.get("old_value"),
+                    new_value: r.get("new_value"),
+                    reason: r.get("reason"),
+                    made_by: r.get("made_by"),
+                    made_at: r.get("made_at"),
+                },
+                applied_at: r.get("applied_at"),
+            })
+            .collect())
+    }
+
+    /// Whether a measurement is void, and by which correction.
+    pub async fn measurement_void(&self, id: &str) -> StoreResult<Option<String>> {
+        let v: Option<Option<String>> =
+            sqlx::query_scalar("SELECT void_id FROM measurements WHERE id = $1")
+                .bind(id)
+                .fetch_optional(&self.pool)
+                .await?;
+        Ok(v.flatten())
+    }
+
+    /// Stores a new version of a recipe at the center (version = last + 1,
+    /// or 1) when the stored one is what the caller saw; two writers of one
+    /// name are serialised (a transaction-scoped advisory lock on the name).
+    pub async fn write_recipe(
+        &self,
+        name: &str,
+        sha256: &str,
+        body: &serde_json::Value,
+        origin: &str,
+        created_by: Option<&str>,
+        expect: RecipeExpect,
+    ) -> StoreResult<RecipeWrite> {
+        let mut tx = self.pool.begin().await?;
+        sqlx::query("SELECT pg_advisory_xact_lock(hashtext('qc_recipes:' || $1))")
+            .bind(name)
+            .execute(&mut *tx)
+            .await?;
+        let cur: Option<(i64, bool)> = sqlx::query_as(
+            "SELECT version, retired FROM qc_recipes WHERE name = $1 ORDER BY version DESC LIMIT 1",
+        )
+        .bind(name)
+        .fetch_optional(&mut *tx)
+        .await?;
+        let ok = match expect {
+            RecipeExpect::Any => true,
+            RecipeExpect::Absent => cur.is_none(),
+            RecipeExpect::Version(v) => cur.map(|c| c.0) == Some(v),
+        };
+        if !ok {
+            return Ok(RecipeWrite::Conflict(cur));
+        }
+        let row = sqlx::query(concat!(
+            "INSERT INTO qc_recipes (name, version, sha256, body_json, origin, created_by, created_at) \
+             VALUES ($1, $2, $3, $4::jsonb, $5, $6, $7) RETURNING ",
+            recipe_cols!()
+        ))
+        .bind(name)
+        .bind(cur.map_or(1, |c| c.0 + 1))
+        .bind(sha256)
+        .bind(body.to_string())
+        .bind(origin)
+        .bind(created_by)
+        .bind(now())
+        .fetch_one(&mut *tx)
+        .await?;
+        let stored = recipe_from_row(&row)?;
+        tx.commit().await?;
+        Ok(RecipeWrite::Stored(stored))
+    }
+
+    /// Retires one version of a recipe, or (None) every version: stations
+    /// stop judging with it once they pulled the flag. False when unknown.
+    pub async fn retire_recipe(&self, name: &str, version: Option<i64>) -> StoreResult<bool> {
+        let r = sqlx::query(
+            "UPDATE qc_recipes SET retired = true WHERE name = $1 AND ($2::bigint IS NULL OR version = $2)",
+        )
+        .bind(name)
+        .bind(version)
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() > 0)
+    }
+
+    /// Keeps a fit of a stored measurement made at the center (an engineer's
+    /// refit), as a station's `Store::insert_fit` does.
+    pub async fn insert_fit(
+        &self,
+        id: &str,
+        measurement_id: &str,
+        request: &serde_json::Value,
+        result: &serde_json::Value,
+    ) -> StoreResult<()> {
+        sqlx::query(
+            "INSERT INTO fits (id, measurement_id, request_json, result_json, software_version, created_at) \
+             VALUES ($1, $2, $3::jsonb, $4::jsonb, $5, $6)",
+        )
+        .bind(id)
+        .bind(measurement_id)
+        .bind(request.to_string())
+        .bind(result.to_string())
+        .bind(springbench_core::VERSION)
+        .bind(now())
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// Records who chose which fit (None: the measurement's own result) for
+    /// a measurement's headline; every choice is kept.
+    pub async fn choose_headline(
+        &self,
+        measurement_id: &str,
+        fit_id: Option<&str>,
+        chosen_by: Option<&str>,
+    ) -> StoreResult<()> {
+        sqlx::query(
+            "INSERT INTO headline_choices (measurement_id, fit_id, chosen_by, chosen_at) VALUES ($1, $2, $3, $4)",
+        )
+        .bind(measurement_id)
+        .bind(fit_id)
+        .bind(chosen_by)
+        .bind(now())
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+}

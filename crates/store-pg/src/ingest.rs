@@ -1,0 +1,535 @@
+//! The center's ingest: a station's batch in one transaction, idempotent by
+//! item id (decision 0036), and `ResultIngest::upsert_measurement` through
+//! the same measurement upsert. Corrections and voids of the audit trail
+//! are applied here too (from a station's item or at the center).
+
+use crate::reads::recipe_from_row;
+use crate::PgStore;
+use springbench_store::fleet::{
+    verdict_kind, CenterIngest, Correction, IngestConflict, IngestReport, ItemBody,
+    JobVerdictsItem, MeasurementItem, RecordingItem, ReplicationItem, StationHello, StationStatus,
+    VerdictItem, CONTRACT_VERSION,
+};
+use springbench_store::results::{FinishedMeasurement, RecipeRow, ResultIngest, Upserted};
+use springbench_store::{now, StoreError, StoreResult};
+use sqlx::{Postgres, Row, Transaction};
+
+type Tx<'a> = Transaction<'a, Postgres>;
+
+/// Stores one recording (each distinct content once) and gives its id; a
+/// reference that arrives later with its bytes keeps them.
+async fn upsert_recording(
+    tx: &mut Tx<'_>,
+    r: &RecordingItem,
+    station: Option<&str>,
+    t: &str,
+) -> StoreResult<i64> {
+    let row = sqlx::query(
+        "INSERT INTO recordings (sha256, kind, sample_rate_hz, frames, byte_len, wav, channel_scale_json, station_id, created_at) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9) \
+         ON CONFLICT (sha256) DO UPDATE SET wav = COALESCE(recordings.wav, EXCLUDED.wav) RETURNING id",
+    )
+    .bind(r.sha256.to_ascii_lowercase())
+    .bind(&r.kind)
+    .bind(r.sample_rate_hz)
+    .bind(r.frames)
+    .bind(r.byte_len)
+    .bind(r.bytes.as_deref())
+    .bind(
+        r.channel_scale
+            .map(|c| serde_json::to_string(&c).unwrap_or_default()),
+    )
+    .bind(station)
+    .bind(t)
+    .fetch_one(&mut **tx)
+    .await?;
+    Ok(row.get(0))
+}
+
+/// Stores verdicts (ignoring ids stored already) with one row per judged
+/// parameter value (SPC reads those).
+async fn insert_verdicts(
+    tx: &mut Tx<'_>,
+    verdicts: &[VerdictItem],
+    station: Option<&str>,
+    level_index: Option<i64>,
+) -> StoreResult<()> {
+    for v in verdicts {
+        let kind = verdict_kind(&v.verdict).ok_or_else(|| {
+            StoreError::Invalid(format!("verdict {}: unknown kind '{}'", v.id, v.verdict))
+        })?;
+        let seq: Option<i64> = sqlx::query_scalar(
+            "INSERT INTO qc_verdicts (id, station_id, job_id, measurement_id, part_serial, recipe_name, recipe_version, \
+             recipe_sha256, verdict, detail_json, trace_json, created_at, level_index) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10::jsonb, $11::jsonb, $12, $13) \
+             ON CONFLICT (id) DO NOTHING RETURNING seq",
+        )
+        .bind(&v.id)
+        .bind(station)
+        .bind(&v.job_id)
+        .bind(&v.measurement_id)
+        .bind(&v.part_serial)
+        .bind(&v.recipe_name)
+        .bind(v.recipe_version)
+        .bind(&v.recipe_sha256)
+        .bind(kind)
+        .bind(v.detail.to_string())
+        .bind(v.trace.to_string())
+        .bind(&v.created_at)
+        .bind(level_index)
+        .fetch_optional(&mut **tx)
+        .await?;
+        if let (Some(seq), Some(_)) = (seq, v.measurement_id.as_ref()) {
+            sqlx::query(
+                "INSERT INTO verdict_values (verdict_seq, parameter, value) \
+                 SELECT $1, p->>'name', (p->>'value')::float8 \
+                 FROM jsonb_array_elements(CASE WHEN jsonb_typeof($2::jsonb->'parameters') = 'array' \
+                                           THEN $2::jsonb->'parameters' ELSE '[]'::jsonb END) p \
+                 WHERE jsonb_typeof(p->'value') = 'number' AND jsonb_typeof(p->'name') = 'string' \
+                 ON CONFLICT DO NOTHING",
+            )
+            .bind(seq)
+            .bind(v.detail.to_string())
+            .execute(&mut **tx)
+            .await?;
+        }
+    }
+    Ok(())
+}
+
+/// The measurement upsert both paths share: the part, the recordings, the
+/// calibration record, the measurement, its verdicts; nothing when its id
+/// is stored already. `m` has been checked ([`MeasurementItem::to_finished`]).
+async fn upsert_measurement_tx(
+    tx: &mut Tx<'_>,
+    station: Option<&str>,
+    m: &MeasurementItem,
+) -> StoreResult<Upserted> {
+    let known: Option<i64> = sqlx::query_scalar("SELECT seq FROM measurements WHERE id = $1")
+        .bind(&m.id)
+        .fetch_optional(&mut **tx)
+        .await?;
+    if known.is_some() {
+        return Ok(Upserted::AlreadyStored);
+    }
+    let t = &m.created_at;
+    // A part measured on several stations: as old as its oldest measurement,
+    // its station the one of its newest.
+    sqlx::query(
+        "INSERT INTO parts (serial, kind, notes, created_at, updated_at, station_id) VALUES ($1, $2, $3, $4, $4, $5) \
+         ON CONFLICT (serial) DO UPDATE SET kind = COALESCE(EXCLUDED.kind, parts.kind), \
+         notes = COALESCE(EXCLUDED.notes, parts.notes), \
+         created_at = LEAST(parts.created_at, EXCLUDED.created_at), \
+         station_id = CASE WHEN EXCLUDED.updated_at >= parts.updated_at THEN EXCLUDED.station_id ELSE parts.station_id END, \
+         updated_at = GREATEST(parts.updated_at, EXCLUDED.updated_at)",
+    )
+    .bind(&m.part_serial)
+    .bind(&m.part_kind)
+    .bind(&m.part_notes)
+    .bind(t)
+    .bind(station)
+    .execute(&mut **tx)
+    .await?;
+    let pre = upsert_recording(tx, &m.pre, station, t).await?;
+    let main = upsert_recording(tx, &m.main, station, t).await?;
+    if let Some(c) = &m.calibration {
+        sqlx::query(
+            "INSERT INTO calibrations (station_id, id, bench_id, job_id, passed, calibration_json, sensors_json, result_json, created_at) \
+             VALUES ($1, $2, $3, $4, $5, $6::jsonb, $7::jsonb, $8::jsonb, $9) ON CONFLICT DO NOTHING",
+        )
+        .bind(station.unwrap_or(""))
+        .bind(&c.id)
+        .bind(&c.bench_id)
+        .bind(&c.job_id)
+        .bind(c.passed)
+        .bind(c.calibration.to_string())
+        .bind(c.sensors.to_string())
+        .bind(c.result.to_string())
+        .bind(&c.created_at)
+        .execute(&mut **tx)
+        .await?;
+    }
+    sqlx::query(
+        "INSERT INTO measurements (id, station_id, part_serial, job_id, source, bench_id, software_version, config_json, \
+         meta_json, result_json, analysis_error, target_xpeak_m, repeat_index, level_index, pre_recording_id, \
+         main_recording_id, calibration_id, created_at, ingested_at) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8::jsonb, $9::jsonb, $10::jsonb, $11, $12, $13, $14, $15, $16, $17, $18, $19)",
+    )
+    .bind(&m.id)
+    .bind(station)
+    .bind(&m.part_serial)
+    .bind(&m.job_id)
+    .bind(&m.source)
+    .bind(&m.bench_id)
+    .bind(&m.software_version)
+    .bind(m.config.to_string())
+    .bind(m.meta.to_string())
+    .bind(m.result.as_ref().map(|v| v.to_string()))
+    .bind(&m.analysis_error)
+    .bind(m.target_xpeak_m)
+    .bind(m.repeat_index)
+    .bind(m.level_index)
+    .bind(pre)
+    .bind(main)
+    .bind(m.calibration.as_ref().map(|c| c.id.clone()))
+    .bind(t)
+    .bind(now())
+    .execute(&mut **tx)
+    .await?;
+    insert_verdicts(tx, &m.verdicts, station, m.level_index).await?;
+    Ok(Upserted::Inserted)
+}
+
+/// Checks a job's verdicts item: every verdict of this job and part, none of a measurement.
+fn check_job_verdicts(j: &JobVerdictsItem) -> Result<(), String> {
+    for v in &j.verdicts {
+        if v.job_id.as_deref() != Some(j.job_id.as_str()) || v.measurement_id.is_some() {
+            return Err(format!(
+                "verdict {} is not the verdict of job {}",
+                v.id, j.job_id
+            ));
+        }
+        if v.part_serial != j.part_serial {
+            return Err(format!(
+                "verdict {} is of part '{}', job {} of '{}'",
+                v.id, v.part_serial, j.job_id, j.part_serial
+            ));
+        }
+        v.to_new()?;
+    }
+    Ok(())
+}
+
+/// Applies a correction and writes its audit row; false when its id is
+/// stored already. Nothing is deleted: a serial correction moves the
+/// measurements and verdicts (the old part row stays, with its history in
+/// `corrections`); a void marks the measurement and takes its verdicts out
+/// of SPC and yield.
+pub(crate) async fn apply_correction(
+    tx: &mut Tx<'_>,
+    station: Option<&str>,
+    c: &Correction,
+) -> StoreResult<bool> {
+    let bad = |m: String| StoreError::Invalid(format!("correction {}: {m}", c.id));
+    if c.reason.trim().is_empty() {
+        return Err(bad("a reason is required".into()));
+    }
+    let known: Option<i64> = sqlx::query_scalar("SELECT seq FROM corrections WHERE id = $1")
+        .bind(&c.id)
+        .fetch_optional(&mut **tx)
+        .await?;
+    if known.is_some() {
+        return Ok(false);
+    }
+    match c.kind.as_str() {
+        "void_measurement" => {
+            let m = c
+                .measurement_id
+                .as_deref()
+                .ok_or_else(|| bad("a void names its measurement".into()))?;
+            let r = sqlx::query(
+                "UPDATE measurements SET void_id = COALESCE(void_id, $2) WHERE id = $1",
+            )
+            .bind(m)
+            .bind(&c.id)
+            .execute(&mut **tx)
+            .await?;
+            if r.rows_affected() == 0 {
+                return Err(bad(format!("no measurement {m} at the center")));
+            }
+            sqlx::query("UPDATE qc_verdicts SET voided = true WHERE measurement_id = $1")
+                .bind(m)
+                .execute(&mut **tx)
+                .await?;
+        }
+        "part_kind" => {
+            let r = sqlx::query("UPDATE parts SET kind = $2, updated_at = GREATEST(updated_at, $3) WHERE serial = $1")
+                .bind(&c.part_serial)
+                .bind(&c.new_value)
+                .bind(&c.made_at)
+                .execute(&mut **tx)
+                .await?;
+            if r.rows_affected() == 0 {
+                return Err(bad(format!("no part '{}' at the center", c.part_serial)));
+            }
+        }
+        "part_serial" => {
+            let new = c
+                .new_value
+                .as_deref()
+                .filter(|s| !s.is_empty())
+                .ok_or_else(|| bad("a serial correction names the new serial".into()))?;
+            let r = sqlx::query(
+                "INSERT INTO parts (serial, kind, notes, created_at, updated_at, station_id) \
+                 SELECT $2, kind, notes, created_at, updated_at, station_id FROM parts WHERE serial = $1 \
+                 ON CONFLICT (serial) DO NOTHING",
+            )
+            .bind(&c.part_serial)
+            .bind(new)
+            .execute(&mut **tx)
+            .await?;
+            let exists: Option<i32> = sqlx::query_scalar("SELECT 1 FROM parts WHERE serial = $1")
+                .bind(&c.part_serial)
+                .fetch_optional(&mut **tx)
+                .await?;
+            if exists.is_none() {
+                return Err(bad(format!("no part '{}' at the center", c.part_serial)));
+            }
+            let _ = r;
+            // One measurement, or the whole part.
+            sqlx::query(
+                "UPDATE measurements SET part_serial = $2 WHERE part_serial = $1 AND ($3::text IS NULL OR id = $3)",
+            )
+            .bind(&c.part_serial)
+            .bind(new)
+            .bind(&c.measurement_id)
+            .execute(&mut **tx)
+            .await?;
+            sqlx::query(
+                "UPDATE qc_verdicts SET part_serial = $2 WHERE part_serial = $1 \
+                 AND ($3::text IS NULL OR measurement_id = $3)",
+            )
+            .bind(&c.part_serial)
+            .bind(new)
+            .bind(&c.measurement_id)
+            .execute(&mut **tx)
+            .await?;
+        }
+        k => {
+            return Err(bad(format!(
+                "kind 'part_serial', 'part_kind' or 'void_measurement', got '{k}'"
+            )))
+        }
+    }
+    sqlx::query(
+        "INSERT INTO corrections (id, station_id, kind, part_serial, measurement_id, old_value, new_value, reason, \
+         made_by, made_at, applied_at) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)",
+    )
+    .bind(&c.id)
+    .bind(station)
+    .bind(&c.kind)
+    .bind(&c.part_serial)
+    .bind(&c.measurement_id)
+    .bind(&c.old_value)
+    .bind(&c.new_value)
+    .bind(&c.reason)
+    .bind(&c.made_by)
+    .bind(&c.made_at)
+    .bind(now())
+    .execute(&mut **tx)
+    .await?;
+    Ok(true)
+}
+
+/// Applies one item's body (checked first; a contradiction refuses the batch).
+async fn apply_item(tx: &mut Tx<'_>, station: &str, item: &ReplicationItem) -> StoreResult<()> {
+    let refuse = |e: String| {
+        StoreError::Invalid(format!(
+            "item {} ({}) of station {station}: {e}",
+            item.seq,
+            item.item_id()
+        ))
+    };
+    match &item.body {
+        ItemBody::Measurement(m) => {
+            m.to_finished().map_err(refuse)?;
+            upsert_measurement_tx(tx, Some(station), m).await?;
+        }
+        ItemBody::JobVerdicts(j) => {
+            check_job_verdicts(j).map_err(refuse)?;
+            insert_verdicts(tx, &j.verdicts, Some(station), None).await?;
+        }
+        ItemBody::Correction(c) => {
+            apply_correction(tx, Some(station), c).await?;
+        }
+    }
+    Ok(())
+}
+
+impl ResultIngest for PgStore {
+    async fn upsert_measurement(&self, f: &FinishedMeasurement) -> StoreResult<Upserted> {
+        if f.measurement.part_serial != f.part.0 {
+            return Err(StoreError::Invalid(format!(
+                "measurement {} is of part '{}', not of '{}'",
+                f.measurement.id, f.measurement.part_serial, f.part.0
+            )));
+        }
+        let item = MeasurementItem::from_finished(f, None, true).map_err(StoreError::Invalid)?;
+        item.to_finished().map_err(StoreError::Invalid)?;
+        let mut tx = self.pool.begin().await?;
+        let done = upsert_measurement_tx(&mut tx, None, &item).await?;
+        tx.commit().await?;
+        Ok(done)
+    }
+}
+
+fn status_from_row(r: &sqlx::postgres::PgRow) -> StoreResult<StationStatus> {
+    let items: i64 = r.get("items");
+    let distinct: i64 = r.get("distinct_seqs");
+    let last_seq: Option<i64> = r.get("last_seq");
+    Ok(StationStatus {
+        station_id: r.get("station_id"),
+        software_version: r.get("software_version"),
+        contract_version: r.get::<i32, _>("contract_version") as u32,
+        bench_states: crate::parse_json(&r.get::<String, _>("bench_states")).and_then(|v| {
+            serde_json::from_value(v).map_err(|e| StoreError::Corrupt(e.to_string()))
+        })?,
+        backlog_items: r.get("backlog_items"),
+        oldest_backlog_at: r.get("oldest_backlog_at"),
+        sent_at: r.get("sent_at"),
+        last_contact_at: r.get("last_contact_at"),
+        first_contact_at: r.get("first_contact_at"),
+        items,
+        last_seq,
+        missing_items: last_seq.map_or(0, |l| (l - distinct).max(0)),
+    })
+}
+
+const STATION_SELECT: &str = "SELECT s.station_id, s.software_version, s.contract_version, s.bench_states::text AS bench_states, \
+     s.backlog_items, s.oldest_backlog_at, s.sent_at, s.first_contact_at, s.last_contact_at, \
+     i.items, i.distinct_seqs, i.last_seq FROM stations s \
+     CROSS JOIN LATERAL (SELECT COUNT(*) AS items, COUNT(DISTINCT seq) AS distinct_seqs, MAX(seq) AS last_seq \
+                         FROM station_items x WHERE x.station_id = s.station_id) i";
+
+/// The center's time of a contact; a station heard of in a batch before its
+/// first hello gets a row that says so.
+async fn touch_station(tx: &mut Tx<'_>, station: &str, t: &str) -> StoreResult<()> {
+    sqlx::query(
+        "INSERT INTO stations (station_id, software_version, contract_version, bench_states, backlog_items, \
+         sent_at, first_contact_at, last_contact_at) VALUES ($1, 'unknown (no hello yet)', 1, '[]', 0, $2, $2, $2) \
+         ON CONFLICT (station_id) DO UPDATE SET last_contact_at = EXCLUDED.last_contact_at",
+    )
+    .bind(station)
+    .bind(t)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}
+
+impl CenterIngest for PgStore {
+    async fn hello(&self, h: &StationHello) -> StoreResult<StationStatus> {
+        if h.station_id.is_empty() {
+            return Err(StoreError::Invalid("hello: station_id is empty".into()));
+        }
+        if h.contract_version == 0 || h.contract_version > CONTRACT_VERSION {
+            return Err(StoreError::Invalid(format!(
+                "hello of station {}: contract version {} is unknown to this center (it knows 1 to {CONTRACT_VERSION})",
+                h.station_id, h.contract_version
+            )));
+        }
+        let t = now();
+        let states = serde_json::to_string(&h.bench_states)
+            .map_err(|e| StoreError::Invalid(e.to_string()))?;
+        sqlx::query(
+            "INSERT INTO stations (station_id, software_version, contract_version, bench_states, backlog_items, \
+             oldest_backlog_at, sent_at, first_contact_at, last_contact_at) \
+             VALUES ($1, $2, $3, $4::jsonb, $5, $6, $7, $8, $8) \
+             ON CONFLICT (station_id) DO UPDATE SET software_version = EXCLUDED.software_version, \
+             contract_version = EXCLUDED.contract_version, bench_states = EXCLUDED.bench_states, \
+             backlog_items = EXCLUDED.backlog_items, oldest_backlog_at = EXCLUDED.oldest_backlog_at, \
+             sent_at = EXCLUDED.sent_at, last_contact_at = EXCLUDED.last_contact_at",
+        )
+        .bind(&h.station_id)
+        .bind(&h.software_version)
+        .bind(h.contract_version as i32)
+        .bind(states)
+        .bind(h.backlog_items)
+        .bind(&h.oldest_backlog_at)
+        .bind(&h.sent_at)
+        .bind(&t)
+        .execute(&self.pool)
+        .await?;
+        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "{STATION_SELECT} WHERE s.station_id = $1"
+        )))
+        .bind(&h.station_id)
+        .fetch_one(&self.pool)
+        .await?;
+        status_from_row(&row)
+    }
+
+    async fn ingest(&self, station: &str, items: &[ReplicationItem]) -> StoreResult<IngestReport> {
+        if station.is_empty() {
+            return Err(StoreError::Invalid("ingest: station_id is empty".into()));
+        }
+        let t = now();
+        let mut report = IngestReport::default();
+        let mut tx = self.pool.begin().await?;
+        for item in items {
+            let id = item.item_id();
+            let sha = item.content_sha256();
+            let claimed: Option<i32> = sqlx::query_scalar(
+                "INSERT INTO station_items (item_id, station_id, seq, content_sha256, received_at) \
+                 VALUES ($1, $2, $3, $4, $5) ON CONFLICT (item_id) DO NOTHING RETURNING 1",
+            )
+            .bind(&id)
+            .bind(station)
+            .bind(item.seq)
+            .bind(&sha)
+            .bind(&t)
+            .fetch_optional(&mut *tx)
+            .await?;
+            if claimed.is_some() {
+                apply_item(&mut tx, station, item).await?;
+                report.inserted += 1;
+                continue;
+            }
+            let held = sqlx::query(
+                "SELECT station_id, content_sha256 FROM station_items WHERE item_id = $1",
+            )
+            .bind(&id)
+            .fetch_one(&mut *tx)
+            .await?;
+            let (by, held_sha): (String, String) = (held.get(0), held.get(1));
+            let reason = if by != station {
+                format!("item {id} is held from station {by}")
+            } else if held_sha != sha {
+                format!("item {id} is held with another content (SHA-256 {held_sha}, this one {sha}); the first copy stays")
+            } else {
+                report.already_stored += 1;
+                continue;
+            };
+            sqlx::query(
+                "INSERT INTO ingest_conflicts (station_id, item_seq, item_id, content_sha256, reason, item_json, received_at) \
+                 VALUES ($1, $2, $3, $4, $5, $6::jsonb, $7)",
+            )
+            .bind(station)
+            .bind(item.seq)
+            .bind(&id)
+            .bind(&sha)
+            .bind(&reason)
+            .bind(serde_json::to_string(item).unwrap_or_else(|_| "null".into()))
+            .bind(&t)
+            .execute(&mut *tx)
+            .await?;
+            report.conflicts.push(IngestConflict {
+                seq: item.seq,
+                item_id: id,
+                reason,
+            });
+        }
+        touch_station(&mut tx, station, &t).await?;
+        tx.commit().await?;
+        Ok(report)
+    }
+
+    async fn recipes(&self) -> StoreResult<Vec<RecipeRow>> {
+        let rows = sqlx::query(concat!(
+            "SELECT ",
+            crate::reads::recipe_cols!(),
+            " FROM qc_recipes ORDER BY name, version"
+        ))
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(recipe_from_row).collect()
+    }
+
+    async fn stations(&self) -> StoreResult<Vec<StationStatus>> {
+        let rows = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "{STATION_SELECT} ORDER BY s.station_id"
+        )))
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(status_from_row).collect()
+    }
+}
