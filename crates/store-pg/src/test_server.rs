@@ -120,10 +120,10 @@ pub fn url_or_skip(test: &str) -> Option<String> {
              (.ci/run starts a server with .ci/pg)"
         ),
         _ => {
-            eprintln!(
+            say(&format!(
                 "{test}: skipped: no PostgreSQL (set SPRINGBENCH_PG_URL, e.g. from \
                  `.ci/pg start /tmp/sb-pg`; .ci/run does it and sets SPRINGBENCH_PG_TESTS=require)"
-            );
+            ));
             None
         }
     }
@@ -140,9 +140,18 @@ pub fn can_start_private(test: &str) -> bool {
         if required() {
             panic!("{test}: SPRINGBENCH_PG_TESTS=require but no PostgreSQL binaries (apt-get install postgresql)");
         }
-        eprintln!("{test}: skipped: no PostgreSQL server binaries (apt-get install postgresql)");
+        say(&format!(
+            "{test}: skipped: no PostgreSQL server binaries (apt-get install postgresql)"
+        ));
     }
     found
+}
+
+/// Straight to stderr: the test harness does not capture it, so a plain
+/// `cargo test` shows why a PostgreSQL test passed without running.
+fn say(msg: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{msg}");
 }
 
 /// A fresh schema name for one test: `t_<test>_<random>`.
