@@ -148,9 +148,11 @@ impl PgStore {
                       COUNT(*) FILTER (WHERE verdict = 'fail') AS failed FROM d GROUP BY g), \
              inv AS ( \
                SELECT CASE WHEN $6 THEN station_id END AS g, COUNT(*) AS invalid FROM w \
-               WHERE verdict = 'invalid' GROUP BY 1) \
-             SELECT COALESCE(s.g, inv.g) AS g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
-             FROM s FULL JOIN inv ON s.g IS NOT DISTINCT FROM inv.g ORDER BY 1 NULLS FIRST",
+               WHERE verdict = 'invalid' GROUP BY 1), \
+             k AS (SELECT g FROM s UNION SELECT g FROM inv) \
+             SELECT k.g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
+             FROM k LEFT JOIN s ON s.g IS NOT DISTINCT FROM k.g LEFT JOIN inv ON inv.g IS NOT DISTINCT FROM k.g \
+             ORDER BY 1 NULLS FIRST",
         )
         .bind(recipe)
         .bind(parameter)
