@@ -553,6 +553,18 @@ mod tests {
     }
 
     #[test]
+    fn example_fleet_configs_in_deploy_parse() {
+        let station = include_str!("../deploy/fleet-station.toml")
+            .replace("<your secret, 16+ characters>", "0123456789abcdef-station");
+        let s = Config::parse(&station).expect("deploy/fleet-station.toml is valid");
+        assert_eq!(s.fleet.unwrap().station_id, "line-3");
+        let center = include_str!("../deploy/fleet-center.toml")
+            .replace("<your secret, 16+ characters>", "0123456789abcdef-center");
+        let c = Config::parse(&center).expect("deploy/fleet-center.toml is valid");
+        assert!(c.is_fleet_role() && c.benches.is_empty());
+    }
+
+    #[test]
     fn fleet_keys_are_checked_with_one_line_each() {
         let station = Config::parse(
             "[fleet]\ncenter = \"postgres://sb:pw@center.lab:5432/springbench\"\nstation_id = \"line-3\"\nrecordings = \"reference\"",

@@ -9,6 +9,7 @@ pub mod auth;
 pub mod benches;
 pub mod derived;
 pub mod events;
+pub mod fleet;
 pub mod guard;
 pub mod import;
 pub mod jobs;

@@ -122,6 +122,9 @@ pub async fn shutdown_signal() {
 /// Runs the daemon until `stop` resolves.
 pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> Result<(), String> {
     let (addr, note) = bind_address(&cfg)?;
+    if cfg.is_fleet_role() {
+        return api::fleet::serve_role(cfg, addr, note, stop).await;
+    }
     if crate::physics::preset_names().is_empty() {
         tracing::warn!("no part presets are available in this build: jobs must give moving_mass_kg and the virtual bench cannot run yet");
     }
@@ -147,13 +150,17 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         runner.outbox_wake(),
         stop_rx.clone(),
     );
+    let fleet = cfg
+        .fleet
+        .clone()
+        .map(|f| crate::fleet::start_station(store.clone(), f, runner.clone(), stop_rx.clone()));
     let state = AppState {
         store: store.clone(),
         runner: runner.clone(),
         cfg: Arc::new(cfg),
         metrics: Default::default(),
         shutdown: stop_rx.clone(),
-        fleet: None,
+        fleet: fleet.as_ref().map(|(l, _)| l.clone()),
     };
     let http = state.cfg.http.clone();
     let (max_conn, fd_note) = api::server::fit_connection_limit(http.max_connections);
@@ -190,6 +197,9 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
         }
     }
     let _ = tokio::time::timeout(Duration::from_secs(5), mes_worker).await;
+    if let Some((_, w)) = fleet {
+        let _ = tokio::time::timeout(Duration::from_secs(5), w).await;
+    }
     match tokio::time::timeout(Duration::from_secs(5), server).await {
         Ok(Ok(Ok(()))) => {}
         Ok(Ok(Err(e))) => tracing::error!("server: {e}"),

@@ -1,5 +1,6 @@
-//! The fleet (issue 20): a station's replication worker, and the fleet role
-//! ([`role`]: the daemon started on the center's database without benches).
+//! The fleet (issue 20): a station's replication worker. (The fleet role,
+//! the daemon started on the center's database without benches, is
+//! `api::fleet`: it is an HTTP front of the center and nothing else.)
 //!
 //! The worker sends the station's outbox (`crates/store/src/outbox.rs`,
 //! filled in the transactions that store results) to the center, oldest
@@ -12,8 +13,6 @@
 //! reason; later items of the same part wait behind it, others go on.
 //! Recipes travel the other way: every `recipe_poll_s` the worker takes the
 //! center's versions and retirements.
-
-// pub mod role;
 
 use crate::config::{FleetConfig, RecordingsPolicy};
 use crate::store::fleet::{BenchState, CenterIngest, StationHello};
@@ -117,6 +116,47 @@ impl Link {
             "offline": !fresh,
         })
     }
+}
+
+/// Starts a station's replication worker on the center named by `cfg`
+/// (connecting, and reconnecting, with backoff while it is unreachable).
+pub fn start_station(
+    store: Store,
+    cfg: FleetConfig,
+    runner: Arc<crate::runner::Runner>,
+    stop: watch::Receiver<bool>,
+) -> (Arc<Link>, tokio::task::JoinHandle<()>) {
+    let link = Arc::new(Link::new(&cfg));
+    let benches: Arc<dyn Fn() -> Vec<BenchState> + Send + Sync> = Arc::new(move || {
+        runner
+            .bench_statuses()
+            .into_iter()
+            .map(|b| BenchState {
+                bench_id: b.id,
+                state: b.state.to_string(),
+                detail: b
+                    .fault
+                    .map(|f| serde_json::to_string(&f).unwrap_or_default()),
+            })
+            .collect()
+    });
+    let url = cfg.center.clone();
+    let task = tokio::spawn(run(
+        store,
+        cfg,
+        link.clone(),
+        benches,
+        move || {
+            let url = url.clone();
+            async move {
+                springbench_store_pg::PgStore::connect(&url)
+                    .await
+                    .map_err(|e| e.to_string())
+            }
+        },
+        stop,
+    ));
+    (link, task)
 }
 
 /// The station's fleet figures in Prometheus text: backlog, oldest

@@ -1,0 +1,443 @@
+//! The fleet acceptance test (issue 20): three station daemons (virtual
+//! benches) and one fleet daemon on one real PostgreSQL (a private server
+//! from Debian's packages, `.ci/pg`). Each station runs a QC lot of 20 jobs
+//! with repeated idempotency keys while other tasks poll; mid-run the
+//! PostgreSQL server is stopped for 30 s (a real outage: every connection
+//! is cut) and started again. Afterwards every measurement and verdict is
+//! in the center exactly once, each part's measurements in its station's
+//! order, each station's item sequence without gaps, and the fleet's SPC
+//! equals what the stations' own values give.
+//!
+//! Without PostgreSQL binaries the test prints why it skips;
+//! `SPRINGBENCH_PG_TESTS=require` (set by `.ci/run`) makes that a failure.
+
+mod common;
+
+use common::{client, Daemon};
+use serde_json::{json, Value};
+use springbench::qc::spc::{compute, SpcPoint};
+use springbench_store_pg::test_server::{can_start_private, TestServer};
+use springbench_store_pg::PgStore;
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::{Duration, Instant};
+
+const JOBS: usize = 20;
+const RECIPE: &str = "spider-4in";
+
+fn recipe() -> Value {
+    json!({
+        "name": RECIPE,
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.004], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "keff", "quantity": "keff"},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    })
+}
+
+async fn get(c: &reqwest::Client, base: &str, path: &str) -> Value {
+    let r = c.get(format!("{base}{path}")).send().await.unwrap();
+    let s = r.status().as_u16();
+    let v: Value = r.json().await.unwrap_or(Value::Null);
+    assert_eq!(s, 200, "{path}: {v}");
+    v
+}
+
+/// A gauge of the station's `/metrics`.
+async fn metric(c: &reqwest::Client, d: &Daemon, line: &str) -> f64 {
+    let text = c
+        .get(d.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    text.lines()
+        .find_map(|l| {
+            l.strip_prefix(line)
+                .map(|v| v.trim().parse::<f64>().unwrap())
+        })
+        .unwrap_or_else(|| panic!("no {line} in /metrics"))
+}
+
+/// Every measurement of a station, oldest first (its storage order).
+async fn station_measurements(c: &reqwest::Client, d: &Daemon) -> Vec<Value> {
+    let mut out = vec![];
+    let mut cursor: Option<String> = None;
+    loop {
+        let q = cursor
+            .as_ref()
+            .map_or(String::new(), |b| format!("&cursor={b}"));
+        let page = get(c, &d.base, &format!("/api/v1/measurements?limit=7{q}")).await;
+        out.extend(page["items"].as_array().unwrap().clone());
+        match page["next_cursor"].as_str() {
+            Some(b) => cursor = Some(b.to_string()),
+            None => break,
+        }
+    }
+    out.reverse();
+    out
+}
+
+/// Every measurement of a station at the center, oldest first.
+async fn center_measurements(c: &reqwest::Client, fleet: &Daemon, station: &str) -> Vec<Value> {
+    let mut out = vec![];
+    let mut cursor: Option<String> = None;
+    loop {
+        let q = cursor
+            .as_ref()
+            .map_or(String::new(), |b| format!("&cursor={b}"));
+        let page = get(
+            c,
+            &fleet.base,
+            &format!("/api/v1/fleet/measurements?station={station}&limit=7{q}"),
+        )
+        .await;
+        out.extend(page["items"].as_array().unwrap().clone());
+        match page["next_cursor"].as_str() {
+            Some(b) => cursor = Some(b.to_string()),
+            None => break,
+        }
+    }
+    out.reverse();
+    out
+}
+
+fn close(a: &Value, b: &Value, what: &str) {
+    match (a.as_f64(), b.as_f64()) {
+        (Some(x), Some(y)) => assert!(
+            (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1e-12),
+            "{what}: {x} vs {y}"
+        ),
+        _ => assert_eq!(a, b, "{what}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
+    if !can_start_private("fleet acceptance test") {
+        return;
+    }
+    let mut pg = TestServer::start(55471).expect("a private PostgreSQL server");
+    let url = pg.url();
+    // The center holds the recipe; the stations pull it.
+    {
+        let center = PgStore::connect(&url).await.unwrap();
+        let r: springbench::qc::Recipe = serde_json::from_value(recipe()).unwrap();
+        center
+            .write_recipe(
+                RECIPE,
+                &r.sha256(),
+                &recipe(),
+                "created",
+                Some("qc-engineer"),
+                springbench::store::qc::RecipeExpect::Absent,
+            )
+            .await
+            .unwrap();
+        center.close().await;
+    }
+    let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
+    let stations: Vec<(String, Daemon)> = (1..=3)
+        .map(|i| {
+            let id = format!("line-{i}");
+            let d = Daemon::start(&format!(
+                "[fleet]\ncenter = \"{url}\"\nstation_id = \"{id}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
+                 [[benches]]\nid = \"virtual-1\"\nseed = {}\n",
+                if i == 2 { "reference" } else { "full" },
+                1000 * i
+            ));
+            (id, d)
+        })
+        .collect();
+    let c = client();
+    // Each station runs the recipe it pulled from the center.
+    for (id, d) in &stations {
+        let t0 = Instant::now();
+        loop {
+            let r = c
+                .get(d.url(&format!("/api/v1/recipes/{RECIPE}")))
+                .send()
+                .await
+                .unwrap();
+            if r.status().as_u16() == 200 {
+                break;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "{id} never got the recipe"
+            );
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+    }
+
+    // Concurrent polling while the lots run.
+    let polling = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let mut pollers = vec![];
+    for (_, d) in &stations {
+        let (c, base, on) = (c.clone(), d.base.clone(), polling.clone());
+        pollers.push(tokio::spawn(async move {
+            let mut n = 0u64;
+            while on.load(std::sync::atomic::Ordering::SeqCst) {
+                let r = c
+                    .get(format!("{base}/api/v1/jobs?limit=50"))
+                    .send()
+                    .await
+                    .unwrap();
+                assert_eq!(r.status().as_u16(), 200);
+                n += 1;
+                tokio::time::sleep(Duration::from_millis(25)).await;
+            }
+            n
+        }));
+    }
+
+    // The lots: each job submitted twice with its idempotency key.
+    let mut jobs: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for (id, d) in &stations {
+        for k in 0..JOBS {
+            let body = json!({
+                "part": {"serial": format!("{id}-P{k:02}"), "kind": "spider"},
+                "recipe": RECIPE,
+                "production": {"preset": "spider_4in", "seed": 7 * k as u64 + 1},
+            });
+            let key = format!("{id}-lot-{k}");
+            let mut ids = vec![];
+            for expect in [202, 200] {
+                let r = c
+                    .post(d.url("/api/v1/jobs"))
+                    .header("Idempotency-Key", &key)
+                    .json(&body)
+                    .send()
+                    .await
+                    .unwrap();
+                assert_eq!(r.status().as_u16(), expect, "{key}");
+                ids.push(
+                    r.json::<Value>().await.unwrap()["id"]
+                        .as_str()
+                        .unwrap()
+                        .to_string(),
+                );
+            }
+            assert_eq!(ids[0], ids[1], "a repeated key is the same job");
+            jobs.entry(id.clone()).or_default().push(ids[0].clone());
+        }
+    }
+
+    // Mid-run: once a third of the jobs are done, the center goes away for 30 s.
+    let t0 = Instant::now();
+    loop {
+        let mut finished = 0;
+        for (_, d) in &stations {
+            let v = get(&c, &d.base, "/api/v1/jobs?state=succeeded&limit=200").await;
+            finished += v["items"].as_array().unwrap().len();
+        }
+        if finished >= JOBS {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(1800),
+            "the lots do not progress"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    pg.stop().expect("stop PostgreSQL");
+    let outage = Instant::now();
+    let backlog_before: Vec<f64> = {
+        let mut v = vec![];
+        for (_, d) in &stations {
+            v.push(metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await);
+        }
+        v
+    };
+    while outage.elapsed() < Duration::from_secs(30) {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    // The stations kept measuring: their backlog grew, their link is down.
+    let mut grew = false;
+    for (i, (_, d)) in stations.iter().enumerate() {
+        let now = metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await;
+        grew |= now > backlog_before[i];
+        assert_eq!(metric(&c, d, "springbench_fleet_connected").await, 0.0);
+    }
+    assert!(grew, "no station measured during the outage");
+    pg.start_again().expect("start PostgreSQL again");
+
+    // Every job ends; every station's outbox drains.
+    for (id, d) in &stations {
+        for j in &jobs[id] {
+            let v = common::wait_job(&c, d, j, Duration::from_secs(1800), common::terminal).await;
+            assert_eq!(v["state"], "succeeded", "{j}: {v}");
+        }
+    }
+    polling.store(false, std::sync::atomic::Ordering::SeqCst);
+    for p in pollers {
+        assert!(p.await.unwrap() > 0);
+    }
+    for (id, d) in &stations {
+        let t0 = Instant::now();
+        while metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await > 0.0 {
+            assert!(
+                t0.elapsed() < Duration::from_secs(300),
+                "{id}: the backlog does not drain"
+            );
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+    }
+
+    // Exactly once, station by station, in the station's order.
+    let center = PgStore::connect(&url).await.unwrap();
+    let mut total = 0usize;
+    let all_verdicts = get(
+        &c,
+        &fleet.base,
+        &format!("/api/v1/fleet/recipes/{RECIPE}/verdicts?last=1000000"),
+    )
+    .await;
+    let all_verdicts = all_verdicts["items"].as_array().unwrap().clone();
+    let ids: BTreeSet<&str> = all_verdicts
+        .iter()
+        .map(|v| v["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        ids.len(),
+        all_verdicts.len(),
+        "a verdict twice at the center"
+    );
+    let st_list = get(&c, &fleet.base, "/api/v1/fleet/stations").await;
+    for (id, d) in &stations {
+        let mine = station_measurements(&c, d).await;
+        assert_eq!(mine.len(), JOBS, "{id}: one measurement per job");
+        let theirs = center_measurements(&c, &fleet, id).await;
+        let a: Vec<&str> = mine.iter().map(|m| m["id"].as_str().unwrap()).collect();
+        let b: Vec<&str> = theirs.iter().map(|m| m["id"].as_str().unwrap()).collect();
+        assert_eq!(
+            a, b,
+            "{id}: the center holds each measurement once, in the station's order"
+        );
+        assert!(theirs.iter().all(|m| m["station_id"] == json!(id)));
+        total += b.len();
+        // Verdicts: one per measurement of this station, each once.
+        let n = all_verdicts
+            .iter()
+            .filter(|v| v["station_id"] == json!(id))
+            .count();
+        assert_eq!(n, JOBS, "{id}: measurement verdicts at the center");
+        // Per-part order: a part's history at the center is the station's.
+        for m in mine.iter().take(3) {
+            let serial = m["part_serial"].as_str().unwrap();
+            let p = get(&c, &fleet.base, &format!("/api/v1/fleet/parts/{serial}")).await;
+            let hist: Vec<&str> = p["measurements"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x["id"].as_str().unwrap())
+                .collect();
+            let local = get(&c, &d.base, &format!("/api/v1/measurements?part={serial}")).await;
+            let local: Vec<&str> = local["items"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x["id"].as_str().unwrap())
+                .collect();
+            assert_eq!(hist, local, "{serial}");
+        }
+        // No gaps: the center holds items 1..=last of the station's sequence.
+        let last = metric(&c, d, "springbench_fleet_last_seq").await as i64;
+        let s = st_list["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["station_id"] == json!(id))
+            .unwrap_or_else(|| panic!("{id} is not in the station list: {st_list}"));
+        assert_eq!(s["last_seq"], json!(last), "{id}: {s}");
+        assert_eq!(s["items"], json!(last), "{id}: {s}");
+        assert_eq!(s["missing_items"], json!(0), "{id}: {s}");
+        assert!(s["backlog_items"].as_i64().is_some_and(|b| b >= 0), "{s}");
+        assert_eq!(s["bench_states"][0]["bench_id"], "virtual-1");
+        // 20 measurements + 20 job verdict items.
+        assert_eq!(last, 2 * JOBS as i64, "{id}");
+    }
+    let (_, meas, _, _) = center.counts().await.unwrap();
+    assert_eq!(meas as usize, total, "nothing else at the center");
+
+    // SPC: each station's subgroup is its own SPC; the fleet's is the
+    // stations' values pooled (n, mean, sigma, Pp, Ppk and yield do not
+    // depend on how the stations interleave; Cp/Cpk are per station).
+    for param in ["keff", "model_error"] {
+        let f = get(
+            &c,
+            &fleet.base,
+            &format!("/api/v1/fleet/recipes/{RECIPE}/spc?parameter={param}&last=100000"),
+        )
+        .await;
+        let mut pooled: Vec<SpcPoint> = vec![];
+        let mut invalid = 0;
+        let (lower, upper) = (None, (param == "model_error").then_some(5.0));
+        for (id, d) in &stations {
+            let own = get(
+                &c,
+                &d.base,
+                &format!("/api/v1/recipes/{RECIPE}/spc?parameter={param}&last=100000"),
+            )
+            .await;
+            let g = f["stations"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|g| g["station_id"] == json!(id))
+                .unwrap_or_else(|| panic!("no subgroup {id}: {f}"));
+            for k in [
+                "n",
+                "mean",
+                "sigma",
+                "sigma_within",
+                "cp",
+                "cpk",
+                "pp",
+                "ppk",
+                "passed",
+                "failed",
+                "invalid",
+            ] {
+                close(&g[k], &own[k], &format!("{param} {id} {k}"));
+            }
+            invalid += own["invalid"].as_u64().unwrap() as usize;
+            pooled.extend(serde_json::from_value::<Vec<SpcPoint>>(own["points"].clone()).unwrap());
+        }
+        let want = compute(param, "", lower, upper, pooled, invalid);
+        let got = &f["fleet"];
+        assert_eq!(got["n"], json!(want.n), "{param}: {got}");
+        assert_eq!(want.n, 3 * JOBS, "{param}: one point per job");
+        for (k, w) in [
+            ("mean", want.mean),
+            ("sigma", want.sigma),
+            ("pp", want.pp),
+            ("ppk", want.ppk),
+            ("yield_fraction", want.yield_fraction),
+        ] {
+            close(&got[k], &json!(w), &format!("{param} fleet {k}"));
+        }
+    }
+
+    // Bad query parameters are named.
+    let r = c
+        .get(fleet.url(&format!(
+            "/api/v1/fleet/recipes/{RECIPE}/spc?parameter=keff&last=0"
+        )))
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 422).await;
+    assert_eq!(p["errors"][0]["field"], "last", "{p}");
+    let r = c
+        .get(fleet.url("/api/v1/fleet/measurements?statoin=x"))
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 422).await;
+    assert_eq!(p["errors"][0]["field"], "statoin", "{p}");
+    center.close().await;
+}
