@@ -334,39 +334,43 @@ pub async fn recipe_and_fit_reads<S: RecipeReads + FitReads>(
     assert_eq!(choice.chosen_by.as_deref(), Some(who));
 }
 
-/// Station-side writes (recipes come from the API, fits from a refit) for
-/// [`recipe_and_fit_reads`].
-async fn seed_sqlite(s: &Store) {
-    for v in 1..=2 {
-        s.write_recipe(
-            "R",
-            &format!("{v:064}"),
-            &json!({"version": v}),
-            "created",
-            Some("qe"),
-            RecipeExpect::Any,
+/// Writes of recipes (versions 1 and 2 of R) and of a fit chosen as m-1's
+/// headline, for [`recipe_and_fit_reads`]: the station's `Store` and the
+/// center's `PgStore` have the same inherent methods for them.
+macro_rules! seed {
+    ($s:expr) => {{
+        let s = $s;
+        for v in 1..=2 {
+            s.write_recipe(
+                "R",
+                &format!("{v:064}"),
+                &json!({"version": v}),
+                "created",
+                Some("qe"),
+                RecipeExpect::Any,
+            )
+            .await
+            .unwrap();
+        }
+        s.insert_fit(
+            "f-1",
+            "m-1",
+            &json!({"effects": []}),
+            &result(1200.0, 1500.0, true),
         )
         .await
         .unwrap();
-    }
-    s.insert_fit(
-        "f-1",
-        "m-1",
-        &json!({"effects": []}),
-        &result(1200.0, 1500.0, true),
-    )
-    .await
-    .unwrap();
-    s.choose_headline("m-1", Some("f-1"), Some("engineer"))
-        .await
-        .unwrap();
+        s.choose_headline("m-1", Some("f-1"), Some("engineer"))
+            .await
+            .unwrap();
+    }};
 }
 
 #[tokio::test]
 async fn sqlite_in_memory_passes_the_results_suite() {
     let s = Store::memory().await.unwrap();
     results_suite(&s).await;
-    seed_sqlite(&s).await;
+    seed!(&s);
     recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
 }
 
@@ -375,36 +379,9 @@ async fn sqlite_station_file_passes_the_results_suite() {
     let dir = tempfile::tempdir().unwrap();
     let s = Store::open(dir.path()).await.unwrap();
     results_suite(&s).await;
-    seed_sqlite(&s).await;
+    seed!(&s);
     recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
     s.close().await;
-}
-
-/// The center's writes of recipes and fits for [`recipe_and_fit_reads`].
-async fn seed_pg(s: &springbench_store_pg::PgStore) {
-    for v in 1..=2 {
-        s.write_recipe(
-            "R",
-            &format!("{v:064}"),
-            &json!({"version": v}),
-            "created",
-            Some("qe"),
-            RecipeExpect::Any,
-        )
-        .await
-        .unwrap();
-    }
-    s.insert_fit(
-        "f-1",
-        "m-1",
-        &json!({"effects": []}),
-        &result(1200.0, 1500.0, true),
-    )
-    .await
-    .unwrap();
-    s.choose_headline("m-1", Some("f-1"), Some("engineer"))
-        .await
-        .unwrap();
 }
 
 #[tokio::test]
@@ -417,7 +394,7 @@ async fn postgres_passes_the_results_suite() {
         .await
         .unwrap();
     results_suite(&s).await;
-    seed_pg(&s).await;
+    seed!(&s);
     recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
     s.close().await;
 }

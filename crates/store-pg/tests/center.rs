@@ -1,0 +1,779 @@
+//! The center on PostgreSQL: replication ingest (idempotent, conflicts,
+//! gaps), SPC in SQL against `core::qc::spc` on the same values, the audit
+//! trail, and a real outage in the middle of a batch.
+//!
+//! Runs on the server `SPRINGBENCH_PG_URL` names, a fresh schema per test;
+//! the outage test starts a private server of its own (`.ci/pg`). Without a
+//! server they print why and pass, unless `SPRINGBENCH_PG_TESTS=require`.
+
+use serde_json::json;
+use springbench_core::qc::spc::{compute, SpcPoint};
+use springbench_core::qc::VerdictKind;
+use springbench_store::fleet::{
+    BenchState, CenterIngest, Correction, ItemBody, JobVerdictsItem, MeasurementItem,
+    RecordingItem, ReplicationItem, StationHello, VerdictItem,
+};
+use springbench_store::results::{MeasurementReads, NewRecording, PartReads, VerdictReads};
+use springbench_store::StoreError;
+use springbench_store_pg::test_server::{can_start_private, fresh_schema, url_or_skip, TestServer};
+use springbench_store_pg::{PgStore, SpcSummary};
+
+async fn store(test: &str) -> Option<PgStore> {
+    let url = url_or_skip(test)?;
+    Some(
+        PgStore::connect_schema(&url, Some(&fresh_schema(test)))
+            .await
+            .unwrap(),
+    )
+}
+
+fn recording(kind: &'static str, content: &str) -> RecordingItem {
+    RecordingItem::from_new(
+        &NewRecording {
+            kind,
+            sample_rate_hz: 48_000.0,
+            frames: 4,
+            stored: springbench_recording::codec::Stored {
+                bytes: content.as_bytes().to_vec(),
+                channel_scale: None,
+            },
+        },
+        true,
+    )
+}
+
+fn time(i: usize) -> String {
+    // one measurement a minute from 2026-03-01 06:00 UTC
+    let t = chrono::DateTime::parse_from_rfc3339("2026-03-01T06:00:00Z").unwrap()
+        + chrono::Duration::minutes(i as i64);
+    t.with_timezone(&chrono::Utc)
+        .to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
+}
+
+/// A measurement of `serial` by `job` with Keff `value` judged `verdict`.
+#[allow(clippy::too_many_arguments)]
+fn measurement(
+    seq: i64,
+    id: &str,
+    serial: &str,
+    job: Option<&str>,
+    level: Option<i64>,
+    value: f64,
+    verdict: &str,
+    t: &str,
+) -> ReplicationItem {
+    let params = if verdict == "invalid" {
+        json!([])
+    } else {
+        json!([{"name": "keff_n_per_m", "value": value, "lower": 950.0, "upper": 1050.0}])
+    };
+    ReplicationItem {
+        seq,
+        body: ItemBody::Measurement(Box::new(MeasurementItem {
+            id: id.into(),
+            part_serial: serial.into(),
+            part_kind: Some("spider".into()),
+            part_notes: None,
+            job_id: job.map(str::to_string),
+            source: "bench".into(),
+            bench_id: Some("b1".into()),
+            config: json!({"target_xpeak_m": 0.002}),
+            meta: json!({"id": id}),
+            result: Some(json!({"large_signal": {"keff_n_per_m": value}})),
+            analysis_error: None,
+            target_xpeak_m: Some(0.002),
+            repeat_index: Some(0),
+            level_index: level,
+            pre: recording("pre", &format!("pre of {}", job.unwrap_or(id))),
+            main: recording("main", &format!("main of {id}")),
+            calibration: None,
+            verdicts: vec![VerdictItem {
+                id: format!("v-{id}"),
+                job_id: job.map(str::to_string),
+                measurement_id: Some(id.into()),
+                part_serial: serial.into(),
+                recipe_name: "R".into(),
+                recipe_version: 1,
+                recipe_sha256: "ab".repeat(32),
+                verdict: verdict.into(),
+                detail: json!({"verdict": verdict, "parameters": params}),
+                trace: json!({"bench": "b1"}),
+                created_at: t.into(),
+            }],
+            software_version: "0.9.0".into(),
+            created_at: t.into(),
+        })),
+    }
+}
+
+fn hello(station: &str, backlog: i64) -> StationHello {
+    StationHello {
+        station_id: station.into(),
+        software_version: "0.9.0".into(),
+        contract_version: 1,
+        bench_states: vec![BenchState {
+            bench_id: "b1".into(),
+            state: "idle".into(),
+            detail: None,
+        }],
+        backlog_items: backlog,
+        oldest_backlog_at: None,
+        sent_at: time(0),
+    }
+}
+
+/// A deterministic spread around 1000 N/m (a linear congruential generator).
+fn values(n: usize, seed: u64) -> Vec<f64> {
+    let mut x = seed;
+    (0..n)
+        .map(|_| {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            1000.0 + ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 120.0
+        })
+        .collect()
+}
+
+fn close(a: Option<f64>, b: Option<f64>, what: &str) {
+    match (a, b) {
+        (Some(a), Some(b)) => assert!(
+            (a - b).abs() <= 1e-9 * b.abs().max(1.0),
+            "{what}: PostgreSQL {a}, core {b}"
+        ),
+        (a, b) => assert_eq!(a, b, "{what}"),
+    }
+}
+
+fn same_spc(pg: &SpcSummary, core: &springbench_core::qc::spc::Spc, what: &str) {
+    assert_eq!(pg.n as usize, core.n, "{what}: n");
+    assert_eq!(pg.passed as usize, core.passed, "{what}: passed");
+    assert_eq!(pg.failed as usize, core.failed, "{what}: failed");
+    assert_eq!(pg.invalid as usize, core.invalid, "{what}: invalid");
+    close(pg.mean, core.mean, &format!("{what}: mean"));
+    close(pg.sigma, core.sigma, &format!("{what}: sigma"));
+    close(
+        pg.sigma_within,
+        core.sigma_within,
+        &format!("{what}: sigma_within"),
+    );
+    close(pg.cp, core.cp, &format!("{what}: cp"));
+    close(pg.cpk, core.cpk, &format!("{what}: cpk"));
+    close(pg.pp, core.pp, &format!("{what}: pp"));
+    close(pg.ppk, core.ppk, &format!("{what}: ppk"));
+    close(
+        pg.yield_fraction,
+        core.yield_fraction,
+        &format!("{what}: yield"),
+    );
+}
+
+/// What went in, to compute the truth from.
+struct Made {
+    station: String,
+    id: String,
+    job: Option<String>,
+    level: Option<i64>,
+    value: f64,
+    verdict: &'static str,
+    time: String,
+}
+
+/// Three stations, 30 jobs each of two repeats at two levels, a few
+/// measurements without a job; ingested interleaved, one batch per job.
+async fn ingest_fleet(s: &PgStore) -> Vec<Made> {
+    let mut made = Vec::new();
+    let stations = ["line-1", "line-2", "line-3"];
+    let mut seqs = [0i64; 3];
+    let v = values(3 * 30 * 4 + 30, 7);
+    let mut k = 0;
+    for job in 0..30 {
+        for (si, st) in stations.iter().enumerate() {
+            // line-3 drifts: +25 N/m
+            let drift = if si == 2 { 25.0 } else { 0.0 };
+            let job_id = format!("{st}-job-{job}");
+            let serial = format!("{st}-P{job:03}");
+            let mut batch = Vec::new();
+            for level in 0..2 {
+                for rep in 0..2 {
+                    let value = v[k] + drift;
+                    let verdict = if k % 17 == 5 {
+                        "invalid"
+                    } else if (950.0..=1050.0).contains(&value) {
+                        "pass"
+                    } else {
+                        "fail"
+                    };
+                    let id = format!("{job_id}-l{level}-r{rep}");
+                    let t = time(k);
+                    seqs[si] += 1;
+                    batch.push(measurement(
+                        seqs[si],
+                        &id,
+                        &serial,
+                        Some(&job_id),
+                        Some(level),
+                        value,
+                        verdict,
+                        &t,
+                    ));
+                    made.push(Made {
+                        station: st.to_string(),
+                        id,
+                        job: Some(job_id.clone()),
+                        level: Some(level),
+                        value,
+                        verdict,
+                        time: t,
+                    });
+                    k += 1;
+                }
+            }
+            // A measurement without a job (an import) now and then.
+            if job % 3 == si {
+                let value = v[k] + drift;
+                let id = format!("{st}-import-{job}");
+                let t = time(k);
+                seqs[si] += 1;
+                batch.push(measurement(
+                    seqs[si], &id, &serial, None, None, value, "pass", &t,
+                ));
+                made.push(Made {
+                    station: st.to_string(),
+                    id,
+                    job: None,
+                    level: None,
+                    value,
+                    verdict: "pass",
+                    time: t,
+                });
+                k += 1;
+            }
+            let r = s.ingest(st, &batch).await.unwrap();
+            assert_eq!(r.inserted as usize, batch.len());
+        }
+    }
+    made
+}
+
+/// `core::qc::spc::compute` over the newest `last` of `made` (of `station`).
+fn truth(made: &[Made], last: usize, station: Option<&str>) -> springbench_core::qc::spc::Spc {
+    let window = &made[made.len().saturating_sub(last)..];
+    let mut points = Vec::new();
+    let mut invalid = 0;
+    for m in window
+        .iter()
+        .filter(|m| station.is_none_or(|s| m.station == s))
+    {
+        if m.verdict == "invalid" {
+            invalid += 1;
+            continue;
+        }
+        points.push(SpcPoint {
+            time: m.time.clone(),
+            part_serial: String::new(),
+            measurement_id: m.id.clone(),
+            // job ids are unique per station here, as UUIDs are in a fleet
+            job_id: m.job.clone(),
+            level_index: m.level,
+            value: m.value,
+            repeats: 1,
+            verdict: match m.verdict {
+                "pass" => VerdictKind::Pass,
+                _ => VerdictKind::Fail,
+            },
+        });
+    }
+    compute(
+        "keff_n_per_m",
+        "N/m",
+        Some(950.0),
+        Some(1050.0),
+        points,
+        invalid,
+    )
+}
+
+#[tokio::test]
+async fn spc_in_sql_equals_core_across_and_per_station() {
+    let Some(s) = store("spc_in_sql").await else {
+        return;
+    };
+    let made = ingest_fleet(&s).await;
+    assert_eq!(made.len(), 390);
+    for last in [390usize, 150, 7] {
+        let all = s
+            .spc(
+                "R",
+                "keff_n_per_m",
+                Some(950.0),
+                Some(1050.0),
+                None,
+                None,
+                Some(last as i64),
+                false,
+            )
+            .await
+            .unwrap();
+        assert_eq!(all.len(), 1);
+        assert_eq!(all[0].station_id, None);
+        let t = truth(&made, last, None);
+        assert!(t.n > 1, "a window of {last} has points");
+        same_spc(&all[0].spc, &t, &format!("all stations, last {last}"));
+        let per = s
+            .spc(
+                "R",
+                "keff_n_per_m",
+                Some(950.0),
+                Some(1050.0),
+                None,
+                None,
+                Some(last as i64),
+                true,
+            )
+            .await
+            .unwrap();
+        let ids: Vec<Option<&str>> = per.iter().map(|g| g.station_id.as_deref()).collect();
+        if last >= 150 {
+            assert_eq!(ids, [Some("line-1"), Some("line-2"), Some("line-3")]);
+        }
+        for g in &per {
+            let t = truth(&made, last, g.station_id.as_deref());
+            same_spc(&g.spc, &t, &format!("{:?}, last {last}", g.station_id));
+        }
+    }
+    // The drifting line shows: its mean is 25 N/m above the others' (within the spread).
+    let per = s
+        .spc(
+            "R",
+            "keff_n_per_m",
+            Some(950.0),
+            Some(1050.0),
+            None,
+            None,
+            None,
+            true,
+        )
+        .await
+        .unwrap();
+    let mean = |i: usize| per[i].spc.mean.unwrap();
+    assert!(mean(2) - (mean(0) + mean(1)) / 2.0 > 10.0, "{per:?}");
+    // A time window: [since, until) on the station's times.
+    let (since, until) = (time(100), time(200));
+    let w = s
+        .spc(
+            "R",
+            "keff_n_per_m",
+            Some(950.0),
+            Some(1050.0),
+            Some(&since),
+            Some(&until),
+            None,
+            false,
+        )
+        .await
+        .unwrap();
+    let inside: Vec<Made> = made
+        .iter()
+        .filter(|m| m.time >= since && m.time < until)
+        .map(|m| Made {
+            station: m.station.clone(),
+            id: m.id.clone(),
+            job: m.job.clone(),
+            level: m.level,
+            value: m.value,
+            verdict: m.verdict,
+            time: m.time.clone(),
+        })
+        .collect();
+    same_spc(&w[0].spc, &truth(&inside, usize::MAX, None), "time window");
+    // Unknown parameter: no points, the invalid verdicts still counted.
+    let none = s
+        .spc("R", "no_such", None, None, None, None, Some(100), false)
+        .await
+        .unwrap();
+    assert_eq!(none[0].spc.n, 0);
+    assert_eq!(none[0].spc.mean, None);
+}
+
+#[tokio::test]
+async fn ingest_is_idempotent_reports_conflicts_and_gaps() {
+    let Some(s) = store("ingest_idempotent").await else {
+        return;
+    };
+    let st = s.hello(&hello("line-1", 4)).await.unwrap();
+    assert_eq!((st.backlog_items, st.items, st.last_seq), (4, 0, None));
+    let t = time(0);
+    let batch = vec![
+        measurement(1, "m-1", "P-1", Some("j-1"), None, 1000.0, "pass", &t),
+        measurement(2, "m-2", "P-1", Some("j-1"), None, 1010.0, "pass", &t),
+        ReplicationItem {
+            seq: 3,
+            body: ItemBody::JobVerdicts(JobVerdictsItem {
+                job_id: "j-1".into(),
+                part_serial: "P-1".into(),
+                verdicts: vec![VerdictItem {
+                    id: "v-j-1".into(),
+                    job_id: Some("j-1".into()),
+                    measurement_id: None,
+                    part_serial: "P-1".into(),
+                    recipe_name: "R".into(),
+                    recipe_version: 1,
+                    recipe_sha256: "ab".repeat(32),
+                    verdict: "pass".into(),
+                    detail: json!({"verdict": "pass"}),
+                    trace: json!({}),
+                    created_at: t.clone(),
+                }],
+            }),
+        },
+    ];
+    let r = s.ingest("line-1", &batch).await.unwrap();
+    assert_eq!((r.inserted, r.already_stored, r.conflicts.len()), (3, 0, 0));
+    let counts = s.counts().await.unwrap();
+    // 1 part, 2 measurements, 3 verdicts, 3 recordings (the job's pre once)
+    assert_eq!(counts, (1, 2, 3, 3));
+    // The same batch again (a lost acknowledgement): nothing twice.
+    let r = s.ingest("line-1", &batch).await.unwrap();
+    assert_eq!((r.inserted, r.already_stored, r.conflicts.len()), (0, 3, 0));
+    assert_eq!(s.counts().await.unwrap(), counts);
+    // Rows name their station.
+    let p = s.get_part("P-1").await.unwrap().unwrap();
+    assert_eq!(p.station_id.as_deref(), Some("line-1"));
+    assert_eq!(p.verdict.as_deref(), Some("pass"));
+    let hist = s
+        .list_measurements(Some("P-1"), None, None, 10)
+        .await
+        .unwrap();
+    assert!(hist
+        .iter()
+        .all(|m| m.station_id.as_deref() == Some("line-1")));
+    let v = s.measurement_verdict("m-1").await.unwrap().unwrap();
+    assert_eq!(v.station_id.as_deref(), Some("line-1"));
+
+    // Same id, other content: a conflict, the first copy stays.
+    let changed = measurement(4, "m-2", "P-1", Some("j-1"), None, 1234.0, "fail", &t);
+    // Another station sending an id line-1 holds.
+    let stolen = measurement(1, "m-1", "P-1", Some("j-1"), None, 1000.0, "pass", &t);
+    let r = s
+        .ingest("line-1", std::slice::from_ref(&changed))
+        .await
+        .unwrap();
+    assert_eq!(r.conflicts.len(), 1);
+    assert!(r.conflicts[0].reason.contains("another content"), "{r:?}");
+    let r = s.ingest("line-2", &[stolen]).await.unwrap();
+    assert_eq!(r.conflicts.len(), 1);
+    assert!(
+        r.conflicts[0].reason.contains("from station line-1"),
+        "{r:?}"
+    );
+    assert_eq!(s.counts().await.unwrap(), counts);
+    let (m2, _, _) = s.get_measurement("m-2").await.unwrap().unwrap();
+    assert_eq!(m2.summary["keff_n_per_m"], json!(1010.0));
+
+    // A gap in line-1's stream shows until it is filled.
+    let r = s
+        .ingest(
+            "line-1",
+            &[measurement(6, "m-6", "P-2", None, None, 990.0, "pass", &t)],
+        )
+        .await
+        .unwrap();
+    assert_eq!(r.inserted, 1);
+    let st = s.hello(&hello("line-1", 1)).await.unwrap();
+    // seq 4 was a conflict (kept in the log, not held), 5 never arrived.
+    assert_eq!((st.items, st.last_seq, st.missing_items), (4, Some(6), 2));
+    s.ingest(
+        "line-1",
+        &[
+            measurement(4, "m-4", "P-2", None, None, 995.0, "pass", &t),
+            measurement(5, "m-5", "P-2", None, None, 996.0, "pass", &t),
+        ],
+    )
+    .await
+    .unwrap();
+    let stations = s.stations().await.unwrap();
+    let l1 = stations.iter().find(|x| x.station_id == "line-1").unwrap();
+    assert_eq!((l1.items, l1.last_seq, l1.missing_items), (6, Some(6), 0));
+    assert_eq!(l1.bench_states[0].state, "idle");
+    // line-2 sent a batch without a hello: it is listed, and says so.
+    let l2 = stations.iter().find(|x| x.station_id == "line-2").unwrap();
+    assert!(l2.software_version.contains("no hello"), "{l2:?}");
+
+    // A batch that contradicts itself is refused whole.
+    let mut bad = measurement(7, "m-7", "P-3", None, None, 1.0, "pass", &t);
+    if let ItemBody::Measurement(m) = &mut bad.body {
+        m.verdicts[0].verdict = "maybe".into();
+    }
+    let ok = measurement(8, "m-8", "P-3", None, None, 1.0, "pass", &t);
+    match s.ingest("line-1", &[ok, bad]).await {
+        Err(StoreError::Invalid(e)) => assert!(e.contains("item 7") && e.contains("maybe"), "{e}"),
+        other => panic!("expected Invalid, got {other:?}"),
+    }
+    assert!(s.get_measurement("m-8").await.unwrap().is_none());
+    assert!(s.get_part("P-3").await.unwrap().is_none());
+    // A contract this center does not know is refused.
+    let mut h = hello("line-9", 0);
+    h.contract_version = 99;
+    assert!(matches!(s.hello(&h).await, Err(StoreError::Invalid(_))));
+}
+
+#[tokio::test]
+async fn corrections_and_voids_keep_an_audit_trail_and_leave_spc() {
+    let Some(s) = store("corrections").await else {
+        return;
+    };
+    let t = time(0);
+    let items: Vec<ReplicationItem> = [1000.0, 1020.0, 980.0, 1040.0]
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            measurement(
+                i as i64 + 1,
+                &format!("m-{i}"),
+                if i < 3 { "P-1" } else { "P-X" },
+                None,
+                None,
+                *v,
+                "pass",
+                &time(i),
+            )
+        })
+        .collect();
+    s.ingest("line-1", &items).await.unwrap();
+    let spc = |s: PgStore| async move {
+        s.spc("R", "keff_n_per_m", None, None, None, None, None, false)
+            .await
+            .unwrap()
+            .remove(0)
+            .spc
+    };
+    assert_eq!(spc(s.clone()).await.n, 4);
+    // A void from the station, replicated: the measurement stays, out of SPC.
+    let void = Correction {
+        id: "c-1".into(),
+        kind: "void_measurement".into(),
+        part_serial: "P-1".into(),
+        measurement_id: Some("m-1".into()),
+        old_value: None,
+        new_value: None,
+        reason: "clamp not closed".into(),
+        made_by: Some("admin".into()),
+        made_at: t.clone(),
+    };
+    let r = s
+        .ingest(
+            "line-1",
+            &[ReplicationItem {
+                seq: 5,
+                body: ItemBody::Correction(void.clone()),
+            }],
+        )
+        .await
+        .unwrap();
+    assert_eq!(r.inserted, 1);
+    assert!(s.get_measurement("m-1").await.unwrap().is_some());
+    assert_eq!(
+        s.measurement_void("m-1").await.unwrap().as_deref(),
+        Some("c-1")
+    );
+    let after = spc(s.clone()).await;
+    assert_eq!(after.n, 3);
+    // = core over the three left
+    let t3 = compute(
+        "k",
+        "N/m",
+        None,
+        None,
+        [1000.0, 980.0, 1040.0]
+            .iter()
+            .enumerate()
+            .map(|(i, v)| SpcPoint {
+                time: time(i),
+                part_serial: String::new(),
+                measurement_id: format!("{i}"),
+                job_id: None,
+                level_index: None,
+                value: *v,
+                repeats: 1,
+                verdict: VerdictKind::Pass,
+            })
+            .collect(),
+        0,
+    );
+    same_spc(&after, &t3, "after the void");
+    // A serial correction at the center: P-X was P-2.
+    let fix = Correction {
+        id: "c-2".into(),
+        kind: "part_serial".into(),
+        part_serial: "P-X".into(),
+        measurement_id: None,
+        old_value: Some("P-X".into()),
+        new_value: Some("P-2".into()),
+        reason: "label misread".into(),
+        made_by: Some("qe".into()),
+        made_at: t.clone(),
+    };
+    assert!(s.correct(&fix).await.unwrap());
+    assert!(!s.correct(&fix).await.unwrap(), "applied once");
+    let p2 = s.get_part("P-2").await.unwrap().unwrap();
+    assert_eq!(p2.measurement_count, 1);
+    let px = s
+        .get_part("P-X")
+        .await
+        .unwrap()
+        .expect("nothing is deleted");
+    assert_eq!(px.measurement_count, 0);
+    assert_eq!(
+        s.measurement_verdict("m-3")
+            .await
+            .unwrap()
+            .unwrap()
+            .part_serial,
+        "P-2"
+    );
+    // The kind, too.
+    let kind = Correction {
+        id: "c-3".into(),
+        kind: "part_kind".into(),
+        part_serial: "P-2".into(),
+        measurement_id: None,
+        old_value: Some("spider".into()),
+        new_value: Some("cone".into()),
+        reason: "wrong recipe chosen".into(),
+        made_by: None,
+        made_at: t.clone(),
+    };
+    assert!(s.correct(&kind).await.unwrap());
+    assert_eq!(
+        s.get_part("P-2").await.unwrap().unwrap().kind.as_deref(),
+        Some("cone")
+    );
+    // The audit trail, readable: all of it, and a part's (by its new serial too).
+    let log = s.audit_log(None, None, 10).await.unwrap();
+    let got: Vec<(&str, Option<&str>, &str)> = log
+        .iter()
+        .map(|e| {
+            (
+                e.correction.id.as_str(),
+                e.station_id.as_deref(),
+                e.correction.reason.as_str(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            ("c-1", Some("line-1"), "clamp not closed"),
+            ("c-2", None, "label misread"),
+            ("c-3", None, "wrong recipe chosen")
+        ]
+    );
+    let p2log = s.audit_log(Some("P-2"), None, 10).await.unwrap();
+    assert_eq!(p2log.len(), 2);
+    let page = s.audit_log(None, Some(log[0].seq), 1).await.unwrap();
+    assert_eq!(page[0].correction.id, "c-2");
+    // No reason, no correction.
+    let mut bad = kind.clone();
+    bad.id = "c-4".into();
+    bad.reason = " ".into();
+    assert!(matches!(s.correct(&bad).await, Err(StoreError::Invalid(_))));
+    // A void of a measurement the center does not have refuses the batch.
+    let mut ghost = void;
+    ghost.id = "c-5".into();
+    ghost.measurement_id = Some("nope".into());
+    assert!(matches!(
+        s.ingest(
+            "line-1",
+            &[ReplicationItem {
+                seq: 6,
+                body: ItemBody::Correction(ghost)
+            }]
+        )
+        .await,
+        Err(StoreError::Invalid(_))
+    ));
+}
+
+#[tokio::test]
+async fn a_stopped_server_mid_batch_stores_nothing_and_the_retry_all() {
+    const TEST: &str = "a_stopped_server_mid_batch";
+    if !can_start_private(TEST) {
+        return;
+    }
+    let mut server = TestServer::start(55433).expect("a private PostgreSQL starts");
+    let url = server.url();
+    let s = PgStore::connect(&url).await.unwrap();
+    let batch: Vec<ReplicationItem> = (0..50)
+        .map(|i| {
+            measurement(
+                i + 1,
+                &format!("m-{i}"),
+                &format!("P-{}", i / 5),
+                None,
+                None,
+                1000.0 + i as f64,
+                "pass",
+                &time(i as usize),
+            )
+        })
+        .collect();
+    // Another session holds the key of the batch's last item in an open
+    // transaction: the ingest stops there, in the middle of its
+    // transaction, until the server goes down.
+    let mut hold = sqlx::PgPool::connect(&url)
+        .await
+        .unwrap()
+        .begin()
+        .await
+        .unwrap();
+    sqlx::query(
+        "INSERT INTO station_items (item_id, station_id, seq, content_sha256, received_at) \
+         VALUES ('measurement:m-49', 'line-1', 50, 'x', 'now')",
+    )
+    .execute(&mut *hold)
+    .await
+    .unwrap();
+    let ingest = {
+        let s = s.clone();
+        let batch = batch.clone();
+        tokio::spawn(async move { s.ingest("line-1", &batch).await })
+    };
+    // Wait until the ingest waits for that lock (49 items written, uncommitted).
+    let watcher = sqlx::PgPool::connect(&url).await.unwrap();
+    let mut waited = 0;
+    loop {
+        let n: i64 = sqlx::query_scalar(
+            "SELECT COUNT(*) FROM pg_stat_activity WHERE wait_event_type = 'Lock' AND query LIKE 'INSERT INTO station_items%'",
+        )
+        .fetch_one(&watcher)
+        .await
+        .unwrap();
+        if n == 1 {
+            break;
+        }
+        waited += 1;
+        assert!(waited < 600, "the ingest never reached the held item");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    watcher.close().await;
+    server.stop().unwrap();
+    let r = ingest.await.unwrap();
+    assert!(
+        r.is_err(),
+        "the batch cannot commit without a server: {r:?}"
+    );
+    drop(hold);
+    server.start_again().unwrap();
+    // Nothing of the batch is there; the retry (same store, its pool
+    // reconnects) stores all of it, once.
+    assert_eq!(s.counts().await.unwrap(), (0, 0, 0, 0));
+    let r = s.ingest("line-1", &batch).await.unwrap();
+    assert_eq!((r.inserted, r.already_stored), (50, 0));
+    assert_eq!(s.counts().await.unwrap(), (10, 50, 50, 100));
+    let st = s.stations().await.unwrap();
+    assert_eq!((st[0].items, st[0].missing_items), (50, 0));
+    let r = s.ingest("line-1", &batch).await.unwrap();
+    assert_eq!((r.inserted, r.already_stored), (0, 50));
+    s.close().await;
+}
