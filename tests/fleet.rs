@@ -402,7 +402,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
                 "failed",
                 "invalid",
             ] {
-                close(&g[k], &own[k], &format!("{param} {id} {k}"));
+                close(&g["spc"][k], &own[k], &format!("{param} {id} {k}"));
             }
             invalid += own["invalid"].as_u64().unwrap() as usize;
             pooled.extend(serde_json::from_value::<Vec<SpcPoint>>(own["points"].clone()).unwrap());

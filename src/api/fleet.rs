@@ -316,20 +316,25 @@ async fn spc(
         })?;
     let (since, until) = (p.time("since")?, p.time("until")?);
     let last = window_last(&p, &since, &until)?;
-    let (s, u) = (since.as_deref(), until.as_deref());
-    let fleet = st
-        .store
-        .spc(&name, pname, spec.lower, spec.upper, s, u, last, false)
-        .await?;
-    let stations = st
-        .store
-        .spc(&name, pname, spec.lower, spec.upper, s, u, last, true)
-        .await?;
+    let unit = spec.unit();
+    let q = |per_station| springbench_store_pg::SpcQuery {
+        recipe: &name,
+        parameter: pname,
+        unit: &unit,
+        lower: spec.lower,
+        upper: spec.upper,
+        since: since.as_deref(),
+        until: until.as_deref(),
+        last,
+        per_station,
+    };
+    let fleet = st.store.spc(&q(false)).await?;
+    let stations = st.store.spc(&q(true)).await?;
     Ok(Json(json!({
         "recipe": name,
         "version": row.version,
         "parameter": pname,
-        "fleet": fleet.into_iter().next(),
+        "fleet": fleet.into_iter().next().map(|g| g.spc),
         "stations": stations,
     })))
 }
