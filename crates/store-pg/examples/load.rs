@@ -23,7 +23,7 @@ use springbench_store::fleet::{
     VerdictItem,
 };
 use springbench_store::results::{MeasurementReads, PartReads};
-use springbench_store_pg::PgStore;
+use springbench_store_pg::{PgStore, SpcQuery};
 use std::time::{Duration, Instant};
 
 struct Args {
@@ -320,20 +320,20 @@ async fn main() {
         for _ in 0..10 {
             let t = Instant::now();
             let g = s
-                .spc(
-                    "spider-80-1",
-                    "keff_n_per_m",
-                    Some(950.0),
-                    Some(1050.0),
-                    None,
-                    None,
-                    Some(100_000),
+                .spc(&SpcQuery {
+                    recipe: "spider-80-1",
+                    parameter: "keff_n_per_m",
+                    unit: "N/m",
+                    lower: Some(950.0),
+                    upper: Some(1050.0),
+                    last: Some(100_000),
                     per_station,
-                )
+                    ..Default::default()
+                })
                 .await
                 .unwrap();
             v.push(t.elapsed());
-            n = g.iter().map(|g| g.spc.n).sum::<i64>();
+            n = g.iter().map(|g| g.spc.n).sum::<usize>();
         }
         println!(
             "SPC last 100 000 verdicts of a recipe ({}; {n} points): {}",
@@ -346,14 +346,10 @@ async fn main() {
         );
     }
     // A part's history: its measurements, newest first, and the part.
-    // 50 parts drawn from those stored (a partial load holds some ranges only)
-    let sample: Vec<String> =
-        sqlx::query_scalar("SELECT serial FROM parts TABLESAMPLE SYSTEM (1) LIMIT 50")
-            .fetch_all(&sqlx::PgPool::connect(&a.url).await.unwrap())
-            .await
-            .unwrap();
     let mut v = Vec::new();
-    for serial in sample {
+    for k in 0..50 {
+        let part = (k * 7919) % (meas.max(2) as usize / 2);
+        let serial = serial_of(part, a.stations);
         let t = Instant::now();
         let p = s.get_part(&serial).await.unwrap();
         let h = s

@@ -8,43 +8,39 @@ use crate::ingest::apply_correction;
 use crate::reads::{meas_from_row, meas_select, recipe_cols, recipe_from_row};
 use crate::PgStore;
 use serde::Serialize;
-use springbench_core::qc::spc::{capability, D2};
+use springbench_core::qc::spc::{capability, Spc, D2};
 use springbench_store::fleet::Correction;
 use springbench_store::qc::{RecipeExpect, RecipeWrite};
 use springbench_store::results::MeasurementInfo;
 use springbench_store::{now, StoreResult};
 use sqlx::Row;
 
-/// The statistics of one parameter over a window, computed by PostgreSQL
-/// exactly as `core::qc::spc::compute` defines them: one point per part
-/// and job (and level), its repeats averaged; sigma the sample standard
-/// deviation; sigma_within the mean moving range / d2 in time order.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
-pub struct SpcSummary {
-    pub n: i64,
-    pub mean: Option<f64>,
-    pub sigma: Option<f64>,
-    pub sigma_within: Option<f64>,
+/// What [`PgStore::spc`] computes: parameter `parameter` (its `unit`, its
+/// limits) of recipe `recipe` (any version) over its newest `last`
+/// measurement verdicts, or those made in [since, until); every station
+/// together, or (`per_station`) each station as a subgroup of the same window.
+#[derive(Debug, Clone, Default)]
+pub struct SpcQuery<'a> {
+    pub recipe: &'a str,
+    pub parameter: &'a str,
+    pub unit: &'a str,
     pub lower: Option<f64>,
     pub upper: Option<f64>,
-    pub cp: Option<f64>,
-    pub cpk: Option<f64>,
-    pub pp: Option<f64>,
-    pub ppk: Option<f64>,
-    /// Passed / (passed + failed) over the points; None without either.
-    pub yield_fraction: Option<f64>,
-    pub passed: i64,
-    pub failed: i64,
-    /// Invalid verdicts in the window (they carry no value).
-    pub invalid: i64,
+    pub since: Option<&'a str>,
+    pub until: Option<&'a str>,
+    pub last: Option<i64>,
+    pub per_station: bool,
 }
 
 /// The SPC of one subgroup: a station, or (None) every station together.
+/// `spc` is `core::qc::spc::Spc` as `compute` defines it, computed by
+/// PostgreSQL (one point per part and job and level, its repeats
+/// averaged; sigma the sample standard deviation; sigma_within the mean
+/// moving range / d2 in time order), without the points themselves.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct SpcGroup {
     pub station_id: Option<String>,
-    #[serde(flatten)]
-    pub spc: SpcSummary,
+    pub spc: Spc,
 }
 
 /// Job verdicts of a recipe on one station and one day (UTC).
@@ -74,29 +70,31 @@ pub struct AuditEntry {
     pub applied_at: String,
 }
 
-fn summary(r: &sqlx::postgres::PgRow, lower: Option<f64>, upper: Option<f64>) -> SpcSummary {
-    let n: i64 = r.try_get("n").ok().flatten().unwrap_or(0);
-    let mean: Option<f64> = r.try_get("mean").ok().flatten();
-    let sigma: Option<f64> = r.try_get("sigma").ok().flatten();
-    let mr: Option<f64> = r.try_get("mr").ok().flatten();
-    let sigma_within = mr.map(|m| m / D2);
-    let passed: i64 = r.try_get("passed").ok().flatten().unwrap_or(0);
-    let failed: i64 = r.try_get("failed").ok().flatten().unwrap_or(0);
-    let (cp, cpk) = match (mean, sigma_within) {
-        (Some(m), Some(s)) => capability(lower, upper, m, s),
+fn summary(r: Option<&sqlx::postgres::PgRow>, q: &SpcQuery<'_>) -> Spc {
+    let get = |c: &str| -> Option<f64> { r.and_then(|r| r.try_get(c).ok().flatten()) };
+    let count = |c: &str| -> usize {
+        r.and_then(|r| r.try_get::<Option<i64>, _>(c).ok().flatten())
+            .unwrap_or(0) as usize
+    };
+    let (mean, sigma) = (get("mean"), get("sigma"));
+    let sigma_within = get("mr").map(|m| m / D2);
+    let (passed, failed) = (count("passed"), count("failed"));
+    let cap = |s: Option<f64>| match (mean, s) {
+        (Some(m), Some(s)) => capability(q.lower, q.upper, m, s),
         _ => (None, None),
     };
-    let (pp, ppk) = match (mean, sigma) {
-        (Some(m), Some(s)) => capability(lower, upper, m, s),
-        _ => (None, None),
-    };
-    SpcSummary {
-        n,
+    let (cp, cpk) = cap(sigma_within);
+    let (pp, ppk) = cap(sigma);
+    let limit = |k: f64| mean.zip(sigma_within).map(|(m, s)| m + k * s);
+    Spc {
+        parameter: q.parameter.to_string(),
+        unit: q.unit.to_string(),
+        n: count("n"),
         mean,
         sigma,
         sigma_within,
-        lower,
-        upper,
+        lower: q.lower,
+        upper: q.upper,
         cp,
         cpk,
         pp,
@@ -104,29 +102,18 @@ fn summary(r: &sqlx::postgres::PgRow, lower: Option<f64>, upper: Option<f64>) ->
         yield_fraction: (passed + failed > 0).then(|| passed as f64 / (passed + failed) as f64),
         passed,
         failed,
-        invalid: r.try_get("invalid").ok().flatten().unwrap_or(0),
+        invalid: count("invalid"),
+        center_line: mean,
+        ucl: limit(3.0),
+        lcl: limit(-3.0),
+        points: Vec::new(),
     }
 }
 
 impl PgStore {
-    /// SPC of `parameter` of recipe `recipe` (any version) over its newest
-    /// `last` measurement verdicts (or those made in [since, until)),
-    /// voided measurements left out: every station together
-    /// (`per_station` false: one group, station None) or each station as a
-    /// subgroup of the same window (one group per station, by id).
-    /// `lower` / `upper`: the recipe's limits of the parameter.
-    #[allow(clippy::too_many_arguments)]
-    pub async fn spc(
-        &self,
-        recipe: &str,
-        parameter: &str,
-        lower: Option<f64>,
-        upper: Option<f64>,
-        since: Option<&str>,
-        until: Option<&str>,
-        last: Option<i64>,
-        per_station: bool,
-    ) -> StoreResult<Vec<SpcGroup>> {
+    /// SPC in SQL aggregates ([`SpcQuery`]): one group (station None), or
+    /// one per station by id. Voided measurements are left out.
+    pub async fn spc(&self, q: &SpcQuery<'_>) -> StoreResult<Vec<SpcGroup>> {
         let rows = sqlx::query(
             "WITH w AS ( \
                SELECT seq, station_id, job_id, level_index, verdict FROM qc_verdicts \
@@ -148,44 +135,31 @@ impl PgStore {
                       COUNT(*) FILTER (WHERE verdict = 'fail') AS failed FROM d GROUP BY g), \
              inv AS ( \
                SELECT CASE WHEN $6 THEN station_id END AS g, COUNT(*) AS invalid FROM w \
-               WHERE verdict = 'invalid' GROUP BY 1) \
-             SELECT COALESCE(s.g, inv.g) AS g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
-             FROM s FULL JOIN inv ON COALESCE(s.g, '') = COALESCE(inv.g, '') ORDER BY 1 NULLS FIRST",
+               WHERE verdict = 'invalid' GROUP BY 1), \
+             k AS (SELECT g FROM s UNION SELECT g FROM inv) \
+             SELECT k.g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
+             FROM k LEFT JOIN s ON s.g IS NOT DISTINCT FROM k.g LEFT JOIN inv ON inv.g IS NOT DISTINCT FROM k.g \
+             ORDER BY 1 NULLS FIRST",
         )
-        .bind(recipe)
-        .bind(parameter)
-        .bind(since)
-        .bind(until)
-        .bind(last)
-        .bind(per_station)
+        .bind(q.recipe)
+        .bind(q.parameter)
+        .bind(q.since)
+        .bind(q.until)
+        .bind(q.last)
+        .bind(q.per_station)
         .fetch_all(&self.pool)
         .await?;
         let mut out: Vec<SpcGroup> = rows
             .iter()
             .map(|r| SpcGroup {
                 station_id: r.get("g"),
-                spc: summary(r, lower, upper),
+                spc: summary(Some(r), q),
             })
             .collect();
-        if out.is_empty() && !per_station {
+        if out.is_empty() && !q.per_station {
             out.push(SpcGroup {
                 station_id: None,
-                spc: SpcSummary {
-                    n: 0,
-                    mean: None,
-                    sigma: None,
-                    sigma_within: None,
-                    lower,
-                    upper,
-                    cp: None,
-                    cpk: None,
-                    pp: None,
-                    ppk: None,
-                    yield_fraction: None,
-                    passed: 0,
-                    failed: 0,
-                    invalid: 0,
-                },
+                spc: summary(None, q),
             });
         }
         Ok(out)

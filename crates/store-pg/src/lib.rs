@@ -18,7 +18,7 @@ mod ingest;
 mod reads;
 pub mod test_server;
 
-pub use center::{AuditEntry, SpcGroup, SpcSummary, YieldDay};
+pub use center::{AuditEntry, SpcGroup, SpcQuery, YieldDay};
 
 use springbench_store::{StoreError, StoreResult};
 use sqlx::postgres::{PgConnectOptions, PgPool, PgPoolOptions};

@@ -7,7 +7,7 @@
 //! server they print why and pass, unless `SPRINGBENCH_PG_TESTS=require`.
 
 use serde_json::json;
-use springbench_core::qc::spc::{compute, SpcPoint};
+use springbench_core::qc::spc::{compute, Spc, SpcPoint};
 use springbench_core::qc::VerdictKind;
 use springbench_store::fleet::{
     BenchState, CenterIngest, Correction, ItemBody, JobVerdictsItem, MeasurementItem,
@@ -16,7 +16,7 @@ use springbench_store::fleet::{
 use springbench_store::results::{MeasurementReads, NewRecording, PartReads, VerdictReads};
 use springbench_store::StoreError;
 use springbench_store_pg::test_server::{can_start_private, fresh_schema, url_or_skip, TestServer};
-use springbench_store_pg::{PgStore, SpcSummary};
+use springbench_store_pg::{PgStore, SpcQuery};
 
 async fn store(test: &str) -> Option<PgStore> {
     let url = url_or_skip(test)?;
@@ -145,11 +145,16 @@ fn close(a: Option<f64>, b: Option<f64>, what: &str) {
     }
 }
 
-fn same_spc(pg: &SpcSummary, core: &springbench_core::qc::spc::Spc, what: &str) {
-    assert_eq!(pg.n as usize, core.n, "{what}: n");
-    assert_eq!(pg.passed as usize, core.passed, "{what}: passed");
-    assert_eq!(pg.failed as usize, core.failed, "{what}: failed");
-    assert_eq!(pg.invalid as usize, core.invalid, "{what}: invalid");
+fn same_spc(pg: &Spc, core: &Spc, what: &str) {
+    assert_eq!(pg.n, core.n, "{what}: n");
+    assert_eq!(pg.passed, core.passed, "{what}: passed");
+    assert_eq!(pg.failed, core.failed, "{what}: failed");
+    assert_eq!(pg.invalid, core.invalid, "{what}: invalid");
+    assert_eq!(
+        (pg.lower, pg.upper),
+        (core.lower, core.upper),
+        "{what}: limits"
+    );
     close(pg.mean, core.mean, &format!("{what}: mean"));
     close(pg.sigma, core.sigma, &format!("{what}: sigma"));
     close(
@@ -257,7 +262,7 @@ async fn ingest_fleet(s: &PgStore) -> Vec<Made> {
 }
 
 /// `core::qc::spc::compute` over the newest `last` of `made` (of `station`).
-fn truth(made: &[Made], last: usize, station: Option<&str>) -> springbench_core::qc::spc::Spc {
+fn truth(made: &[Made], last: usize, station: Option<&str>) -> Spc {
     let window = &made[made.len().saturating_sub(last)..];
     let mut points = Vec::new();
     let mut invalid = 0;
@@ -294,6 +299,18 @@ fn truth(made: &[Made], last: usize, station: Option<&str>) -> springbench_core:
     )
 }
 
+/// Keff of recipe R with its limits, every verdict, all stations.
+fn keff() -> SpcQuery<'static> {
+    SpcQuery {
+        recipe: "R",
+        parameter: "keff_n_per_m",
+        unit: "N/m",
+        lower: Some(950.0),
+        upper: Some(1050.0),
+        ..Default::default()
+    }
+}
+
 #[tokio::test]
 async fn spc_in_sql_equals_core_across_and_per_station() {
     let Some(s) = store("spc_in_sql").await else {
@@ -303,16 +320,10 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     assert_eq!(made.len(), 390);
     for last in [390usize, 150, 7] {
         let all = s
-            .spc(
-                "R",
-                "keff_n_per_m",
-                Some(950.0),
-                Some(1050.0),
-                None,
-                None,
-                Some(last as i64),
-                false,
-            )
+            .spc(&SpcQuery {
+                last: Some(last as i64),
+                ..keff()
+            })
             .await
             .unwrap();
         assert_eq!(all.len(), 1);
@@ -321,16 +332,11 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
         assert!(t.n > 1, "a window of {last} has points");
         same_spc(&all[0].spc, &t, &format!("all stations, last {last}"));
         let per = s
-            .spc(
-                "R",
-                "keff_n_per_m",
-                Some(950.0),
-                Some(1050.0),
-                None,
-                None,
-                Some(last as i64),
-                true,
-            )
+            .spc(&SpcQuery {
+                last: Some(last as i64),
+                per_station: true,
+                ..keff()
+            })
             .await
             .unwrap();
         let ids: Vec<Option<&str>> = per.iter().map(|g| g.station_id.as_deref()).collect();
@@ -344,16 +350,10 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     }
     // The drifting line shows: its mean is 25 N/m above the others' (within the spread).
     let per = s
-        .spc(
-            "R",
-            "keff_n_per_m",
-            Some(950.0),
-            Some(1050.0),
-            None,
-            None,
-            None,
-            true,
-        )
+        .spc(&SpcQuery {
+            per_station: true,
+            ..keff()
+        })
         .await
         .unwrap();
     let mean = |i: usize| per[i].spc.mean.unwrap();
@@ -361,16 +361,11 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     // A time window: [since, until) on the station's times.
     let (since, until) = (time(100), time(200));
     let w = s
-        .spc(
-            "R",
-            "keff_n_per_m",
-            Some(950.0),
-            Some(1050.0),
-            Some(&since),
-            Some(&until),
-            None,
-            false,
-        )
+        .spc(&SpcQuery {
+            since: Some(&since),
+            until: Some(&until),
+            ..keff()
+        })
         .await
         .unwrap();
     let inside: Vec<Made> = made
@@ -389,7 +384,12 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     same_spc(&w[0].spc, &truth(&inside, usize::MAX, None), "time window");
     // Unknown parameter: no points, the invalid verdicts still counted.
     let none = s
-        .spc("R", "no_such", None, None, None, None, Some(100), false)
+        .spc(&SpcQuery {
+            recipe: "R",
+            parameter: "no_such",
+            last: Some(100),
+            ..Default::default()
+        })
         .await
         .unwrap();
     assert_eq!(none[0].spc.n, 0);
@@ -542,11 +542,15 @@ async fn corrections_and_voids_keep_an_audit_trail_and_leave_spc() {
         .collect();
     s.ingest("line-1", &items).await.unwrap();
     let spc = |s: PgStore| async move {
-        s.spc("R", "keff_n_per_m", None, None, None, None, None, false)
-            .await
-            .unwrap()
-            .remove(0)
-            .spc
+        s.spc(&SpcQuery {
+            lower: None,
+            upper: None,
+            ..keff()
+        })
+        .await
+        .unwrap()
+        .remove(0)
+        .spc
     };
     assert_eq!(spc(s.clone()).await.n, 4);
     // A void from the station, replicated: the measurement stays, out of SPC.
@@ -581,7 +585,7 @@ async fn corrections_and_voids_keep_an_audit_trail_and_leave_spc() {
     assert_eq!(after.n, 3);
     // = core over the three left
     let t3 = compute(
-        "k",
+        "keff_n_per_m",
         "N/m",
         None,
         None,
