@@ -8,13 +8,15 @@
 //! the same part and seed, analysed and judged as the runner does (analysis,
 //! Keff at the target, `qc::judge`).
 //!
-//! Run time: the lots run on two threads (CI has 2 cores). The spider_4in
-//! lot of the issue (30 parts) and a 12-part lot of each other preset run by
-//! default (about a minute of CPU per preset in the test profile);
-//! `SPRINGBENCH_PRODUCTION_FULL=1` (set by `.ci/run`) runs 30 parts of every
-//! preset. Nothing here asserts a wall time: bench time is the duration of
-//! the stimulus the procedure played and captured (sweeps and their
-//! silences), the time a real bench is busy with the part.
+//! Run time: the parts run on two threads (CI has 2 cores). Every preset's
+//! lot of 30 parts under both procedures took 116 s of CPU in the test
+//! profile (7 min wall on a machine shared with three other agents, about
+//! 1 min on two idle cores), so all of them run by default: no env var, no
+//! subset that CI could miss. Nothing here asserts a wall time: bench time
+//! is the duration of the stimulus the procedure played and captured
+//! (sweeps and their silences), the time a real bench is busy with the part.
+
+mod common;
 
 use springbench::bench::procedure::{self, Observer, Outcome, ProcedureConfig};
 use springbench::bench::virtual_bench::{VirtualBench, DEFAULT_LIMITS};
@@ -282,6 +284,7 @@ fn acceptance(l: &Line, n_good: usize, defects: &[Defect]) {
     let mut wrong = vec![];
     let mut times = vec![];
     let mut worst: Vec<(String, f64)> = vec![];
+    // The issue's 1 % quantities; the others are printed (docs/qc.md).
     let equiv = ["k0", "keff", "k_at_half"];
     for (p, (full, prod)) in parts.iter().zip(&results) {
         let vf = qc::judge(&rec, &full.facts);
@@ -304,16 +307,22 @@ fn acceptance(l: &Line, n_good: usize, defects: &[Defect]) {
         if run.fallback.is_none() {
             times.push(prod.outcome.bench_time_s);
             if vf.verdict != VerdictKind::Invalid && vp.verdict != VerdictKind::Invalid {
-                for n in equiv {
-                    let (a, b) = (value(&vf, n).unwrap(), value(&vp, n).unwrap());
-                    let rel = 100.0 * (b / a - 1.0);
+                // every judged quantity: relative deviation (%), model error in percentage points
+                for p_ in &vf.parameters {
+                    let n = p_.name.as_str();
+                    let (a, b) = (p_.value, value(&vp, n).unwrap());
+                    let dev = if n == "model_error" {
+                        b - a
+                    } else {
+                        100.0 * (b / a - 1.0)
+                    };
                     match worst.iter_mut().find(|w| w.0 == n) {
-                        Some(w) => w.1 = w.1.max(rel.abs()),
-                        None => worst.push((n.to_string(), rel.abs())),
+                        Some(w) => w.1 = w.1.max(dev.abs()),
+                        None => worst.push((n.to_string(), dev.abs())),
                     }
-                    if rel.abs() > 1.0 {
+                    if equiv.contains(&n) && dev.abs() > 1.0 {
                         wrong.push(format!(
-                            "{}: {n} full {a} production {b} ({rel:+.2} %)",
+                            "{}: {n} full {a} production {b} ({dev:+.2} %)",
                             p.serial
                         ));
                     }
@@ -335,7 +344,7 @@ fn acceptance(l: &Line, n_good: usize, defects: &[Defect]) {
     );
     eprintln!(
         "{}: {} parts, {} measured by the short procedure: bench time median {med:.2} s, max {max:.2} s \
-         (full procedure median {:.1} s); largest deviation from the full procedure (%): {worst:?}; fall-backs: {fallbacks:?}",
+         (full procedure median {:.1} s); largest deviation from the full procedure (%; model error in points): {worst:?}; fall-backs: {fallbacks:?}",
         l.preset,
         parts.len(),
         times.len(),
@@ -349,10 +358,6 @@ fn acceptance(l: &Line, n_good: usize, defects: &[Defect]) {
     );
     assert!(med <= 5.0, "{}: median bench time {med} s", l.preset);
     assert!(max <= 8.0, "{}: largest bench time {max} s", l.preset);
-}
-
-fn full_lots() -> bool {
-    std::env::var("SPRINGBENCH_PRODUCTION_FULL").is_ok_and(|v| v == "1")
 }
 
 const DEFECTS: [Defect; 5] = [
@@ -369,15 +374,11 @@ fn spider_4in_lot_agrees_with_the_full_procedure_in_a_5_s_cycle() {
     acceptance(&lines()[0], 23, &DEFECTS);
 }
 
-/// Every other preset with its own golden units (12 parts; 30 with SPRINGBENCH_PRODUCTION_FULL=1).
+/// Every other preset with its own golden units, the same lot of 30.
 #[test]
 fn every_other_preset_agrees_with_its_own_golden_units() {
     for l in &lines()[1..] {
-        if full_lots() {
-            acceptance(l, 23, &DEFECTS);
-        } else {
-            acceptance(l, 7, &DEFECTS[..3]);
-        }
+        acceptance(l, 23, &DEFECTS);
     }
 }
 
@@ -423,4 +424,234 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
         .production
         .and_then(|r| r.fallback)
         .is_some_and(|w| w.contains("no golden reference")));
+}
+
+/// Throughput benchmark (run by hand, not in CI: it takes about 3 minutes of
+/// wall time): one station bench, the virtual bench paced in real time
+/// (`procedure::pace::Paced`: every block handed on no earlier than a
+/// converter at 48 kHz would deliver it), each part measured, analysed and
+/// judged in turn as the runner does. Prints bench time, analysis time, wall
+/// time per part and parts per hour for both procedures side by side.
+/// `cargo test --test production -- --ignored --nocapture throughput`
+/// (`SPRINGBENCH_THROUGHPUT_PARTS=N`: production parts, default 10; the full
+/// procedure measures a third as many).
+#[test]
+#[ignore = "a benchmark: minutes of real-time bench; figures in docs/performance.md"]
+fn throughput_on_the_paced_virtual_bench() {
+    use springbench::bench::procedure::pace::Paced;
+    let l = &lines()[0];
+    let rec = approved_recipe(l);
+    let g = rec.procedure.golden.clone().unwrap();
+    let nominal = preset(l.preset).unwrap();
+    let n: u64 = std::env::var("SPRINGBENCH_THROUGHPUT_PARTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(10);
+    for (name, golden, parts) in [("full", None, n.div_ceil(3)), ("production", Some(&g), n)] {
+        let (mut bench_s, mut analysis_s) = (0.0, 0.0);
+        let t0 = std::time::Instant::now();
+        for i in 0..parts {
+            let p = part(&nominal, &Spread::default(), 500 + i, None);
+            let mut vb = Paced::new(VirtualBench::new(p.clone(), 500 + i));
+            let cfg = ProcedureConfig {
+                moving_mass_kg: p.moving_mass_kg,
+                levels_m: vec![l.level_m],
+                ..ProcedureConfig::default()
+            };
+            let out = match golden {
+                None => procedure::run(&mut vb, &cfg, &mut Quiet),
+                Some(g) => procedure::run_production(&mut vb, &cfg, Some(g), &mut Quiet),
+            }
+            .unwrap();
+            bench_s += out.bench_time_s;
+            let ta = std::time::Instant::now();
+            let mut meta =
+                springbench::recording::Meta::standard(p.moving_mass_kg, out.pre.sample_rate_hz);
+            meta.channels.drive = Some(2);
+            let set = springbench::recording::RecordingSet {
+                meta,
+                pre: out.pre.clone(),
+                main: out.narrow[0].signals.clone(),
+            };
+            let opts = AnalyzeOptions {
+                method: Method::TwoSignal,
+                order: Some(4),
+            };
+            let mut r = identify::analyze(&set, &opts).unwrap();
+            qc::set_keff_at_target(&mut r, Some(l.level_m));
+            let v = qc::judge(
+                &rec,
+                &RunFacts {
+                    report: Some(r),
+                    target_xpeak_m: Some(l.level_m),
+                    ..Default::default()
+                },
+            );
+            assert_ne!(v.verdict, VerdictKind::Invalid);
+            analysis_s += ta.elapsed().as_secs_f64();
+        }
+        let wall = t0.elapsed().as_secs_f64();
+        let k = parts as f64;
+        eprintln!(
+            "{name}: {parts} parts, bench time {:.2} s/part, analysis {:.3} s/part, wall {:.2} s/part, {:.0} parts per hour",
+            bench_s / k,
+            analysis_s / k,
+            wall / k,
+            3600.0 * k / wall
+        );
+    }
+}
+
+/// Through the daemon: a recipe in production mode measures its golden units
+/// with the full procedure (no reference yet, and says so), the approved
+/// limits carry the golden reference, a production job then runs the short
+/// procedure: its log, the verdict's traceability and /metrics say which
+/// procedure ran, with bench and analysis time and parts per hour; a job
+/// naming `"procedure": "full"` under the same recipe runs the full one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses() {
+    use serde_json::{json, Value};
+    const ADMIN: &str = "engineer-secret-0123456789";
+    let d = common::Daemon::start(
+        "[[auth.tokens]]\nname = \"qc-engineer\"\ntoken = \"engineer-secret-0123456789\"\nrole = \"admin\"\n\
+         [[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
+    );
+    let c = common::client();
+    let call = |m: reqwest::Method, path: &str, body: Option<Value>| {
+        let r = c.request(m, d.url(path)).bearer_auth(ADMIN);
+        let r = match body {
+            Some(b) => r.json(&b),
+            None => r,
+        };
+        async move {
+            let r = r.send().await.unwrap();
+            let s = r.status().as_u16();
+            let t = r.text().await.unwrap();
+            (
+                s,
+                serde_json::from_str::<Value>(&t).unwrap_or(Value::String(t)),
+            )
+        }
+    };
+    let rec = json!({"name": "spider-4in", "procedure": {"levels_m": [0.008], "order": 4, "mode": "production"},
+        "parameters": [{"name": "k0", "quantity": "k0"}, {"name": "keff", "quantity": "keff"},
+                       {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004},
+                       {"name": "model_error", "quantity": "model_error", "upper": 5.0}]});
+    let (s, r) = call(reqwest::Method::POST, "/api/v1/recipes", Some(rec)).await;
+    assert_eq!(s, 201, "{r}");
+    let job = |serial: &str, seed: u64, procedure: Option<&str>| {
+        let mut j = json!({"part": {"serial": serial}, "recipe": "spider-4in",
+                           "production": {"preset": "spider_4in", "seed": seed}});
+        if let Some(p) = procedure {
+            j["procedure"] = json!(p);
+        }
+        j
+    };
+    let run = |bodies: Vec<Value>| async {
+        let mut ids = vec![];
+        for b in bodies {
+            let (s, v) = call(reqwest::Method::POST, "/api/v1/jobs", Some(b)).await;
+            assert_eq!(s, 202, "{v}");
+            ids.push(v["id"].as_str().unwrap().to_string());
+        }
+        let mut out = vec![];
+        for id in ids {
+            let t = std::time::Instant::now();
+            let j = loop {
+                let (_, j) = call(reqwest::Method::GET, &format!("/api/v1/jobs/{id}"), None).await;
+                if common::terminal(j["state"].as_str().unwrap_or("")) {
+                    break j;
+                }
+                assert!(t.elapsed().as_secs() < 600, "{j}");
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            };
+            assert_eq!(j["state"], "succeeded", "{j}");
+            out.push(j);
+        }
+        out
+    };
+    let golden: Vec<Value> = (0..5)
+        .map(|i| job(&format!("G-{i}"), 100 + i, None))
+        .collect();
+    for j in run(golden).await {
+        let w = j["warnings"].to_string();
+        assert!(w.contains("no golden reference"), "{j}");
+    }
+    let serials: Vec<String> = (0..5).map(|i| format!("G-{i}")).collect();
+    let (s, p) = call(
+        reqwest::Method::POST,
+        "/api/v1/recipes/spider-4in/limit-proposals",
+        Some(json!({"serials": serials, "method": "k_sigma", "k": 6.0})),
+    )
+    .await;
+    assert_eq!(s, 201, "{p}");
+    let g = &p["proposal"]["recipe"]["procedure"]["golden"];
+    assert_eq!(g["units"], 5, "{p}");
+    let pid = p["id"].as_str().unwrap();
+    let (s, v2) = call(
+        reqwest::Method::POST,
+        &format!("/api/v1/limit-proposals/{pid}/approve"),
+        None,
+    )
+    .await;
+    assert_eq!(s, 201, "{v2}");
+
+    let done = run(vec![job("P-1", 500, None), job("P-2", 501, Some("full"))]).await;
+    let (prod, full) = (&done[0], &done[1]);
+    let bench_time = |j: &Value| j["bench_time_s"].as_f64().unwrap();
+    assert!(bench_time(prod) <= 5.0, "{prod}");
+    assert!(bench_time(full) > 30.0, "{full}");
+    assert!(prod["warnings"].as_array().unwrap().is_empty(), "{prod}");
+    let log = prod["log"].to_string();
+    assert!(log.contains("procedure production: bench time"), "{log}");
+    assert!(log.contains("analysis"), "{log}");
+    assert!(
+        full["log"]
+            .to_string()
+            .contains("procedure full: bench time"),
+        "{full}"
+    );
+    for (serial, mode) in [("P-1", "production"), ("P-2", "full")] {
+        let (s, v) = call(
+            reqwest::Method::GET,
+            &format!("/api/v1/parts/{serial}/verdict"),
+            None,
+        )
+        .await;
+        assert_eq!(s, 200, "{v}");
+        assert_eq!(v["verdict"], "pass", "{v}");
+        let t = &v["traceability"]["procedure"];
+        assert_eq!(t["mode"], mode, "{v}");
+        assert!(t["fallback"].is_null(), "{v}");
+    }
+    let (_, m) = call(reqwest::Method::GET, "/metrics", None).await;
+    let m = m.as_str().unwrap().to_string();
+    let line = |name: &str, mode: &str| {
+        m.lines()
+            .filter(|l| {
+                l.starts_with(&format!("{name}{{")) && l.contains(&format!("procedure=\"{mode}\""))
+            })
+            .map(|l| l.rsplit(' ').next().unwrap().parse::<f64>().unwrap())
+            .sum::<f64>()
+    };
+    // 5 golden units (full, fallen back) + P-1 in production; P-2 in full
+    assert_eq!(
+        line("springbench_parts_measured_total", "production"),
+        6.0,
+        "{m}"
+    );
+    assert_eq!(
+        line("springbench_production_fallbacks_total", "production"),
+        5.0,
+        "{m}"
+    );
+    assert_eq!(line("springbench_parts_measured_total", "full"), 1.0, "{m}");
+    assert!(
+        line("springbench_parts_per_hour", "production") > 0.0,
+        "{m}"
+    );
+    assert!(
+        line("springbench_bench_time_seconds_total", "full") > 30.0,
+        "{m}"
+    );
 }

@@ -23,11 +23,10 @@
 //! that hit it is redone lower; the drive never exceeds the bench's limit.
 
 use super::run::{
-    analyse, target_warning, validate, Ctx, Stop, NARROW_ABOVE_OCT, NARROW_BELOW_OCT, SEARCH_TOL,
-    SHORT_SILENCE_S,
+    analyse, validate, Ctx, Stop, NARROW_ABOVE_OCT, NARROW_BELOW_OCT, SEARCH_TOL, SHORT_SILENCE_S,
 };
 use super::sweep::SweepSpec;
-use super::{NarrowSweep, Observer, Outcome, ProcedureConfig, ProcedureError, ProductionRun, Step};
+use super::{Observer, Outcome, ProcedureConfig, ProcedureError, ProductionRun, Step};
 use crate::Bench;
 use springbench_core::qc::GoldenReference;
 
@@ -229,13 +228,9 @@ pub fn run_production(
         cx.log.push(format!("level far off: redo at {pre_v:.3} V"));
     }
     let Some((pre_spec, pre_sig, pre_q)) = pre else {
-        let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
-        return fall_back(
-            cx.bench,
+        return give_up(
+            cx,
             cfg,
-            cx.obs,
-            t,
-            log,
             "the short pre-measurement kept hitting the displacement limit".into(),
         );
     };
@@ -245,13 +240,9 @@ pub fn run_production(
     {
         Some(f) => f,
         None => {
-            let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
-            return fall_back(
-                cx.bench,
+            return give_up(
+                cx,
                 cfg,
-                cx.obs,
-                t,
-                log,
                 "the short pre-measurement gave no small-signal f0".into(),
             );
         }
@@ -262,13 +253,9 @@ pub fn run_production(
         g.f0_hz
     ));
     if dev_percent.abs() > g.max_f0_deviation_percent {
-        let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
-        return fall_back(
-            cx.bench,
+        return give_up(
+            cx,
             cfg,
-            cx.obs,
-            t,
-            log,
             format!(
                 "small-signal f0 {f0:.2} Hz is {dev_percent:+.1} % from the golden units' {:.2} Hz (more than {} %)",
                 g.f0_hz, g.max_f0_deviation_percent
@@ -328,7 +315,6 @@ pub fn run_production(
             // falls below the half-power point after its peak).
             let lo = spec.f_start_hz * 2f64.powf(1.0 / 3.0);
             if info.resonance_hz < lo || !info.crossed {
-                let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
                 let why = if info.crossed {
                     format!(
                         "less than 1/3 octave above the sweep's start {:.2} Hz",
@@ -340,12 +326,9 @@ pub fn run_production(
                         spec.f_end_hz
                     )
                 };
-                return fall_back(
-                    cx.bench,
+                return give_up(
+                    cx,
                     cfg,
-                    cx.obs,
-                    t,
-                    log,
                     format!(
                         "large-signal resonance {:.2} Hz at level {} {why}",
                         info.resonance_hz,
@@ -370,13 +353,9 @@ pub fn run_production(
                 // Two short sweeps did not hit the level: the part is too far
                 // from the golden units for their drive; the full search decides
                 // (and says when the target cannot be reached).
-                let (t, log) = (cx.elapsed_s, std::mem::take(&mut cx.log));
-                return fall_back(
-                    cx.bench,
+                return give_up(
+                    cx,
                     cfg,
-                    cx.obs,
-                    t,
-                    log,
                     format!(
                         "Xpeak {:.3} mm at level {} is {:.0} % of the target {:.3} mm at {v:.3} V{}",
                         info.xpeak_m * 1e3,
@@ -387,21 +366,7 @@ pub fn run_production(
                     ),
                 );
             }
-            let warning = target_warning(level, info.xpeak_m, v, vmax, lowered);
-            if let Some(w) = &warning {
-                cx.log.push(w.clone());
-            }
-            done = Some(NarrowSweep {
-                warning,
-                target_xpeak_m: level,
-                drive_v: v,
-                f_start_hz: spec.f_start_hz,
-                f_end_hz: spec.f_end_hz,
-                sweep: spec,
-                resonance_hz: info.resonance_hz,
-                xpeak_m: info.xpeak_m,
-                signals: played.sig,
-            });
+            done = Some(cx.keep_narrow(level, v, lowered, spec, &info, played.sig));
             break;
         }
         narrow.push(done.ok_or_else(|| {
@@ -426,6 +391,11 @@ pub fn run_production(
             short_bench_time_s: bench_time_s,
         }),
     })
+}
+
+/// The full procedure after what the short one played in `cx`, saying why.
+fn give_up(cx: Ctx<'_>, cfg: &ProcedureConfig, why: String) -> Result<Outcome, ProcedureError> {
+    fall_back(cx.bench, cfg, cx.obs, cx.elapsed_s, cx.log, why)
 }
 
 /// The full procedure after `spent_s` of the short one, saying why.

@@ -133,6 +133,36 @@ impl Ctx<'_> {
     }
 }
 
+impl Ctx<'_> {
+    /// The narrow sweep kept for `level` at drive `v`, with its warning
+    /// (logged) when the target was not reached.
+    pub(super) fn keep_narrow(
+        &mut self,
+        level: f64,
+        v: f64,
+        lowered: bool,
+        spec: SweepSpec,
+        info: &SweepInfo,
+        signals: Signals,
+    ) -> NarrowSweep {
+        let warning = target_warning(level, info.xpeak_m, v, self.limits.max_drive_v, lowered);
+        if let Some(w) = &warning {
+            self.log.push(w.clone());
+        }
+        NarrowSweep {
+            warning,
+            target_xpeak_m: level,
+            drive_v: v,
+            f_start_hz: spec.f_start_hz,
+            f_end_hz: spec.f_end_hz,
+            sweep: spec,
+            resonance_hz: info.resonance_hz,
+            xpeak_m: info.xpeak_m,
+            signals,
+        }
+    }
+}
+
 /// What a sweep tells: fundamental amplitude peak, resonance, gain.
 pub(super) struct SweepInfo {
     /// Largest fundamental amplitude of x (m).
@@ -238,7 +268,7 @@ pub(super) fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
 
 /// The warning of a narrow sweep whose Xpeak stayed more than the search
 /// tolerance below its target; None when the target was reached.
-pub(super) fn target_warning(
+fn target_warning(
     target_m: f64,
     reached_m: f64,
     drive_v: f64,
@@ -490,21 +520,7 @@ pub fn run(
                 level * 1e3,
                 info.resonance_hz
             ));
-            let warning = target_warning(level, info.xpeak_m, v, vmax, lowered);
-            if let Some(w) = &warning {
-                cx.log.push(w.clone());
-            }
-            done = Some(NarrowSweep {
-                warning,
-                target_xpeak_m: level,
-                drive_v: v,
-                f_start_hz: spec.f_start_hz,
-                f_end_hz: spec.f_end_hz,
-                sweep: spec,
-                resonance_hz: info.resonance_hz,
-                xpeak_m: info.xpeak_m,
-                signals: played.sig,
-            });
+            done = Some(cx.keep_narrow(level, v, lowered, spec, &info, played.sig));
             break;
         }
         narrow.push(done.ok_or_else(|| {
