@@ -24,8 +24,8 @@ fn run(part: &PartSpec, seed: u64) -> Diagnosis {
     diagnose(&set, &DiagnoseOptions::default()).unwrap()
 }
 
-fn unexplained(d: &Diagnosis) -> &serde_json::Value {
-    &d.report.diagnostics.as_ref().unwrap()["unexplained"]
+fn unexplained(d: &Diagnosis) -> serde_json::Value {
+    serde_json::to_value(&d.report.diagnostics).unwrap()["unexplained"].clone()
 }
 
 /// The 4" spider with `mass_kg` of its 50 g on a second mode at `f_hz`

@@ -39,7 +39,7 @@ fn p2_friction_ranks_first_and_force_within_20_percent() {
     let Some(d) = run("p2_spider_friction") else {
         return;
     };
-    let diag = d.report.diagnostics.unwrap();
+    let diag = serde_json::to_value(d.report.diagnostics.unwrap()).unwrap();
     let c = &diag["candidates"][0];
     assert_eq!(c["effect"], "coulomb_friction");
     assert_eq!(c["significant"], true);
@@ -53,7 +53,7 @@ fn p2_friction_ranks_first_and_force_within_20_percent() {
 fn p1_and_p3_show_nothing_significant() {
     for case in ["p1_spider", "p3_cone"] {
         let Some(d) = run(case) else { continue };
-        let diag = d.report.diagnostics.unwrap();
+        let diag = serde_json::to_value(d.report.diagnostics.unwrap()).unwrap();
         for c in diag["candidates"].as_array().unwrap() {
             assert_eq!(c["significant"], false, "{case}: {c}");
         }

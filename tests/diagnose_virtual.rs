@@ -89,7 +89,7 @@ fn check_single(id: EffectId) {
         let mut effects = Effects::default();
         let (param, truth) = random_effect(id, &mut rng, &mut effects);
         let d = run(&part_with(effects), 77 + seed);
-        let diag = d.report.diagnostics.as_ref().unwrap();
+        let diag = serde_json::to_value(d.report.diagnostics.as_ref().unwrap()).unwrap();
         let c = &diag["candidates"][0];
         let base_me = diag["base_model"]["model_error_percent"].as_f64().unwrap();
         let got = c["parameters"][param].as_f64().unwrap();
@@ -144,7 +144,7 @@ fn no_hidden_effect_no_false_discovery() {
     let mut min_p = 1.0f64;
     for seed in 0..seeds {
         let d = run(&part, 500 + seed);
-        let diag = d.report.diagnostics.unwrap();
+        let diag = serde_json::to_value(d.report.diagnostics.unwrap()).unwrap();
         let sig: Vec<String> = diag["candidates"]
             .as_array()
             .unwrap()
@@ -183,7 +183,7 @@ fn two_hidden_effects_ladder_adds_both() {
         got.contains(&EffectId::CoulombFriction) && got.contains(&EffectId::StiffnessDrift),
         "{got:?}"
     );
-    let diag = d.report.diagnostics.unwrap();
+    let diag = serde_json::to_value(d.report.diagnostics.unwrap()).unwrap();
     assert!(diag["ladder"].as_array().unwrap().len() >= 3);
 }
 
@@ -247,7 +247,7 @@ fn detection_against_effect_size() {
                 let mut part = part0.clone();
                 part.effects = e;
                 let d = run(&part, 300 + seed);
-                let diag = d.report.diagnostics.unwrap();
+                let diag = serde_json::to_value(d.report.diagnostics.unwrap()).unwrap();
                 let c = &diag["candidates"][0];
                 if c["effect"] == id.as_str() && c["significant"] == true {
                     found += 1;

@@ -99,7 +99,7 @@ fn joint_fit_separates_quadratic_damping_from_friction_and_k() {
     // The lowest level alone cannot tell v|v| damping from dry friction: the
     // pair is reported with the separating experiment (another level) ...
     let low = diagnose(&sets[0], &DiagnoseOptions::default()).unwrap();
-    let amb = &low.report.diagnostics.as_ref().unwrap()["ambiguities"];
+    let amb = serde_json::to_value(&low.report.diagnostics).unwrap()["ambiguities"].clone();
     eprintln!("3 mm level alone: ambiguities {amb}");
     let pair = amb
         .as_array()

@@ -467,12 +467,12 @@ fn second_mode_on_the_spider_is_named() {
         let r = diagnose(&sim.set, &DiagnoseOptions::default())
             .unwrap()
             .report;
-        let u = &r.diagnostics.as_ref().unwrap()["unexplained"];
+        let u = serde_json::to_value(&r.diagnostics).unwrap()["unexplained"].clone();
         eprintln!(
             "second mode seed {seed}: headline {:?}, small-signal {:?}, ladder {}, resonance {}, experiments {}",
             r.model.effects.ids(),
             r.small_signal.as_ref().map(|s| s.effects.ids()),
-            r.diagnostics.as_ref().unwrap()["ladder"],
+            serde_json::to_value(&r.diagnostics).unwrap()["ladder"],
             u["resonance"],
             u["experiments"]
         );

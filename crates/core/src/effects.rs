@@ -242,6 +242,24 @@ impl Effects {
         self.ids().is_empty()
     }
 
+    /// The parameters of effect `id` as (name, SI value), in the order of
+    /// [`EffectId::parameter_names`]; None when the effect is absent.
+    pub fn parameters(&self, id: EffectId) -> Option<Vec<(&'static str, f64)>> {
+        let values = match id {
+            EffectId::CoulombFriction => self
+                .coulomb_friction
+                .map(|e| vec![e.force_n, e.v_eps_m_per_s]),
+            EffectId::QuadraticDamping => self.quadratic_damping.map(|e| vec![e.coeff_ns2_per_m2]),
+            EffectId::DampingVsDisplacement => self
+                .damping_vs_displacement
+                .map(|e| vec![e.r1_ns_per_m2, e.r2_ns_per_m3]),
+            EffectId::Creep => self.creep.map(|e| vec![e.k_n_per_m, e.tau_s]),
+            EffectId::StiffnessDrift => self.stiffness_drift.map(|e| vec![e.dk0_dt_n_per_m_s]),
+            EffectId::ChannelDelay => self.channel_delay.map(|e| vec![e.delay_s]),
+        }?;
+        Some(id.parameter_names().iter().copied().zip(values).collect())
+    }
+
     /// Checks that parameters are finite and physically possible; one-line error naming the field.
     pub fn validate(&self) -> Result<(), String> {
         let finite = |name: &str, v: f64| {

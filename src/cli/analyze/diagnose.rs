@@ -67,7 +67,7 @@ pub fn run(set: &RecordingSet, args: &AnalyzeArgs) -> Result<(), String> {
         };
         let s = crate::diagnose::series::fit_series_sets(&sets, &eopts)?;
         if let Some(d) = diagnosis.report.diagnostics.as_mut() {
-            d["series"] = serde_json::to_value(&s).unwrap_or_default();
+            d.series = Some(s.clone());
         }
         Some(s)
     };
@@ -173,21 +173,19 @@ pub fn table(diagnosis: &Diagnosis) -> String {
     let Some(d) = &r.diagnostics else {
         return s;
     };
-    if let Some(p) = d["final_model"]["parameters"].as_object() {
-        for (id, params) in p {
-            let se = &d["final_model"]["parameters_se"][id];
-            let mut parts = Vec::new();
-            if let Some(obj) = params.as_object() {
-                for (k, v) in obj {
-                    let v = v.as_f64().unwrap_or(f64::NAN);
-                    match se[k].as_f64() {
-                        Some(e) => parts.push(format!("{k} = {v:.4e} +- {e:.1e}")),
-                        None => parts.push(format!("{k} = {v:.4e}")),
-                    }
-                }
+    let fm = &d.final_model;
+    let mut ids = fm.parameters.ids();
+    ids.sort_by_key(|id| id.as_str());
+    for id in ids {
+        let se = &fm.parameters_se[id.as_str()];
+        let mut parts = Vec::new();
+        for (k, v) in fm.parameters.parameters(id).unwrap_or_default() {
+            match se[k].as_f64() {
+                Some(e) => parts.push(format!("{k} = {v:.4e} +- {e:.1e}")),
+                None => parts.push(format!("{k} = {v:.4e}")),
             }
-            let _ = writeln!(s, "  {id}: {}", parts.join(", "));
         }
+        let _ = writeln!(s, "  {}: {}", id.as_str(), parts.join(", "));
     }
     let _ = writeln!(s, "\ncandidates (held-out error reduction, best first):");
     let _ = writeln!(
@@ -195,22 +193,18 @@ pub fn table(diagnosis: &Diagnosis) -> String {
         "  {:<25} {:>10} {:>11} {:>10} {:>8}  parameters",
         "effect", "reduction", "significant", "p", "VIF"
     );
-    for c in d["candidates"].as_array().into_iter().flatten() {
+    for c in &d.candidates {
         let _ = writeln!(
             s,
             "  {:<25} {:>9.1}% {:>11} {:>10.1e} {:>8.1}  {}",
-            c["effect"].as_str().unwrap_or("?"),
-            c["error_reduction_percent"].as_f64().unwrap_or(f64::NAN),
-            if c["significant"].as_bool() == Some(true) {
-                "yes"
-            } else {
-                "no"
-            },
-            c["p_value"].as_f64().unwrap_or(f64::NAN),
-            c["variance_inflation"].as_f64().unwrap_or(f64::NAN),
-            c["parameters"]
+            c.effect,
+            c.error_reduction_percent,
+            if c.significant { "yes" } else { "no" },
+            c.p_value,
+            c.variance_inflation,
+            c.parameters
         );
-        if let Some(note) = c["note"].as_str() {
+        if let Some(note) = &c.note {
             let _ = writeln!(s, "      {note}");
         }
     }
@@ -220,21 +214,17 @@ pub fn table(diagnosis: &Diagnosis) -> String {
         "  {:<50} {:>10} {:>13}",
         "effects", "residual", "model error"
     );
-    for st in d["ladder"].as_array().into_iter().flatten() {
-        let eff: Vec<&str> = st["effects"]
-            .as_array()
-            .map(|a| a.iter().filter_map(|e| e.as_str()).collect())
-            .unwrap_or_default();
+    for st in &d.ladder {
         let _ = writeln!(
             s,
             "  {:<50} {:>9.3}% {:>12.3}%",
-            if eff.is_empty() {
+            if st.effects.is_empty() {
                 "base".to_string()
             } else {
-                eff.join(", ")
+                st.effects.join(", ")
             },
-            st["cv_residual_percent"].as_f64().unwrap_or(f64::NAN),
-            st["model_error_percent"].as_f64().unwrap_or(f64::NAN)
+            st.cv_residual_percent,
+            st.model_error_percent
         );
     }
     // The warnings are printed with the analysis tables (cli::analyze::table).

@@ -254,17 +254,3 @@ pub fn small_signal(
         )),
     )
 }
-
-/// The small-signal model's diagnostics (no plot data): what was tested on
-/// the pre-measurement and what was chosen.
-pub fn small_signal_json(pre: &EngineResult) -> serde_json::Value {
-    serde_json::json!({
-        "candidates": pre.candidates,
-        "ladder": pre.ladder,
-        "base_model": pre.base,
-        "final_model": pre.model,
-        "noise_floor_percent": pre.noise_floor_percent,
-        "model_error_percent": pre.model_error_percent,
-        "base_model_error_percent": pre.base_model_error_percent,
-    })
-}

@@ -14,6 +14,7 @@ pub mod synth;
 pub mod unexplained;
 
 use crate::effects::EffectId;
+use crate::identify::diagnostics::{Ambiguity, SmallSignalComparison};
 use crate::identify::{AnalyzeOptions, ForceBalanceData, Report};
 use crate::recording::RecordingSet;
 use serde::{Deserialize, Serialize};
@@ -70,7 +71,6 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     }
     let result = diagnose_data(&data, &engine_opts).map_err(DiagnoseError::Invalid)?;
     warnings.extend(result.skipped.iter().cloned());
-    let mut diagnostics = result.diagnostics_json(&data);
     // Beyond the library: what the chosen model leaves, described; and a
     // resonance of its own in the pre-measurement's wide band (a second mode).
     let mut unexplained = unexplained::describe(
@@ -150,8 +150,8 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         l.keff_n_per_m
             .mark(crate::identify::validity::State::Unreliable, &why);
     }
-    diagnostics["ambiguities"] =
-        serde_json::Value::Array(ambiguities(&data, &result, &engine_opts));
+    let ambiguities = ambiguities(&data, &result, &engine_opts);
+    let mut small_signal_model = None;
     // The small-signal model: the same engine on the pre-measurement (creep,
     // friction and delay show below resonance), k0, f0 and Q from its choice.
     if let Some(plain) = report.small_signal.clone() {
@@ -226,12 +226,11 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
                     ));
                 }
                 report.small_signal = Some(ss);
-                let mut sj = headline::small_signal_json(&pre);
+                let mut sm = pre.small_signal_model();
                 if pre_unexplained.present {
-                    sj["unexplained"] =
-                        serde_json::to_value(&pre_unexplained).unwrap_or_default();
+                    sm.unexplained = Some(pre_unexplained);
                 }
-                diagnostics["small_signal_model"] = sj;
+                small_signal_model = Some(sm);
             }
             Err(e) => warnings.push(format!(
                 "small-signal model with effects not fitted ({e}); small-signal values are the linear resonator's"
@@ -262,10 +261,10 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         }
         unexplained.parameters_not_claimed = ids;
     }
-    diagnostics["unexplained"] = serde_json::to_value(&unexplained).unwrap_or_default();
-    if let Some(ss) = small_signal_comparison(set, &report, &pre_spectra) {
-        diagnostics["comparison"]["small_signal"] = ss;
-    }
+    let mut diagnostics = result.diagnostics(&data, unexplained);
+    diagnostics.ambiguities = ambiguities;
+    diagnostics.small_signal_model = small_signal_model;
+    diagnostics.comparison.small_signal = small_signal_comparison(set, &report, &pre_spectra);
     report.diagnostics = Some(diagnostics);
     for step in result.ladder.iter().skip(1) {
         if let Some(added) = &step.added {
@@ -290,7 +289,7 @@ pub fn ambiguities(
     d: &ForceBalanceData,
     r: &engine::EngineResult,
     opts: &engine::EngineOptions,
-) -> Vec<serde_json::Value> {
+) -> Vec<Ambiguity> {
     let mut out = Vec::new();
     let find = |name: &str| r.candidates.iter().find(|c| c.effect == name);
     for added in r.ladder.iter().filter_map(|s| s.added.as_deref()) {
@@ -328,16 +327,16 @@ pub fn ambiguities(
                 continue;
             }
             let exp = engine::Term::Effect(eb).separating_experiment();
-            out.push(serde_json::json!({
-                "effects": [a.effect, b.effect],
-                "error_reduction_percent": [a.error_reduction_percent, b.error_reduction_percent],
-                "p_value_of_first_after_second": a_after_b.map(|c| c.p_value),
-                "separating_experiment": exp,
-                "note": format!(
+            out.push(Ambiguity {
+                note: format!(
                     "this data cannot separate {} from {} (they remove {:.0} % and {:.0} % of the base model's error, and neither is significant once the other is in); the ladder kept {}; to separate them: {}",
                     a.effect, b.effect, a.error_reduction_percent, b.error_reduction_percent, a.effect, exp
                 ),
-            }));
+                effects: [a.effect.clone(), b.effect.clone()],
+                error_reduction_percent: [a.error_reduction_percent, b.error_reduction_percent],
+                p_value_of_first_after_second: a_after_b.map(|c| c.p_value),
+                separating_experiment: exp.to_string(),
+            });
         }
     }
     out
@@ -350,7 +349,7 @@ fn small_signal_comparison(
     set: &RecordingSet,
     report: &Report,
     pre_spectra: &crate::identify::PreSpectra,
-) -> Option<serde_json::Value> {
+) -> Option<SmallSignalComparison> {
     let ss = report.small_signal.as_ref()?;
     let area = ss.force_per_mic_v_n_per_v?;
     let (k0, r) = (ss.k0_n_per_m?, ss.r_ns_per_m?);
@@ -388,14 +387,14 @@ fn small_signal_comparison(
         fit.push(area.abs() / den.norm());
         coh.push(tf.coherence[i]);
     }
-    Some(serde_json::json!({
-        "freq_hz": f,
-        "measured_abs_m_per_v": meas,
-        "fit_abs_m_per_v": fit,
-        "coherence": coh,
-        "reliable": ss.reliable,
-        "misfit_percent": ss.misfit_percent,
-    }))
+    Some(SmallSignalComparison {
+        freq_hz: f,
+        measured_abs_m_per_v: meas,
+        fit_abs_m_per_v: fit,
+        coherence: coh,
+        reliable: ss.reliable,
+        misfit_percent: ss.misfit_percent,
+    })
 }
 
 /// The engine on force-balance data (no recording set needed).

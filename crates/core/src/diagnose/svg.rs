@@ -2,7 +2,7 @@
 //! drawn from the `diagnostics` document alone, so the daemon can serve
 //! stored diagnoses without the recordings.
 
-use serde_json::Value;
+use crate::identify::diagnostics::Diagnostics;
 use std::fmt::Write;
 
 pub const PLOT_NAMES: &[&str] = &[
@@ -429,10 +429,9 @@ pub fn xy_chart(
     )
 }
 
-fn nums(v: &Value) -> Vec<f64> {
-    v.as_array()
-        .map(|a| a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect())
-        .unwrap_or_default()
+/// Bin means with empty bins as gaps (NaN is not drawn).
+fn gaps(v: &[Option<f64>]) -> Vec<f64> {
+    v.iter().map(|x| x.unwrap_or(f64::NAN)).collect()
 }
 
 fn zip(x: &[f64], y: &[f64]) -> Vec<(f64, f64)> {
@@ -447,32 +446,20 @@ fn series(name: &str, x: &[f64], y: &[f64], dashed: bool) -> Series {
     }
 }
 
-fn ladder_chart(d: &Value) -> String {
+fn ladder_chart(d: &Diagnostics) -> String {
     const H: f64 = 440.0;
     const B: f64 = 92.0;
-    let steps = d["ladder"].as_array().cloned().unwrap_or_default();
-    let nf = d["noise_floor_percent"].as_f64().unwrap_or(0.0);
-    let vals: Vec<(String, f64, f64)> = steps
+    let nf = d.noise_floor_percent;
+    let vals: Vec<(String, f64, f64)> = d
+        .ladder
         .iter()
         .map(|s| {
-            let eff: Vec<String> = s["effects"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|e| e.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default();
-            let label = match s["added"].as_str() {
+            let label = match &s.added {
                 Some(a) => format!("+ {a}"),
-                None if eff.is_empty() => "base model".into(),
-                None => format!("base + {}", eff.join(", ")),
+                None if s.effects.is_empty() => "base model".into(),
+                None => format!("base + {}", s.effects.join(", ")),
             };
-            (
-                label,
-                s["model_error_percent"].as_f64().unwrap_or(0.0),
-                s["cv_residual_percent"].as_f64().unwrap_or(0.0),
-            )
+            (label, s.model_error_percent, s.cv_residual_percent)
         })
         .collect();
     let ymax = vals
@@ -576,17 +563,15 @@ fn ladder_chart(d: &Value) -> String {
 }
 
 /// Renders the plot `name` from a diagnostics document.
-pub fn render(d: &Value, name: &str) -> Option<String> {
-    let c = &d["comparison"];
+pub fn render(d: &Diagnostics, name: &str) -> Option<String> {
+    let c = &d.comparison;
     match name {
         "model_vs_measurement" => {
-            let det = &c["detail"];
-            let t = nums(&det["t_s"]);
-            let meas = nums(&det["measured_force_n"]);
-            let fin = nums(&det["modelled_force_n"]);
-            let base = nums(&det["base_modelled_force_n"]);
+            let det = &c.detail;
+            let (t, meas) = (&det.t_s, &det.measured_force_n);
+            let (fin, base) = (&det.modelled_force_n, &det.base_modelled_force_n);
             let diff = |m: &[f64]| -> Vec<f64> { meas.iter().zip(m).map(|(a, b)| a - b).collect() };
-            let noise = c["noise_rms_n"].as_f64().filter(|v| v.is_finite());
+            let noise = Some(c.noise_rms_n).filter(|v| v.is_finite());
             Some(line_chart(&Chart {
                 title: "Force balance at the largest excursion: measured m x'' against the models",
                 xlabel: "time t (s)",
@@ -597,9 +582,9 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                         ylabel: "force (N)",
                         log_y: false,
                         series: vec![
-                            series("measured m x''", &t, &meas, false),
-                            series("final model", &t, &fin, true),
-                            series("base model", &t, &base, true),
+                            series("measured m x''", t, meas, false),
+                            series("final model", t, fin, true),
+                            series("base model", t, base, true),
                         ],
                         hbands: vec![],
                     },
@@ -607,8 +592,8 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                         ylabel: "residual force (N)",
                         log_y: false,
                         series: vec![
-                            series("residual, base model", &t, &diff(&base), false),
-                            series("residual, final model", &t, &diff(&fin), false),
+                            series("residual, base model", t, &diff(base), false),
+                            series("residual, final model", t, &diff(fin), false),
                         ],
                         hbands: noise
                             .map(|n| vec![(-n, n, "+-1 noise RMS".to_string())])
@@ -618,8 +603,8 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
             }))
         }
         "residual_over_time" => {
-            let e = &c["envelope"];
-            let t = nums(&e["t_s"]);
+            let e = &c.envelope;
+            let t = &e.t_s;
             Some(single(
                 "Residual over the sweep (RMS per segment)",
                 "time t (s)",
@@ -627,25 +612,15 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                 (false, true),
                 vec![],
                 vec![
-                    series("measured m x''", &t, &nums(&e["measured_rms_n"]), false),
-                    series(
-                        "residual, base model",
-                        &t,
-                        &nums(&e["base_residual_rms_n"]),
-                        false,
-                    ),
-                    series(
-                        "residual, final model",
-                        &t,
-                        &nums(&e["residual_rms_n"]),
-                        false,
-                    ),
+                    series("measured m x''", t, &e.measured_rms_n, false),
+                    series("residual, base model", t, &e.base_residual_rms_n, false),
+                    series("residual, final model", t, &e.residual_rms_n, false),
                 ],
             ))
         }
         "residual_vs_x" => {
-            let r = &c["residual_vs_x"];
-            let x: Vec<f64> = nums(&r["x_m"]).iter().map(|v| v * 1e3).collect();
+            let r = &c.residual_vs_x;
+            let x: Vec<f64> = r.x_m.iter().map(|v| v * 1e3).collect();
             Some(single(
                 "Mean residual against displacement, split by the sign of v",
                 "displacement x (mm)",
@@ -653,16 +628,16 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                 (false, false),
                 vec![],
                 vec![
-                    series("base, v > 0", &x, &nums(&r["base"]["positive_v_n"]), false),
-                    series("base, v < 0", &x, &nums(&r["base"]["negative_v_n"]), false),
-                    series("final, v > 0", &x, &nums(&r["final"]["positive_v_n"]), true),
-                    series("final, v < 0", &x, &nums(&r["final"]["negative_v_n"]), true),
+                    series("base, v > 0", &x, &gaps(&r.base.positive_v_n), false),
+                    series("base, v < 0", &x, &gaps(&r.base.negative_v_n), false),
+                    series("final, v > 0", &x, &gaps(&r.final_model.positive_v_n), true),
+                    series("final, v < 0", &x, &gaps(&r.final_model.negative_v_n), true),
                 ],
             ))
         }
         "residual_vs_v" => {
-            let r = &c["residual_vs_v"];
-            let v = nums(&r["v_m_per_s"]);
+            let r = &c.residual_vs_v;
+            let v = &r.v_m_per_s;
             Some(single(
                 "Mean residual against velocity",
                 "velocity v (m/s)",
@@ -670,45 +645,26 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                 (false, false),
                 vec![],
                 vec![
-                    series("base model", &v, &nums(&r["base_n"]), false),
-                    series("final model", &v, &nums(&r["final_n"]), false),
+                    series("base model", v, &gaps(&r.base_n), false),
+                    series("final model", v, &gaps(&r.final_n), false),
                 ],
             ))
         }
         "residual_spectrum" => {
-            let sp = &c["spectrum"];
-            let f = nums(&sp["freq_hz"]);
-            let bands = sp["harmonic_bands_hz"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .enumerate()
-                        .map(|(i, b)| {
-                            (
-                                b[0].as_f64().unwrap_or(0.0),
-                                b[1].as_f64().unwrap_or(0.0),
-                                format!("{}f", i + 1),
-                            )
-                        })
-                        .collect()
-                })
-                .unwrap_or_default();
-            let mut s = vec![series(
-                "residual, final model",
-                &f,
-                &nums(&sp["psd_n2_per_hz"]),
-                false,
-            )];
-            let base = nums(&sp["base_psd_n2_per_hz"]);
+            let sp = &c.spectrum;
+            let f = &sp.freq_hz;
+            let bands = sp
+                .harmonic_bands_hz
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (b[0], b[1], format!("{}f", i + 1)))
+                .collect();
+            let mut s = vec![series("residual, final model", f, &sp.psd_n2_per_hz, false)];
+            let base = gaps(&sp.base_psd_n2_per_hz);
             if base.iter().any(|v| v.is_finite()) {
-                s.push(series("residual, base model", &f, &base, false));
+                s.push(series("residual, base model", f, &base, false));
             }
-            s.push(series(
-                "noise floor",
-                &f,
-                &nums(&sp["noise_psd_n2_per_hz"]),
-                true,
-            ));
+            s.push(series("noise floor", f, &sp.noise_psd_n2_per_hz, true));
             Some(single(
                 "Residual spectrum; shaded: harmonics 1f, 2f, ... of the swept fundamental",
                 "frequency f (Hz)",
@@ -720,8 +676,8 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
         }
         "ladder" => Some(ladder_chart(d)),
         "small_signal" => {
-            let ss = c.get("small_signal")?;
-            let f = nums(&ss["freq_hz"]);
+            let ss = c.small_signal.as_ref()?;
+            let f = &ss.freq_hz;
             Some(single(
                 "Small signal: |X/Mic| of the pre-measurement against the resonator fit",
                 "frequency f (Hz)",
@@ -729,13 +685,8 @@ pub fn render(d: &Value, name: &str) -> Option<String> {
                 (true, true),
                 vec![],
                 vec![
-                    series("measured", &f, &nums(&ss["measured_abs_m_per_v"]), false),
-                    series(
-                        "linear resonator fit",
-                        &f,
-                        &nums(&ss["fit_abs_m_per_v"]),
-                        true,
-                    ),
+                    series("measured", f, &ss.measured_abs_m_per_v, false),
+                    series("linear resonator fit", f, &ss.fit_abs_m_per_v, true),
                 ],
             ))
         }

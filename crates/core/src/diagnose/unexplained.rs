@@ -12,7 +12,6 @@
 use super::regress::{block_bounds, BlockGram};
 use super::stats::f_upper_p;
 use crate::identify::ForceBalanceData;
-use serde::{Deserialize, Serialize};
 
 /// Structure is "clearly above the noise" when the model error left by the
 /// ladder is at least this fraction of the noise floor (the residual RMS
@@ -29,49 +28,7 @@ pub const ALPHA: f64 = 0.01;
 /// Harmonic orders of the motion's phase examined.
 pub const HARMONICS: usize = 6;
 
-/// One description of the remaining structure.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Probe {
-    /// `harmonic_1`..`harmonic_6`, `function_of_x`, `function_of_v`,
-    /// `x_with_direction`, `acceleration`, `x_along_the_sweep`, `v_along_the_sweep`.
-    pub name: String,
-    /// Share of the structured residual variance this probe explains (%).
-    pub share_percent: f64,
-    pub p_value: f64,
-    pub significant: bool,
-}
-
-/// What the model leaves unexplained.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Unexplained {
-    /// True when the model error stays above `NOISE_RATIO` x the noise
-    /// floor: the model misses structure (the probes describe it when they can).
-    pub present: bool,
-    pub model_error_percent: f64,
-    pub noise_floor_percent: f64,
-    /// Harmonic orders of the fundamental that carry the structure.
-    pub harmonic_orders: Vec<usize>,
-    /// "even", "odd", "both" or "none".
-    pub parity: String,
-    pub probes: Vec<Probe>,
-    /// One sentence: what the structure looks like.
-    pub signature: String,
-    /// Experiments that would tell more.
-    pub experiments: Vec<String>,
-    /// Effects in the chosen models (main and small-signal) whose
-    /// parameters may stand in for the unexplained structure: reported, not
-    /// claimed as measured. Empty when nothing is unexplained.
-    #[serde(default)]
-    pub parameters_not_claimed: Vec<String>,
-    /// A resonance at a fixed frequency of its own in the pre-measurement's
-    /// wide-band transfer function (a second mechanical mode), when found.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub resonance: Option<crate::identify::WideBandResonance>,
-    /// A few words for the states' reasons ("model error 1.2 % over a
-    /// noise floor of 1.5 %", "a resonance at 74 Hz").
-    #[serde(skip)]
-    pub short: String,
-}
+pub use crate::identify::diagnostics::{Probe, Unexplained};
 
 /// The experiment that tells a resonance at a fixed frequency from a change
 /// over time (a log sweep moves both together).

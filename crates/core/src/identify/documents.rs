@@ -98,7 +98,7 @@ pub struct JointFit {
     pub candidates: Vec<CandidateResult>,
     /// Effect pairs the joint data still cannot separate (as
     /// `diagnostics.ambiguities`).
-    pub ambiguities: Vec<serde_json::Value>,
+    pub ambiguities: Vec<super::diagnostics::Ambiguity>,
 }
 
 /// What a series fit returns.

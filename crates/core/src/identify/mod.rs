@@ -36,8 +36,13 @@ pub struct Report {
     /// Human-readable warnings (one line each), e.g. "pre-measurement unreliable: ...".
     pub warnings: Vec<String>,
     /// Filled by `diagnose` (candidates, ladder, ...); None from a plain analysis.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub diagnostics: Option<serde_json::Value>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "diagnostics::sorted"
+    )]
+    #[schema(value_type = Object)]
+    pub diagnostics: Option<diagnostics::Diagnostics>,
     /// Level series (a daemon job with two or more `levels_m`): K(x), R and
     /// the effects fitted jointly over all levels of the measurement's
     /// repeat, beside each level's own fit (`diagnose::series`). The same
@@ -275,6 +280,7 @@ pub enum AnalyzeError {
     Invalid(String),
 }
 
+pub mod diagnostics;
 pub mod documents;
 pub mod large;
 mod prep;

@@ -2,46 +2,14 @@
 //! and the `diagnostics` document with the comparison data the plots draw.
 
 use crate::diagnose::spectrum;
-use crate::effects::{EffectId, Effects};
+use crate::identify::diagnostics::{
+    ByDirection, Comparison, Detail, Diagnostics, Envelope, MethodNotes, ModelSummary,
+    ResidualSpectrumPlot, ResidualVsV, ResidualVsX, SmallSignalModel, Unexplained,
+};
 use crate::identify::documents::{CandidateResult, LadderStep};
 use crate::identify::ForceBalanceData;
-use serde::{Deserialize, Serialize};
 
-/// Fitted model: what is in it and how well it explains the data.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FittedModel {
-    pub order: usize,
-    /// Effects in the model in the order they were added (forced first).
-    pub effect_ids: Vec<EffectId>,
-    pub effects: Effects,
-    /// Standard errors of the effect parameters (same names), block-robust.
-    pub effects_se: serde_json::Value,
-    /// K(x) = sum k_i x^i (N/m, x in m) of this model; with stiffness
-    /// drift in the model, K(x) at the start of the recording (`reference_time_s`).
-    pub stiffness_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
-    /// Block-robust standard errors of the coefficients (same units).
-    #[serde(default)]
-    pub stiffness_coefficients_se_n_per_m_pow_i_plus_1: Vec<f64>,
-    /// Time (s from the start of the recording) K(x) refers to; None when
-    /// nothing in the model changes K over time.
-    #[serde(default)]
-    pub reference_time_s: Option<f64>,
-    pub r_ns_per_m: f64,
-    #[serde(default)]
-    pub r_se_ns_per_m: f64,
-    pub force_per_mic_n_per_v: f64,
-    pub residual_percent: f64,
-    /// Residual of blocked cross-validation (held-out data).
-    pub cv_residual_percent: f64,
-    /// Block-robust covariance of the K(x) coefficients (row-major, same
-    /// units as the coefficients): for derived figures such as Keff.
-    #[serde(skip)]
-    pub stiffness_covariance: Vec<Vec<f64>>,
-    /// K(0) changes by this much per second (N/m/s) when stiffness drift is
-    /// in the model (K(x) above holds at `reference_time_s`).
-    #[serde(skip)]
-    pub dk0_dt_n_per_m_s: f64,
-}
+pub use crate::identify::diagnostics::FittedModel;
 
 /// Everything the engine found.
 #[derive(Debug, Clone, PartialEq)]
@@ -78,39 +46,39 @@ impl EngineResult {
         }
     }
 
-    /// The `diagnostics` document (issue 5 names plus the comparison data the plots draw).
-    pub fn diagnostics_json(&self, d: &ForceBalanceData) -> serde_json::Value {
-        use serde_json::json;
-        let describe = |m: &FittedModel, me: f64| {
-            json!({
-                "effects": m.effect_ids.iter().map(|e| e.as_str()).collect::<Vec<_>>(),
-                "parameters": m.effects,
-                "parameters_se": m.effects_se,
-                "order": m.order,
-                "stiffness_coefficients_n_per_m_pow_i_plus_1": m.stiffness_coefficients_n_per_m_pow_i_plus_1,
-                "r_ns_per_m": m.r_ns_per_m,
-                "force_per_mic_n_per_v": m.force_per_mic_n_per_v,
-                "residual_percent": m.residual_percent,
-                "cv_residual_percent": m.cv_residual_percent,
-                "model_error_percent": me,
-            })
-        };
-        json!({
-            "candidates": self.candidates,
-            "ladder": self.ladder,
-            "base_model": describe(&self.base, self.base_model_error_percent),
-            "final_model": describe(&self.model, self.model_error_percent),
-            "noise_floor_percent": self.noise_floor_percent,
-            "order_note": self.order_note,
-            "method": {
-                "cross_validation": "blocked, 5 contiguous folds of 8 time blocks each",
-                "test": "Wald test with batch-means (40 contiguous blocks) covariance, Bonferroni over candidates; hyper-parameter searches count 5 times",
-                "identifiability": "variance inflation of the candidate's regressors against the model's; above 200 and not significant: cannot tell from this data",
-                "relevance": "a significant candidate removes at least 5 % of the held-out model error (noise floor of the step's residual)",
-                "model_error": "sqrt(residual^2 - noise_floor^2), residual on held-out blocks for candidates and ladder",
-            },
-            "comparison": comparison(self, d),
-        })
+    /// The `diagnostics` document of this result: the ranked candidates,
+    /// the ladder, both models and the comparison data the plots draw. The
+    /// ambiguities, the small-signal model and what stays unexplained are
+    /// filled in by `diagnose::diagnose`.
+    pub fn diagnostics(&self, d: &ForceBalanceData, unexplained: Unexplained) -> Diagnostics {
+        Diagnostics {
+            candidates: self.candidates.clone(),
+            ladder: self.ladder.clone(),
+            base_model: ModelSummary::new(&self.base, self.base_model_error_percent),
+            final_model: ModelSummary::new(&self.model, self.model_error_percent),
+            noise_floor_percent: self.noise_floor_percent,
+            order_note: self.order_note.clone(),
+            method: MethodNotes::default(),
+            comparison: comparison(self, d),
+            ambiguities: vec![],
+            small_signal_model: None,
+            unexplained,
+            series: None,
+        }
+    }
+
+    /// The small-signal model's part of the document (no plot data).
+    pub fn small_signal_model(&self) -> SmallSignalModel {
+        SmallSignalModel {
+            candidates: self.candidates.clone(),
+            ladder: self.ladder.clone(),
+            base_model: self.base.clone(),
+            final_model: self.model.clone(),
+            noise_floor_percent: self.noise_floor_percent,
+            model_error_percent: self.model_error_percent,
+            base_model_error_percent: self.base_model_error_percent,
+            unexplained: None,
+        }
     }
 }
 
@@ -163,8 +131,7 @@ pub fn fundamental_range_hz(x: &[f64], fs: f64) -> Option<(f64, f64)> {
     Some((f[f.len() / 20], f[f.len() - 1 - f.len() / 20]))
 }
 
-fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
-    use serde_json::json;
+fn comparison(r: &EngineResult, d: &ForceBalanceData) -> Comparison {
     let n = d.x_m.len();
     let fs = d.sample_rate_hz;
     let y: Vec<f64> = d.a_m_per_s2.iter().map(|a| a * d.mass_kg).collect();
@@ -176,13 +143,13 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
     let (s, e) = (imax.saturating_sub(half), (imax + half).min(n));
     let step = ((e - s) / 600).max(1);
     let idx: Vec<usize> = (s..e).step_by(step).collect();
-    let detail = json!({
-        "t_s": idx.iter().map(|&i| d.t0_s + i as f64 / fs).collect::<Vec<_>>(),
-        "x_m": idx.iter().map(|&i| d.x_m[i]).collect::<Vec<_>>(),
-        "measured_force_n": idx.iter().map(|&i| y[i]).collect::<Vec<_>>(),
-        "modelled_force_n": idx.iter().map(|&i| r.modelled_force_n[i]).collect::<Vec<_>>(),
-        "base_modelled_force_n": idx.iter().map(|&i| y[i] - r.base_residual_n[i]).collect::<Vec<_>>(),
-    });
+    let detail = Detail {
+        t_s: idx.iter().map(|&i| d.t0_s + i as f64 / fs).collect(),
+        x_m: idx.iter().map(|&i| d.x_m[i]).collect(),
+        measured_force_n: idx.iter().map(|&i| y[i]).collect(),
+        modelled_force_n: idx.iter().map(|&i| r.modelled_force_n[i]).collect(),
+        base_modelled_force_n: idx.iter().map(|&i| y[i] - r.base_residual_n[i]).collect(),
+    };
     // Envelope: RMS per bucket over the whole record.
     let buckets = 200.min(n);
     let rms = |sig: &[f64], a: usize, b: usize| {
@@ -215,11 +182,9 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
             .collect()
     };
     let v = &d.v_m_per_s;
-    let vs_x = |res: &[f64]| {
-        json!({
-            "positive_v_n": mean_by_bins(&d.x_m, res, |i| v[i] > 0.0, xlo, xhi, nb),
-            "negative_v_n": mean_by_bins(&d.x_m, res, |i| v[i] <= 0.0, xlo, xhi, nb),
-        })
+    let vs_x = |res: &[f64]| ByDirection {
+        positive_v_n: mean_by_bins(&d.x_m, res, |i| v[i] > 0.0, xlo, xhi, nb),
+        negative_v_n: mean_by_bins(&d.x_m, res, |i| v[i] <= 0.0, xlo, xhi, nb),
     };
     let vs_v = |res: &[f64]| mean_by_bins(v, res, |_| true, vlo, vhi, nb);
     // Samples per bin: a bin mean of white noise of RMS sigma scatters by sigma / sqrt(count).
@@ -268,16 +233,38 @@ fn comparison(r: &EngineResult, d: &ForceBalanceData) -> serde_json::Value {
         Some((lo, hi)) => (1..=10).map(|h| [h as f64 * lo, h as f64 * hi]).collect(),
         None => vec![],
     };
-    json!({
-        "detail": detail,
-        "envelope": {"t_s": env_t, "measured_rms_n": env_m, "residual_rms_n": env_r, "base_residual_rms_n": env_b},
-        "noise_rms_n": noise_rms_n,
-        "residual_vs_x": {"x_m": centres(xlo, xhi), "final": vs_x(&r.residual_n), "base": vs_x(&r.base_residual_n),
-            "positive_v_count": counts(&d.x_m, &|i| v[i] > 0.0, xlo, xhi),
-            "negative_v_count": counts(&d.x_m, &|i| v[i] <= 0.0, xlo, xhi)},
-        "residual_vs_v": {"v_m_per_s": centres(vlo, vhi), "final_n": vs_v(&r.residual_n), "base_n": vs_v(&r.base_residual_n),
-            "count": counts(v, &|_| true, vlo, vhi)},
-        "spectrum": {"freq_hz": f_out, "psd_n2_per_hz": p_out, "base_psd_n2_per_hz": b_out.into_iter().map(|v| v.is_finite().then_some(v)).collect::<Vec<_>>(),
-            "noise_psd_n2_per_hz": n_out, "harmonic_bands_hz": bands},
-    })
+    Comparison {
+        detail,
+        envelope: Envelope {
+            t_s: env_t,
+            measured_rms_n: env_m,
+            residual_rms_n: env_r,
+            base_residual_rms_n: env_b,
+        },
+        noise_rms_n,
+        residual_vs_x: ResidualVsX {
+            x_m: centres(xlo, xhi),
+            final_model: vs_x(&r.residual_n),
+            base: vs_x(&r.base_residual_n),
+            positive_v_count: counts(&d.x_m, &|i| v[i] > 0.0, xlo, xhi),
+            negative_v_count: counts(&d.x_m, &|i| v[i] <= 0.0, xlo, xhi),
+        },
+        residual_vs_v: ResidualVsV {
+            v_m_per_s: centres(vlo, vhi),
+            final_n: vs_v(&r.residual_n),
+            base_n: vs_v(&r.base_residual_n),
+            count: counts(v, &|_| true, vlo, vhi),
+        },
+        spectrum: ResidualSpectrumPlot {
+            freq_hz: f_out,
+            psd_n2_per_hz: p_out,
+            base_psd_n2_per_hz: b_out
+                .into_iter()
+                .map(|v| v.is_finite().then_some(v))
+                .collect(),
+            noise_psd_n2_per_hz: n_out,
+            harmonic_bands_hz: bands,
+        },
+        small_signal: None,
+    }
 }
