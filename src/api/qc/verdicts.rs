@@ -1,0 +1,194 @@
+//! Verdicts of a part and a job, and SPC of a recipe, over HTTP.
+
+use crate::api::problem::{ApiResult, Problem};
+use crate::api::{AppState, Q};
+use crate::qc::Recipe;
+use crate::store::{RecipeReads, VerdictReads};
+use axum::extract::{Path, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+/// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
+#[utoipa::path(get, path = "/api/v1/parts/{serial}/verdict", tag = "qc",
+    summary = "The newest job verdict of a part (what a station shows).",
+    params(("serial" = String, Path, description = "Part serial")),
+    responses(
+        (status = 200, description = "Verdict", body = crate::store::qc::VerdictRow),
+        (status = 404, description = "No verdict for this part")))]
+pub async fn part_verdict(
+    State(st): State<AppState>,
+    Path(serial): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let v = st
+        .store
+        .part_verdict(&serial)
+        .await?
+        .ok_or_else(|| Problem::not_found("verdict of part", &serial))?;
+    Ok(Json(serde_json::to_value(&v).map_err(Problem::internal)?))
+}
+
+/// `GET /api/v1/jobs/{id}/verdict`: the job's verdict and its measurements'.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/verdict", tag = "qc",
+    summary = "A job's verdict and, under `measurements`, the verdict of each of its measurements.",
+    params(("id" = String, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "Verdicts", body = crate::api::schema::JobVerdict),
+        (status = 404, description = "No verdict for this job")))]
+pub async fn job_verdict(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let v = st.store.job_verdicts(&id).await?;
+    let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
+        return Err(Problem::not_found("verdict of job", &id));
+    };
+    let mut doc = serde_json::to_value(job).map_err(Problem::internal)?;
+    doc["measurements"] = serde_json::to_value(
+        v.iter()
+            .filter(|x| x.measurement_id.is_some())
+            .collect::<Vec<_>>(),
+    )
+    .map_err(Problem::internal)?;
+    Ok(Json(doc))
+}
+
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct SpcQuery {
+    /// The recipe parameter's name (required).
+    parameter: Option<String>,
+    /// The newest N verdicts (1-100000; default 100 without since/until).
+    last: Option<i64>,
+    #[param(format = DateTime)]
+    since: Option<String>,
+    #[param(format = DateTime)]
+    until: Option<String>,
+    /// `json` (default) or `csv` (the chart points).
+    #[param(pattern = "^(json|csv)$")]
+    format: Option<String>,
+}
+
+/// A time filter value: RFC 3339, normalised to the stored form (UTC, milliseconds).
+pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
+    match s {
+        None | Some("") => Ok(None),
+        Some(s) => chrono::DateTime::parse_from_rfc3339(s)
+            .map(|t| {
+                Some(
+                    t.with_timezone(&chrono::Utc)
+                        .to_rfc3339_opts(chrono::SecondsFormat::Millis, true),
+                )
+            })
+            .map_err(|e| Problem::field(field, format!("must be an RFC 3339 time: {e}"))),
+    }
+}
+
+/// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/spc", tag = "qc",
+    summary = "SPC of one parameter over a window of valid measurement verdicts, one point per part and job (and level): a job's repeats are averaged into one point. n (points), mean, sigma (overall), sigma_within (average moving range of the points / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
+    params(("name" = String, Path, description = "Recipe name"), SpcQuery),
+    responses(
+        (status = 200, description = "SPC", content(
+            (crate::api::schema::SpcDocument = "application/json"),
+            (String = "text/csv"))),
+        (status = 404, description = "No such recipe"),
+        (status = 422, description = "A bad or missing query parameter")))]
+pub async fn spc(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+    Q(q): Q<SpcQuery>,
+) -> ApiResult<Response> {
+    let row = st
+        .store
+        .get_recipe(&name, None)
+        .await?
+        .ok_or_else(|| Problem::not_found("recipe", &name))?;
+    let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let csv = match q.format.as_deref() {
+        None | Some("") | Some("json") => false,
+        Some("csv") => true,
+        Some(f) => return Err(Problem::field("format", format!("json or csv, got '{f}'"))),
+    };
+    let since = parse_time("since", q.since.as_deref())?;
+    let until = parse_time("until", q.until.as_deref())?;
+    let last = match q.last {
+        None if since.is_none() && until.is_none() => Some(100),
+        None => None,
+        Some(n) if (1..=100_000).contains(&n) => Some(n),
+        Some(n) => {
+            return Err(Problem::field(
+                "last",
+                format!("must be 1 to 100000, got {n}"),
+            ))
+        }
+    };
+    let Some(pname) = q.parameter.clone() else {
+        return Err(Problem::field(
+            "parameter",
+            format!(
+                "required: one of {}",
+                recipe
+                    .parameters
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        ));
+    };
+    let Some(spec) = recipe.parameters.iter().find(|p| p.name == pname) else {
+        return Err(Problem::field(
+            "parameter",
+            format!("recipe '{name}' has no parameter '{pname}'"),
+        ));
+    };
+    let rows = st
+        .store
+        .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
+        .await?;
+    let mut points = Vec::new();
+    let mut invalid = 0;
+    for r in &rows {
+        let v: crate::qc::Verdict = match serde_json::from_value(r.detail.clone()) {
+            Ok(v) => v,
+            Err(_) => continue,
+        };
+        if v.verdict == crate::qc::VerdictKind::Invalid {
+            invalid += 1;
+            continue;
+        }
+        if let Some(p) = v.parameters.iter().find(|p| p.name == pname) {
+            points.push(crate::qc::spc::SpcPoint {
+                time: r.created_at.clone(),
+                part_serial: r.part_serial.clone(),
+                measurement_id: r.measurement_id.clone().unwrap_or_default(),
+                job_id: r.job_id.clone(),
+                level_index: r.level_index,
+                value: p.value,
+                repeats: 1,
+                verdict: v.verdict,
+            });
+        }
+    }
+    let s = crate::qc::spc::compute(
+        &pname,
+        &spec.unit(),
+        spec.lower,
+        spec.upper,
+        points,
+        invalid,
+    );
+    if csv {
+        return Ok((
+            [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+            crate::qc::spc::to_csv(&s),
+        )
+            .into_response());
+    }
+    let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
+    doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
+    Ok(Json(doc).into_response())
+}
