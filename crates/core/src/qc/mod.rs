@@ -14,6 +14,7 @@
 
 mod apply;
 pub mod cfx;
+pub mod grr;
 pub mod limits;
 pub mod production;
 mod recipe;
