@@ -60,15 +60,37 @@ pub async fn submit(
             }
         },
     };
+    match enqueue(&st, caller.0, &body, key.as_deref()).await? {
+        Inserted::New(j) => Ok(job_response(StatusCode::ACCEPTED, &j, false)),
+        Inserted::Replayed(j) => Ok(job_response(StatusCode::OK, &j, true)),
+        Inserted::Conflict(j) => Err(Problem::new(
+            StatusCode::CONFLICT,
+            "idempotency-conflict",
+            "Idempotency key reused",
+            "this Idempotency-Key was used before with another request body",
+        )
+        .with_extra(json!({"job_id": j.id}))),
+    }
+}
+
+/// Checks a job request (a recipe's procedure filled in), stores it as
+/// queued and wakes its bench: the path of `POST /api/v1/jobs` and of the
+/// runs of a gauge study. A new job's `job.state` event is published.
+pub(crate) async fn enqueue(
+    st: &AppState,
+    submitted_by: Option<String>,
+    body: &Value,
+    key: Option<&str>,
+) -> ApiResult<Inserted> {
     // Refused (503) rather than acknowledged when its results could not be kept.
     st.store.check_space(st.cfg.min_free_bytes)?;
     // serde_json maps are sorted: the text is canonical for equal bodies.
     let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
     // Parsed once into the typed request; a recipe fills in its procedure
     // settings (and names the version judged by), read once.
-    let parsed = crate::job::parse_lenient::<job::JobRequest>(&body);
+    let parsed = crate::job::parse_lenient::<job::JobRequest>(body);
     let recipe = match parsed.0.as_ref().and_then(|r| r.recipe.as_deref()) {
-        Some(name) => Some(super::qc::recipe_for_job(&st, name).await?),
+        Some(name) => Some(super::qc::recipe_for_job(st, name).await?),
         None => None,
     };
     let mut spec = job::JobRequest::check(parsed, &job::admission(&st.cfg), |r| match &recipe {
@@ -86,7 +108,7 @@ pub async fn submit(
         spec.part.kind = r.recipe.part_kind.clone();
     }
     spec.recipe = recipe.map(|r| r.reference);
-    spec.submitted_by = caller.0;
+    spec.submitted_by = submitted_by;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
     let id = new_id();
     let inserted = st
@@ -102,31 +124,21 @@ pub async fn submit(
             spec.priority,
             &request,
             &sha,
-            key.as_deref(),
+            key,
         )
         .await?;
-    match inserted {
-        Inserted::New(j) => {
-            st.runner
-                .events()
-                .publish(
-                    "job.state",
-                    Some(&j.id),
-                    json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id}),
-                )
-                .await?;
-            st.runner.wake(&j.bench_id);
-            Ok(job_response(StatusCode::ACCEPTED, &j, false))
-        }
-        Inserted::Replayed(j) => Ok(job_response(StatusCode::OK, &j, true)),
-        Inserted::Conflict(j) => Err(Problem::new(
-            StatusCode::CONFLICT,
-            "idempotency-conflict",
-            "Idempotency key reused",
-            "this Idempotency-Key was used before with another request body",
-        )
-        .with_extra(json!({"job_id": j.id}))),
+    if let Inserted::New(j) = &inserted {
+        st.runner
+            .events()
+            .publish(
+                "job.state",
+                Some(&j.id),
+                json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id}),
+            )
+            .await?;
+        st.runner.wake(&j.bench_id);
     }
+    Ok(inserted)
 }
 
 fn hex(b: &[u8]) -> String {

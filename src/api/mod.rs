@@ -10,6 +10,7 @@ pub mod benches;
 pub mod derived;
 pub mod events;
 pub mod fleet;
+pub mod gauge;
 pub mod guard;
 pub mod import;
 pub mod jobs;
@@ -209,7 +210,14 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add("get", "/api/v1/jobs/{id}/verdict", get(qc::job_verdict))
     .add("get", "/api/v1/outbox", get(qc::outbox))
     .add("post", "/api/v1/outbox/{id}/retry", post(qc::outbox_retry))
-    .add("delete", "/api/v1/outbox/{id}", delete(qc::outbox_drop));
+    .add("delete", "/api/v1/outbox/{id}", delete(qc::outbox_drop))
+    .add(
+        "post",
+        "/api/v1/gauge-studies",
+        post(gauge::create).layer(json_limit),
+    )
+    .add("get", "/api/v1/gauge-studies", get(gauge::list))
+    .add("get", "/api/v1/gauge-studies/{id}", get(gauge::get_one));
     (r.router, r.list)
 }
 

@@ -11,6 +11,7 @@ mod derived;
 mod events;
 mod fits;
 pub mod fleet;
+mod gauge;
 pub mod hardware;
 pub mod health;
 mod imports;
@@ -30,6 +31,7 @@ pub use fleet::{
     CenterIngest, IngestReport, ItemBody, MeasurementItem, ReplicationItem, StationHello,
     StationStatus,
 };
+pub use gauge::GaugeStudyRow;
 pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobState};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};

@@ -286,6 +286,21 @@ pub fn anova(
     })
 }
 
+/// The order of the parts in each repeat of a study: a shuffle per repeat
+/// (AIAG asks for a randomised order), drawn from `seed`.
+pub fn part_order(parts: usize, repeats: u32, seed: u64) -> Vec<Vec<usize>> {
+    use rand::seq::SliceRandom;
+    use rand::SeedableRng;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    (0..repeats)
+        .map(|_| {
+            let mut order: Vec<usize> = (0..parts).collect();
+            order.shuffle(&mut rng);
+            order
+        })
+        .collect()
+}
+
 /// m / e, with 0 / 0 = 0 and m / 0 = infinity (an exact gauge).
 fn ratio(m: f64, e: f64) -> f64 {
     if e > 0.0 {
@@ -426,6 +441,23 @@ mod tests {
             g.interaction_sd > 0.3 && g.interaction_sd < 0.8,
             "{}",
             g.interaction_sd
+        );
+    }
+
+    #[test]
+    fn every_part_once_per_repeat() {
+        let o = part_order(10, 3, 42);
+        assert_eq!(o.len(), 3);
+        for rep in &o {
+            let mut s = rep.clone();
+            s.sort();
+            assert_eq!(s, (0..10).collect::<Vec<_>>());
+        }
+        assert_ne!(o[0], o[1], "shuffled per repeat");
+        assert_eq!(
+            o,
+            part_order(10, 3, 42),
+            "the same seed gives the same plan"
         );
     }
 

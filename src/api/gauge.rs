@@ -1,0 +1,431 @@
+//! Gauge studies over HTTP (issue 21): N parts × M repeats on one or more
+//! benches under a recipe; for each judged quantity, repeatability,
+//! reproducibility, %GRR against the recipe's tolerance and ndc
+//! (`core::qc::grr`, AIAG's ANOVA method; docs/qc.md "Gauge study").
+//!
+//! A study is a plan of jobs. Each run is an ordinary job (the path of
+//! `POST /api/v1/jobs`, with the idempotency key `gauge:{study}:{run}`), so
+//! the recipe, the safety rules and the verdicts are the same as on the
+//! line. Within each repeat the parts go in a shuffled order (AIAG asks for
+//! a randomised order), the same on every bench.
+
+use super::problem::{ApiResult, Problem};
+use super::qc::parse_body;
+use super::{AppState, JsonBody};
+use crate::job::JobProduction;
+use crate::qc::grr;
+use crate::qc::Recipe;
+use crate::store::{Inserted, JobState, RecipeReads, VerdictReads};
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+
+/// Bounds of a study (AIAG: typically 10 parts, 2-3 appraisers, 2-3 repeats).
+pub const MIN_PARTS: usize = 2;
+pub const MAX_PARTS: usize = 50;
+pub const MIN_REPEATS: u32 = 2;
+pub const MAX_REPEATS: u32 = 10;
+pub const MAX_RUNS: usize = 1000;
+
+/// One part of a study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GaugePart {
+    /// The part's serial (as in a job).
+    pub serial: String,
+    /// On a virtual bench: the production-lot part mounted (as in a job).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub production: Option<JobProduction>,
+}
+
+/// `POST /api/v1/gauge-studies`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GaugeStudyRequest {
+    /// The recipe every run is measured and judged with; its parameters
+    /// with both limits are the quantities studied against their tolerance.
+    pub recipe: String,
+    /// 2 to 50 parts, each measured `repeats` times on every bench.
+    #[schema(min_items = 2, max_items = 50)]
+    pub parts: Vec<GaugePart>,
+    /// 2 to 10.
+    #[schema(minimum = 2, maximum = 10)]
+    pub repeats: u32,
+    /// The benches (appraisers); default: every configured bench.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub benches: Option<Vec<String>>,
+    /// More members of each run's job request (e.g. the procedure), checked
+    /// as a job request is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub job: Option<serde_json::Map<String, Value>>,
+}
+
+/// One planned run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct GaugeRun {
+    pub part_index: usize,
+    pub bench_id: String,
+    pub repeat: u32,
+    pub idempotency_key: String,
+    /// None until the job was submitted.
+    pub job_id: Option<String>,
+}
+
+fn check(req: &GaugeStudyRequest, benches: &[String]) -> ApiResult<Vec<String>> {
+    if !(MIN_PARTS..=MAX_PARTS).contains(&req.parts.len()) {
+        return Err(Problem::field(
+            "parts",
+            format!("{MIN_PARTS} to {MAX_PARTS} parts, got {}", req.parts.len()),
+        ));
+    }
+    let mut seen = std::collections::HashSet::new();
+    for (i, p) in req.parts.iter().enumerate() {
+        if !seen.insert(&p.serial) {
+            return Err(Problem::field(
+                &format!("parts[{i}].serial"),
+                format!("'{}' is in the study twice", p.serial),
+            ));
+        }
+    }
+    if !(MIN_REPEATS..=MAX_REPEATS).contains(&req.repeats) {
+        return Err(Problem::field(
+            "repeats",
+            format!("{MIN_REPEATS} to {MAX_REPEATS}, got {}", req.repeats),
+        ));
+    }
+    let chosen = match &req.benches {
+        None => benches.to_vec(),
+        Some(b) if b.is_empty() => {
+            return Err(Problem::field(
+                "benches",
+                "at least one bench, or leave it out",
+            ))
+        }
+        Some(b) => {
+            for (i, id) in b.iter().enumerate() {
+                if !benches.contains(id) {
+                    return Err(Problem::field(
+                        &format!("benches[{i}]"),
+                        format!("no bench '{id}' (configured: {})", benches.join(", ")),
+                    ));
+                }
+                if b[..i].contains(id) {
+                    return Err(Problem::field(
+                        &format!("benches[{i}]"),
+                        format!("'{id}' is named twice"),
+                    ));
+                }
+            }
+            b.clone()
+        }
+    };
+    let runs = req.parts.len() * chosen.len() * req.repeats as usize;
+    if runs > MAX_RUNS {
+        return Err(Problem::field(
+            "parts",
+            format!("{runs} runs (parts x benches x repeats); at most {MAX_RUNS}"),
+        ));
+    }
+    if let Some(job) = &req.job {
+        for k in ["part", "recipe", "bench", "production"] {
+            if job.contains_key(k) {
+                return Err(Problem::field(
+                    &format!("job.{k}"),
+                    "set by the study for each run; leave it out",
+                ));
+            }
+        }
+    }
+    Ok(chosen)
+}
+
+/// The job request of one run.
+fn run_request(req: &GaugeStudyRequest, run: &GaugeRun) -> Value {
+    let part = &req.parts[run.part_index];
+    let mut body = serde_json::Map::new();
+    if let Some(extra) = &req.job {
+        body.extend(extra.clone());
+    }
+    body.insert("part".into(), json!({ "serial": part.serial }));
+    body.insert("recipe".into(), json!(req.recipe));
+    body.insert("bench".into(), json!(run.bench_id));
+    if let Some(p) = &part.production {
+        body.insert("production".into(), json!(p));
+    }
+    Value::Object(body)
+}
+
+#[utoipa::path(post, path = "/api/v1/gauge-studies", tag = "qc",
+    summary = "Start a gauge study: every part measured `repeats` times on every bench under a recipe (one job per run).",
+    request_body(content = GaugeStudyRequest, content_type = "application/json"),
+    responses(
+        (status = 201, description = "Planned and submitted; the study as `GET` returns it",
+            headers(("Location" = String, description = "The study"))),
+        (status = 422, description = "Invalid fields (also any run's job request), one message each"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
+/// `POST /api/v1/gauge-studies`.
+pub async fn create(
+    State(st): State<AppState>,
+    Extension(caller): Extension<super::auth::Caller>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let req: GaugeStudyRequest = parse_body(body)?;
+    let configured: Vec<String> = st.cfg.benches.iter().map(|b| b.id.clone()).collect();
+    let benches = check(&req, &configured)?;
+    // The recipe exists and is not retired (422 naming `recipe` otherwise).
+    super::qc::recipe_for_job(&st, &req.recipe).await?;
+    let id = crate::runner::new_id();
+    // Repeat by repeat, the parts in a shuffled order (seeded by the id).
+    let seed = id.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    });
+    let mut runs = Vec::new();
+    for (repeat, order) in (0..req.repeats).zip(grr::part_order(req.parts.len(), req.repeats, seed))
+    {
+        for part_index in order {
+            for b in &benches {
+                runs.push(GaugeRun {
+                    part_index,
+                    bench_id: b.clone(),
+                    repeat,
+                    idempotency_key: format!("gauge:{id}:{}", runs.len()),
+                    job_id: None,
+                });
+            }
+        }
+    }
+    // Every run's request is checked before anything is stored.
+    for run in runs.iter().take(req.parts.len() * benches.len()) {
+        let body = run_request(&req, run);
+        let parsed = crate::job::parse_lenient::<crate::job::JobRequest>(&body);
+        if let Err(errors) =
+            crate::job::JobRequest::check(parsed, &crate::runner::job::admission(&st.cfg), |_| {
+                Ok(())
+            })
+        {
+            return Err(Problem::validation(errors));
+        }
+    }
+    let stored_req = serde_json::to_value(&req).map_err(Problem::internal)?;
+    st.store
+        .insert_gauge_study(
+            &id,
+            &req.recipe,
+            &stored_req,
+            &serde_json::to_value(&runs).map_err(Problem::internal)?,
+            caller.0.as_deref(),
+        )
+        .await?;
+    for run in runs.iter_mut() {
+        let body = run_request(&req, run);
+        let job =
+            match super::jobs::enqueue(&st, caller.0.clone(), &body, Some(&run.idempotency_key))
+                .await?
+            {
+                Inserted::New(j) | Inserted::Replayed(j) | Inserted::Conflict(j) => j,
+            };
+        run.job_id = Some(job.id);
+    }
+    st.store
+        .update_gauge_runs(
+            &id,
+            &serde_json::to_value(&runs).map_err(Problem::internal)?,
+        )
+        .await?;
+    let doc = study_document(&st, &id).await?;
+    let mut r = (StatusCode::CREATED, Json(doc)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/gauge-studies/{id}")) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+#[utoipa::path(get, path = "/api/v1/gauge-studies/{id}", tag = "qc",
+    summary = "A gauge study: its runs and, once every run has ended, repeatability, reproducibility, %GRR and ndc per judged quantity.",
+    params(("id" = String, Path, description = "Study id")),
+    responses(
+        (status = 200, description = "The study"),
+        (status = 404, description = "No such study")))]
+/// `GET /api/v1/gauge-studies/{id}`.
+pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    Ok(Json(study_document(&st, &id).await?))
+}
+
+#[utoipa::path(get, path = "/api/v1/gauge-studies", tag = "qc",
+    summary = "The newest 50 gauge studies (plan and state; the figures are in each study).",
+    responses((status = 200, description = "Studies, newest first")))]
+/// `GET /api/v1/gauge-studies`.
+pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
+    let rows = st.store.list_gauge_studies(50).await?;
+    let items: Vec<Value> = rows
+        .iter()
+        .map(|r| {
+            json!({
+                "id": r.id,
+                "recipe": r.recipe_name,
+                "runs_total": r.runs.as_array().map_or(0, |a| a.len()),
+                "created_at": r.created_at,
+                "created_by": r.created_by,
+                "href": format!("/api/v1/gauge-studies/{}", r.id),
+            })
+        })
+        .collect();
+    Ok(Json(json!({ "items": items })))
+}
+
+/// Each judged parameter's value (mean) and unit in one run.
+type RunValues = std::collections::BTreeMap<String, (f64, String)>;
+
+/// A run's value of each judged parameter: the mean over the run's
+/// measurement verdicts that judged it (a recipe with several levels or
+/// repeats judges a parameter on each of its measurements). None when the
+/// run has no value (invalid, failed, not finished).
+async fn run_values(
+    st: &AppState,
+    job_id: &str,
+) -> ApiResult<(Option<JobState>, RunValues, Option<i64>)> {
+    let job = st.store.get_job(job_id).await?;
+    let state = job.as_ref().map(|j| j.state);
+    let mut sums: std::collections::BTreeMap<String, (f64, usize, String)> = Default::default();
+    let mut version = None;
+    for v in st.store.job_verdicts(job_id).await? {
+        if v.measurement_id.is_none() {
+            continue;
+        }
+        version = Some(v.recipe_version);
+        let Ok(verdict) = serde_json::from_value::<crate::qc::Verdict>(v.detail.clone()) else {
+            continue;
+        };
+        if verdict.verdict == crate::qc::VerdictKind::Invalid {
+            continue;
+        }
+        for p in &verdict.parameters {
+            if p.value.is_finite() {
+                let e = sums.entry(p.name.clone()).or_default();
+                e.0 += p.value;
+                e.1 += 1;
+                e.2.clone_from(&p.unit);
+            }
+        }
+    }
+    let means = sums
+        .into_iter()
+        .map(|(k, (s, n, unit))| (k, (s / n as f64, unit)))
+        .collect();
+    Ok((state, means, version))
+}
+
+/// The study with its runs' states and, when every run has ended, the
+/// gauge figures of each parameter the recipe judges.
+async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
+    let row = st
+        .store
+        .get_gauge_study(id)
+        .await?
+        .ok_or_else(|| Problem::not_found("gauge study", id))?;
+    let req: GaugeStudyRequest =
+        serde_json::from_value(row.request.clone()).map_err(Problem::internal)?;
+    let runs: Vec<GaugeRun> =
+        serde_json::from_value(row.runs.clone()).map_err(Problem::internal)?;
+    let mut benches: Vec<String> = vec![];
+    for r in &runs {
+        if !benches.contains(&r.bench_id) {
+            benches.push(r.bench_id.clone());
+        }
+    }
+    let mut run_docs = vec![];
+    let mut values = vec![];
+    let mut finished = 0usize;
+    let mut version = None;
+    for r in &runs {
+        let (state, vals, v) = match &r.job_id {
+            Some(j) => run_values(st, j).await?,
+            None => (None, Default::default(), None),
+        };
+        version = version.or(v);
+        if state.is_some_and(|s| s.is_terminal()) {
+            finished += 1;
+        }
+        run_docs.push(json!({
+            "part_index": r.part_index,
+            "serial": req.parts.get(r.part_index).map(|p| p.serial.clone()),
+            "bench_id": r.bench_id,
+            "repeat": r.repeat,
+            "job_id": r.job_id,
+            "state": state,
+        }));
+        values.push(vals);
+    }
+    let done = finished == runs.len();
+    let mut quantities = vec![];
+    let mut not_computed = vec![];
+    if done {
+        let recipe_row = st.store.get_recipe(&req.recipe, version).await?;
+        let recipe: Option<Recipe> = recipe_row
+            .as_ref()
+            .and_then(|r| serde_json::from_value(r.recipe.clone()).ok());
+        for p in recipe.iter().flat_map(|r| r.parameters.iter()) {
+            let tolerance = match (p.lower, p.upper) {
+                (Some(l), Some(u)) if u > l => Some(u - l),
+                _ => None,
+            };
+            // values[part][bench][repeat]
+            let mut grid =
+                vec![vec![vec![f64::NAN; req.repeats as usize]; benches.len()]; req.parts.len()];
+            let mut missing = vec![];
+            let mut unit = String::new();
+            for (r, vals) in runs.iter().zip(&values) {
+                let b = benches.iter().position(|x| *x == r.bench_id).unwrap_or(0);
+                match vals.get(&p.name) {
+                    Some((v, u)) => {
+                        grid[r.part_index][b][r.repeat as usize] = *v;
+                        unit.clone_from(u);
+                    }
+                    None => missing.push(format!(
+                        "{} on {} (repeat {})",
+                        req.parts[r.part_index].serial,
+                        r.bench_id,
+                        r.repeat + 1
+                    )),
+                }
+            }
+            if !missing.is_empty() {
+                not_computed.push(json!({
+                    "parameter": p.name,
+                    "reason": format!(
+                        "no valid value from {} run(s): {}",
+                        missing.len(),
+                        missing.iter().take(5).cloned().collect::<Vec<_>>().join(", ")
+                    ),
+                }));
+                continue;
+            }
+            match grr::anova(&p.name, &unit, &grid, tolerance) {
+                Ok(g) => quantities.push(g),
+                Err(e) => not_computed.push(json!({"parameter": p.name, "reason": e})),
+            }
+        }
+    }
+    Ok(json!({
+        "id": row.id,
+        "recipe": req.recipe,
+        "recipe_version": version,
+        "parts": req.parts,
+        "repeats": req.repeats,
+        "benches": benches,
+        "job": req.job,
+        "created_at": row.created_at,
+        "created_by": row.created_by,
+        "state": if done { "done" } else { "running" },
+        "runs_total": runs.len(),
+        "runs_finished": finished,
+        "runs": run_docs,
+        "quantities": quantities,
+        "not_computed": not_computed,
+        "method": "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); ndc = floor(1.41 PV / GRR)",
+    }))
+}
