@@ -1223,6 +1223,42 @@ async fn every_route_answers_as_its_schema_says() {
         "post /api/v1/benches/{id}/self-check",
         "get /api/v1/calibrations/{id}",
     ];
+    // Gauge study: planned (201), listed, read back; a bad body names its
+    // field; an unknown study is 404.
+    let gs = "/api/v1/gauge-studies";
+    let mut gauge_recipe = recipe();
+    gauge_recipe["name"] = json!("contract-gauge");
+    let (s, v) = a
+        .call(
+            "post",
+            "/api/v1/recipes",
+            "/api/v1/recipes",
+            Some(ADMIN),
+            Some(gauge_recipe),
+        )
+        .await;
+    assert_eq!(s, 201, "{v}");
+    let body = json!({"recipe": "contract-gauge", "repeats": 2,
+        "parts": [{"serial": "GS-1"}, {"serial": "GS-2"}]});
+    let (s, study) = a.call("post", gs, gs, Some(OPERATOR), Some(body)).await;
+    assert_eq!(s, 201, "{study}");
+    let (s, v) = a
+        .call(
+            "post",
+            gs,
+            gs,
+            Some(OPERATOR),
+            Some(json!({"recipe": "contract-gauge", "repeats": 1,
+            "parts": [{"serial": "GS-1"}, {"serial": "GS-2"}]})),
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    let listed = a.get(gs, gs, 200).await;
+    assert_eq!(listed["items"][0]["id"], study["id"]);
+    let one = "/api/v1/gauge-studies/{id}";
+    let id = study["id"].as_str().unwrap();
+    a.get(one, &format!("{gs}/{id}"), 200).await;
+    a.get(one, &format!("{gs}/nope"), 404).await;
     let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
     let mut missing = vec![];
     let mut no_success = vec![];

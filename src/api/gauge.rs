@@ -163,7 +163,7 @@ fn run_request(req: &GaugeStudyRequest, run: &GaugeRun) -> Value {
     summary = "Start a gauge study: every part measured `repeats` times on every bench under a recipe (one job per run).",
     request_body(content = GaugeStudyRequest, content_type = "application/json"),
     responses(
-        (status = 201, description = "Planned and submitted; the study as `GET` returns it",
+        (status = 201, description = "Planned and submitted; the study as `GET` returns it", body = serde_json::Value,
             headers(("Location" = String, description = "The study"))),
         (status = 422, description = "Invalid fields (also any run's job request), one message each"),
         (status = 503, description = "Storage unavailable or the disk is full")))]
@@ -248,7 +248,7 @@ pub async fn create(
     summary = "A gauge study: its runs and, once every run has ended, repeatability, reproducibility, %GRR and ndc per judged quantity.",
     params(("id" = String, Path, description = "Study id")),
     responses(
-        (status = 200, description = "The study"),
+        (status = 200, description = "The study", body = serde_json::Value),
         (status = 404, description = "No such study")))]
 /// `GET /api/v1/gauge-studies/{id}`.
 pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
@@ -257,7 +257,7 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
 
 #[utoipa::path(get, path = "/api/v1/gauge-studies", tag = "qc",
     summary = "The newest 50 gauge studies (plan and state; the figures are in each study).",
-    responses((status = 200, description = "Studies, newest first")))]
+    responses((status = 200, description = "Studies, newest first", body = serde_json::Value)))]
 /// `GET /api/v1/gauge-studies`.
 pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     let rows = st.store.list_gauge_studies(50).await?;
