@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{client, Daemon};
+use common::{client, send, Daemon};
 use serde_json::{json, Value};
 use springbench::physics::production::{part, Spread};
 use springbench::qc::grr;
@@ -23,26 +23,6 @@ fn config() -> String {
      [[auth.tokens]]\nname = \"qc-engineer\"\ntoken = \"engineer-secret-0123456789\"\nrole = \"admin\"\n\
      [[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n"
         .into()
-}
-
-async fn send(
-    c: &reqwest::Client,
-    d: &Daemon,
-    method: reqwest::Method,
-    path: &str,
-    token: &str,
-    body: Option<Value>,
-) -> (u16, Value) {
-    let mut r = c
-        .request(method, d.url(path))
-        .bearer_auth(token)
-        .header("content-type", "application/json");
-    if let Some(b) = body {
-        r = r.body(b.to_string());
-    }
-    let r = r.send().await.unwrap();
-    let s = r.status().as_u16();
-    (s, r.json::<Value>().await.unwrap_or(Value::Null))
 }
 
 /// K(x) = sum k_i x^i of a part (N/m).

@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{client, Daemon};
+use common::{client, send, Daemon};
 use hmac::{Hmac, Mac};
 use serde_json::{json, Value};
 use sha2::Sha256;
@@ -29,27 +29,6 @@ fn tokens() -> &'static str {
 
 fn benches() -> &'static str {
     "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n"
-}
-
-async fn send(
-    c: &reqwest::Client,
-    d: &Daemon,
-    method: reqwest::Method,
-    path: &str,
-    token: &str,
-    body: Option<Value>,
-) -> (u16, Value) {
-    let mut r = c
-        .request(method, d.url(path))
-        .bearer_auth(token)
-        .header("content-type", "application/json");
-    if let Some(b) = body {
-        r = r.body(b.to_string());
-    }
-    let r = r.send().await.unwrap();
-    let s = r.status().as_u16();
-    let v = r.json::<Value>().await.unwrap_or(Value::Null);
-    (s, v)
 }
 
 async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {

@@ -213,6 +213,28 @@ pub async fn submit(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
         .to_string()
 }
 
+/// `method path` with a bearer token and an optional JSON body: the status
+/// and the JSON answer (Null when the body is not JSON).
+pub async fn send(
+    c: &reqwest::Client,
+    d: &Daemon,
+    method: reqwest::Method,
+    path: &str,
+    token: &str,
+    body: Option<Value>,
+) -> (u16, Value) {
+    let mut r = c
+        .request(method, d.url(path))
+        .bearer_auth(token)
+        .header("content-type", "application/json");
+    if let Some(b) = body {
+        r = r.body(b.to_string());
+    }
+    let r = r.send().await.unwrap();
+    let s = r.status().as_u16();
+    (s, r.json::<Value>().await.unwrap_or(Value::Null))
+}
+
 /// GET a JSON document (asserts 200).
 pub async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
     let r = c.get(d.url(path)).send().await.unwrap();
