@@ -120,11 +120,14 @@ impl PgStore {
                WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided \
                  AND ($3::text IS NULL OR created_at >= $3) AND ($4::text IS NULL OR created_at < $4) \
                ORDER BY seq DESC LIMIT $5), \
+             vals AS ( \
+               SELECT verdict_seq, value FROM verdict_values \
+               WHERE recipe_name = $1 AND parameter = $2 AND verdict_seq >= (SELECT MIN(seq) FROM w)), \
              pts AS ( \
                SELECT CASE WHEN $6 THEN w.station_id END AS g, MIN(w.seq) AS first_seq, AVG(x.value) AS value, \
                       CASE WHEN bool_or(w.verdict = 'fail') THEN 'fail' \
                            ELSE (array_agg(w.verdict ORDER BY w.seq))[1] END AS verdict \
-               FROM w JOIN verdict_values x ON x.verdict_seq = w.seq AND x.parameter = $2 \
+               FROM w JOIN vals x ON x.verdict_seq = w.seq \
                WHERE w.verdict <> 'invalid' \
                GROUP BY 1, w.station_id, COALESCE(w.job_id, 'seq:' || w.seq::text), w.level_index), \
              d AS ( \

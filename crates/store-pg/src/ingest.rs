@@ -81,8 +81,8 @@ async fn insert_verdicts(
         .await?;
         if let (Some(seq), Some(_)) = (seq, v.measurement_id.as_ref()) {
             sqlx::query(
-                "INSERT INTO verdict_values (verdict_seq, parameter, value) \
-                 SELECT $1, p->>'name', (p->>'value')::float8 \
+                "INSERT INTO verdict_values (verdict_seq, parameter, value, recipe_name) \
+                 SELECT $1, p->>'name', (p->>'value')::float8, $3 \
                  FROM jsonb_array_elements(CASE WHEN jsonb_typeof($2::jsonb->'parameters') = 'array' \
                                            THEN $2::jsonb->'parameters' ELSE '[]'::jsonb END) p \
                  WHERE jsonb_typeof(p->'value') = 'number' AND jsonb_typeof(p->'name') = 'string' \
@@ -90,6 +90,7 @@ async fn insert_verdicts(
             )
             .bind(seq)
             .bind(v.detail.to_string())
+            .bind(&v.recipe_name)
             .execute(&mut **tx)
             .await?;
         }
@@ -387,20 +388,34 @@ fn status_from_row(r: &sqlx::postgres::PgRow) -> StoreResult<StationStatus> {
 
 const STATION_SELECT: &str = "SELECT s.station_id, s.software_version, s.contract_version, s.bench_states::text AS bench_states, \
      s.backlog_items, s.oldest_backlog_at, s.sent_at, s.first_contact_at, s.last_contact_at, \
-     i.items, i.distinct_seqs, i.last_seq FROM stations s \
-     CROSS JOIN LATERAL (SELECT COUNT(*) AS items, COUNT(DISTINCT seq) AS distinct_seqs, MAX(seq) AS last_seq \
-                         FROM station_items x WHERE x.station_id = s.station_id) i";
+     s.items, s.distinct_seqs, s.last_seq FROM stations s";
 
-/// The center's time of a contact; a station heard of in a batch before its
-/// first hello gets a row that says so.
-async fn touch_station(tx: &mut Tx<'_>, station: &str, t: &str) -> StoreResult<()> {
+/// What a batch added to a station's stream: items claimed, outbox seqs
+/// new to the center, the highest seq claimed.
+#[derive(Default)]
+struct Held {
+    items: i64,
+    new_seqs: i64,
+    last_seq: Option<i64>,
+}
+
+/// The center's time of a contact, and what the batch added to the
+/// station's counters (`stations()` reads them, never counts); a station
+/// heard of in a batch before its first hello gets a row that says so.
+async fn touch_station(tx: &mut Tx<'_>, station: &str, t: &str, held: &Held) -> StoreResult<()> {
     sqlx::query(
         "INSERT INTO stations (station_id, software_version, contract_version, bench_states, backlog_items, \
-         sent_at, first_contact_at, last_contact_at) VALUES ($1, 'unknown (no hello yet)', 1, '[]', 0, $2, $2, $2) \
-         ON CONFLICT (station_id) DO UPDATE SET last_contact_at = EXCLUDED.last_contact_at",
+         sent_at, first_contact_at, last_contact_at, items, distinct_seqs, last_seq) \
+         VALUES ($1, 'unknown (no hello yet)', 1, '[]', 0, $2, $2, $2, $3, $4, $5) \
+         ON CONFLICT (station_id) DO UPDATE SET last_contact_at = EXCLUDED.last_contact_at, \
+         items = stations.items + EXCLUDED.items, distinct_seqs = stations.distinct_seqs + EXCLUDED.distinct_seqs, \
+         last_seq = GREATEST(stations.last_seq, EXCLUDED.last_seq)",
     )
     .bind(station)
     .bind(t)
+    .bind(held.items)
+    .bind(held.new_seqs)
+    .bind(held.last_seq)
     .execute(&mut **tx)
     .await?;
     Ok(())
@@ -455,12 +470,17 @@ impl CenterIngest for PgStore {
         let t = now();
         let mut report = IngestReport::default();
         let mut tx = self.pool.begin().await?;
+        let mut held = Held::default();
         for item in items {
             let id = item.item_id();
             let sha = item.content_sha256();
-            let claimed: Option<i32> = sqlx::query_scalar(
+            // RETURNING: whether the center held no other item with this seq
+            // (the subquery sees the rows before this insert, the batch's
+            // earlier items included).
+            let claimed: Option<bool> = sqlx::query_scalar(
                 "INSERT INTO station_items (item_id, station_id, seq, content_sha256, received_at) \
-                 VALUES ($1, $2, $3, $4, $5) ON CONFLICT (item_id) DO NOTHING RETURNING 1",
+                 VALUES ($1, $2, $3, $4, $5) ON CONFLICT (item_id) DO NOTHING \
+                 RETURNING NOT EXISTS (SELECT 1 FROM station_items x WHERE x.station_id = $2 AND x.seq = $3)",
             )
             .bind(&id)
             .bind(station)
@@ -469,7 +489,12 @@ impl CenterIngest for PgStore {
             .bind(&t)
             .fetch_optional(&mut *tx)
             .await?;
-            if claimed.is_some() {
+            if let Some(new_seq) = claimed {
+                held.items += 1;
+                if new_seq {
+                    held.new_seqs += 1;
+                }
+                held.last_seq = held.last_seq.max(Some(item.seq));
                 apply_item(&mut tx, station, item).await?;
                 report.inserted += 1;
                 continue;
@@ -508,7 +533,7 @@ impl CenterIngest for PgStore {
                 reason,
             });
         }
-        touch_station(&mut tx, station, &t).await?;
+        touch_station(&mut tx, station, &t, &held).await?;
         tx.commit().await?;
         Ok(report)
     }
