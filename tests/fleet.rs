@@ -1,9 +1,12 @@
 //! The fleet acceptance test (issue 20): three station daemons (virtual
 //! benches) and one fleet daemon on one real PostgreSQL (a private server
 //! from Debian's packages, `.ci/pg`). Each station runs a QC lot of 20 jobs
-//! with repeated idempotency keys while other tasks poll; mid-run the
-//! PostgreSQL server is stopped for 30 s (a real outage: every connection
-//! is cut) and started again. Afterwards every measurement and verdict is
+//! with repeated idempotency keys while other tasks poll. Each station
+//! reaches PostgreSQL through its own TCP proxy (in this test, in front of
+//! the server's Unix socket); mid-run one station's proxy is cut for 30 s
+//! (every connection through it closed, every new one closed at once: the
+//! center unreachable from that station alone) while the two others keep
+//! delivering, then restored. Afterwards every measurement and verdict is
 //! in the center exactly once, each part's measurements in its station's
 //! order, each station's item sequence without gaps, and the fleet's SPC
 //! equals what the stations' own values give.
@@ -19,7 +22,12 @@ use springbench::qc::spc::{compute, SpcPoint};
 use springbench_store_pg::test_server::{can_start_private, TestServer};
 use springbench_store_pg::PgStore;
 use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use tokio::net::{TcpListener, UnixStream};
+use tokio::task::AbortHandle;
 
 const JOBS: usize = 20;
 const RECIPE: &str = "spider-4in";
@@ -105,6 +113,88 @@ async fn center_measurements(c: &reqwest::Client, fleet: &Daemon, station: &str)
     out
 }
 
+/// One station's way to the center: a TCP port on loopback forwarding to
+/// the server's Unix socket. Cut, it closes every connection through it
+/// and every new one as soon as it is accepted; restored, it forwards again.
+struct Proxy {
+    port: u16,
+    cut: Arc<AtomicBool>,
+    links: Arc<Mutex<Vec<AbortHandle>>>,
+    accept: AbortHandle,
+}
+
+impl Proxy {
+    async fn start(socket: PathBuf) -> Proxy {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let cut = Arc::new(AtomicBool::new(false));
+        let links: Arc<Mutex<Vec<AbortHandle>>> = Arc::default();
+        let (c, l) = (cut.clone(), links.clone());
+        let accept = tokio::spawn(async move {
+            while let Ok((mut tcp, _)) = listener.accept().await {
+                if c.load(Ordering::SeqCst) {
+                    continue; // dropped: closed at once
+                }
+                let socket = socket.clone();
+                let link = tokio::spawn(async move {
+                    if let Ok(mut unix) = UnixStream::connect(&socket).await {
+                        let _ = tokio::io::copy_bidirectional(&mut tcp, &mut unix).await;
+                    }
+                });
+                let mut l = l.lock().unwrap();
+                l.retain(|h| !h.is_finished());
+                l.push(link.abort_handle());
+            }
+        })
+        .abort_handle();
+        Proxy {
+            port,
+            cut,
+            links,
+            accept,
+        }
+    }
+
+    /// The URL a station uses to reach the center through this proxy.
+    fn url(&self) -> String {
+        format!("postgres://sb@127.0.0.1:{}/postgres", self.port)
+    }
+
+    fn cut(&self) {
+        self.cut.store(true, Ordering::SeqCst);
+        for h in self.links.lock().unwrap().drain(..) {
+            h.abort();
+        }
+    }
+
+    fn restore(&self) {
+        self.cut.store(false, Ordering::SeqCst);
+    }
+}
+
+impl Drop for Proxy {
+    fn drop(&mut self) {
+        self.cut();
+        self.accept.abort();
+    }
+}
+
+/// Items the center holds of each station (`/api/v1/fleet/stations`).
+async fn center_items(c: &reqwest::Client, fleet: &Daemon) -> BTreeMap<String, i64> {
+    let v = get(c, &fleet.base, "/api/v1/fleet/stations").await;
+    v["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            (
+                s["station_id"].as_str().unwrap().to_string(),
+                s["items"].as_i64().unwrap(),
+            )
+        })
+        .collect()
+}
+
 fn close(a: &Value, b: &Value, what: &str) {
     match (a.as_f64(), b.as_f64()) {
         (Some(x), Some(y)) => assert!(
@@ -120,7 +210,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     if !can_start_private("fleet acceptance test") {
         return;
     }
-    let mut pg = TestServer::start(55471).expect("a private PostgreSQL server");
+    let pg = TestServer::start(55471).expect("a private PostgreSQL server");
     let url = pg.url();
     // The center holds the recipe; the stations pull it.
     {
@@ -140,11 +230,16 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
         center.close().await;
     }
     let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
+    let mut proxies = vec![];
+    for _ in 0..3 {
+        proxies.push(Proxy::start(pg.socket()).await);
+    }
     let stations: Vec<(String, Daemon)> = (1..=3)
         .map(|i| {
             let id = format!("line-{i}");
+            let center = proxies[i - 1].url();
             let d = Daemon::start(&format!(
-                "[fleet]\ncenter = \"{url}\"\nstation_id = \"{id}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
+                "[fleet]\ncenter = \"{center}\"\nstation_id = \"{id}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
                  [[benches]]\nid = \"virtual-1\"\nseed = {}\n",
                 if i == 2 { "reference" } else { "full" },
                 1000 * i
@@ -174,13 +269,13 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     }
 
     // Concurrent polling while the lots run.
-    let polling = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let polling = Arc::new(AtomicBool::new(true));
     let mut pollers = vec![];
     for (_, d) in &stations {
         let (c, base, on) = (c.clone(), d.base.clone(), polling.clone());
         pollers.push(tokio::spawn(async move {
             let mut n = 0u64;
-            while on.load(std::sync::atomic::Ordering::SeqCst) {
+            while on.load(Ordering::SeqCst) {
                 let r = c
                     .get(format!("{base}/api/v1/jobs?limit=50"))
                     .send()
@@ -226,7 +321,10 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
         }
     }
 
-    // Mid-run: once a third of the jobs are done, the center goes away for 30 s.
+    // Mid-run: once a third of the jobs are done, the center is cut off
+    // from line-2 alone for 30 s.
+    const CUT: usize = 1;
+    let cut_id = &stations[CUT].0;
     let t0 = Instant::now();
     loop {
         let mut finished = 0;
@@ -243,27 +341,43 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
-    pg.stop().expect("stop PostgreSQL");
+    proxies[CUT].cut();
     let outage = Instant::now();
-    let backlog_before: Vec<f64> = {
-        let mut v = vec![];
-        for (_, d) in &stations {
-            v.push(metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await);
-        }
-        v
-    };
+    let d_cut = &stations[CUT].1;
+    let pending = "springbench_fleet_backlog_items{state=\"pending\"}";
+    let backlog_before = metric(&c, d_cut, pending).await;
+    let held_before = center_items(&c, &fleet).await;
     while outage.elapsed() < Duration::from_secs(30) {
         tokio::time::sleep(Duration::from_millis(500)).await;
     }
-    // The stations kept measuring: their backlog grew, their link is down.
-    let mut grew = false;
-    for (i, (_, d)) in stations.iter().enumerate() {
-        let now = metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await;
-        grew |= now > backlog_before[i];
-        assert_eq!(metric(&c, d, "springbench_fleet_connected").await, 0.0);
+    // The cut station kept measuring: its backlog grew, its link is down,
+    // and nothing of it reached the center; the two others stayed
+    // connected and kept delivering.
+    let held_after = center_items(&c, &fleet).await;
+    assert!(
+        metric(&c, d_cut, pending).await > backlog_before,
+        "{cut_id} measured nothing during the outage"
+    );
+    assert_eq!(metric(&c, d_cut, "springbench_fleet_connected").await, 0.0);
+    assert_eq!(
+        held_after.get(cut_id),
+        held_before.get(cut_id),
+        "{cut_id}: items reached the center through a cut link"
+    );
+    for (i, (id, d)) in stations.iter().enumerate() {
+        if i != CUT {
+            assert_eq!(
+                metric(&c, d, "springbench_fleet_connected").await,
+                1.0,
+                "{id}"
+            );
+            assert!(
+                held_after.get(id) > held_before.get(id),
+                "{id} delivered nothing while {cut_id} was cut off: {held_before:?} -> {held_after:?}"
+            );
+        }
     }
-    assert!(grew, "no station measured during the outage");
-    pg.start_again().expect("start PostgreSQL again");
+    proxies[CUT].restore();
 
     // Every job ends; every station's outbox drains.
     for (id, d) in &stations {
@@ -272,7 +386,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
             assert_eq!(v["state"], "succeeded", "{j}: {v}");
         }
     }
-    polling.store(false, std::sync::atomic::Ordering::SeqCst);
+    polling.store(false, Ordering::SeqCst);
     for p in pollers {
         assert!(p.await.unwrap() > 0);
     }

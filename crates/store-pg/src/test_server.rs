@@ -93,6 +93,11 @@ impl TestServer {
         )
     }
 
+    /// The server's Unix socket (a test's proxy forwards to it).
+    pub fn socket(&self) -> PathBuf {
+        self.data().join(format!(".s.PGSQL.{}", self.port))
+    }
+
     pub fn is_running(&self) -> bool {
         self.running
     }
