@@ -420,6 +420,26 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
         all_verdicts.len(),
         "a verdict twice at the center"
     );
+    // A verdict says `offline` exactly when its station could not check its
+    // recipes with the center (no recipe sync for two polls): some of the
+    // cut station's, none of the others'.
+    let mut offline: BTreeMap<String, usize> = BTreeMap::new();
+    for v in &all_verdicts {
+        let o = v["traceability"]["offline"]
+            .as_bool()
+            .unwrap_or_else(|| panic!("a verdict without `offline`: {v}"));
+        *offline
+            .entry(v["station_id"].as_str().unwrap().to_string())
+            .or_default() += usize::from(o);
+    }
+    for (id, _) in &stations {
+        let n = offline.get(id).copied().unwrap_or(0);
+        if id == cut_id {
+            assert!(n > 0, "{id} judged during its outage, none says offline");
+        } else {
+            assert_eq!(n, 0, "{id} never lost the center, yet judged offline");
+        }
+    }
     let st_list = get(&c, &fleet.base, "/api/v1/fleet/stations").await;
     for (id, d) in &stations {
         let mine = station_measurements(&c, d).await;
@@ -554,4 +574,76 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let p = common::problem(r, 422).await;
     assert_eq!(p["errors"][0]["field"], "statoin", "{p}");
     center.close().await;
+}
+
+/// A recipe version retired while jobs that name it wait in the queue: they
+/// are not judged with it (each fails naming the retirement), while the job
+/// already running when it was retired keeps the version it started with.
+/// (A retirement at the center reaches a station's SQLite the same way:
+/// `Store::apply_center_recipes`; this path needs no PostgreSQL.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn queued_jobs_of_a_retired_recipe_version_are_not_judged_with_it() {
+    let d = Daemon::start("[[benches]]\nid = \"virtual-1\"\nseed = 5\n");
+    let c = client();
+    let r = c
+        .post(d.url("/api/v1/recipes"))
+        .json(&recipe())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201, "{}", r.text().await.unwrap());
+    let mut ids = vec![];
+    for k in 0..3u64 {
+        let r = c
+            .post(d.url("/api/v1/jobs"))
+            .json(&json!({
+                "part": {"serial": format!("R{k}"), "kind": "spider"},
+                "recipe": RECIPE,
+                "production": {"preset": "spider_4in", "seed": k + 1},
+            }))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 202);
+        ids.push(
+            r.json::<Value>().await.unwrap()["id"]
+                .as_str()
+                .unwrap()
+                .to_string(),
+        );
+    }
+    let r = c
+        .delete(d.url(&format!("/api/v1/recipes/{RECIPE}")))
+        .header("content-type", "application/json")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 204);
+    let mut judged_with_v1 = 0;
+    for (k, id) in ids.iter().enumerate() {
+        let j = common::wait_job(&c, &d, id, Duration::from_secs(600), common::terminal).await;
+        let v = get(&c, &d.base, &format!("/api/v1/jobs/{id}/verdict")).await;
+        if j["state"] == "succeeded" {
+            // Only the job that had started before the retirement.
+            assert_eq!(k, 0, "job {k} judged with a retired version: {v}");
+            assert_eq!(v["recipe_version"], 1, "{v}");
+            judged_with_v1 += 1;
+        } else {
+            assert_eq!(j["state"], "failed", "{j}");
+            let detail = j["problem"]["detail"].as_str().unwrap_or("");
+            assert!(detail.contains("version 1 is retired"), "{j}");
+            assert_eq!(v["verdict"], "invalid", "{v}");
+            assert!(v["measurements"].as_array().unwrap().is_empty(), "{v}");
+        }
+    }
+    assert!(judged_with_v1 <= 1);
+    // A job submitted now is refused at once (nothing to judge with).
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .json(&json!({"part": {"serial": "R9"}, "recipe": RECIPE}))
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 422).await;
+    assert_eq!(p["errors"][0]["field"], "recipe", "{p}");
 }

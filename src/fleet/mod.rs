@@ -127,6 +127,10 @@ pub fn start_station(
     stop: watch::Receiver<bool>,
 ) -> (Arc<Link>, tokio::task::JoinHandle<()>) {
     let link = Arc::new(Link::new(&cfg));
+    // A verdict is `offline` once the worker missed two recipe polls.
+    let max_age = Duration::from_secs_f64(2.0 * cfg.recipe_poll_s);
+    let l = link.clone();
+    runner.set_recipe_trace(Arc::new(move || l.recipe_trace(max_age)));
     let benches: Arc<dyn Fn() -> Vec<BenchState> + Send + Sync> = Arc::new(move || {
         runner
             .bench_statuses()

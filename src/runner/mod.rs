@@ -105,9 +105,22 @@ pub struct Runner {
     mes: crate::mes::MesConfig,
     /// Wakes the MES delivery worker when messages were written.
     outbox: Arc<Notify>,
+    /// A fleet station's recipe provenance for its verdicts' trace
+    /// (`fleet::Link::recipe_trace`: `offline` when the station could not
+    /// check its recipes with the center lately); unset without `[fleet]`.
+    recipe_trace: std::sync::OnceLock<RecipeTrace>,
 }
 
+/// See [`Runner::set_recipe_trace`].
+pub type RecipeTrace = Arc<dyn Fn() -> Value + Send + Sync>;
+
 impl Runner {
+    /// Makes every verdict's trace carry what `f` gives (the fleet's recipe
+    /// provenance, merged into the trace's top level). Set once.
+    pub fn set_recipe_trace(&self, f: RecipeTrace) {
+        let _ = self.recipe_trace.set(f);
+    }
+
     /// Marks jobs cut off by an earlier stop as interrupted and starts one task per bench.
     pub async fn start(
         store: Store,
@@ -168,6 +181,7 @@ impl Runner {
             shutdown: Arc::new(AtomicBool::new(false)),
             mes: cfg.mes.clone(),
             outbox: Arc::new(Notify::new()),
+            recipe_trace: std::sync::OnceLock::new(),
         });
         runner.end_interrupted(cfg).await?;
         let tasks = runner

@@ -16,6 +16,15 @@ impl Runner {
                 r.name, r.version
             )));
         };
+        // Retired (by the center, pulled by the fleet worker, or here): it no
+        // longer judges. A station that could not reach the center cannot
+        // know of a retirement; its verdicts say `offline` (job_records).
+        if row.retired {
+            return Ok(Err(format!(
+                "recipe {} version {} is retired: it no longer judges (submit the job again: it takes the newest version held)",
+                r.name, r.version
+            )));
+        }
         Ok(
             match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
                 Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
@@ -87,7 +96,7 @@ impl Runner {
         };
         if let (Some(r), Some(jv)) = (&rref, &job_verdict) {
             let trace = |m: Option<&NewMeasurement>| {
-                json!({
+                let mut t = json!({
                     "software_version": crate::VERSION,
                     "recipe": {"name": r.name, "version": r.version, "sha256": r.sha256},
                     "bench_id": bench.id,
@@ -104,7 +113,13 @@ impl Runner {
                     "job_started_at": started_at,
                     "judged_at": finished_at,
                     "measurement_id": m.map(|m| m.id.clone()),
-                })
+                });
+                if let (Some(t), Some(f)) = (t.as_object_mut(), self.recipe_trace.get()) {
+                    if let Value::Object(fleet) = f() {
+                        t.extend(fleet);
+                    }
+                }
+                t
             };
             for (mid, v) in &verdicts {
                 let m = meas.iter().find(|m| &m.id == mid);
