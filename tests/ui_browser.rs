@@ -549,6 +549,22 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
                 );
                 assert_eq!(b.exists("#no-submit").await, role == "viewer");
             }
+            if name == "compare" && role == "viewer" {
+                // Keff against Xpeak beside K(x): the measurement's point as the API gives it.
+                let drawn = b
+                    .wait_js(
+                        "(() => { const e = document.querySelector('#plot-compare-keff'); return e && e.uplot && e.dataset.kind === 'Keff(Xpeak)' ? e.uplot.data : null; })()",
+                        SHORT,
+                        "Keff against Xpeak in the comparison",
+                    )
+                    .await;
+                let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+                let (x, k) = (
+                    m["large_signal"]["xpeak_m"].as_f64().unwrap() * 1e3,
+                    m["large_signal"]["keff_n_per_m"].as_f64().unwrap() * 1e-3,
+                );
+                assert_eq!(drawn, json!([[x], [k]]), "Xpeak {x} mm, Keff {k} N/mm");
+            }
             if name == "diagnostics" {
                 let add = b.exists("#candidates button").await;
                 assert_eq!(add, role != "viewer", "'add this effect' for {role}");
@@ -801,6 +817,117 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     assert!(failing.contains("N/m"), "values with units: {failing}");
     b.screenshot("operator-verdict-fail").await;
     b.assert_no_console_errors("on the operator view with verdicts")
+        .await;
+
+    // The stiff part's K(x) with the recipe's mask (the limits) and the
+    // golden units' band (smallest to largest K of the five golden units,
+    // from the approved proposal): the band as the API gives it, inside the
+    // mask, and the stiff part above both at x = 0.
+    let stiff = get(&d, "/api/v1/jobs?part=SN-QC-STIFF").await;
+    let smid = stiff["items"][0]["measurement_ids"][0]
+        .as_str()
+        .unwrap()
+        .to_string();
+    b.goto(&format!("{}/#/measurement/{smid}", d.base)).await;
+    let golden = b
+        .wait_js(
+            "document.querySelector('#plot-kx canvas') && document.querySelector('#plot-kx').dataset.golden",
+            LONG,
+            "the golden units' band on K(x)",
+        )
+        .await;
+    assert_eq!(
+        golden,
+        json!(format!("5,2,{pid}")),
+        "5 units, approved in v2"
+    );
+    let g = &p["proposal"]["golden_kx"];
+    let gx: Vec<f64> = serde_json::from_value(g["x_m"].clone()).unwrap();
+    let gmin: Vec<f64> = serde_json::from_value(g["min_n_per_m"].clone()).unwrap();
+    let gmax: Vec<f64> = serde_json::from_value(g["max_n_per_m"].clone()).unwrap();
+    let mask = &v2["recipe"]["kx_mask"];
+    let mx: Vec<f64> = serde_json::from_value(mask["x_m"].clone()).unwrap();
+    let mlo: Vec<f64> = serde_json::from_value(mask["lower_n_per_m"].clone()).unwrap();
+    let mhi: Vec<f64> = serde_json::from_value(mask["upper_n_per_m"].clone()).unwrap();
+    // What the plot draws: its series labels and data (x in mm, K in N/mm).
+    let drawn = b
+        .js(
+            "const u = document.querySelector('#plot-kx').uplot; return [u.series.map(s => s.label), u.data];",
+            vec![],
+        )
+        .await;
+    let labels: Vec<String> = serde_json::from_value(drawn[0].clone()).unwrap();
+    let col = |want: &str| {
+        labels
+            .iter()
+            .position(|l| l.contains(want))
+            .unwrap_or_else(|| panic!("no series '{want}' in {labels:?}"))
+    };
+    let series =
+        |i: usize| -> Vec<Option<f64>> { serde_json::from_value(drawn[1][i].clone()).unwrap() };
+    let xs: Vec<f64> = serde_json::from_value(drawn[1][0].clone()).unwrap();
+    let (k, lo, hi) = (series(1), series(col("lowest K")), series(col("highest K")));
+    let (mlo_s, mhi_s) = (
+        series(col("mask of spider-4in v2")),
+        series(col("mask: upper")),
+    );
+    let lerp = |xs: &[f64], ys: &[f64], x: f64| -> Option<f64> {
+        let i = xs.windows(2).position(|w| x >= w[0] && x <= w[1])?;
+        let t = (x - xs[i]) / (xs[i + 1] - xs[i]);
+        Some(ys[i] + t * (ys[i + 1] - ys[i]))
+    };
+    let (mut inside, mut worst): (usize, f64) = (0, 0.0);
+    for (i, &xmm) in xs.iter().enumerate() {
+        let x = xmm * 1e-3;
+        let want = (lerp(&gx, &gmin, x), lerp(&gx, &gmax, x));
+        let Some(want_lo) = want.0 else {
+            assert!(
+                lo[i].is_none(),
+                "no band outside the golden range at {xmm} mm"
+            );
+            continue;
+        };
+        inside += 1;
+        let (dl, dh) = (lo[i].unwrap() * 1e3, hi[i].unwrap() * 1e3);
+        worst = worst
+            .max(((dl - want_lo) / want_lo).abs())
+            .max(((dh - want.1.unwrap()) / dh).abs());
+        if let (Some(a), Some(z)) = (lerp(&mx, &mlo, x), lerp(&mx, &mhi, x)) {
+            assert!(
+                mlo_s[i].unwrap() * 1e3 <= dl
+                    && dh <= mhi_s[i].unwrap() * 1e3
+                    && (a - mlo_s[i].unwrap() * 1e3).abs() < 1e-6 * a
+                    && (z - mhi_s[i].unwrap() * 1e3).abs() < 1e-6 * z,
+                "the golden band inside the mask at {xmm} mm"
+            );
+        }
+    }
+    assert!(inside >= 100, "the band drawn over {inside} grid points");
+    assert!(
+        worst < 1e-9,
+        "the band is the API's golden K(x) (worst {worst:e})"
+    );
+    let i0 = xs
+        .iter()
+        .position(|x| x.abs() < 1e-9)
+        .or_else(|| xs.iter().position(|&x| x > 0.0))
+        .unwrap();
+    assert!(
+        k[i0].unwrap() > mhi_s[i0].unwrap() && k[i0].unwrap() > hi[i0].unwrap(),
+        "the stiff part lies above the golden band and the mask at x = 0: K {:?}, golden max {:?}, mask upper {:?}",
+        k[i0], hi[i0], mhi_s[i0]
+    );
+    eprintln!("golden band: {inside} points, worst relative difference to the API {worst:e}; at x = {} mm K {:.4} N/mm, golden {:.4}..{:.4}, mask {:.4}..{:.4}",
+        xs[i0], k[i0].unwrap(), lo[i0].unwrap(), hi[i0].unwrap(), mlo_s[i0].unwrap(), mhi_s[i0].unwrap());
+    b.js(
+        "document.querySelector('#plot-kx').scrollIntoView(); return true;",
+        vec![],
+    )
+    .await;
+    b.screenshot_sizes("measurement-golden-band").await;
+    b.screenshot_element("#plot-kx", "kx-golden-band-and-mask")
+        .await;
+    b.assert_no_console_errors("on K(x) with the golden band")
         .await;
 
     // SPC of k0 over the recipe: the figures the API gives, and the chart.
@@ -1343,6 +1470,69 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
     assert!(p.starts_with("parameter,api_field,value,standard_error,unit,validity"));
     assert!(p.contains("small_signal.k0_n_per_m"), "{p}");
     b.assert_no_console_errors("after the exports").await;
+
+    // The symmetry of K(x), against the same coefficients: the largest
+    // |K(-x)/K(x) - 1| over |x| inside the valid range on both sides, and
+    // the symmetry point x_sym at the amplitude a the page names, solved
+    // here by bisection: K(x_sym - a) = K(x_sym + a).
+    let f = b
+        .wait_js(
+            "(() => { const e = document.querySelector('#symmetry-figures'); return e && document.querySelector('#plot-symmetry-point canvas') ? {...e.dataset} : null; })()",
+            SHORT,
+            "the symmetry figures",
+        )
+        .await;
+    let num = |k: &str| -> f64 { f[k].as_str().unwrap().parse().unwrap() };
+    let kx = |x: f64| k.iter().rev().fold(0.0, |acc, c| acc * x + c);
+    let xm = (-vr[0]).min(vr[1]);
+    let worst = (0..=120)
+        .map(|i| xm * i as f64 / 120.0)
+        .map(|x| (x, 100.0 * (kx(-x) / kx(x) - 1.0)))
+        .fold(
+            (0.0, 0.0),
+            |w: (f64, f64), v| if v.1.abs() > w.1.abs() { v } else { w },
+        );
+    let (asym, at) = (num("asymmetryPercent"), num("asymmetryAtMm"));
+    assert!(
+        (asym - worst.1).abs() <= 1e-9 * worst.1.abs().max(1e-3)
+            && (at - worst.0 * 1e3).abs() < 1e-9,
+        "asymmetry {asym} % at {at} mm, from the coefficients {} % at {} mm",
+        worst.1,
+        worst.0 * 1e3
+    );
+    let (a, xs_page) = (
+        num("symmetryAmplitudeMm") * 1e-3,
+        num("symmetryPointMm") * 1e-3,
+    );
+    assert!(
+        a > 0.5 * xm,
+        "the symmetry point at a large amplitude ({a} m)"
+    );
+    let g = |s: f64| kx(s + a) - kx(s - a);
+    let (mut lo, mut hi) = (xs_page - 2e-4, xs_page + 2e-4);
+    assert!(
+        g(lo).signum() != g(hi).signum(),
+        "a root of K(s+a) - K(s-a) near {xs_page}"
+    );
+    for _ in 0..80 {
+        let m = 0.5 * (lo + hi);
+        if g(m).signum() == g(lo).signum() {
+            lo = m
+        } else {
+            hi = m
+        }
+    }
+    let xsym = 0.5 * (lo + hi);
+    assert!(
+        (xsym - xs_page).abs() < 1e-9,
+        "symmetry point {xs_page} m on the page, {xsym} m from the coefficients"
+    );
+    eprintln!(
+        "symmetry of K(x): largest asymmetry {asym:.4} % at |x| = {at:.3} mm; symmetry point {:.4} mm at amplitude {:.3} mm (from the coefficients {:.4} mm); minimum of K at {:.4} mm",
+        xs_page * 1e3, a * 1e3, xsym * 1e3, num("kMinMm")
+    );
+    b.screenshot_element("#symmetry", "measurement-symmetry")
+        .await;
     b.quit().await;
 }
 

@@ -1,7 +1,7 @@
 // One measurement: its QC verdict (recipe, limits, traceability), headline
 // figures rounded to their uncertainty (from the chosen fit), K(x) with the
 // recipe's mask, C(x), F(x) (valid range marked, hover values with units),
-// the symmetry of K(x), the level series Keff(Xpeak) of its job and its joint
+// the symmetry of K(x) (K(-x)/K(x), the symmetry point against amplitude), the level series Keff(Xpeak) of its job and its joint
 // fit, the coefficients, the stored fits, warnings, exports (CSV, JSON,
 // clipboard), the printable report and the recordings to download.
 
@@ -26,52 +26,95 @@ export function xGrid(lo, hi, n = 241) {
   return linspace(lo - m, hi + m, n);
 }
 
-/** K(-x)/K(x) - 1 over x >= 0 (inside the valid range), and the symmetry point. */
+/** The root of f in [a, b] by bisection (f(a), f(b) of opposite signs). */
+function bisect(f, a, b) {
+  let fa = f(a);
+  for (let k = 0; k < 60; k++) {
+    const m = 0.5 * (a + b);
+    const fm = f(m);
+    if (fm === 0) return m;
+    if (Math.sign(fm) === Math.sign(fa)) {
+      a = m;
+      fa = fm;
+    } else b = m;
+  }
+  return 0.5 * (a + b);
+}
+
+/**
+ * The symmetry of K(x) (x in mm, K in N/mm):
+ * - K(-x)/K(x) over 0 <= x <= min(-lo, hi) and its largest departure from 1 in %;
+ * - the symmetry point x_sym(a) at each amplitude a (Klippel): the rest
+ *   position about which K is symmetric over +-a, K(x_sym - a) = K(x_sym + a),
+ *   for every a whose window x_sym +- a lies inside the valid range. As a
+ *   goes to 0 it is the minimum of K; for a parabola it is that at every a.
+ */
 export function symmetry(c, lo, hi) {
   const xm = Math.min(-lo, hi);
   if (!(xm > 0)) return null;
+  const K = (x) => poly(c, x);
   const xs = linspace(0, xm, 121);
-  const ratio = xs.map((x) => poly(c, -x) / poly(c, x));
-  // Symmetry point: where dK/dx = 0 inside the range (the minimum of a
-  // softening-free K(x)), by bisection on the derivative.
-  const d = c.map((k, i) => k * i).slice(1);
-  let sp = null;
-  const n = 400;
-  let prevX = lo;
-  let prevD = poly(d, lo);
-  for (let i = 1; i <= n; i++) {
-    const x = lo + ((hi - lo) * i) / n;
-    const dv = poly(d, x);
-    if (prevD === 0 || Math.sign(dv) !== Math.sign(prevD)) {
-      let a = prevX;
-      let b = x;
-      for (let k = 0; k < 50; k++) {
-        const m = 0.5 * (a + b);
-        if (Math.sign(poly(d, m)) === Math.sign(poly(d, a))) a = m;
-        else b = m;
-      }
-      sp = 0.5 * (a + b);
-      break;
-    }
-    prevX = x;
-    prevD = dv;
-  }
+  const ratio = xs.map((x) => K(-x) / K(x));
   const asym = ratio.map((r) => 100 * (r - 1));
   const worst = asym.reduce((w, v, i) => (Math.abs(v) > Math.abs(w.v) ? { v, x: xs[i] } : w), { v: 0, x: 0 });
-  return { xs, ratio, asym, xm, symmetryPoint: sp, worst };
+  // The smallest K inside the valid range (a stationary point, else an end).
+  const grid = linspace(lo, hi, 2001);
+  let im = 0;
+  grid.forEach((x, i) => { if (K(x) < K(grid[im])) im = i; });
+  const d = c.map((k, i) => k * i).slice(1);
+  const dK = (x) => poly(d, x);
+  const kMin = im > 0 && im < grid.length - 1 && Math.sign(dK(grid[im - 1])) !== Math.sign(dK(grid[im + 1]))
+    ? bisect(dK, grid[im - 1], grid[im + 1])
+    : grid[im];
+  // x_sym(a): of the roots of K(s + a) - K(s - a) in [lo + a, hi - a], the one nearest K's minimum.
+  const amax = 0.5 * (hi - lo);
+  const amps = linspace(amax / 60, amax * (1 - 1e-9), 60);
+  const xsym = amps.map((a) => {
+    const g = (s) => K(s + a) - K(s - a);
+    const ss = linspace(lo + a, hi - a, 201);
+    let best = null;
+    for (let i = 1; i < ss.length; i++) {
+      const g0 = g(ss[i - 1]);
+      const g1 = g(ss[i]);
+      if (g0 === 0 || Math.sign(g0) !== Math.sign(g1)) {
+        const r = g0 === 0 ? ss[i - 1] : bisect(g, ss[i - 1], ss[i]);
+        if (best === null || Math.abs(r - kMin) < Math.abs(best - kMin)) best = r;
+      }
+    }
+    return best;
+  });
+  let last = -1;
+  xsym.forEach((v, i) => { if (v !== null) last = i; });
+  const atLargest = last >= 0 ? { a: amps[last], x: xsym[last] } : null;
+  return { xs, ratio, asym, xm, worst, kMin, amps, xsym, atLargest };
 }
 
-/** The recipe's K(x) mask (N/mm over mm), when the measurement was judged under one. */
-async function recipeMask(verdict) {
-  if (!verdict) return null;
-  try {
-    const r = await api(`/api/v1/recipes/${encodeURIComponent(verdict.recipe_name)}/versions/${verdict.recipe_version}`);
-    const m = r.recipe && r.recipe.kx_mask;
-    if (!m || !m.x_m || !m.x_m.length) return null;
-    return { x: m.x_m.map((x) => x * 1e3), lo: m.lower_n_per_m.map((k) => k * 1e-3), hi: m.upper_n_per_m.map((k) => k * 1e-3), recipe: `${verdict.recipe_name} v${verdict.recipe_version}` };
-  } catch {
-    return null;
-  }
+/**
+ * What a recipe draws on K(x) (N/mm over mm), for a measurement judged under
+ * it: its K(x) mask (the limits, judged) and the golden units' band (the
+ * smallest to the largest K(x) of the golden units the limits were approved
+ * from; shown, never judged). The band comes from the newest approved
+ * proposal that made this recipe version or an earlier one.
+ */
+export async function recipeBands(verdict) {
+  if (!verdict) return { mask: null, golden: null };
+  const name = encodeURIComponent(verdict.recipe_name);
+  const [rec, props] = await Promise.all([
+    api(`/api/v1/recipes/${name}/versions/${verdict.recipe_version}`).catch(() => null),
+    api(`/api/v1/recipes/${name}/limit-proposals`).catch(() => null),
+  ]);
+  const m = rec && rec.recipe && rec.recipe.kx_mask;
+  const mask = m && m.x_m && m.x_m.length
+    ? { x: m.x_m.map((x) => x * 1e3), lo: m.lower_n_per_m.map((k) => k * 1e-3), hi: m.upper_n_per_m.map((k) => k * 1e-3), recipe: `${verdict.recipe_name} v${verdict.recipe_version}` }
+    : null;
+  const approved = ((props && props.items) || [])
+    .filter((p) => p.state === 'approved' && p.approved_version <= verdict.recipe_version && p.proposal && p.proposal.golden_kx)
+    .sort((a, b) => b.approved_version - a.approved_version)[0];
+  const g = approved && approved.proposal.golden_kx;
+  const golden = g && g.x_m.length
+    ? { x: g.x_m.map((x) => x * 1e3), lo: g.min_n_per_m.map((k) => k * 1e-3), hi: g.max_n_per_m.map((k) => k * 1e-3), n: g.n, version: approved.approved_version, proposal: approved.id }
+    : null;
+  return { mask, golden };
 }
 
 /**
@@ -130,8 +173,8 @@ export function coefficientTable(doc) {
     h('tbody', {}, c.map((k, i) => h('tr', {}, h('td', {}, `k${i}`), h('td', { class: 'num' }, withSe(k, (se[i] ?? NaN) * 1e-3 ** (i + 1), coefUnitMm(i)))))));
 }
 
-/** K(x), C(x), F(x) over the valid range and 25 % beyond; the mask band on K(x). */
-export function drawCurves(els, doc, { mask, jointSeries, height } = {}) {
+/** K(x), C(x), F(x) over the valid range and 25 % beyond; the recipe's mask and the golden units' band on K(x). */
+export function drawCurves(els, doc, { mask, golden, jointSeries, height } = {}) {
   const { c, lo, hi } = stiffnessMm(doc);
   const xs = xGrid(lo, hi);
   const k = xs.map((x) => poly(c, x));
@@ -145,10 +188,17 @@ export function drawCurves(els, doc, { mask, jointSeries, height } = {}) {
   const areas = [];
   if (mask) {
     const inter = (arr) => xs.map((x) => interp(mask.x, arr, x));
-    kSeries.push({ label: `mask of recipe ${mask.recipe} (from golden units): lower`, unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
+    kSeries.push({ label: `K(x) mask of ${mask.recipe} (the limits): lower`, unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
     kSeries.push({ label: 'mask: upper', unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
     kData.push(inter(mask.lo), inter(mask.hi));
     areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(44,160,44,0.13)' });
+  }
+  if (golden) {
+    const inter = (arr) => xs.map((x) => interp(golden.x, arr, x));
+    kSeries.push({ label: `golden units (${golden.n}, approved in v${golden.version}): lowest K`, unit: 'N/mm', color: '#b8860b', width: 1 });
+    kSeries.push({ label: 'golden units: highest K', unit: 'N/mm', color: '#b8860b', width: 1 });
+    kData.push(inter(golden.lo), inter(golden.hi));
+    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(184,134,11,0.28)' });
   }
   chart(els.kx, {
     title: 'Stiffness K(x)', kind: 'K(x)',
@@ -156,6 +206,7 @@ export function drawCurves(els, doc, { mask, jointSeries, height } = {}) {
     series: kSeries, data: kData, validRange: [lo, hi], areas, height,
   });
   if (els.kx && mask) els.kx.dataset.mask = String(mask.x.length);
+  if (els.kx && golden) els.kx.dataset.golden = `${golden.n},${golden.version},${golden.proposal}`;
   chart(els.cx, {
     title: 'Compliance C(x) = 1/K(x)', kind: 'C(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: 'compliance C', unit: 'mm/N' },
@@ -273,7 +324,7 @@ export async function render(main, ctx) {
   const doc = await api(`/api/v1/measurements/${encodeURIComponent(id)}`);
   const info = doc.measurement || {};
   const { shown, fit, fits } = await headlineDoc(id, doc);
-  const mask = await recipeMask(info.verdict);
+  const { mask, golden } = await recipeBands(info.verdict);
   if (ctx.stale()) return;
   ctx.reload = () => {
     if (!ctx.stale()) ctx.rerender();
@@ -335,28 +386,43 @@ export async function render(main, ctx) {
     put(plotsEl, h('p', { class: 'muted' }, 'No stiffness result.'));
     return;
   }
-  drawCurves({ kx, cx, fx }, shown, { mask, jointSeries: shown.series });
+  drawCurves({ kx, cx, fx }, shown, { mask, golden, jointSeries: shown.series });
   drawSymmetry(sym, c, lo, hi);
   await drawLevels(lev, shown, id);
 }
 
-/** K(-x)/K(x) with the symmetry point and the asymmetry in %. */
+/** K(-x)/K(x) with the asymmetry in %, and the symmetry point against the amplitude. */
 export function drawSymmetry(el, c, lo, hi, { height } = {}) {
   const s = symmetry(c, lo, hi);
   if (!s) {
     put(el, h('p', { class: 'muted' }, 'The valid range does not reach both sides of x = 0.'));
     return;
   }
-  const note = h('p', { id: 'symmetry-figures', dataset: { asymmetryPercent: num(s.worst.v, 4), symmetryPointMm: s.symmetryPoint === null ? '' : num(s.symmetryPoint, 4) } },
-    `Largest asymmetry ${num(s.worst.v, 3)} % at |x| = ${num(s.worst.x, 3)} mm (K(\u2212x) ${s.worst.v >= 0 ? 'stiffer' : 'softer'} than K(x)); `,
-    s.symmetryPoint === null ? 'no stiffness minimum inside the valid range.' : `symmetry point (minimum of K) at x = ${num(s.symmetryPoint, 3)} mm.`);
-  const plot = h('div', { id: 'plot-symmetry-ratio' });
-  put(el, note, plot);
-  chart(plot, {
-    title: 'K(\u2212x) / K(x) over |x| (inside the valid range on both sides)', kind: 'symmetry',
+  const L = s.atLargest;
+  const note = h('p', {
+    id: 'symmetry-figures',
+    dataset: {
+      asymmetryPercent: String(s.worst.v), asymmetryAtMm: String(s.worst.x), kMinMm: String(s.kMin),
+      symmetryPointMm: L ? String(L.x) : '', symmetryAmplitudeMm: L ? String(L.a) : '',
+    },
+  },
+  `Largest asymmetry ${num(s.worst.v, 3)} % at |x| = ${num(s.worst.x, 3)} mm (K(\u2212x) ${s.worst.v >= 0 ? 'stiffer' : 'softer'} than K(x)). `,
+  L ? `Symmetry point ${num(L.x, 3)} mm at amplitude ${num(L.a, 3)} mm (the largest whose window lies inside the valid range); ` : 'No symmetry point inside the valid range; ',
+  `minimum of K at x = ${num(s.kMin, 3)} mm (the symmetry point at small amplitude).`);
+  const ratioEl = h('div', { id: 'plot-symmetry-ratio' });
+  const pointEl = h('div', { id: 'plot-symmetry-point' });
+  put(el, note, h('div', { class: 'plot-grid' }, ratioEl, pointEl));
+  chart(ratioEl, {
+    title: 'K(\u2212x) / K(x) over |x|', kind: 'symmetry',
     x: { label: 'displacement |x|', unit: 'mm' }, y: { label: 'K(\u2212x)/K(x)', unit: '' },
     series: [{ label: 'K(\u2212x)/K(x)', unit: '' }],
     data: [s.xs, s.ratio], height: height || 220,
+  });
+  chart(pointEl, {
+    title: 'Symmetry point against amplitude', kind: 'symmetry point',
+    x: { label: 'amplitude a', unit: 'mm' }, y: { label: 'x_sym', unit: 'mm' },
+    series: [{ label: 'x_sym: K(x_sym \u2212 a) = K(x_sym + a)', unit: 'mm', color: '#9467bd' }],
+    data: [s.amps, s.xsym], xRange: [0, s.amps[s.amps.length - 1]], height: height || 220,
   });
 }
 

@@ -147,6 +147,8 @@ export function chart(el, spec) {
   el.dataset.series = String(spec.series.length);
   el.dataset.points = String(data[0].length);
   if (spec.validRange) el.dataset.validRange = spec.validRange.map((v) => num(v, 4)).join(',');
+  // The plot itself, for the tests (series labels and data as drawn).
+  el.uplot = u;
   el.setAttribute('role', 'img');
   el.setAttribute('aria-label', `${spec.title}: ${spec.series.map((s) => s.label).join(', ')}`);
   if (typeof ResizeObserver !== 'undefined') {

@@ -8,7 +8,7 @@
 import { api } from './api.js';
 import { h, put, q, when, shortId, poly, polyIntegral, linspace, withSe, displayUnit, coefUnitMm, VERDICT_WORDS, validityOf, stated } from './util.js';
 import { chart, COLORS } from './plots.js';
-import { stiffnessMm, headlineDoc, drawCurves, drawLevels, effectsText } from './measurement.js';
+import { stiffnessMm, headlineDoc, drawCurves, drawLevels, effectsText, recipeBands } from './measurement.js';
 import { parameters } from './export.js';
 import { parameterTable, traceTable, rankReasons, reasonText, failureText } from './verdict.js';
 
@@ -63,16 +63,7 @@ async function measurementReport(main, ctx, id) {
   const doc = await api(`/api/v1/measurements/${encodeURIComponent(id)}`);
   const { shown, fit } = await headlineDoc(id, doc);
   const info = doc.measurement || {};
-  let mask = null;
-  if (info.verdict) {
-    try {
-      const r = await api(`/api/v1/recipes/${encodeURIComponent(info.verdict.recipe_name)}/versions/${info.verdict.recipe_version}`);
-      const m = r.recipe && r.recipe.kx_mask;
-      if (m && m.x_m && m.x_m.length) mask = { x: m.x_m.map((x) => x * 1e3), lo: m.lower_n_per_m.map((k) => k * 1e-3), hi: m.upper_n_per_m.map((k) => k * 1e-3), recipe: `${info.verdict.recipe_name} v${info.verdict.recipe_version}` };
-    } catch {
-      mask = null;
-    }
-  }
+  const { mask, golden } = await recipeBands(info.verdict);
   if (ctx.stale()) return;
   const kx = h('div', { id: 'report-kx' });
   const cx = h('div', { id: 'report-cx' });
@@ -96,7 +87,7 @@ async function measurementReport(main, ctx, id) {
           h('tr', {}, h('th', {}, 'recipe'), h('td', {}, 'none')),
           h('tr', {}, h('th', {}, 'calibration record'), h('td', {}, 'none (virtual bench or import)'))))));
   if (!stiffnessMm(shown).c.length) return;
-  drawCurves({ kx, cx, fx }, shown, { mask, height: PLOT_H });
+  drawCurves({ kx, cx, fx }, shown, { mask, golden, height: PLOT_H });
   await drawLevels(lev, shown, id, { height: PLOT_H });
   main.querySelector('#report').dataset.ready = 'true';
 }

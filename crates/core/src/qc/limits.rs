@@ -129,8 +129,64 @@ pub struct Proposal {
     pub options: ProposalOptions,
     pub parameters: Vec<ProposedLimit>,
     pub kx_mask: Option<KxMask>,
+    /// The golden units' own K(x) over the range all of them measured (what
+    /// the mask was drawn from; absent in proposals made before it was kept,
+    /// or when the units' common range is empty). Shown, never judged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub golden_kx: Option<GoldenKx>,
     /// The recipe as it would be after approval (limits filled in).
     pub recipe: Recipe,
+}
+
+/// The golden units' K(x) at each `x_m` (N/m): the smallest and largest of
+/// the units, their mean and sample standard deviation (n - 1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct GoldenKx {
+    /// How many golden units.
+    pub n: usize,
+    /// Level of the series the curves are from (the highest); absent: one level.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub level_index: Option<usize>,
+    pub x_m: Vec<f64>,
+    pub min_n_per_m: Vec<f64>,
+    pub mean_n_per_m: Vec<f64>,
+    pub sigma_n_per_m: Vec<f64>,
+    pub max_n_per_m: Vec<f64>,
+}
+
+/// Points of [`GoldenKx`] over the golden units' common range.
+pub const GOLDEN_KX_POINTS: usize = 41;
+
+/// The golden units' K(x) statistics on `n` points over `lo..=hi` (m).
+fn golden_kx(
+    reports: &[Report],
+    lo: f64,
+    hi: f64,
+    n: usize,
+    level_index: Option<usize>,
+) -> GoldenKx {
+    let mut g = GoldenKx {
+        n: reports.len(),
+        level_index,
+        x_m: vec![],
+        min_n_per_m: vec![],
+        mean_n_per_m: vec![],
+        sigma_n_per_m: vec![],
+        max_n_per_m: vec![],
+    };
+    for i in 0..n {
+        let x = lo + (hi - lo) * i as f64 / (n - 1) as f64;
+        let ks: Vec<f64> = reports.iter().map(|r| k_of_x(r, x)).collect();
+        let (mean, sigma) = mean_sigma(&ks);
+        g.x_m.push(x);
+        g.min_n_per_m
+            .push(ks.iter().copied().fold(f64::INFINITY, f64::min));
+        g.mean_n_per_m.push(mean);
+        g.sigma_n_per_m.push(sigma);
+        g.max_n_per_m
+            .push(ks.iter().copied().fold(f64::NEG_INFINITY, f64::max));
+    }
+    g
 }
 
 /// A golden unit that fails the recipe's current limits.
@@ -320,23 +376,32 @@ pub fn propose(
             values,
         });
     }
+    // The mask and the golden curves are taken at the highest level (the widest range).
+    let li = (0..levels)
+        .max_by(|&a, &b| recipe.procedure.levels_m[a].total_cmp(&recipe.procedure.levels_m[b]))
+        .unwrap_or(0);
+    let reports: Vec<Report> = by_level[li]
+        .iter()
+        .map(|f| f.report.clone().unwrap_or_default())
+        .collect();
+    let lo = reports
+        .iter()
+        .map(|r| r.stiffness.valid_range_m[0])
+        .fold(f64::NEG_INFINITY, f64::max);
+    let hi = reports
+        .iter()
+        .map(|r| r.stiffness.valid_range_m[1])
+        .fold(f64::INFINITY, f64::min);
+    let golden_curves = (lo.is_finite() && hi.is_finite() && lo < hi).then(|| {
+        golden_kx(
+            &reports,
+            lo,
+            hi,
+            GOLDEN_KX_POINTS,
+            (levels > 1).then_some(li),
+        )
+    });
     if opts.mask_points >= 2 {
-        // The mask is drawn at the highest level (the widest range).
-        let li = (0..levels)
-            .max_by(|&a, &b| recipe.procedure.levels_m[a].total_cmp(&recipe.procedure.levels_m[b]))
-            .unwrap_or(0);
-        let reports: Vec<Report> = by_level[li]
-            .iter()
-            .map(|f| f.report.clone().unwrap_or_default())
-            .collect();
-        let lo = reports
-            .iter()
-            .map(|r| r.stiffness.valid_range_m[0])
-            .fold(f64::NEG_INFINITY, f64::max);
-        let hi = reports
-            .iter()
-            .map(|r| r.stiffness.valid_range_m[1])
-            .fold(f64::INFINITY, f64::min);
         if !(lo < 0.0 && hi > 0.0) {
             return Err(format!(
                 "the golden units' common measured range {lo} .. {hi} m does not span x = 0"
@@ -386,6 +451,7 @@ pub fn propose(
         options: opts.clone(),
         parameters: stats,
         kx_mask: out.kx_mask.clone(),
+        golden_kx: golden_curves,
         recipe: out,
     })
 }

@@ -1,4 +1,4 @@
-use super::limits::{propose, GoldenUnit, ProposalOptions, Spread};
+use super::limits::{propose, GoldenUnit, ProposalOptions, Spread, GOLDEN_KX_POINTS};
 use super::spc::{compute, SpcPoint};
 use super::verdict::judge_values;
 use super::*;
@@ -334,6 +334,20 @@ fn golden_limits_are_mean_plus_minus_k_sigma_and_a_mask() {
     let mid = 2400.0 + 3.0e7 * 16e-6;
     assert!((0.5 * (m.lower_n_per_m[4] + m.upper_n_per_m[4]) - mid).abs() < 1e-6);
     assert!((0.5 * (m.upper_n_per_m[4] - m.lower_n_per_m[4]) - 3.0 * sigma).abs() < 1e-6);
+    // The golden units' own K(x) over their whole common range +-8 mm: at
+    // x = 8 mm the units' K are k0 + 3e7 * 64e-6 = k0 + 1920.
+    let g = p.golden_kx.as_ref().unwrap();
+    assert_eq!(
+        (g.n, g.level_index, g.x_m.len()),
+        (5, None, GOLDEN_KX_POINTS)
+    );
+    assert_eq!((g.x_m[0], g.x_m[GOLDEN_KX_POINTS - 1]), (-0.008, 0.008));
+    let e = GOLDEN_KX_POINTS - 1;
+    assert!((g.min_n_per_m[e] - (2380.0 + 1920.0)).abs() < 1e-6);
+    assert!((g.max_n_per_m[e] - (2420.0 + 1920.0)).abs() < 1e-6);
+    assert!((g.mean_n_per_m[e] - (2400.0 + 1920.0)).abs() < 1e-6);
+    assert!((g.sigma_n_per_m[e] - sigma).abs() < 1e-6);
+    assert!((g.mean_n_per_m[20] - 2400.0).abs() < 1e-6, "x = 0");
     // The approved recipe judges a golden unit pass and a stiff part fail on k0 and the mask.
     assert_eq!(
         judge(&p.recipe, &golden[2].measurements[0]).verdict,
