@@ -84,7 +84,7 @@ export async function render(main, ctx) {
     );
     const level = h('input', { id: 'level-mm', name: 'level', type: 'number', min: '0.1', max: '15', step: '0.1', value: '8', required: true });
     const benchSel = h('select', { id: 'bench', name: 'bench' });
-    const recipeSel = h('select', { id: 'recipe', name: 'recipe' }, h('option', { value: '' }, '(none: measure at the level below)'));
+    const recipeSel = h('select', { id: 'recipe', name: 'recipe' }, h('option', { value: '' }, 'none (level below)'));
     const recipeKinds = new Map();
     const saved = stationGet();
     if (saved.kind) kind.value = saved.kind;

@@ -145,7 +145,7 @@ export async function renderPart(main, ctx) {
     main,
     h('section', { class: 'card' },
       h('h1', {}, 'Part ', h('span', { class: 'serial' }, part.serial)),
-      h('p', { class: 'muted', id: 'part-kind' }, `${kind || 'kind not given'}; first seen ${when(part.created_at)}; ${part.measurement_count} measurements`),
+      h('p', { class: 'muted', id: 'part-kind' }, `${kind || 'kind not given'}; first seen ${when(part.created_at)}; ${part.measurement_count} measurement${part.measurement_count === 1 ? '' : 's'}`),
       part.notes ? h('p', {}, part.notes) : null,
     ),
     verdict
@@ -157,7 +157,7 @@ export async function renderPart(main, ctx) {
         h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'measured'), h('th', {}, 'source'), h('th', {}, 'target Xpeak'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'resonance'), h('th', {}, ''))),
         h('tbody', {}, mrows.length ? mrows : h('tr', {}, h('td', { colspan: '8', class: 'muted' }, 'none')))),
       compareBtn,
-      h('h2', {}, 'Jobs'),
+      h('h2', { class: 'after-toolbar' }, 'Jobs'),
       h('table', { class: 'list', id: 'part-jobs' },
         h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'state'), h('th', {}, 'verdict'), h('th', {}, 'recipe'), h('th', {}, 'bench'), h('th', {}, 'submitted'), h('th', {}, 'bench time'), h('th', {}, 'problem'))),
         h('tbody', {}, jobs.items.map((j) => h('tr', { dataset: { job: j.id, verdict: j.verdict || '' } },
