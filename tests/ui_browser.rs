@@ -927,6 +927,19 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     b.screenshot_sizes("measurement-golden-band").await;
     b.screenshot_element("#plot-kx", "kx-golden-band-and-mask")
         .await;
+    // Its printable report, with the verdict, the mask and the band, still on two A4 pages.
+    b.goto(&format!("{}/#/report/{smid}", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true' && document.querySelector('#report-kx').dataset.golden",
+        LONG,
+        "the judged part's report with the golden band",
+    )
+    .await;
+    let pdf = b.print_pdf(false).await;
+    let pages = browser::pdf_pages(&pdf);
+    std::fs::write(browser::artifacts_dir().join("report-judged-a4.pdf"), &pdf).unwrap();
+    eprintln!("report of a judged part (verdict, mask, golden band) on A4: {pages} pages");
+    assert!((1..=2).contains(&pages), "{pages} A4 pages");
     b.assert_no_console_errors("on K(x) with the golden band")
         .await;
 
