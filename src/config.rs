@@ -113,6 +113,7 @@ impl Default for Config {
                 limits: default_limits(),
                 hardware: None,
                 emulator: None,
+                virtual_: None,
             }],
             defaults: JobDefaults::default(),
             http: HttpConfig::default(),
@@ -483,6 +484,33 @@ mod tests {
                 assert!(e.contains("`hardware` feature"), "{e}");
             }
         }
+    }
+
+    #[test]
+    fn virtual_table_is_checked_and_belongs_to_a_virtual_bench() {
+        let ok = Config::parse(
+            "[[benches]]\nid = \"a\"\n[benches.virtual]\npaced = true\nlaser_gain_error = 0.002\nclamp_mass_kg = -0.0001",
+        )
+        .unwrap();
+        let v = ok.benches[0].virtual_.unwrap();
+        assert!(v.paced);
+        assert_eq!((v.laser_gain_error, v.clamp_mass_kg), (0.002, -0.0001));
+        for (table, field) in [
+            ("laser_gain_error = 0.2", "laser_gain_error"),
+            ("clamp_mass_kg = 0.5", "clamp_mass_kg"),
+            ("gain = 1.0", "gain"),
+        ] {
+            let e = Config::parse(&format!(
+                "[[benches]]\nid = \"a\"\n[benches.virtual]\n{table}"
+            ))
+            .unwrap_err();
+            assert!(e.contains(field), "{e}");
+        }
+        let e = Config::parse(
+            "[[benches]]\nid = \"a\"\nkind = \"hardware\"\n[benches.virtual]\npaced = true",
+        )
+        .unwrap_err();
+        assert!(e.contains("[benches."), "{e}");
     }
 
     #[test]

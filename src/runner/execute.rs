@@ -196,7 +196,7 @@ pub(super) fn make_bench(
     limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
     match cfg.kind {
-        BenchKind::Virtual => virtual_bench(&cfg.id, part, seed, limits),
+        BenchKind::Virtual => virtual_bench(cfg, part, seed, limits),
         BenchKind::Hardware | BenchKind::Emulated => {
             hardware::open_bench(cfg, part, seed, job_seq, limits)
         }
@@ -204,15 +204,22 @@ pub(super) fn make_bench(
 }
 
 pub(super) fn virtual_bench(
-    id: &str,
+    cfg: &BenchConfig,
     part: PartSpec,
     seed: u64,
     limits: crate::bench::Limits,
 ) -> Result<Box<dyn Bench>, String> {
     part.validate()?;
-    let mut b = crate::bench::virtual_bench::VirtualBench::new(part, seed).with_limits(limits);
-    b.id = id.to_string();
-    Ok(Box::new(b))
+    let v = cfg.virtual_.unwrap_or_default();
+    let mut b = crate::bench::virtual_bench::VirtualBench::new(part, seed)
+        .with_limits(limits)
+        .with_config(&v);
+    b.id = cfg.id.clone();
+    Ok(if v.paced {
+        Box::new(crate::bench::procedure::pace::Paced::new(b))
+    } else {
+        Box::new(b)
+    })
 }
 
 pub(super) fn procedure_stop(e: ProcedureError) -> Stop {

@@ -458,6 +458,51 @@ pub struct BenchConfig {
     /// Emulated bench: latency, noise, injected faults.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub emulator: Option<crate::settings::EmulatorConfig>,
+    /// Virtual bench (`[benches.virtual]`): real-time pacing and the ways
+    /// this bench differs from its neighbours (calibration, clamp).
+    #[serde(default, rename = "virtual", skip_serializing_if = "Option::is_none")]
+    pub virtual_: Option<VirtualConfig>,
+}
+
+/// `[benches.virtual]` of a `kind = "virtual"` bench. Two real benches of one
+/// station never read a part alike: their lasers' sensitivities are
+/// calibrated to a tolerance, their inner clamps do not weigh the same. A
+/// virtual bench takes such a difference here so that a gauge study across
+/// virtual benches sees a reproducibility (AV) that is not trivially 0
+/// (decision 0038).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VirtualConfig {
+    /// Hand each captured block on no earlier than a converter at the
+    /// bench's sample rate would (the wall time a real bench takes:
+    /// throughput figures); otherwise as fast as the CPU computes.
+    pub paced: bool,
+    /// Relative error of the laser's sensitivity: the bench reads
+    /// (1 + error) x. E.g. 0.002: 0.2 % high. At most 0.05 in size.
+    pub laser_gain_error: f64,
+    /// Mass this bench's inner clamp adds to every mounted part beyond the
+    /// part's own moving mass (kg; negative: lighter). The recipe's moving
+    /// mass does not know it. At most 0.01 kg in size.
+    pub clamp_mass_kg: f64,
+}
+
+impl VirtualConfig {
+    /// One-line error naming the field.
+    pub fn validate(&self, id: &str) -> Result<(), String> {
+        if !self.laser_gain_error.is_finite() || self.laser_gain_error.abs() > 0.05 {
+            return Err(format!(
+                "bench '{id}': virtual.laser_gain_error must be a number within +-0.05, got {}",
+                self.laser_gain_error
+            ));
+        }
+        if !self.clamp_mass_kg.is_finite() || self.clamp_mass_kg.abs() > 0.01 {
+            return Err(format!(
+                "bench '{id}': virtual.clamp_mass_kg must be a number within +-0.01 kg, got {}",
+                self.clamp_mass_kg
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl BenchConfig {
@@ -484,6 +529,15 @@ impl BenchConfig {
             (_, Some(_)) => {
                 return Err(format!(
                     "bench '{id}': a [benches.emulator] table needs kind = \"emulated\""
+                ))
+            }
+            _ => {}
+        }
+        match (self.kind, &self.virtual_) {
+            (BenchKind::Virtual, Some(v)) => v.validate(id)?,
+            (_, Some(_)) => {
+                return Err(format!(
+                    "bench '{id}': a [benches.virtual] table needs kind = \"virtual\""
                 ))
             }
             _ => {}

@@ -26,6 +26,9 @@ pub struct VirtualBench {
     pub limits: Limits,
     /// Stable identifier.
     pub id: String,
+    /// Relative error of the laser's sensitivity: it reads (1 + error) x
+    /// (`[benches.virtual] laser_gain_error`).
+    pub laser_gain_error: f64,
     /// Sweeps played so far (each gets its own noise).
     runs: u64,
 }
@@ -44,8 +47,19 @@ impl VirtualBench {
             bench: BenchParams::default(),
             limits: DEFAULT_LIMITS,
             id: "virtual-0".into(),
+            laser_gain_error: 0.0,
             runs: 0,
         }
+    }
+
+    /// This bench's differences from its neighbours (`[benches.virtual]`):
+    /// the laser's sensitivity error, the inner clamp's extra mass (added
+    /// to the mounted part's moving mass). Pacing is the caller's
+    /// ([`crate::procedure::pace::Paced`]).
+    pub fn with_config(mut self, cfg: &crate::settings::VirtualConfig) -> VirtualBench {
+        self.laser_gain_error = cfg.laser_gain_error;
+        self.part.moving_mass_kg += cfg.clamp_mass_kg;
+        self
     }
 
     pub fn with_bench(mut self, bench: BenchParams) -> VirtualBench {
@@ -211,7 +225,8 @@ impl Bench for VirtualBench {
             if xm.abs() > b.laser.range_m && abort.is_none() {
                 abort = Some((k, BenchError::LaserOutOfRange { t_s: k as f64 / fs }));
             }
-            let mut xo = xm + laser_noise_m * rng.sample::<f64, _>(StandardNormal);
+            let mut xo = (1.0 + self.laser_gain_error) * xm
+                + laser_noise_m * rng.sample::<f64, _>(StandardNormal);
             if b.laser.quantisation_m > 0.0 {
                 xo = (xo / b.laser.quantisation_m).round() * b.laser.quantisation_m;
             }
@@ -255,5 +270,48 @@ impl Bench for VirtualBench {
             microphone_v: mics,
             drive_v: Some(drv),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::settings::VirtualConfig;
+
+    fn sine(n: usize, f_hz: f64, v: f64) -> Vec<f64> {
+        (0..n)
+            .map(|k| v * (2.0 * std::f64::consts::PI * f_hz * k as f64 / 48000.0).sin())
+            .collect()
+    }
+
+    #[test]
+    fn a_bench_differs_by_its_laser_gain_and_clamp_mass() {
+        let part = springbench_core::physics::preset("spider_4in").unwrap();
+        let mut quiet = BenchParams::default();
+        quiet.laser.noise_m = 0.0;
+        let drive = sine(9600, 20.0, 2.0);
+        let run = |cfg: VirtualConfig| {
+            let mut b = VirtualBench::new(part.clone(), 7)
+                .with_bench(quiet)
+                .with_config(&cfg);
+            b.run(&drive, &mut |_| Control::Continue).unwrap()
+        };
+        let base = run(VirtualConfig::default());
+        let gain = run(VirtualConfig {
+            laser_gain_error: 0.01,
+            ..Default::default()
+        });
+        // Same motion, read 1 % high (24-bit codes over 25 mm: 3 nm).
+        for (a, b) in base.displacement_m.iter().zip(&gain.displacement_m) {
+            assert!((b - 1.01 * a).abs() < 1e-8, "{a} {b}");
+        }
+        let peak = |s: &Signals| s.displacement_m.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        assert!(peak(&base) > 1e-4);
+        // A heavier clamp: the mounted part's moving mass grows by it.
+        let b = VirtualBench::new(part.clone(), 7).with_config(&VirtualConfig {
+            clamp_mass_kg: 0.001,
+            ..Default::default()
+        });
+        assert_eq!(b.part.moving_mass_kg, part.moving_mass_kg + 0.001);
     }
 }
