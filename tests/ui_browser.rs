@@ -1863,3 +1863,108 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
     }
     b.quit().await;
 }
+
+/// The QC view's gauge panel (issue 21): a study of 2 parts x 2 repeats x 2
+/// virtual benches under a recipe with +-10 % limits; the panel shows each
+/// judged parameter's %GRR of tolerance and ndc as the API computed them,
+/// its AIAG class, and the AIAG thresholds.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&format!(
+        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
+        tokens()
+    ));
+    let nominal = springbench::physics::preset("spider_4in").unwrap();
+    let k0 = nominal.k_coeffs_si[0];
+    create_recipe(
+        &d,
+        json!({"name": "spider-4in", "part_kind": "spider",
+               "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+               "parameters": [{"name": "k0", "quantity": "k0", "lower": 0.9 * k0, "upper": 1.1 * k0},
+                              {"name": "keff", "quantity": "keff"}]}),
+    )
+    .await;
+    let parts: Vec<Value> = (0..2u64)
+        .map(|i| json!({"serial": format!("MSA-{i}"), "production": {"preset": "spider_4in", "seed": 40 + i}}))
+        .collect();
+    let r = common::client()
+        .post(d.url("/api/v1/gauge-studies"))
+        .bearer_auth(OPERATOR)
+        .json(&json!({"recipe": "spider-4in", "parts": parts, "repeats": 2}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let t = std::time::Instant::now();
+    let study = loop {
+        let s = get(&d, &format!("/api/v1/gauge-studies/{id}")).await;
+        if s["state"] == "done" {
+            break s;
+        }
+        assert!(t.elapsed() < Duration::from_secs(600), "study: {s}");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    b.login(&d.base, VIEWER, "viewer").await;
+    b.goto(&format!("{}/#/qc/spider-4in", d.base)).await;
+    b.wait_js(
+        "document.querySelector('#gauge tr[data-quantity=\"k0\"]')",
+        LONG,
+        "the gauge study's k0 row",
+    )
+    .await;
+    b.js(
+        "document.querySelector('#gauge').scrollIntoView(); return true;",
+        vec![],
+    )
+    .await;
+    b.screenshot_element("#gauge", "qc-gauge").await;
+    let legend = b.text("#gauge-legend").await;
+    for s in [
+        "< 10 % acceptable",
+        "10\u{2013}30 % conditionally acceptable",
+        "> 30 % not acceptable",
+        "ndc",
+    ] {
+        assert!(legend.contains(s), "{s} not in {legend}");
+    }
+    let q = |name: &str| {
+        study["quantities"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|q| q["quantity"] == name)
+            .unwrap()
+            .clone()
+    };
+    // k0: %GRR of tolerance (3 significant digits) and ndc as the API says.
+    let k = q("k0");
+    let pct = k["grr_percent_of_tolerance"].as_f64().unwrap();
+    let shown = b.text("#gauge tr[data-quantity=\"k0\"] .grr-tol").await;
+    let shown_v: f64 = shown.trim_end_matches(" %").parse().unwrap();
+    assert!((shown_v - pct).abs() <= 0.01 * pct, "{shown} vs {pct}");
+    let ndc = b.text("#gauge tr[data-quantity=\"k0\"] .ndc").await;
+    assert_eq!(ndc, k["ndc"].to_string(), "ndc");
+    let class = b
+        .js(
+            "return document.querySelector('#gauge tr[data-quantity=\"k0\"]').dataset.acceptance;",
+            vec![],
+        )
+        .await;
+    assert_eq!(class, k["acceptance"]);
+    // Keff has no limits: no tolerance, %GRR of the total instead.
+    let row = b.text("#gauge tr[data-quantity=\"keff\"]").await;
+    assert!(row.contains("no limits"), "{row}");
+    // The figures in the people's unit: k0's GRR in N/mm.
+    let k0_row = b.text("#gauge tr[data-quantity=\"k0\"]").await;
+    assert!(k0_row.contains("N/mm"), "{k0_row}");
+    b.assert_no_console_errors("in the gauge panel").await;
+    b.quit().await;
+}

@@ -67,6 +67,7 @@ async function renderRecipe(main, ctx, name) {
 
   const spcEl = h('section', { class: 'card', id: 'spc' });
   const propEl = h('section', { class: 'card', id: 'proposals' });
+  const gaugeEl = h('section', { class: 'card', id: 'gauge' });
 
   put(
     main,
@@ -88,10 +89,87 @@ async function renderRecipe(main, ctx, name) {
       ),
       propEl,
       spcEl,
+      gaugeEl,
     ),
   );
   drawProposals(propEl, ctx, name, proposals.items || []);
   drawSpc(spcEl, ctx, name, params);
+  drawGauge(gaugeEl, ctx, name, params);
+}
+
+// Gauge studies (issue 21): the newest studies of this recipe, each with its
+// figures per judged parameter once every run has ended (docs/qc.md, "Gauge
+// study"). Read only: a study is started with POST /api/v1/gauge-studies.
+const ACCEPTANCE = {
+  acceptable: ['acceptable (< 10 %)', 'verdict-pass'],
+  conditionally_acceptable: ['conditionally acceptable (10\u201330 %)', 'state-interrupted'],
+  not_acceptable: ['not acceptable (> 30 %)', 'verdict-fail'],
+};
+
+async function drawGauge(el, ctx, name, params) {
+  const head = [
+    h('h2', {}, 'Gauge studies (measurement-system analysis)'),
+    h('p', { class: 'muted', id: 'gauge-legend' },
+      'AIAG MSA, ANOVA: EV repeatability (same bench), AV reproducibility (between benches), GRR = \u221a(EV\u00b2 + AV\u00b2), PV part variation, as standard deviations. ',
+      '%GRR = 100 \u00b7 6 GRR / tolerance (upper \u2212 lower limit; of the total variation when the parameter has no limits): ',
+      h('b', {}, '< 10 % acceptable, 10\u201330 % conditionally acceptable, > 30 % not acceptable'),
+      '. ndc (number of distinct categories) = \u230a1.41 PV / GRR\u230b: at least 5 wanted.'),
+  ];
+  let list;
+  try {
+    list = await api('/api/v1/gauge-studies');
+  } catch (e) {
+    put(el, ...head, h('p', { class: 'error' }, `Gauge studies not available: ${e.message}`));
+    return;
+  }
+  if (ctx.stale()) return;
+  const mine = (list.items || []).filter((s) => s.recipe === name).slice(0, 5);
+  if (!mine.length) {
+    put(el, ...head, h('p', { class: 'muted', id: 'no-gauge' }, 'No gauge study of this recipe yet (POST /api/v1/gauge-studies; docs/qc.md, \u201cGauge study\u201d).'));
+    return;
+  }
+  const docs = await Promise.all(mine.map((s) => api(`/api/v1/gauge-studies/${s.id}`).catch((e) => ({ id: s.id, error: e.message }))));
+  if (ctx.stale()) return;
+  const label = (qname) => {
+    const p = params.find((x) => x.name === qname);
+    return p ? paramLabel(p) : qname;
+  };
+  const pct = (v) => (v === null || v === undefined || !Number.isFinite(v) ? '\u2013' : `${num(v, 3)} %`);
+  const studies = docs.map((g) => {
+    if (g.error) return h('p', { class: 'error' }, `Study ${shortId(g.id)}: ${g.error}`);
+    const procedure = (g.job && g.job.procedure) || 'as the recipe says';
+    const title = h('h3', {}, `Study ${shortId(g.id)} `,
+      h('span', { class: `badge state-${g.state === 'done' ? 'succeeded' : 'running'}` }, g.state === 'done' ? 'done' : `running: ${g.runs_finished} of ${g.runs_total} runs`),
+      h('span', { class: 'muted' }, `  ${(g.parts || []).length} parts \u00d7 ${g.repeats} repeats \u00d7 ${(g.benches || []).length} benches (${(g.benches || []).join(', ')}); procedure ${procedure}; recipe version ${g.recipe_version ?? '\u2013'}; ${when(g.created_at)}`));
+    if (g.state !== 'done') return h('div', { class: 'gauge-study', dataset: { study: g.id, state: g.state } }, title);
+    const rows = (g.quantities || []).map((q) => {
+      const [text, cls] = ACCEPTANCE[q.acceptance] || [q.acceptance, ''];
+      const u = q.unit;
+      return h('tr', { dataset: { quantity: q.quantity, acceptance: q.acceptance } },
+        h('td', {}, label(q.quantity)),
+        h('td', {}, lim(q.ev_sd, u)),
+        h('td', {}, lim(q.av_sd, u)),
+        h('td', {}, lim(q.grr_sd, u)),
+        h('td', {}, lim(q.pv_sd, u)),
+        h('td', {}, q.tolerance === null || q.tolerance === undefined ? 'no limits' : lim(q.tolerance, u)),
+        h('td', { class: 'grr-tol' }, pct(q.grr_percent_of_tolerance)),
+        h('td', {}, pct(q.grr_percent_of_total)),
+        h('td', { class: 'ndc' }, q.ndc === null || q.ndc === undefined ? '\u2013 (GRR 0)' : String(q.ndc)),
+        h('td', {}, h('span', { class: `badge ${cls}` }, text)));
+    });
+    return h('div', { class: 'gauge-study', dataset: { study: g.id, state: g.state } }, title,
+      h('table', { class: 'list gauge-table' },
+        h('thead', {}, h('tr', {},
+          h('th', {}, 'parameter'), h('th', { title: 'repeatability: same part, same bench (1 \u03c3)' }, 'EV'),
+          h('th', { title: 'reproducibility: between benches (1 \u03c3)' }, 'AV'), h('th', {}, 'GRR'),
+          h('th', { title: 'part-to-part variation (1 \u03c3)' }, 'PV'), h('th', {}, 'tolerance'),
+          h('th', {}, '%GRR of tolerance'), h('th', {}, '%GRR of total'), h('th', {}, 'ndc'), h('th', {}, 'AIAG'))),
+        h('tbody', {}, rows)),
+      (g.not_computed || []).length
+        ? h('ul', { class: 'error' }, g.not_computed.map((n) => h('li', {}, `${label(n.parameter)}: not computed, ${n.reason}`)))
+        : null);
+  });
+  put(el, ...head, ...studies);
 }
 
 function drawProposals(el, ctx, name, items) {
