@@ -30,6 +30,26 @@ fn k_at(k: &[f64], x: f64) -> f64 {
     k.iter().rev().fold(0.0, |acc, c| acc * x + c)
 }
 
+/// GET as the station; the body of a 200.
+async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
+    let (s, v) = send(c, d, reqwest::Method::GET, path, OPERATOR, None).await;
+    assert_eq!(s, 200, "{path}: {v}");
+    v
+}
+
+/// The study's document once every run has ended.
+async fn study_done(c: &reqwest::Client, d: &Daemon, id: &str, within: Duration) -> Value {
+    let t = Instant::now();
+    loop {
+        let v = get(c, d, &format!("/api/v1/gauge-studies/{id}")).await;
+        if v["state"] == "done" {
+            return v;
+        }
+        assert!(t.elapsed() < within, "study {id} did not end: {v}");
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn gauge_study_on_two_virtual_benches() {
     let d = Daemon::start(&config());
@@ -133,27 +153,7 @@ async fn gauge_study_on_two_virtual_benches() {
     assert_eq!(study["runs_total"], 12);
     assert_eq!(study["benches"], json!(["virtual-1", "virtual-2"]));
     let id = study["id"].as_str().unwrap().to_string();
-    let t = Instant::now();
-    let study = loop {
-        let (s, v) = send(
-            &c,
-            &d,
-            reqwest::Method::GET,
-            &format!("/api/v1/gauge-studies/{id}"),
-            OPERATOR,
-            None,
-        )
-        .await;
-        assert_eq!(s, 200, "{v}");
-        if v["state"] == "done" {
-            break v;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(900),
-            "study did not end: {v}"
-        );
-        tokio::time::sleep(Duration::from_millis(500)).await;
-    };
+    let study = study_done(&c, &d, &id, Duration::from_secs(900)).await;
     assert_eq!(study["not_computed"], json!([]), "{study}");
 
     // Independent values: each run's job verdict through the public API.
@@ -162,16 +162,7 @@ async fn gauge_study_on_two_virtual_benches() {
     let mut values = std::collections::HashMap::<String, Vec<Vec<Vec<f64>>>>::new();
     for run in study["runs"].as_array().unwrap() {
         let job = run["job_id"].as_str().unwrap();
-        let (s, v) = send(
-            &c,
-            &d,
-            reqwest::Method::GET,
-            &format!("/api/v1/jobs/{job}/verdict"),
-            OPERATOR,
-            None,
-        )
-        .await;
-        assert_eq!(s, 200, "{v}");
+        let v = get(&c, &d, &format!("/api/v1/jobs/{job}/verdict")).await;
         let p = run["part_index"].as_u64().unwrap() as usize;
         let b = benches.iter().position(|x| *x == run["bench_id"]).unwrap();
         let r = run["repeat"].as_u64().unwrap() as usize;
@@ -306,15 +297,7 @@ async fn acceptance_study_full_against_production() {
     for id in &ids {
         let t = Instant::now();
         loop {
-            let (_, j) = send(
-                &c,
-                &d,
-                reqwest::Method::GET,
-                &format!("/api/v1/jobs/{id}"),
-                OPERATOR,
-                None,
-            )
-            .await;
+            let j = get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
             if common::terminal(j["state"].as_str().unwrap()) {
                 assert_eq!(j["state"], "succeeded", "{j}");
                 break;
@@ -371,23 +354,7 @@ async fn acceptance_study_full_against_production() {
     let t = Instant::now();
     let mut results = vec![];
     for id in &studies {
-        results.push(loop {
-            let (s, v) = send(
-                &c,
-                &d,
-                reqwest::Method::GET,
-                &format!("/api/v1/gauge-studies/{id}"),
-                OPERATOR,
-                None,
-            )
-            .await;
-            assert_eq!(s, 200, "{v}");
-            if v["state"] == "done" {
-                break v;
-            }
-            assert!(t.elapsed() < Duration::from_secs(3600), "study {id}: {v}");
-            tokio::time::sleep(Duration::from_secs(2)).await;
-        });
+        results.push(study_done(&c, &d, id, Duration::from_secs(3600)).await);
     }
     eprintln!("studies done after {:.0} s", t.elapsed().as_secs_f64());
 
@@ -426,15 +393,7 @@ async fn acceptance_study_full_against_production() {
         for run in r["runs"].as_array().unwrap() {
             assert_eq!(run["state"], "succeeded", "{run}");
             let job = run["job_id"].as_str().unwrap();
-            let (_, j) = send(
-                &c,
-                &d,
-                reqwest::Method::GET,
-                &format!("/api/v1/jobs/{job}"),
-                OPERATOR,
-                None,
-            )
-            .await;
+            let j = get(&c, &d, &format!("/api/v1/jobs/{job}")).await;
             assert_eq!(j["warnings"], json!([]), "{job} fell back: {j}");
             let log = j["log"].to_string();
             assert!(
@@ -445,15 +404,7 @@ async fn acceptance_study_full_against_production() {
                 .entry(procedure)
                 .or_default()
                 .push(j["bench_time_s"].as_f64().unwrap());
-            let (_, v) = send(
-                &c,
-                &d,
-                reqwest::Method::GET,
-                &format!("/api/v1/jobs/{job}/verdict"),
-                OPERATOR,
-                None,
-            )
-            .await;
+            let v = get(&c, &d, &format!("/api/v1/jobs/{job}/verdict")).await;
             let k0 = v["measurements"][0]["detail"]["parameters"]
                 .as_array()
                 .unwrap()
