@@ -120,19 +120,8 @@ fn measure(
     }
     .unwrap();
     let sweep = &outcome.narrow[0];
-    let mut meta =
-        springbench::recording::Meta::standard(p.moving_mass_kg, outcome.pre.sample_rate_hz);
-    meta.channels.drive = Some(2);
-    let set = springbench::recording::RecordingSet {
-        meta,
-        pre: outcome.pre.clone(),
-        main: sweep.signals.clone(),
-    };
-    let opts = AnalyzeOptions {
-        method: Method::TwoSignal,
-        order: Some(4),
-    };
-    let analysed = identify::analyze(&set, &opts).map(|mut r| {
+    let set = recording_set(p, &outcome);
+    let analysed = identify::analyze(&set, &OPTS).map(|mut r| {
         r.warnings.extend(sweep.warning.iter().cloned());
         qc::set_keff_at_target(&mut r, Some(level_m));
         r
@@ -148,6 +137,24 @@ fn measure(
         pre_q_drive_to_x: outcome.pre_q_drive_to_x,
     };
     Measured { outcome, facts }
+}
+
+/// The analysis of every measurement here: Two Signal, order 4.
+const OPTS: AnalyzeOptions = AnalyzeOptions {
+    method: Method::TwoSignal,
+    order: Some(4),
+};
+
+/// The recording set of a measurement (pre-measurement, first narrow sweep).
+fn recording_set(p: &PartSpec, outcome: &Outcome) -> springbench::recording::RecordingSet {
+    let mut meta =
+        springbench::recording::Meta::standard(p.moving_mass_kg, outcome.pre.sample_rate_hz);
+    meta.channels.drive = Some(2);
+    springbench::recording::RecordingSet {
+        meta,
+        pre: outcome.pre.clone(),
+        main: outcome.narrow[0].signals.clone(),
+    }
 }
 
 /// `f` over `items` on two threads, results in order.
@@ -426,6 +433,85 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
         .is_some_and(|w| w.contains("no golden reference")));
 }
 
+/// Effect sizes (the diagnostics' fitted effects, which a recipe judges
+/// with `effect_size`) of the production procedure against the full one on
+/// the same parts: spider_4in parts with 0.25 N of Coulomb friction and
+/// good parts, each measured by both procedures on fresh virtual benches of
+/// the same part and seed and diagnosed as the runner does for such a
+/// recipe. Asserted: the same effects are found (none on a good part,
+/// friction on every friction part) and the friction force agrees within
+/// 10 %. FAILS today: the full procedure finds 0.25 N of friction on every
+/// friction part, the production procedure on none (docs/qc.md, "Effect
+/// sizes"); `#[ignore]` until the runner falls back to the full procedure
+/// for a recipe that judges an effect size, or the short sweep measures it.
+/// `cargo test --test production -- --ignored --nocapture effect_sizes` (20 s)
+#[test]
+#[ignore = "open defect: the production sweep does not reveal friction (0 of 5 parts); docs/qc.md, Effect sizes"]
+fn effect_sizes_agree_with_the_full_procedure() {
+    let l = &lines()[0];
+    let rec = approved_recipe(l);
+    let g = rec.procedure.golden.clone().unwrap();
+    let nominal = preset(l.preset).unwrap();
+    let parts: Vec<(u64, Option<Defect>)> = (0..5u64)
+        .map(|i| (950 + i, Some(Defect::Friction)))
+        .chain((0..3u64).map(|i| (960 + i, None)))
+        .collect();
+    let effects = |p: &PartSpec, seed: u64, golden: Option<Option<&GoldenReference>>| {
+        let m = measure(p, seed, DEFAULT_LIMITS, l.level_m, golden);
+        if let Some(f) = m
+            .outcome
+            .production
+            .as_ref()
+            .and_then(|r| r.fallback.clone())
+        {
+            panic!("{}: fell back: {f}", p.name);
+        }
+        let opts = springbench::diagnose::DiagnoseOptions {
+            analyze: OPTS,
+            effects: vec![],
+            ..Default::default()
+        };
+        let d = springbench::diagnose::diagnose(&recording_set(p, &m.outcome), &opts).unwrap();
+        serde_json::to_value(d.report.model.effects).unwrap()
+    };
+    let results = par_map(&parts, |&(seed, defect)| {
+        let p = part(&nominal, &Spread::default(), seed, defect);
+        (effects(&p, seed, None), effects(&p, seed, Some(Some(&g))))
+    });
+    let mut worst = 0.0f64;
+    let mut differ = vec![];
+    for (&(seed, defect), (full, prod)) in parts.iter().zip(&results) {
+        eprintln!("part {seed} {defect:?}: full {full} production {prod}");
+        let ids = |v: &serde_json::Value| -> Vec<String> {
+            v.as_object()
+                .map_or(vec![], |o| o.keys().cloned().collect())
+        };
+        if ids(full) != ids(prod) {
+            differ.push(format!(
+                "part {seed}: full {:?} production {:?}",
+                ids(full),
+                ids(prod)
+            ));
+            continue;
+        }
+        match defect {
+            Some(_) => {
+                let f = |v: &serde_json::Value| v["coulomb_friction"]["force_n"].as_f64().unwrap();
+                let (a, b) = (f(full), f(prod));
+                let dev = 100.0 * (b / a - 1.0);
+                eprintln!(
+                    "part {seed}: friction full {a:.4} N production {b:.4} N ({dev:+.2} %); truth 0.25 N"
+                );
+                worst = worst.max(dev.abs());
+            }
+            None => assert_eq!(ids(full), Vec::<String>::new(), "part {seed}"),
+        }
+    }
+    eprintln!("largest friction deviation production vs full: {worst:.2} %; effects found differ: {differ:?}");
+    assert!(differ.is_empty(), "effects found differ: {differ:?}");
+    assert!(worst <= 10.0, "friction force differs by {worst:.2} %");
+}
+
 /// Throughput benchmark (run by hand, not in CI: it takes about 3 minutes of
 /// wall time): one station bench, the virtual bench paced in real time
 /// (`procedure::pace::Paced`: every block handed on no earlier than a
@@ -465,19 +551,8 @@ fn throughput_on_the_paced_virtual_bench() {
             .unwrap();
             bench_s += out.bench_time_s;
             let ta = std::time::Instant::now();
-            let mut meta =
-                springbench::recording::Meta::standard(p.moving_mass_kg, out.pre.sample_rate_hz);
-            meta.channels.drive = Some(2);
-            let set = springbench::recording::RecordingSet {
-                meta,
-                pre: out.pre.clone(),
-                main: out.narrow[0].signals.clone(),
-            };
-            let opts = AnalyzeOptions {
-                method: Method::TwoSignal,
-                order: Some(4),
-            };
-            let mut r = identify::analyze(&set, &opts).unwrap();
+            let set = recording_set(&p, &out);
+            let mut r = identify::analyze(&set, &OPTS).unwrap();
             qc::set_keff_at_target(&mut r, Some(l.level_m));
             let v = qc::judge(
                 &rec,
