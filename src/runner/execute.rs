@@ -13,12 +13,12 @@ pub(super) struct Done {
     pub(super) fallbacks: u32,
     pub(super) log: Vec<String>,
     pub(super) warnings: Vec<String>,
-    pub(super) recordings: Vec<NewRecording>,
+    /// The job's measurements, stored as each level finished; kept without
+    /// their result and meta documents.
     pub(super) measurements: Vec<NewMeasurement>,
     /// The result document of each measurement (index-aligned with
-    /// `measurements`), typed until the repeat is stored: the series is
-    /// attached to it and the MES messages read it, then it is serialized
-    /// once into the measurement's `result`.
+    /// `measurements`), typed: the series is attached to it when its repeat
+    /// ends (and the stored result replaced), and the MES messages read it.
     pub(super) reports: Vec<Option<identify::Report>>,
     /// Verdict of each measurement under the job's recipe (by measurement id).
     pub(super) verdicts: Vec<(String, crate::qc::Verdict)>,
@@ -31,16 +31,22 @@ pub(super) enum Msg {
         eta_s: f64,
     },
     Samples(Value),
-    /// A finished repeat's recordings and measurements, to be stored now (a
+    /// A finished level's recordings and measurement, to be stored now (a
     /// cancel, a failure or a crash later keeps them; the job holds only
-    /// their light results); the reply says whether they were.
-    Store(Batch, std::sync::mpsc::SyncSender<Result<(), String>>),
+    /// their light results), or a finished repeat's completed documents;
+    /// the reply carries the new recordings' ids, or why nothing was stored.
+    Store(Batch, std::sync::mpsc::SyncSender<Result<Vec<i64>, String>>),
 }
 
-/// Recordings and the measurements that index into them (`pre`, `main`).
+/// Recordings and the measurements that index into them (`pre`, `main`:
+/// into `known`, recordings stored before, then `recordings`), and
+/// replaced documents of stored measurements (id, config, result).
+#[derive(Default)]
 pub(super) struct Batch {
+    pub(super) known: Vec<i64>,
     pub(super) recordings: Vec<NewRecording>,
     pub(super) measurements: Vec<NewMeasurement>,
+    pub(super) updates: Vec<(String, Value, Option<Value>)>,
 }
 
 /// Live samples: about this many per second of signal, in chunks of `CHUNK`.
@@ -115,21 +121,22 @@ impl JobObserver {
         }
     }
 
-    /// Has a finished repeat stored (waits for the store's answer).
-    fn store(&self, batch: Batch) -> Result<(), Stop> {
+    /// Has a finished level or repeat stored (waits for the store's
+    /// answer: the new recordings' ids).
+    fn store(&self, batch: Batch) -> Result<Vec<i64>, Stop> {
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
         let failed = |e: String| {
             Stop::Failed(problem(
                 "storage",
                 "Results not stored",
-                &format!("storing the measurements of a finished repeat failed: {e}"),
+                &format!("storing the measurements of a finished level failed: {e}"),
             ))
         };
         self.tx
             .send(Msg::Store(batch, tx))
             .map_err(|_| failed("the job's task is gone".into()))?;
         match rx.recv() {
-            Ok(Ok(())) => Ok(()),
+            Ok(Ok(ids)) => Ok(ids),
             Ok(Err(e)) => Err(failed(e)),
             Err(_) => Err(failed("no answer from the store".into())),
         }
@@ -242,7 +249,9 @@ pub(super) fn procedure_stop(e: ProcedureError) -> Stop {
     }
 }
 
-/// Runs a job on its own blocking thread: procedure per repeat, then the fit per narrow sweep.
+/// Runs a job on its own blocking thread: the procedure per repeat; each
+/// level is fitted, judged and stored as its narrow sweep finishes
+/// ([`Repeat`]), the level series once the repeat's last level is in.
 // Each argument is one thing the blocking thread owns or borrows for the job's duration.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn execute(
@@ -281,33 +290,69 @@ pub(super) fn execute(
         fallbacks: 0,
         log: vec![],
         warnings: vec![],
-        recordings: vec![],
         measurements: vec![],
         reports: vec![],
         verdicts: vec![],
     };
+    let tagged = |r: u32, l: String| {
+        if spec.repeats > 1 {
+            format!("repeat {}: {l}", r + 1)
+        } else {
+            l
+        }
+    };
     for r in 0..spec.repeats {
         obs.repeat = r;
-        let runs_before = bench.run_records().len();
+        let first_measurement = done.measurements.len();
+        let mut rep = Repeat {
+            obs: &mut *obs,
+            job_id,
+            spec,
+            bench_id: &bench_cfg.id,
+            calibration,
+            recipe,
+            opts: &opts,
+            config: &config,
+            repeat: r,
+            runs_before: bench.run_records().len(),
+            want_series: spec.levels_m.len() >= 2,
+            done: &mut done,
+            pre_id: None,
+            series_in: vec![],
+            log: vec![],
+            analysis_s: 0.0,
+            stop: None,
+        };
         let outcome = match spec.procedure {
-            crate::job::ProcedureMode::Full => procedure::run(bench.as_mut(), &pcfg, obs),
+            crate::job::ProcedureMode::Full => procedure::run(bench.as_mut(), &pcfg, &mut rep),
             crate::job::ProcedureMode::Production => {
-                procedure::run_production(bench.as_mut(), &pcfg, golden, obs)
+                procedure::run_production(bench.as_mut(), &pcfg, golden, &mut rep)
             }
+        };
+        let Repeat {
+            stop,
+            series_in,
+            log: level_log,
+            analysis_s: levels_analysis_s,
+            ..
+        } = rep;
+        if let Some(stop) = stop {
+            return Err(stop);
         }
-        .map_err(procedure_stop)?;
+        let outcome = outcome.map_err(procedure_stop)?;
         if obs.cancelled() {
             return Err(Stop::Aborted);
+        }
+        if !outcome.narrow.is_empty() {
+            return Err(Stop::Failed(problem(
+                "procedure",
+                "Procedure failed",
+                "the procedure kept narrow sweeps it did not hand out",
+            )));
         }
         let analysis_started = Instant::now();
         done.bench_time_s += outcome.bench_time_s;
         done.parts += 1;
-        // What ran, for the result and the verdict's traceability.
-        let procedure_run = json!({
-            "mode": spec.procedure.as_str(),
-            "fallback": outcome.production.as_ref().and_then(|p| p.fallback.clone()),
-            "bench_time_s": outcome.bench_time_s,
-        });
         if let Some(why) = outcome
             .production
             .as_ref()
@@ -315,182 +360,14 @@ pub(super) fn execute(
         {
             done.fallbacks += 1;
             let w = format!("production procedure fell back to the full procedure: {why}");
-            done.warnings.push(if spec.repeats > 1 {
-                format!("repeat {}: {w}", r + 1)
-            } else {
-                w
-            });
+            done.warnings.push(tagged(r, w));
         }
-        if spec.repeats > 1 {
-            done.log
-                .extend(outcome.log.iter().map(|l| format!("repeat {}: {l}", r + 1)));
-        } else {
-            done.log.extend(outcome.log.iter().cloned());
-        }
-        let pre_index = done.recordings.len();
-        let res = bench.resolution();
-        done.recordings
-            .push(recording("pre", &outcome.pre, res.as_ref())?);
-        let n = outcome.narrow.len().max(1);
-        // A level series (two or more levels) ends with the joint fit over
-        // its levels (`series`): each analysed level's force-balance data.
-        let want_series = outcome.narrow.len() >= 2;
-        let first_measurement = done.measurements.len();
-        let mut series_in: Vec<series::Level> = vec![];
-        for (li, sweep) in outcome.narrow.iter().enumerate() {
-            let fit_p = obs.proc_share + (1.0 - obs.proc_share) * li as f64 / n as f64;
-            let p = obs.overall(fit_p);
-            obs.send_progress(Step::Fit, p, 0.0);
-            let mut meta = Meta::standard(spec.moving_mass_kg, outcome.pre.sample_rate_hz);
-            meta.channels.drive = outcome.pre.drive_v.as_ref().map(|_| 2);
-            let set = RecordingSet {
-                meta,
-                pre: outcome.pre.clone(),
-                main: sweep.signals.clone(),
-            };
-            if let Some(w) = &sweep.warning {
-                done.warnings.push(if spec.repeats > 1 {
-                    format!("repeat {}: {w}", r + 1)
-                } else {
-                    w.clone()
-                });
-            }
-            let hw_record = calibration.map(|c| {
-                hardware::measurement_record(
-                    c,
-                    &bench.run_records()[runs_before..],
-                    outcome.pre.len(),
-                    sweep.signals.len(),
-                    li,
-                )
-            });
-            let not_aligned = hw_record.as_ref().and_then(hardware::alignment_invalid);
-            let mut fb = None;
-            let analysed = if let Some(why) = &not_aligned {
-                // Never a fit of a displacement not on the audio clock.
-                done.log.push(format!(
-                    "level {} ({} m) not fitted: {why}",
-                    li + 1,
-                    sweep.target_xpeak_m
-                ));
-                Err(why.clone())
-            } else if recipe.is_some_and(|r| r.needs_diagnostics()) {
-                // Judging an effect's size needs the diagnostics' fitted effects.
-                let dopts = crate::diagnose::DiagnoseOptions {
-                    analyze: opts.clone(),
-                    effects: vec![],
-                    ..Default::default()
-                };
-                if want_series {
-                    fb = identify::force_balance_data(&set, &opts).ok();
-                }
-                crate::diagnose::diagnose(&set, &dopts)
-                    .map(|d| identify::Report {
-                        diagnostics: None,
-                        ..d.report
-                    })
-                    .map_err(|e| e.to_string())
-            } else if want_series {
-                identify::analyze_with_force_balance(&set, &opts)
-                    .map(|(rep, d)| {
-                        fb = Some(d);
-                        rep
-                    })
-                    .map_err(|e| e.to_string())
-            } else {
-                identify::analyze(&set, &opts).map_err(|e| e.to_string())
-            }
-            .map(|mut rep| {
-                rep.warnings.extend(sweep.warning.iter().cloned());
-                // The Keff QC judges, beside the one measured at the reached Xpeak.
-                crate::qc::set_keff_at_target(&mut rep, Some(sweep.target_xpeak_m));
-                rep
-            });
-            let mid = new_id();
-            if let Some(r) = recipe {
-                let facts = crate::qc::RunFacts {
-                    report: analysed.as_ref().ok().cloned(),
-                    analysis_error: analysed.as_ref().err().cloned(),
-                    target_xpeak_m: Some(sweep.target_xpeak_m),
-                    level_index: li,
-                    drive_v: Some(sweep.drive_v),
-                    max_drive_v: Some(spec.limits.max_drive_v),
-                    pre_drive_v: Some(outcome.pre_sweep.amplitude_v),
-                    pre_q_drive_to_x: outcome.pre_q_drive_to_x,
-                };
-                done.verdicts
-                    .push((mid.clone(), crate::qc::judge(r, &facts)));
-            }
-            let (report, analysis_error) = match analysed {
-                // Never stored with a non-finite number written as null
-                // (issue 11): the result is refused, the reason kept. QC has
-                // judged the report above with its own rules.
-                Ok(rep) => match crate::finite::check(&rep) {
-                    Ok(()) => (Some(rep), None),
-                    Err(e) => {
-                        let e = format!("result refused: {e}");
-                        done.log.push(format!(
-                            "analysis of level {} ({} m): {e}",
-                            li + 1,
-                            sweep.target_xpeak_m
-                        ));
-                        (None, Some(e))
-                    }
-                },
-                Err(e) if not_aligned.is_some() => (None, Some(e)),
-                Err(e) => {
-                    done.log.push(format!(
-                        "analysis of level {} ({} m) failed: {e}",
-                        li + 1,
-                        sweep.target_xpeak_m
-                    ));
-                    (None, Some(e))
-                }
-            };
-            if let (Some(data), Some(_)) = (fb, &report) {
-                series_in.push(series::Level {
-                    measurement: done.measurements.len(),
-                    measurement_id: mid.clone(),
-                    target_xpeak_m: sweep.target_xpeak_m,
-                    data,
-                });
-            }
-            let main_index = done.recordings.len();
-            done.recordings
-                .push(recording("main", &sweep.signals, res.as_ref())?);
-            let mut cfg_m = config.clone();
-            cfg_m["procedure_run"] = procedure_run.clone();
-            cfg_m["narrow_sweep"] = json!({"drive_v": sweep.drive_v, "f_start_hz": sweep.f_start_hz,
-                                           "f_end_hz": sweep.f_end_hz,
-                                           "duration_s": sweep.sweep.duration_s});
-            cfg_m["pre_sweep"] = json!({"drive_v": outcome.pre_sweep.amplitude_v,
-                                        "f_start_hz": outcome.pre_sweep.f_start_hz,
-                                        "f_end_hz": outcome.pre_sweep.f_end_hz,
-                                        "duration_s": outcome.pre_sweep.duration_s,
-                                        "q_drive_to_x": outcome.pre_q_drive_to_x});
-            if let Some(h) = hw_record {
-                cfg_m["hardware"] = h;
-            }
-            done.measurements.push(NewMeasurement {
-                id: mid,
-                part_serial: spec.part.serial.clone(),
-                job_id: Some(job_id.to_string()),
-                source: "bench",
-                bench_id: Some(bench_cfg.id.clone()),
-                config: cfg_m,
-                meta: serde_json::to_value(&set.meta).unwrap_or(Value::Null),
-                // serialized once the repeat is complete (below)
-                result: None,
-                analysis_error,
-                target_xpeak_m: Some(sweep.target_xpeak_m),
-                repeat_index: Some(r as i64),
-                level_index: Some(li as i64),
-                pre: pre_index,
-                main: main_index,
-            });
-            done.reports.push(report);
-        }
-        if want_series {
+        done.log
+            .extend(outcome.log.iter().map(|l| tagged(r, l.clone())));
+        done.log.extend(level_log);
+        if spec.levels_m.len() >= 2 {
+            // A level series (two or more levels) ends with the joint fit
+            // over its levels (`series`): each analysed level's force-balance data.
             obs.send_progress(Step::Fit, obs.overall(0.99), 0.0);
             let log = series::attach(
                 &mut done.reports[first_measurement..],
@@ -498,47 +375,325 @@ pub(super) fn execute(
                 series_in,
                 spec.order,
             );
-            done.log.extend(log.into_iter().map(|l| {
-                if spec.repeats > 1 {
-                    format!("repeat {}: {l}", r + 1)
-                } else {
-                    l
-                }
-            }));
+            done.log.extend(log.into_iter().map(|l| tagged(r, l)));
         }
-        let analysis_s = analysis_started.elapsed().as_secs_f64();
+        let analysis_s = levels_analysis_s + analysis_started.elapsed().as_secs_f64();
         done.analysis_s += analysis_s;
-        done.log.push(format!(
-            "{}procedure {}: bench time {:.2} s, analysis {analysis_s:.2} s",
-            if spec.repeats > 1 {
-                format!("repeat {}: ", r + 1)
-            } else {
-                String::new()
-            },
-            spec.procedure.as_str(),
-            outcome.bench_time_s
+        done.log.push(tagged(
+            r,
+            format!(
+                "procedure {}: bench time {:.2} s, analysis {analysis_s:.2} s",
+                spec.procedure.as_str(),
+                outcome.bench_time_s
+            ),
         ));
-        for m in &mut done.measurements[first_measurement..] {
-            m.config["procedure_run"]["analysis_s"] = json!(analysis_s);
-        }
-        obs.flush_samples();
-        // The repeat's recordings and measurements go to the store now: a
-        // series of 16 levels x 10 repeats no longer holds every recording
-        // until the end, and what is measured is kept.
+        // What ran, for the result and the verdict's traceability; the
+        // levels were stored as they finished, their documents are completed now.
+        let procedure_run = json!({
+            "mode": spec.procedure.as_str(),
+            "fallback": outcome.production.as_ref().and_then(|p| p.fallback.clone()),
+            "bench_time_s": outcome.bench_time_s,
+            "analysis_s": analysis_s,
+        });
+        let mut updates = vec![];
         for (m, rep) in done.measurements[first_measurement..]
             .iter_mut()
             .zip(&done.reports[first_measurement..])
         {
-            // checked finite above (and the series before it was attached)
-            m.result = rep.as_ref().and_then(|r| serde_json::to_value(r).ok());
+            m.config["procedure_run"] = procedure_run.clone();
+            // checked finite when fitted (and the series before it was attached)
+            let result = rep.as_ref().and_then(|r| serde_json::to_value(r).ok());
+            updates.push((m.id.clone(), m.config.clone(), result));
         }
-        let batch = Batch {
-            recordings: std::mem::take(&mut done.recordings),
-            measurements: done.measurements[first_measurement..].to_vec(),
-        };
-        obs.store(batch)?;
+        obs.flush_samples();
+        obs.store(Batch {
+            updates,
+            ..Batch::default()
+        })?;
+        give_back_freed_memory();
     }
     Ok(done)
+}
+
+/// One repeat of a job as the procedure runs it: each level's narrow sweep
+/// is fitted, judged and stored (recordings, measurement) the moment the
+/// procedure hands it out, and its samples are dropped. A series of 16
+/// levels holds one level's samples at a time, and a cancel or a crash keeps
+/// every finished level.
+struct Repeat<'a> {
+    obs: &'a mut JobObserver,
+    job_id: &'a str,
+    spec: &'a JobSpec,
+    bench_id: &'a str,
+    calibration: Option<&'a crate::store::hardware::CalibrationRecord>,
+    recipe: Option<&'a crate::qc::Recipe>,
+    opts: &'a AnalyzeOptions,
+    config: &'a Value,
+    repeat: u32,
+    /// The bench's run records before this repeat (hardware traceability).
+    runs_before: usize,
+    want_series: bool,
+    done: &'a mut Done,
+    /// Id of this repeat's stored pre-measurement recording.
+    pre_id: Option<i64>,
+    series_in: Vec<series::Level>,
+    log: Vec<String>,
+    /// Wall time of the level analyses (s).
+    analysis_s: f64,
+    /// Why the job must stop (storing failed).
+    stop: Option<Stop>,
+}
+
+impl Observer for Repeat<'_> {
+    fn progress(&mut self, step: Step, progress: f64, eta_s: f64) {
+        self.obs.progress(step, progress, eta_s)
+    }
+
+    fn samples(&mut self, step: Step, block: crate::bench::Block<'_>) {
+        self.obs.samples(step, block)
+    }
+
+    fn cancelled(&self) -> bool {
+        self.obs.cancelled()
+    }
+
+    fn narrow_finished(
+        &mut self,
+        bench: &dyn Bench,
+        pre: &procedure::PreMeasured<'_>,
+        index: usize,
+        sweep: procedure::NarrowSweep,
+    ) -> Result<Option<procedure::NarrowSweep>, ProcedureError> {
+        let t = Instant::now();
+        let r = self.level(bench, pre, index, sweep);
+        self.analysis_s += t.elapsed().as_secs_f64();
+        match r {
+            Ok(()) => Ok(None),
+            Err(stop) => {
+                let why = match &stop {
+                    Stop::Failed(p) => p["detail"].as_str().unwrap_or("").to_string(),
+                    Stop::Aborted => "aborted".into(),
+                };
+                self.stop = Some(stop);
+                Err(ProcedureError::Failed(why))
+            }
+        }
+    }
+}
+
+impl Repeat<'_> {
+    fn tag(&self, l: String) -> String {
+        if self.spec.repeats > 1 {
+            format!("repeat {}: {l}", self.repeat + 1)
+        } else {
+            l
+        }
+    }
+
+    /// Fits, judges and stores level `li`.
+    fn level(
+        &mut self,
+        bench: &dyn Bench,
+        pre: &procedure::PreMeasured<'_>,
+        li: usize,
+        sweep: procedure::NarrowSweep,
+    ) -> Result<(), Stop> {
+        let spec = self.spec;
+        let opts = self.opts;
+        let procedure::NarrowSweep {
+            target_xpeak_m,
+            drive_v,
+            f_start_hz,
+            f_end_hz,
+            sweep: narrow_spec,
+            signals,
+            warning,
+            ..
+        } = sweep;
+        let mut meta = Meta::standard(spec.moving_mass_kg, pre.signals.sample_rate_hz);
+        meta.channels.drive = pre.signals.drive_v.as_ref().map(|_| 2);
+        let set = RecordingSet {
+            meta,
+            pre: pre.signals.clone(),
+            main: signals,
+        };
+        if let Some(w) = &warning {
+            let w = self.tag(w.clone());
+            self.done.warnings.push(w);
+        }
+        let hw_record = self.calibration.map(|c| {
+            hardware::measurement_record(
+                c,
+                &bench.run_records()[self.runs_before..],
+                pre.signals.len(),
+                set.main.len(),
+                li,
+            )
+        });
+        let not_aligned = hw_record.as_ref().and_then(hardware::alignment_invalid);
+        let mut fb = None;
+        let analysed = if let Some(why) = &not_aligned {
+            // Never a fit of a displacement not on the audio clock.
+            let l = self.tag(format!(
+                "level {} ({} m) not fitted: {why}",
+                li + 1,
+                target_xpeak_m
+            ));
+            self.log.push(l);
+            Err(why.clone())
+        } else if self.recipe.is_some_and(|r| r.needs_diagnostics()) {
+            // Judging an effect's size needs the diagnostics' fitted effects.
+            let dopts = crate::diagnose::DiagnoseOptions {
+                analyze: opts.clone(),
+                effects: vec![],
+                ..Default::default()
+            };
+            if self.want_series {
+                fb = identify::force_balance_data(&set, opts).ok();
+            }
+            crate::diagnose::diagnose(&set, &dopts)
+                .map(|d| identify::Report {
+                    diagnostics: None,
+                    ..d.report
+                })
+                .map_err(|e| e.to_string())
+        } else if self.want_series {
+            identify::analyze_with_force_balance(&set, opts)
+                .map(|(rep, d)| {
+                    fb = Some(d);
+                    rep
+                })
+                .map_err(|e| e.to_string())
+        } else {
+            identify::analyze(&set, opts).map_err(|e| e.to_string())
+        }
+        .map(|mut rep| {
+            rep.warnings.extend(warning.iter().cloned());
+            // The Keff QC judges, beside the one measured at the reached Xpeak.
+            crate::qc::set_keff_at_target(&mut rep, Some(target_xpeak_m));
+            rep
+        });
+        let mid = new_id();
+        if let Some(r) = self.recipe {
+            let facts = crate::qc::RunFacts {
+                report: analysed.as_ref().ok().cloned(),
+                analysis_error: analysed.as_ref().err().cloned(),
+                target_xpeak_m: Some(target_xpeak_m),
+                level_index: li,
+                drive_v: Some(drive_v),
+                max_drive_v: Some(spec.limits.max_drive_v),
+                pre_drive_v: Some(pre.sweep.amplitude_v),
+                pre_q_drive_to_x: pre.q_drive_to_x,
+            };
+            self.done
+                .verdicts
+                .push((mid.clone(), crate::qc::judge(r, &facts)));
+        }
+        let (report, analysis_error) = match analysed {
+            // Never stored with a non-finite number written as null
+            // (issue 11): the result is refused, the reason kept. QC has
+            // judged the report above with its own rules.
+            Ok(rep) => match crate::finite::check(&rep) {
+                Ok(()) => (Some(rep), None),
+                Err(e) => {
+                    let e = format!("result refused: {e}");
+                    let l = self.tag(format!(
+                        "analysis of level {} ({} m): {e}",
+                        li + 1,
+                        target_xpeak_m
+                    ));
+                    self.log.push(l);
+                    (None, Some(e))
+                }
+            },
+            Err(e) if not_aligned.is_some() => (None, Some(e)),
+            Err(e) => {
+                let l = self.tag(format!(
+                    "analysis of level {} ({} m) failed: {e}",
+                    li + 1,
+                    target_xpeak_m
+                ));
+                self.log.push(l);
+                (None, Some(e))
+            }
+        };
+        if let (Some(data), Some(_)) = (fb, &report) {
+            self.series_in.push(series::Level {
+                measurement: self.done.measurements.len(),
+                measurement_id: mid.clone(),
+                target_xpeak_m,
+                data,
+            });
+        }
+        let res = bench.resolution();
+        let known: Vec<i64> = self.pre_id.into_iter().collect();
+        let mut recordings = vec![];
+        if self.pre_id.is_none() {
+            recordings.push(recording("pre", pre.signals, res.as_ref())?);
+        }
+        recordings.push(recording("main", &set.main, res.as_ref())?);
+        let mut cfg_m = self.config.clone();
+        // completed with the bench and analysis time when the repeat ends
+        cfg_m["procedure_run"] = json!({"mode": spec.procedure.as_str()});
+        cfg_m["narrow_sweep"] = json!({"drive_v": drive_v, "f_start_hz": f_start_hz,
+                                       "f_end_hz": f_end_hz,
+                                       "duration_s": narrow_spec.duration_s});
+        cfg_m["pre_sweep"] = json!({"drive_v": pre.sweep.amplitude_v,
+                                    "f_start_hz": pre.sweep.f_start_hz,
+                                    "f_end_hz": pre.sweep.f_end_hz,
+                                    "duration_s": pre.sweep.duration_s,
+                                    "q_drive_to_x": pre.q_drive_to_x});
+        if let Some(h) = hw_record {
+            cfg_m["hardware"] = h;
+        }
+        let mut m = NewMeasurement {
+            id: mid,
+            part_serial: spec.part.serial.clone(),
+            job_id: Some(self.job_id.to_string()),
+            source: "bench",
+            bench_id: Some(self.bench_id.to_string()),
+            config: cfg_m,
+            meta: serde_json::to_value(&set.meta).unwrap_or(Value::Null),
+            // checked finite above
+            result: report.as_ref().and_then(|r| serde_json::to_value(r).ok()),
+            analysis_error,
+            target_xpeak_m: Some(target_xpeak_m),
+            repeat_index: Some(self.repeat as i64),
+            level_index: Some(li as i64),
+            pre: 0,
+            main: known.len() + recordings.len() - 1,
+        };
+        drop(set);
+        self.obs.flush_samples();
+        let ids = self.obs.store(Batch {
+            known,
+            recordings,
+            measurements: vec![m.clone()],
+            updates: vec![],
+        })?;
+        if self.pre_id.is_none() {
+            self.pre_id = ids.first().copied();
+        }
+        // The job keeps the light part (the records and MES messages read it).
+        m.result = None;
+        m.meta = Value::Null;
+        self.done.measurements.push(m);
+        self.done.reports.push(report);
+        give_back_freed_memory();
+        Ok(())
+    }
+}
+
+/// Returns the heap glibc keeps after a level's analysis (its signals,
+/// spectra and fit buffers, tens of MB, freed but held by the allocator's
+/// arenas) to the system, so that a long series does not keep its resident
+/// memory at the peak of its largest level.
+fn give_back_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free memory of glibc's heaps.
+    unsafe {
+        libc::malloc_trim(0);
+    }
 }
 
 /// A recording as the store keeps it: at the bench's resolution (FLAC, bit

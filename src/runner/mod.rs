@@ -459,17 +459,16 @@ impl Runner {
             e.analysis_s += d.analysis_s;
             e.wall_s += started.elapsed().as_secs_f64();
         }
-        let (bench_time, log, warnings, recs, meas, reports, verdicts) = match done {
+        let (bench_time, log, warnings, meas, reports, verdicts) = match done {
             Some(d) => (
                 Some(d.bench_time_s),
                 d.log,
                 d.warnings,
-                d.recordings,
                 d.measurements,
                 d.reports,
                 d.verdicts,
             ),
-            None => (None, vec![], vec![], vec![], vec![], vec![], vec![]),
+            None => (None, vec![], vec![], vec![], vec![], vec![]),
         };
         let records = self.job_records(
             &slot.cfg,
@@ -498,8 +497,8 @@ impl Runner {
                 bench_time,
                 &log,
                 &warnings,
-                recs,
-                // stored as each repeat finished (Msg::Store)
+                // stored as each level finished (Msg::Store)
+                vec![],
                 vec![],
                 &records,
             )
@@ -580,13 +579,28 @@ impl Runner {
                     .await
             }
             Msg::Store(batch, reply) => {
-                let r = self
-                    .store
-                    .insert_job_measurements(job_id, batch.recordings, batch.measurements)
-                    .await
-                    .map_err(|e| e.to_string());
+                let mut r = Ok(vec![]);
+                if !batch.recordings.is_empty() || !batch.measurements.is_empty() {
+                    r = self
+                        .store
+                        .insert_job_measurements(
+                            job_id,
+                            &batch.known,
+                            batch.recordings,
+                            batch.measurements,
+                        )
+                        .await;
+                }
+                if r.is_ok() && !batch.updates.is_empty() {
+                    r = self
+                        .store
+                        .update_job_measurements(job_id, batch.updates)
+                        .await
+                        .map(|()| vec![]);
+                }
+                let r = r.map_err(|e| e.to_string());
                 if let Err(e) = &r {
-                    tracing::error!(job = %job_id, "storing a finished repeat failed: {e}");
+                    tracing::error!(job = %job_id, "storing finished measurements failed: {e}");
                 }
                 let _ = reply.send(r);
             }

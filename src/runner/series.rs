@@ -34,7 +34,11 @@ pub fn attach(
             reports.len()
         )];
     }
-    let data: Vec<ForceBalanceData> = levels.iter().map(|l| l.data.clone()).collect();
+    // moved, not copied: 16 levels' force-balance data are the series' largest part
+    let (levels, data): (Vec<(usize, String, f64)>, Vec<ForceBalanceData>) = levels
+        .into_iter()
+        .map(|l| ((l.measurement, l.measurement_id, l.target_xpeak_m), l.data))
+        .unzip();
     let opts = EngineOptions {
         order,
         ..Default::default()
@@ -44,15 +48,16 @@ pub fn attach(
         Ok(f) => f,
         Err(e) => return vec![format!("level series: the joint fit failed: {e}")],
     };
+    drop(data);
     for (lf, l) in fit.levels.iter_mut().zip(&levels) {
-        lf.measurement_id = Some(l.measurement_id.clone());
-        lf.target_xpeak_m = Some(l.target_xpeak_m);
+        lf.measurement_id = Some(l.1.clone());
+        lf.target_xpeak_m = Some(l.2);
     }
     if let Err(e) = crate::finite::check(&fit) {
         return vec![format!("level series: joint fit refused: {e}")];
     }
     for l in &levels {
-        if let Some(Some(r)) = reports.get_mut(l.measurement - offset) {
+        if let Some(Some(r)) = reports.get_mut(l.0 - offset) {
             r.series = Some(fit.clone());
         }
     }

@@ -2,7 +2,7 @@
 //! owner per bench, idempotency keys), the end written with the run's
 //! results, verdicts and MES messages in one transaction.
 
-use crate::measurements::insert_results;
+use crate::measurements::{insert_measurement_rows, insert_results};
 use crate::results::{NewMeasurement, NewRecording};
 use crate::{now, parse_json, qc, Store, StoreError, StoreResult};
 use serde::Serialize;
@@ -451,24 +451,53 @@ impl Store {
         Ok(true)
     }
 
-    /// Stores a running job's finished recordings and measurements (one
-    /// repeat) in one transaction; the job stays running.
+    /// Stores a running job's finished recordings and measurements (a
+    /// level as it finishes) in one transaction; the job stays running. The
+    /// measurements' `pre` and `main` index into `known` (recordings stored
+    /// earlier, by id) followed by `recordings`. Answers the ids of
+    /// `recordings`.
     pub async fn insert_job_measurements(
         &self,
         job_id: &str,
+        known: &[i64],
         recordings: Vec<NewRecording>,
         measurements: Vec<NewMeasurement>,
+    ) -> StoreResult<Vec<i64>> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        running_job(&mut tx, job_id).await?;
+        let new = insert_results(&mut tx, recordings, vec![]).await?;
+        let ids: Vec<i64> = known.iter().chain(&new).copied().collect();
+        insert_measurement_rows(&mut tx, measurements, &ids).await?;
+        tx.commit().await?;
+        Ok(new)
+    }
+
+    /// Replaces the configuration and result documents of a running job's
+    /// stored measurements (a level series' joint fit, known once its last
+    /// level is measured), in one transaction.
+    pub async fn update_job_measurements(
+        &self,
+        job_id: &str,
+        updates: Vec<(String, Value, Option<Value>)>,
     ) -> StoreResult<()> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
-        let running: Option<i64> =
-            sqlx::query_scalar("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'")
-                .bind(job_id.to_string())
-                .fetch_optional(&mut *tx)
-                .await?;
-        if running.is_none() {
-            return Err(StoreError::Corrupt(format!("job {job_id} is not running")));
+        running_job(&mut tx, job_id).await?;
+        for (id, config, result) in updates {
+            let r = sqlx::query(
+                "UPDATE measurements SET config_json = ?, result_json = ? WHERE id = ? AND job_id = ?",
+            )
+            .bind(config.to_string())
+            .bind(result.map(|v| v.to_string()))
+            .bind(&id)
+            .bind(job_id.to_string())
+            .execute(&mut *tx)
+            .await?;
+            if r.rows_affected() != 1 {
+                return Err(StoreError::Corrupt(format!(
+                    "measurement {id} of job {job_id} is not stored"
+                )));
+            }
         }
-        insert_results(&mut tx, recordings, measurements).await?;
         tx.commit().await?;
         Ok(())
     }
@@ -481,6 +510,22 @@ impl Store {
             .iter()
             .map(|r| (r.get::<String, _>(0), r.get::<i64, _>(1)))
             .collect())
+    }
+}
+
+/// Refuses to add to a job that is not running.
+async fn running_job(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    job_id: &str,
+) -> StoreResult<()> {
+    let running: Option<i64> =
+        sqlx::query_scalar("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'")
+            .bind(job_id.to_string())
+            .fetch_optional(&mut **tx)
+            .await?;
+    match running {
+        Some(_) => Ok(()),
+        None => Err(StoreError::Corrupt(format!("job {job_id} is not running"))),
     }
 }
 

@@ -73,7 +73,9 @@ pub struct Outcome {
     /// the part's Q, and it sets how far a short sweep builds up the
     /// resonance. None when the sweep did not reach both half-power points.
     pub pre_q_drive_to_x: Option<f64>,
-    /// One narrow sweep per requested level, in the order of `levels_m`.
+    /// One narrow sweep per requested level, in the order of `levels_m`,
+    /// except those the observer took as they finished
+    /// ([`Observer::narrow_finished`]).
     pub narrow: Vec<NarrowSweep>,
     /// Stimulus time a real bench would need for all sweeps played, searches included (s).
     pub bench_time_s: f64,
@@ -124,6 +126,32 @@ pub trait Observer {
     fn cancelled(&self) -> bool {
         false
     }
+    /// The narrow sweep of level `index` (of `levels_m`) is final; levels
+    /// come in order, each once. The default keeps it in
+    /// [`Outcome::narrow`]. An observer that stores each level as it
+    /// finishes takes it (answers `Ok(None)`): a long level series then holds
+    /// one level's samples at a time, and what was measured survives a cancel
+    /// or a crash. `bench` played it (its run records); an error ends the
+    /// procedure with it.
+    fn narrow_finished(
+        &mut self,
+        _bench: &dyn crate::Bench,
+        _pre: &PreMeasured<'_>,
+        _index: usize,
+        sweep: NarrowSweep,
+    ) -> Result<Option<NarrowSweep>, ProcedureError> {
+        Ok(Some(sweep))
+    }
+}
+
+/// The kept pre-measurement, as each level's narrow sweep is handed out.
+pub struct PreMeasured<'a> {
+    pub signals: &'a Signals,
+    pub sweep: &'a SweepSpec,
+    /// Small-signal resonance (Hz), as [`Outcome::f0_hz`].
+    pub f0_hz: f64,
+    /// As [`Outcome::pre_q_drive_to_x`].
+    pub q_drive_to_x: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]

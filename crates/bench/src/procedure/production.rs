@@ -375,6 +375,19 @@ pub fn run_production(
             ))
         })?);
     }
+    // Handed out only now: before this the short procedure may still fall
+    // back to the full one, which measures every level again.
+    let pre = super::PreMeasured {
+        signals: &pre_sig,
+        sweep: &pre_spec,
+        f0_hz: f0,
+        q_drive_to_x: pre_q,
+    };
+    let mut kept = Vec::new();
+    for (li, sweep) in narrow.into_iter().enumerate() {
+        cx.hand_out(&pre, li, sweep, &mut kept)?;
+    }
+    let narrow = kept;
     let bench_time_s = cx.elapsed_s;
     cx.log.push(format!("bench time {bench_time_s:.2} s"));
     cx.obs.progress(Step::Fit, 1.0, 0.0);

@@ -2,7 +2,7 @@
 //! resonance search with short rising sweeps, narrow rising sweep per level.
 
 use super::sweep::{abs, cycles, div, Cycle, SweepSpec};
-use super::{NarrowSweep, Observer, Outcome, ProcedureConfig, ProcedureError, Step};
+use super::{NarrowSweep, Observer, Outcome, PreMeasured, ProcedureConfig, ProcedureError, Step};
 use crate::{Bench, BenchError, Block, Control, Limits};
 use springbench_core::recording::Signals;
 
@@ -134,6 +134,21 @@ impl Ctx<'_> {
 }
 
 impl Ctx<'_> {
+    /// Hands the finished narrow sweep of level `index` to the observer;
+    /// kept in `narrow` unless the observer took it.
+    pub(super) fn hand_out(
+        &mut self,
+        pre: &PreMeasured<'_>,
+        index: usize,
+        sweep: NarrowSweep,
+        narrow: &mut Vec<NarrowSweep>,
+    ) -> Result<(), ProcedureError> {
+        if let Some(s) = self.obs.narrow_finished(&*self.bench, pre, index, sweep)? {
+            narrow.push(s);
+        }
+        Ok(())
+    }
+
     /// The narrow sweep kept for `level` at drive `v`, with its warning
     /// (logged) when the target was not reached.
     pub(super) fn keep_narrow(
@@ -447,7 +462,13 @@ pub fn run(
     let mut f_r = pre_info.resonance_hz;
     let mut v = (cfg.levels_m[0] / pre_info.gain_m_per_v.max(1e-12)).min(vmax);
     let mut last_level = cfg.levels_m[0];
-    for &level in &cfg.levels_m {
+    let pre = PreMeasured {
+        signals: &pre_sig,
+        sweep: &pre_spec,
+        f0_hz: pre_info.resonance_hz,
+        q_drive_to_x: pre_info.q_drive_to_x,
+    };
+    for (li, &level) in cfg.levels_m.iter().enumerate() {
         v = (v * level / last_level).min(vmax);
         last_level = level;
         for i in 0..MAX_SEARCH {
@@ -523,11 +544,12 @@ pub fn run(
             done = Some(cx.keep_narrow(level, v, lowered, spec, &info, played.sig));
             break;
         }
-        narrow.push(done.ok_or_else(|| {
+        let sweep = done.ok_or_else(|| {
             ProcedureError::Failed(format!(
                 "narrow sweep for Xpeak {level} m kept hitting the displacement limit"
             ))
-        })?);
+        })?;
+        cx.hand_out(&pre, li, sweep, &mut narrow)?;
     }
     let bench_time_s = cx.elapsed_s;
     cx.log.push(format!("bench time {bench_time_s:.1} s"));
