@@ -26,11 +26,19 @@ pub const UNIQUE_ID_HEADER: &str = "x-springbench-unique-id";
 pub struct Webhook {
     /// Label (outbox listings, logs).
     pub name: String,
-    /// `http://host:port/path` (plain HTTP: no TLS stack is built in; put a
-    /// TLS-terminating proxy in front for remote receivers).
+    /// `http://host:port/path` or `https://host:port/path` (TLS 1.2/1.3
+    /// through rustls; the receiver's certificate is checked against
+    /// `ca_file`, or else the system's trust store). Credentials in the URL
+    /// (`https://user:password@host/...`) are sent as HTTP Basic
+    /// authentication.
     pub url: String,
     /// HMAC key (at least 16 characters).
     pub secret: String,
+    /// PEM file of the certificate authorities an `https://` receiver's
+    /// certificate must chain to (instead of the system's trust store): a
+    /// factory's own CA, or a receiver's self-signed certificate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ca_file: Option<String>,
 }
 
 /// `[mes]` in the configuration.
@@ -72,11 +80,27 @@ impl MesConfig {
                     w.name
                 ));
             }
-            if !w.url.starts_with("http://") {
+            let https = w.url.starts_with("https://");
+            if !https && !w.url.starts_with("http://") {
                 return Err(format!(
-                    "mes webhook '{}': url must start with http:// (no TLS built in), got {}",
+                    "mes webhook '{}': url must start with http:// or https://, got {}",
                     w.name, w.url
                 ));
+            }
+            if let Err(e) = w.url.parse::<hyper::Uri>() {
+                return Err(format!(
+                    "mes webhook '{}': url {} is not a valid URL: {e}",
+                    w.name, w.url
+                ));
+            }
+            if w.ca_file.is_some() && !https {
+                return Err(format!(
+                    "mes webhook '{}': ca_file applies to https:// receivers only",
+                    w.name
+                ));
+            }
+            if https {
+                tls_config(w).map_err(|e| format!("mes webhook '{}': {e}", w.name))?;
             }
             if w.secret.len() < 16 {
                 return Err(format!(
@@ -134,19 +158,6 @@ pub fn start(
     shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
-        let client = match reqwest::Client::builder()
-            .timeout(Duration::from_secs_f64(cfg.timeout_s))
-            // A redirect is not a delivery: the body would be lost (a 303
-            // turns the POST into a GET). 3xx is a failed attempt.
-            .redirect(reqwest::redirect::Policy::none())
-            .build()
-        {
-            Ok(c) => c,
-            Err(e) => {
-                tracing::error!("MES delivery worker not started: {e}");
-                return;
-            }
-        };
         let cfg = Arc::new(cfg);
         let mut wakes = vec![];
         let mut workers = vec![];
@@ -158,10 +169,22 @@ pub fn start(
         {
             let w = Arc::new(Notify::new());
             wakes.push(w.clone());
+            let sender = match &hook {
+                Some(name) => cfg
+                    .webhooks
+                    .iter()
+                    .find(|w| &w.name == name)
+                    .map(sender)
+                    .unwrap_or_else(|| Err("not configured".into())),
+                None => Err("not configured".into()),
+            };
+            if let (Some(name), Err(e)) = (&hook, &sender) {
+                tracing::error!(webhook = %name, "MES webhook cannot send: {e}");
+            }
             workers.push(tokio::spawn(worker(
                 store.clone(),
                 cfg.clone(),
-                client.clone(),
+                sender,
                 hook,
                 w,
                 shutdown.clone(),
@@ -188,7 +211,7 @@ pub fn start(
 async fn worker(
     store: Store,
     cfg: Arc<MesConfig>,
-    client: reqwest::Client,
+    sender: Result<Sender, String>,
     hook: Option<String>,
     wake: Arc<Notify>,
     mut shutdown: watch::Receiver<bool>,
@@ -219,7 +242,7 @@ async fn worker(
             if *shutdown.borrow() {
                 break;
             }
-            deliver(&store, &cfg, &client, d).await;
+            deliver(&store, &cfg, &sender, d).await;
         }
         if due.is_empty() {
             let wait = match (&hook, store.next_delivery_due(hook.as_deref()).await) {
@@ -243,40 +266,185 @@ async fn worker(
     }
 }
 
-async fn deliver(store: &Store, cfg: &MesConfig, client: &reqwest::Client, d: &DeliveryRow) {
-    let Some(hook) = cfg.webhooks.iter().find(|w| w.name == d.webhook) else {
-        // A webhook removed from the configuration: keep the delivery, retry later.
+/// A webhook's HTTP client: hyper's, over TCP or TLS (rustls with the ring
+/// provider), HTTP/1.1, never following a redirect.
+pub type Sender = hyper_util::client::legacy::Client<
+    hyper_rustls::HttpsConnector<hyper_util::client::legacy::connect::HttpConnector>,
+    http_body_util::Full<bytes::Bytes>,
+>;
+
+/// The TLS configuration of an `https://` webhook: TLS 1.2 and 1.3 by
+/// rustls's safe defaults, its certificate checked against the webhook's
+/// `ca_file`, or the system's trust store.
+pub fn tls_config(w: &Webhook) -> Result<rustls::ClientConfig, String> {
+    use rustls::pki_types::{pem::PemObject, CertificateDer};
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let builder = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .map_err(|e| e.to_string())?;
+    let mut roots = rustls::RootCertStore::empty();
+    match &w.ca_file {
+        Some(path) => {
+            let certs =
+                CertificateDer::pem_file_iter(path).map_err(|e| format!("ca_file {path}: {e}"))?;
+            for c in certs {
+                let c = c.map_err(|e| format!("ca_file {path}: {e}"))?;
+                roots
+                    .add(c)
+                    .map_err(|e| format!("ca_file {path}: certificate refused: {e}"))?;
+            }
+            if roots.is_empty() {
+                return Err(format!("ca_file {path} holds no PEM certificate"));
+            }
+        }
+        None => {
+            let found = rustls_native_certs::load_native_certs();
+            for c in found.certs {
+                let _ = roots.add(c);
+            }
+            if roots.is_empty() {
+                return Err(format!(
+                    "no certificate authority in the system's trust store ({}): set ca_file",
+                    found
+                        .errors
+                        .first()
+                        .map(|e| e.to_string())
+                        .unwrap_or_else(|| "empty".into())
+                ));
+            }
+        }
+    }
+    Ok(builder.with_root_certificates(roots).with_no_client_auth())
+}
+
+/// The client of webhook `w` (its own: its own TLS trust and connections).
+pub fn sender(w: &Webhook) -> Result<Sender, String> {
+    let tls = if w.url.starts_with("https://") {
+        tls_config(w)?
+    } else {
+        // never used for a TLS handshake: the scheme is http
+        rustls::ClientConfig::builder_with_provider(Arc::new(
+            rustls::crypto::ring::default_provider(),
+        ))
+        .with_safe_default_protocol_versions()
+        .map_err(|e| e.to_string())?
+        .with_root_certificates(rustls::RootCertStore::empty())
+        .with_no_client_auth()
+    };
+    let https = hyper_rustls::HttpsConnectorBuilder::new()
+        .with_tls_config(tls)
+        .https_or_http()
+        .enable_http1()
+        .build();
+    Ok(
+        hyper_util::client::legacy::Client::builder(hyper_util::rt::TokioExecutor::new())
+            .build(https),
+    )
+}
+
+/// An error with its causes, one line (a TLS refusal names its reason).
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut out = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let t = c.to_string();
+        if !out.contains(&t) {
+            out.push_str(": ");
+            out.push_str(&t);
+        }
+        cur = c.source();
+    }
+    out
+}
+
+/// Posts `body` to `url` with `headers`; the status and the Location, or why not.
+async fn post(
+    sender: &Sender,
+    url: &str,
+    headers: &[(&str, String)],
+    body: Vec<u8>,
+    timeout: Duration,
+) -> Result<(u16, Option<String>), String> {
+    let mut u = url::Url::parse(url).map_err(|e| format!("url: {e}"))?;
+    let mut req = hyper::Request::post("/");
+    if !u.username().is_empty() || u.password().is_some() {
+        use base64::Engine;
+        let user = percent_decoded(u.username());
+        let pass = percent_decoded(u.password().unwrap_or(""));
+        let token = base64::engine::general_purpose::STANDARD.encode(format!("{user}:{pass}"));
+        req = req.header(hyper::header::AUTHORIZATION, format!("Basic {token}"));
+        let _ = u.set_username("");
+        let _ = u.set_password(None);
+    }
+    req = req.uri(u.as_str());
+    for (k, v) in headers {
+        req = req.header(*k, v.as_str());
+    }
+    let req = req
+        .body(http_body_util::Full::new(bytes::Bytes::from(body)))
+        .map_err(|e| format!("request: {e}"))?;
+    match tokio::time::timeout(timeout, sender.request(req)).await {
+        Err(_) => Err(format!(
+            "no answer within {:.1} s (mes.timeout_s)",
+            timeout.as_secs_f64()
+        )),
+        Ok(Err(e)) => Err(chain(&e)),
+        Ok(Ok(r)) => Ok((
+            r.status().as_u16(),
+            r.headers()
+                .get(hyper::header::LOCATION)
+                .and_then(|v| v.to_str().ok())
+                .map(str::to_string),
+        )),
+    }
+}
+
+fn percent_decoded(s: &str) -> String {
+    // form decoding without its `+` and `&` meanings is percent decoding
+    let s = s.replace('+', "%2B").replace('&', "%26");
+    form_urlencoded::parse(format!("a={s}").as_bytes())
+        .next()
+        .map(|(_, v)| v.into_owned())
+        .unwrap_or_default()
+}
+
+async fn deliver(store: &Store, cfg: &MesConfig, sender: &Result<Sender, String>, d: &DeliveryRow) {
+    let hook = cfg.webhooks.iter().find(|w| w.name == d.webhook);
+    let (Some(hook), Ok(sender)) = (hook, sender) else {
+        let why = match (hook, sender) {
+            (Some(_), Err(e)) => format!("webhook '{}' cannot send: {e}", d.webhook),
+            _ => format!("webhook '{}' is not configured any more", d.webhook),
+        };
+        // Keep the delivery, retry later.
         let _ = store
-            .mark_attempt_failed(
-                d.id,
-                &format!("webhook '{}' is not configured any more", d.webhook),
-                &rfc3339_in(cfg.max_backoff_s),
-                false,
-            )
+            .mark_attempt_failed(d.id, &why, &rfc3339_in(cfg.max_backoff_s), false)
             .await;
         return;
     };
     let body = d.body.to_string().into_bytes();
-    let res = client
-        .post(&hook.url)
-        .header("content-type", "application/json")
-        .header(SIGNATURE_HEADER, signature(&hook.secret, &body))
-        .header(UNIQUE_ID_HEADER, d.unique_id.clone())
-        .body(body)
-        .send()
-        .await;
+    let headers = [
+        ("content-type", "application/json".to_string()),
+        (SIGNATURE_HEADER, signature(&hook.secret, &body)),
+        (UNIQUE_ID_HEADER, d.unique_id.clone()),
+    ];
+    let res = post(
+        sender,
+        &hook.url,
+        &headers,
+        body,
+        Duration::from_secs_f64(cfg.timeout_s),
+    )
+    .await;
     let err = match res {
-        Ok(r) if r.status().is_success() => None,
-        Ok(r) if r.status().is_redirection() => Some(format!(
-            "HTTP {} redirect to {} not followed: the receiver must accept the message itself (2xx)",
-            r.status().as_u16(),
-            r.headers()
-                .get(reqwest::header::LOCATION)
-                .and_then(|v| v.to_str().ok())
-                .unwrap_or("(no Location)")
+        Ok((s, _)) if (200..300).contains(&s) => None,
+        // A redirect is not a delivery: the body would be lost (a 303
+        // turns the POST into a GET). 3xx is a failed attempt.
+        Ok((s, loc)) if (300..400).contains(&s) => Some(format!(
+            "HTTP {s} redirect to {} not followed: the receiver must accept the message itself (2xx)",
+            loc.as_deref().unwrap_or("(no Location)")
         )),
-        Ok(r) => Some(format!("HTTP {}", r.status().as_u16())),
-        Err(e) => Some(e.to_string()),
+        Ok((s, _)) => Some(format!("HTTP {s}")),
+        Err(e) => Some(e),
     };
     let r = match err {
         None => store.mark_delivered(d.id).await,
@@ -322,10 +490,15 @@ mod tests {
         let mut c = MesConfig::default();
         c.webhooks.push(Webhook {
             name: "mes".into(),
-            url: "https://x".into(),
+            url: "ftp://x".into(),
             secret: "0123456789abcdef".into(),
+            ca_file: None,
         });
         assert!(c.validate().unwrap_err().contains("http://"));
+        c.webhooks[0].url = "https://127.0.0.1:9/cfx".into();
+        c.webhooks[0].ca_file = Some("/nonexistent/ca.pem".into());
+        assert!(c.validate().unwrap_err().contains("/nonexistent/ca.pem"));
+        c.webhooks[0].ca_file = None;
         c.webhooks[0].url = "http://127.0.0.1:9/cfx".into();
         assert!(c.validate().is_ok());
         c.webhooks[0].secret = "short".into();
