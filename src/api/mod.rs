@@ -19,6 +19,7 @@ pub mod metrics;
 pub mod openapi;
 pub mod ops;
 pub mod problem;
+pub mod problem_io;
 pub mod qc;
 pub mod report;
 pub mod schema;

@@ -83,7 +83,8 @@ pub async fn serve(
         let _ = stream.set_nodelay(true);
         let svc = TowerToHyperService::new(app.clone());
         let conn = builder
-            .serve_connection(TokioIo::new(stream), svc)
+            // hyper's own refusals (414, 431, 400) as problem documents
+            .serve_connection(TokioIo::new(super::problem_io::ProblemIo::new(stream)), svc)
             .with_upgrades();
         let mut conn_stop = stop.clone();
         tokio::spawn(async move {
