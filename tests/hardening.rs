@@ -233,6 +233,54 @@ async fn every_error_is_a_problem_document() {
     }
 }
 
+/// Requests hyper refuses before any handler runs are problem documents
+/// too: a 100 KB query (hyper reads URIs up to 65 534 bytes) gets 414, a
+/// malformed request line 400; each `application/problem+json` with its
+/// status and a detail (before: an empty body). Answers of handlers with
+/// these statuses are not touched. (hyper's 431 for a head over its read
+/// buffer is rewritten the same way; it is not sent here: the daemon closes
+/// with the rest of such a request unread, and the reset can swallow the
+/// answer.)
+#[tokio::test]
+async fn hyper_refusals_are_problem_documents() {
+    let d = Daemon::start("");
+    let addr = d.addr();
+    let q = "a".repeat(100_000);
+    let req = format!("GET /api/v1/jobs?state={q} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    let (status, head, body) = common::raw(&addr, req.as_bytes());
+    assert_eq!(status, 414, "{head}");
+    assert!(
+        head.to_ascii_lowercase()
+            .contains("content-type: application/problem+json"),
+        "{head}"
+    );
+    let p: Value = serde_json::from_slice(&body).expect("a JSON body");
+    assert_eq!(p["status"], 414, "{p}");
+    assert_eq!(p["type"], "/problems/uri-too-long", "{p}");
+    assert!(p["detail"].as_str().unwrap().contains("65534"), "{p}");
+    // a malformed request line
+    let (status, _, body) = common::raw(&addr, b"GET /a b c HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+    assert_eq!(status, 400);
+    let p: Value = serde_json::from_slice(&body).expect("a JSON body");
+    assert_eq!(p["status"], 400, "{p}");
+    // a handler's 400 keeps its own document
+    let c = client();
+    let p = problem(
+        c.get(d.url("/api/v1/jobs/%ff%fe")).send().await.unwrap(),
+        400,
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("UTF-8"), "{p}");
+    // and a long URI under hyper's limit reaches the handlers
+    let q = "a".repeat(60_000);
+    let r = c
+        .get(d.url(&format!("/api/v1/jobs?state={q}")))
+        .send()
+        .await
+        .unwrap();
+    assert!(r.status().as_u16() != 414, "{}", r.status());
+}
+
 /// A websocket token is percent-decoded (a browser's URLSearchParams encodes `+`, `/`, `=`).
 #[tokio::test]
 async fn websocket_token_is_percent_decoded() {

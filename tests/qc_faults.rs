@@ -671,9 +671,17 @@ enum Receiver {
 
 /// A raw HTTP/1.1 receiver on an ephemeral port; returns its URL and what it saw.
 async fn receiver(kind: Receiver) -> (String, Seen) {
-    use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+    receiver_on(kind, None).await
+}
+
+/// [`receiver`] behind TLS with `tls` (an `https://` URL), or plain.
+async fn receiver_on(
+    kind: Receiver,
+    tls: Option<std::sync::Arc<rustls::ServerConfig>>,
+) -> (String, Seen) {
     let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let url = format!("http://{}/cfx", l.local_addr().unwrap());
+    let scheme = if tls.is_some() { "https" } else { "http" };
+    let url = format!("{scheme}://{}/cfx", l.local_addr().unwrap());
     let seen: Seen = Default::default();
     let s2 = seen.clone();
     tokio::spawn(async move {
@@ -687,53 +695,187 @@ async fn receiver(kind: Receiver) -> (String, Seen) {
                 continue;
             }
             let seen = s2.clone();
-            tokio::spawn(async move {
-                let mut r = BufReader::new(sock);
-                loop {
-                    let mut line = String::new();
-                    if r.read_line(&mut line).await.unwrap_or(0) == 0 {
-                        return;
-                    }
-                    let mut parts = line.split_whitespace();
-                    let (method, path) = (
-                        parts.next().unwrap_or("").to_string(),
-                        parts.next().unwrap_or("").to_string(),
-                    );
-                    let (mut len, mut uid) = (0usize, String::new());
-                    loop {
-                        let mut h = String::new();
-                        if r.read_line(&mut h).await.unwrap_or(0) == 0 {
-                            return;
-                        }
-                        let h = h.trim_end();
-                        if h.is_empty() {
-                            break;
-                        }
-                        if let Some((k, v)) = h.split_once(':') {
-                            match k.trim().to_ascii_lowercase().as_str() {
-                                "content-length" => len = v.trim().parse().unwrap_or(0),
-                                "x-springbench-unique-id" => uid = v.trim().to_string(),
-                                _ => {}
-                            }
-                        }
-                    }
-                    let mut body = vec![0u8; len];
-                    if r.read_exact(&mut body).await.is_err() {
-                        return;
-                    }
-                    let answer: &[u8] = match (kind, method.as_str()) {
-                        (Receiver::Redirect, "POST") => b"HTTP/1.1 303 See Other\r\nLocation: /other\r\nContent-Length: 0\r\n\r\n",
-                        _ => b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n",
-                    };
-                    seen.lock().unwrap().push((method, path, uid));
-                    if r.get_mut().write_all(answer).await.is_err() {
-                        return;
-                    }
+            match &tls {
+                None => {
+                    tokio::spawn(answer(sock, kind, seen));
                 }
-            });
+                Some(cfg) => {
+                    let acceptor = tokio_rustls::TlsAcceptor::from(cfg.clone());
+                    tokio::spawn(async move {
+                        // a refused handshake (an untrusting client) ends here
+                        if let Ok(s) = acceptor.accept(sock).await {
+                            answer(s, kind, seen).await;
+                        }
+                    });
+                }
+            }
         }
     });
     (url, seen)
+}
+
+/// Answers the requests of one connection as `kind` says, noting each.
+async fn answer<S>(sock: S, kind: Receiver, seen: Seen)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
+{
+    use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+    let mut r = BufReader::new(sock);
+    loop {
+        let mut line = String::new();
+        if r.read_line(&mut line).await.unwrap_or(0) == 0 {
+            return;
+        }
+        let mut parts = line.split_whitespace();
+        let (method, path) = (
+            parts.next().unwrap_or("").to_string(),
+            parts.next().unwrap_or("").to_string(),
+        );
+        let (mut len, mut uid) = (0usize, String::new());
+        loop {
+            let mut h = String::new();
+            if r.read_line(&mut h).await.unwrap_or(0) == 0 {
+                return;
+            }
+            let h = h.trim_end();
+            if h.is_empty() {
+                break;
+            }
+            if let Some((k, v)) = h.split_once(':') {
+                match k.trim().to_ascii_lowercase().as_str() {
+                    "content-length" => len = v.trim().parse().unwrap_or(0),
+                    "x-springbench-unique-id" => uid = v.trim().to_string(),
+                    _ => {}
+                }
+            }
+        }
+        let mut body = vec![0u8; len];
+        if r.read_exact(&mut body).await.is_err() {
+            return;
+        }
+        let answer: &[u8] = match (kind, method.as_str()) {
+            (Receiver::Redirect, "POST") => {
+                b"HTTP/1.1 303 See Other\r\nLocation: /other\r\nContent-Length: 0\r\n\r\n"
+            }
+            _ => b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n",
+        };
+        seen.lock().unwrap().push((method, path, uid));
+        if r.get_mut().write_all(answer).await.is_err() || r.get_mut().flush().await.is_err() {
+            return;
+        }
+    }
+}
+
+/// A certificate authority of its own (self-signed, written as PEM to
+/// `dir/name.pem`) and a server configuration for 127.0.0.1 signed by it.
+fn test_ca(dir: &Path, name: &str) -> (PathBuf, std::sync::Arc<rustls::ServerConfig>) {
+    let mut ca = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+    ca.distinguished_name
+        .push(rcgen::DnType::CommonName, format!("{name} test CA"));
+    let ca = rcgen::CertifiedIssuer::self_signed(ca, rcgen::KeyPair::generate().unwrap()).unwrap();
+    let leaf_key = rcgen::KeyPair::generate().unwrap();
+    let leaf = rcgen::CertificateParams::new(vec!["127.0.0.1".to_string()])
+        .unwrap()
+        .signed_by(&leaf_key, &ca)
+        .unwrap();
+    let pem = dir.join(format!("{name}.pem"));
+    std::fs::write(&pem, ca.pem()).unwrap();
+    let key = rustls::pki_types::PrivateKeyDer::Pkcs8(leaf_key.serialize_der().into());
+    let cfg = rustls::ServerConfig::builder_with_provider(std::sync::Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()
+    .unwrap()
+    .with_no_client_auth()
+    .with_single_cert(vec![leaf.der().clone()], key)
+    .unwrap();
+    (pem, std::sync::Arc::new(cfg))
+}
+
+/// `https://` receivers: one whose certificate chains to the CA of the
+/// webhook's `ca_file` gets every message (signed, over TLS); one whose
+/// certificate comes from another CA is refused at the handshake: its
+/// deliveries are failed attempts naming the certificate, and it never sees
+/// a request. (Before, the daemon refused to start with an `https://` URL.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn https_receivers_are_checked_against_the_configured_ca() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ca_file, server) = test_ca(tmp.path(), "factory");
+    let (_, stranger) = test_ca(tmp.path(), "stranger");
+    let (good_url, good_seen) = receiver_on(Receiver::Healthy, Some(server)).await;
+    let (bad_url, bad_seen) = receiver_on(Receiver::Healthy, Some(stranger)).await;
+    let hooks = format!(
+        "{}ca_file = \"{}\"\n{}ca_file = \"{}\"\n",
+        webhook("tls", &good_url),
+        ca_file.display(),
+        webhook("untrusted", &bad_url),
+        ca_file.display()
+    );
+    let d = Daemon::start(&format!(
+        "[mes]\ninitial_backoff_s = 0.2\nmax_backoff_s = 0.5\n{hooks}"
+    ));
+    let c = client();
+    let j = &run_all(&c, &d, &[plain_job("TLS-1")]).await[0];
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let want = job_messages_all(&c, &d, j["id"].as_str().unwrap()).await;
+    assert_eq!(want.len(), 3);
+    let t = Instant::now();
+    loop {
+        let mut got: Vec<String> = good_seen
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|(m, p, _)| m == "POST" && p == "/cfx")
+            .map(|x| x.2.clone())
+            .collect();
+        got.sort();
+        got.dedup();
+        if got == want {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the https receiver has {got:?} of {want:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    // the untrusted receiver: failed attempts that say why, no request seen
+    let t = Instant::now();
+    loop {
+        let o = common::get(&c, &d, "/api/v1/outbox?limit=500").await;
+        let untrusted: Vec<Value> = o["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|i| i["webhook"] == "untrusted")
+            .cloned()
+            .collect();
+        assert_eq!(untrusted.len(), 3, "{o}");
+        assert!(untrusted.iter().all(|i| i["state"] != "delivered"), "{o}");
+        // in order per part: the first message is retried, the others wait behind it
+        let tried: Vec<&Value> = untrusted
+            .iter()
+            .filter(|i| i["attempts"].as_i64().unwrap_or(0) >= 1)
+            .collect();
+        if tried
+            .iter()
+            .any(|i| i["attempts"].as_i64().unwrap_or(0) >= 2)
+        {
+            for i in &tried {
+                let e = i["last_error"].as_str().unwrap_or("");
+                assert!(e.contains("certificate"), "{e}");
+            }
+            println!(
+                "untrusted https receiver: {}",
+                tried[0]["last_error"].as_str().unwrap()
+            );
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "{o}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(bad_seen.lock().unwrap().is_empty());
 }
 
 fn webhook(name: &str, url: &str) -> String {
@@ -979,50 +1121,70 @@ async fn admission_counts_the_space_queued_jobs_need() {
     drop(fs);
 }
 
-/// A series of 16 levels x 10 repeats: each finished repeat is stored as it
-/// finishes (its measurements are listed while the job runs), and a cancel
-/// at 30 % keeps them. Prints the daemon's resident memory.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_cancelled_series_keeps_its_finished_repeats() {
-    let d = Daemon::start("");
+/// `key` of /proc/PID/status (kB).
+fn status_kb(pid: u32, key: &str) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap()
+        .lines()
+        .find_map(|l| l.strip_prefix(key))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap()
+}
+
+/// Submits a 16-level x 10-repeat series and cancels it once its progress
+/// reaches `cancel_at`; every measurement the job lists afterwards must be a
+/// fitted level. Returns (measurements listed just before the cancel,
+/// measurements kept, the daemon's peak resident memory in kB: the larger
+/// of VmHWM and an RSS sampled every 50 ms).
+async fn cancelled_series(d: &Daemon, cancel_at: f64) -> (usize, usize, u64) {
     let c = client();
     let levels: Vec<f64> = (0..16).map(|i| 0.001 + 0.0005 * i as f64).collect();
     let body = json!({"part": {"serial": "S-1", "kind": "spider"}, "levels_m": levels, "repeats": 10,
                       "production": {"preset": "spider_4in", "seed": 11}});
-    let (s, j) = post(&c, &d, "/api/v1/jobs", &body).await;
+    let (s, j) = post(&c, d, "/api/v1/jobs", &body).await;
     assert_eq!(s, 202, "{j}");
     let id = j["id"].as_str().unwrap().to_string();
-    let rss0 = common::rss_kb(d.pid());
-    let mut rss_max = rss0;
+    let pid = d.pid();
+    let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sampler = {
+        let (peak, stop) = (peak.clone(), stop.clone());
+        std::thread::spawn(move || {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                peak.fetch_max(
+                    status_kb(pid, "VmRSS:"),
+                    std::sync::atomic::Ordering::Relaxed,
+                );
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
     let t = Instant::now();
-    let stored_while_running = loop {
-        let j = common::get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
-        rss_max = rss_max.max(common::rss_kb(d.pid()));
+    let listed = loop {
+        let j = common::get(&c, d, &format!("/api/v1/jobs/{id}")).await;
         assert!(!common::terminal(j["state"].as_str().unwrap()), "{j}");
-        if j["progress"].as_f64().unwrap() >= 0.30 {
+        if j["progress"].as_f64().unwrap() >= cancel_at {
             break j["measurement_ids"].as_array().unwrap().len();
         }
         assert!(
-            t.elapsed() < Duration::from_secs(600),
-            "30 % not reached: {j}"
+            t.elapsed() < Duration::from_secs(900),
+            "{cancel_at} not reached: {j}"
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     };
-    let (s, _) = post(&c, &d, &format!("/api/v1/jobs/{id}/cancel"), &json!({})).await;
+    let (s, _) = post(&c, d, &format!("/api/v1/jobs/{id}/cancel"), &json!({})).await;
     assert_eq!(s, 202);
-    let j = wait_state(&c, &d, &id, common::terminal).await;
+    let j = wait_state(&c, d, &id, common::terminal).await;
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    sampler.join().unwrap();
     assert_eq!(j["state"], "cancelled", "{j}");
     let ids = j["measurement_ids"].as_array().unwrap();
-    assert!(
-        stored_while_running >= 32,
-        "{stored_while_running} measurements stored at 30 %"
-    );
-    assert_eq!(ids.len() % 16, 0, "whole repeats: {}", ids.len());
-    assert!(ids.len() >= stored_while_running);
+    let mut seen = std::collections::HashSet::new();
     for m in ids {
         let m = common::get(
             &c,
-            &d,
+            d,
             &format!("/api/v1/measurements/{}", m.as_str().unwrap()),
         )
         .await;
@@ -1030,13 +1192,70 @@ async fn a_cancelled_series_keeps_its_finished_repeats() {
             m["large_signal"]["keff_n_per_m"].as_f64().unwrap() > 0.0,
             "{m}"
         );
+        let r = &m["measurement"];
+        let key = format!("{} {}", r["repeat_index"], r["level_index"]);
+        assert!(
+            r["level_index"].as_i64().is_some() && seen.insert(key.clone()),
+            "level {key}: {r}"
+        );
     }
+    // A later level of a repeat names the pre-measurement stored with its first.
+    if let Some(m) = ids.get(1) {
+        let wav = common::get_bytes(
+            &c,
+            d,
+            &format!(
+                "/api/v1/measurements/{}/recordings/pre.wav",
+                m.as_str().unwrap()
+            ),
+        )
+        .await;
+        assert!(wav.len() > 48_000 * 3 * 4, "{} bytes", wav.len());
+    }
+    let hwm = status_kb(pid, "VmHWM:");
+    let p = peak.load(std::sync::atomic::Ordering::Relaxed).max(hwm);
+    (listed, ids.len(), p)
+}
+
+/// A level series keeps every level it finished: each level is stored as
+/// its narrow sweep is fitted (listed while the job runs), so a cancel in
+/// the middle of the first repeat keeps its first levels. (Before, a repeat
+/// was stored only when all 16 levels were in: nothing was kept.) Cancelled
+/// at 4 % (about 6 of the first repeat's 16 levels), a few seconds of work.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_series_keeps_its_finished_levels() {
+    let d = Daemon::start("");
+    let (listed, kept, peak_kb) = cancelled_series(&d, 0.04).await;
     println!(
-        "16 levels x 10 repeats cancelled at 30 %: {} measurements kept ({} stored while running); RSS {} MB at start, {} MB at most",
-        ids.len(),
-        stored_while_running,
+        "16 levels x 10 repeats cancelled at 4 %: {kept} levels kept ({listed} listed while running); peak RSS {} MB",
+        peak_kb / 1024
+    );
+    assert!(listed >= 3, "{listed} levels stored at 4 %");
+    assert!(kept >= listed);
+}
+
+/// Issue 24's series: 16 levels x 10 repeats, cancelled at 30 %. The daemon
+/// stays below 150 MB resident throughout (it held every level's samples
+/// until the repeat's end before: 456-485 MB), and the cancel keeps the
+/// finished levels. About 2 minutes; run with
+/// `cargo test --test qc_faults -- --ignored a_16_by_10_series --nocapture`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "about 2 minutes: run on purpose (docs/http-hardening.md)"]
+async fn a_16_by_10_series_stays_below_150_mb_and_keeps_its_levels() {
+    let d = Daemon::start("");
+    let rss0 = common::rss_kb(d.pid());
+    let (listed, kept, peak_kb) = cancelled_series(&d, 0.30).await;
+    println!(
+        "16 levels x 10 repeats cancelled at 30 %: {kept} levels kept ({listed} listed while running); RSS {} MB at start, {} MB at most",
         rss0 / 1024,
-        rss_max / 1024
+        peak_kb / 1024
+    );
+    assert!(listed >= 3 * 16, "{listed} levels stored at 30 %");
+    assert!(kept >= listed);
+    assert!(
+        peak_kb < 150 * 1024,
+        "peak resident memory {} MB",
+        peak_kb / 1024
     );
 }
 
