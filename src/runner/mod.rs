@@ -1,7 +1,8 @@
 //! Runner: one task owns each bench, takes its queued jobs (priority, then
 //! FIFO), runs the measurement procedure on a blocking thread, fits the
-//! result with the identification core and stores each finished repeat's
-//! recordings and measurements in one transaction as soon as it is done;
+//! each level with the identification core as the procedure hands it out
+//! and stores its recordings and measurement in one transaction at once
+//! (the repeat's series result is written into them when the repeat ends);
 //! the job's end (state, verdicts, MES messages) is one more transaction. Job state changes and step progress become stored events;
 //! live decimated samples are broadcast only.
 //!
