@@ -7,7 +7,7 @@
 //! is recognised as it is written (one of those statuses with
 //! `content-length: 0`: every answer of a handler with these statuses is a
 //! problem document, never empty) and replaced by the same status as an
-//! RFC 9457 problem document. Decision: docs/decisions/0039-hard-problem-for-hyper-refusals.md.
+//! RFC 9457 problem document. Decision: docs/decisions/0041-hard-problem-for-hyper-refusals.md.
 
 use super::problem::Problem;
 use axum::http::StatusCode;
