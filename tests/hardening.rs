@@ -263,14 +263,8 @@ async fn hyper_refusals_are_problem_documents() {
     assert_eq!(status, 400);
     let p: Value = serde_json::from_slice(&body).expect("a JSON body");
     assert_eq!(p["status"], 400, "{p}");
-    // a handler's 400 keeps its own document
+    // (a handler's own 400 keeps its document: every_error_is_a_problem_document)
     let c = client();
-    let p = problem(
-        c.get(d.url("/api/v1/jobs/%ff%fe")).send().await.unwrap(),
-        400,
-    )
-    .await;
-    assert!(p["detail"].as_str().unwrap().contains("UTF-8"), "{p}");
     // and a long URI under hyper's limit reaches the handlers
     let q = "a".repeat(60_000);
     let r = c

@@ -242,40 +242,14 @@ fn write_pcm24(path: &std::path::Path, frames: usize) {
     w.flush().unwrap();
 }
 
-fn status_kb(pid: u32, key: &str) -> u64 {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    s.lines()
-        .find_map(|l| l.strip_prefix(key))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
-        .unwrap()
-}
-
 /// Peak VmRSS of `pid` while `f` runs: VmHWM after resetting it through
 /// /proc/PID/clear_refs (root), and a 10 ms sampler besides.
 async fn peak_during<F: std::future::Future>(pid: u32, f: F) -> (u64, u64, F::Output) {
     let _ = std::fs::write(format!("/proc/{pid}/clear_refs"), "5");
-    let start = status_kb(pid, "VmRSS:");
-    let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(start));
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let sampler = {
-        let (peak, stop) = (peak.clone(), stop.clone());
-        std::thread::spawn(move || {
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-                peak.fetch_max(
-                    status_kb(pid, "VmRSS:"),
-                    std::sync::atomic::Ordering::Relaxed,
-                );
-                std::thread::sleep(std::time::Duration::from_millis(10));
-            }
-        })
-    };
+    let start = common::status_kb(pid, "VmRSS:");
+    let sampler = common::RssSampler::start(pid, std::time::Duration::from_millis(10));
     let out = f.await;
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    sampler.join().unwrap();
-    let hwm = status_kb(pid, "VmHWM:");
-    let p = peak.load(std::sync::atomic::Ordering::Relaxed);
-    (start, p.max(hwm), out)
+    (start, sampler.peak_kb(), out)
 }
 
 /// Issue 11: a 200 MB import peaked at 1.17 GB. Now the recordings are

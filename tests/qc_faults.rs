@@ -1121,17 +1121,6 @@ async fn admission_counts_the_space_queued_jobs_need() {
     drop(fs);
 }
 
-/// `key` of /proc/PID/status (kB).
-fn status_kb(pid: u32, key: &str) -> u64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .unwrap()
-        .lines()
-        .find_map(|l| l.strip_prefix(key))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
-        .unwrap()
-}
-
 /// Submits a 16-level x 10-repeat series and cancels it once its progress
 /// reaches `cancel_at`; every measurement the job lists afterwards must be a
 /// fitted level. Returns (measurements listed just before the cancel,
@@ -1145,21 +1134,7 @@ async fn cancelled_series(d: &Daemon, cancel_at: f64) -> (usize, usize, u64) {
     let (s, j) = post(&c, d, "/api/v1/jobs", &body).await;
     assert_eq!(s, 202, "{j}");
     let id = j["id"].as_str().unwrap().to_string();
-    let pid = d.pid();
-    let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let sampler = {
-        let (peak, stop) = (peak.clone(), stop.clone());
-        std::thread::spawn(move || {
-            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-                peak.fetch_max(
-                    status_kb(pid, "VmRSS:"),
-                    std::sync::atomic::Ordering::Relaxed,
-                );
-                std::thread::sleep(Duration::from_millis(50));
-            }
-        })
-    };
+    let sampler = common::RssSampler::start(d.pid(), Duration::from_millis(50));
     let t = Instant::now();
     let listed = loop {
         let j = common::get(&c, d, &format!("/api/v1/jobs/{id}")).await;
@@ -1176,8 +1151,7 @@ async fn cancelled_series(d: &Daemon, cancel_at: f64) -> (usize, usize, u64) {
     let (s, _) = post(&c, d, &format!("/api/v1/jobs/{id}/cancel"), &json!({})).await;
     assert_eq!(s, 202);
     let j = wait_state(&c, d, &id, common::terminal).await;
-    stop.store(true, std::sync::atomic::Ordering::Relaxed);
-    sampler.join().unwrap();
+    let peak_kb = sampler.peak_kb();
     assert_eq!(j["state"], "cancelled", "{j}");
     let ids = j["measurement_ids"].as_array().unwrap();
     let mut seen = std::collections::HashSet::new();
@@ -1212,9 +1186,7 @@ async fn cancelled_series(d: &Daemon, cancel_at: f64) -> (usize, usize, u64) {
         .await;
         assert!(wav.len() > 48_000 * 3 * 4, "{} bytes", wav.len());
     }
-    let hwm = status_kb(pid, "VmHWM:");
-    let p = peak.load(std::sync::atomic::Ordering::Relaxed).max(hwm);
-    (listed, ids.len(), p)
+    (listed, ids.len(), peak_kb)
 }
 
 /// A level series keeps every level it finished: each level is stored as

@@ -275,6 +275,54 @@ pub fn rss_kb(pid: u32) -> u64 {
         .expect("VmRSS")
 }
 
+/// `key` of /proc/PID/status (`VmRSS:`, `VmHWM:`), kB.
+pub fn status_kb(pid: u32, key: &str) -> u64 {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("/proc status");
+    s.lines()
+        .find_map(|l| l.strip_prefix(key))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect(key)
+}
+
+/// Samples a process's VmRSS every `period` on a thread of its own until
+/// [`RssSampler::peak_kb`], which answers the largest sample or VmHWM,
+/// whichever is larger (kB).
+pub struct RssSampler {
+    pid: u32,
+    peak: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl RssSampler {
+    pub fn start(pid: u32, period: Duration) -> RssSampler {
+        use std::sync::atomic::Ordering::Relaxed;
+        let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (p, s) = (peak.clone(), stop.clone());
+        let thread = std::thread::spawn(move || {
+            while !s.load(Relaxed) {
+                p.fetch_max(status_kb(pid, "VmRSS:"), Relaxed);
+                std::thread::sleep(period);
+            }
+        });
+        RssSampler {
+            pid,
+            peak,
+            stop,
+            thread,
+        }
+    }
+
+    pub fn peak_kb(self) -> u64 {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.stop.store(true, Relaxed);
+        self.thread.join().unwrap();
+        self.peak.load(Relaxed).max(status_kb(self.pid, "VmHWM:"))
+    }
+}
+
 /// One raw HTTP/1.1 exchange on a fresh connection: `request` is sent as
 /// is; returns (status, headers as text, body).
 pub fn raw(addr: &str, request: &[u8]) -> (u16, String, Vec<u8>) {
