@@ -25,6 +25,11 @@ use sqlx::postgres::{PgConnectOptions, PgPool, PgPoolOptions};
 use std::str::FromStr;
 use std::time::Duration;
 
+/// The center's migrations (`migrations/*.sql`), embedded by the store
+/// crate's build script (decision 0040).
+const MIGRATIONS: springbench_store::migrations::MigrationList =
+    include!(concat!(env!("OUT_DIR"), "/migrations.rs"));
+
 /// The center's store: a pool on one PostgreSQL database (and schema).
 #[derive(Clone)]
 pub struct PgStore {
@@ -71,7 +76,9 @@ impl PgStore {
             .acquire_timeout(Duration::from_secs(5))
             .connect_with(opts)
             .await?;
-        sqlx::migrate!("./migrations").run(&pool).await?;
+        springbench_store::migrations::migrator(MIGRATIONS)
+            .run(&pool)
+            .await?;
         Ok(PgStore { pool })
     }
 

@@ -17,6 +17,7 @@ pub mod health;
 mod imports;
 mod jobs;
 mod measurements;
+pub mod migrations;
 pub mod outbox;
 mod parts;
 pub mod qc;
@@ -129,7 +130,7 @@ impl Store {
             .after_release(|conn, _| Box::pin(async move { health::reusable(conn).await }))
             .connect_with(opts.clone())
             .await?;
-        sqlx::migrate!("./migrations").run(&pool).await?;
+        migrations::migrator(migrations::SQLITE).run(&pool).await?;
         health::spawn_watchdog(guard, opts, pool.clone());
         Ok(Store {
             pool,
@@ -149,7 +150,7 @@ impl Store {
             .min_connections(1)
             .connect_with(opts)
             .await?;
-        sqlx::migrate!("./migrations").run(&pool).await?;
+        migrations::migrator(migrations::SQLITE).run(&pool).await?;
         Ok(Store { pool, dir: None })
     }
 
