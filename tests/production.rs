@@ -381,11 +381,19 @@ fn spider_4in_lot_agrees_with_the_full_procedure_in_a_5_s_cycle() {
     acceptance(&lines()[0], 23, &DEFECTS);
 }
 
-/// Every other preset with its own golden units, the same lot of 30.
+/// Every other preset with its own golden units. `cargo test` runs a lot of
+/// 12 per preset (5 good, the 5 defects, the 2 unmeasurable parts): every
+/// kind of part the whole lot holds, at 40 % of its CPU time (issue 19: CI
+/// time). `SPRINGBENCH_LOT_GOOD=23` runs the issue's lot of 30, the figures
+/// of docs/qc.md.
 #[test]
 fn every_other_preset_agrees_with_its_own_golden_units() {
+    let n_good = std::env::var("SPRINGBENCH_LOT_GOOD")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(5);
     for l in &lines()[1..] {
-        acceptance(l, 23, &DEFECTS);
+        acceptance(l, n_good, &DEFECTS);
     }
 }
 
