@@ -3,7 +3,7 @@
 //! SQL) that `springbench_store::migrations::migrator` turns into sqlx's
 //! `Migrator`. It replaces `sqlx::migrate!`, whose proc-macro crate built a
 //! second copy of sqlx, both database drivers and SQLite's C source for the
-//! host (decision 0040). springbench-store-pg uses this same script.
+//! host (decision 0042). springbench-store-pg uses this same script.
 
 use std::path::Path;
 use std::{env, fs};

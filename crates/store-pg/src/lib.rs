@@ -26,7 +26,7 @@ use std::str::FromStr;
 use std::time::Duration;
 
 /// The center's migrations (`migrations/*.sql`), embedded by the store
-/// crate's build script (decision 0040).
+/// crate's build script (decision 0042).
 const MIGRATIONS: springbench_store::migrations::MigrationList =
     include!(concat!(env!("OUT_DIR"), "/migrations.rs"));
 

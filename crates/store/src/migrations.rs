@@ -1,5 +1,5 @@
 //! The schema migrations, embedded at build time by `build.rs` (decision
-//! 0040): sqlx's `Migrator` built from the list, with the checksums sqlx's
+//! 0042): sqlx's `Migrator` built from the list, with the checksums sqlx's
 //! own `migrate!` and `Migrator::new(dir)` compute, so databases migrated
 //! before keep validating.
 
