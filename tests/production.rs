@@ -737,4 +737,39 @@ async fn the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses() {
         line("springbench_bench_time_seconds_total", "full") > 30.0,
         "{m}"
     );
+
+    // The approved recipe (golden reference and all) judging an effect size
+    // as well: a production job runs the full procedure, because the short
+    // sweeps do not reveal friction, and says so (before: it ran the short
+    // sweeps and judged friction 0 on a part with 0.25 N).
+    let mut rec3 = p["proposal"]["recipe"].clone();
+    rec3["parameters"].as_array_mut().unwrap().push(json!({
+        "name": "friction", "quantity": "effect_size", "effect": "coulomb_friction",
+        "effect_parameter": "force_n", "upper": 1.0}));
+    let (s, v3) = call(
+        reqwest::Method::PUT,
+        "/api/v1/recipes/spider-4in",
+        Some(rec3),
+    )
+    .await;
+    assert!(s == 200 || s == 201, "{s} {v3}");
+    let done = run(vec![job("P-3", 502, None)]).await;
+    let w = done[0]["warnings"].to_string();
+    assert!(
+        w.contains("fell back to the full procedure") && w.contains("effect size"),
+        "{}",
+        done[0]
+    );
+    let (s, v) = call(reqwest::Method::GET, "/api/v1/parts/P-3/verdict", None).await;
+    assert_eq!(s, 200, "{v}");
+    let t = &v["traceability"]["procedure"];
+    assert!(
+        t["fallback"].as_str().unwrap_or("").contains("effect size"),
+        "{v}"
+    );
+    assert!(
+        done[0]["bench_time_s"].as_f64().unwrap() > 30.0,
+        "{}",
+        done[0]
+    );
 }

@@ -280,6 +280,11 @@ pub(super) fn execute(
     };
     // The production procedure's reference: the golden units of the recipe.
     let golden = recipe.and_then(|r| r.procedure.golden.as_ref());
+    // The short sweeps do not reveal the effects the diagnostics size (the
+    // full procedure found 0.25 N of friction on 5 of 5 parts, production
+    // on 0; docs/qc.md): a recipe that judges an effect size gets the full
+    // procedure, said as a fall-back in the result and the traceability.
+    let effect_judged = recipe.is_some_and(|r| r.needs_diagnostics());
     let config = json!({"procedure": pcfg, "procedure_mode": spec.procedure.as_str(),
                         "analysis": opts, "limits": spec.limits,
                         "bench": bench_cfg.id, "seed": seed, "bench_description": bench.describe()});
@@ -325,6 +330,14 @@ pub(super) fn execute(
         };
         let outcome = match spec.procedure {
             crate::job::ProcedureMode::Full => procedure::run(bench.as_mut(), &pcfg, &mut rep),
+            crate::job::ProcedureMode::Production if effect_judged => {
+                procedure::production::run_full_instead(
+                    bench.as_mut(),
+                    &pcfg,
+                    &mut rep,
+                    "the recipe judges an effect size, which the production procedure's short sweeps do not reveal (docs/qc.md, Effect sizes)".into(),
+                )
+            }
             crate::job::ProcedureMode::Production => {
                 procedure::run_production(bench.as_mut(), &pcfg, golden, &mut rep)
             }

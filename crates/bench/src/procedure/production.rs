@@ -412,6 +412,18 @@ fn give_up(cx: Ctx<'_>, cfg: &ProcedureConfig, why: String) -> Result<Outcome, P
 }
 
 /// The full procedure after `spent_s` of the short one, saying why.
+/// The full procedure instead of the production one, for `why` (a recipe
+/// that judges what the short sweeps cannot measure); the outcome says so
+/// as a fall-back.
+pub fn run_full_instead(
+    bench: &mut dyn Bench,
+    cfg: &ProcedureConfig,
+    obs: &mut dyn Observer,
+    why: String,
+) -> Result<Outcome, ProcedureError> {
+    fall_back(bench, cfg, obs, 0.0, vec![], why)
+}
+
 fn fall_back(
     bench: &mut dyn Bench,
     cfg: &ProcedureConfig,
