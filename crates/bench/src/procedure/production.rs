@@ -126,12 +126,10 @@ pub fn run_production(
     let limits = bench.limits();
     validate(cfg, &limits)?;
     let Some(g) = golden else {
-        return fall_back(
+        return run_full_instead(
             bench,
             cfg,
             obs,
-            0.0,
-            vec![],
             "the recipe has no golden reference yet (approve a limit proposal from golden units)"
                 .into(),
         );
@@ -411,10 +409,9 @@ fn give_up(cx: Ctx<'_>, cfg: &ProcedureConfig, why: String) -> Result<Outcome, P
     fall_back(cx.bench, cfg, cx.obs, cx.elapsed_s, cx.log, why)
 }
 
-/// The full procedure after `spent_s` of the short one, saying why.
-/// The full procedure instead of the production one, for `why` (a recipe
-/// that judges what the short sweeps cannot measure); the outcome says so
-/// as a fall-back.
+/// The full procedure instead of the production one, for `why` (no golden
+/// reference, or a recipe that judges what the short sweeps cannot
+/// measure); the outcome says so as a fall-back.
 pub fn run_full_instead(
     bench: &mut dyn Bench,
     cfg: &ProcedureConfig,
@@ -424,6 +421,7 @@ pub fn run_full_instead(
     fall_back(bench, cfg, obs, 0.0, vec![], why)
 }
 
+/// The full procedure after `spent_s` of the short one, saying why.
 fn fall_back(
     bench: &mut dyn Bench,
     cfg: &ProcedureConfig,
