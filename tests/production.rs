@@ -450,8 +450,10 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
 /// friction on every friction part) and the friction force agrees within
 /// 10 %. FAILS today: the full procedure finds 0.25 N of friction on every
 /// friction part, the production procedure on none (docs/qc.md, "Effect
-/// sizes"); `#[ignore]` until the runner falls back to the full procedure
-/// for a recipe that judges an effect size, or the short sweep measures it.
+/// sizes"). The runner therefore runs the full procedure for a recipe that
+/// judges an effect size (`the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses`);
+/// this test, which calls the procedures directly, stays `#[ignore]` until
+/// the short sweeps measure effects.
 /// `cargo test --test production -- --ignored --nocapture effect_sizes` (20 s)
 #[test]
 #[ignore = "open defect: the production sweep does not reveal friction (0 of 5 parts); docs/qc.md, Effect sizes"]
