@@ -317,6 +317,7 @@ async fn main() {
     for per_station in [false, true] {
         let mut v = Vec::new();
         let mut n = 0;
+        let mut first = None;
         for _ in 0..10 {
             let t = Instant::now();
             let g = s
@@ -334,6 +335,7 @@ async fn main() {
                 .unwrap();
             v.push(t.elapsed());
             n = g.iter().map(|g| g.spc.n).sum::<usize>();
+            first = g.first().map(|g| g.spc.clone());
         }
         println!(
             "SPC last 100 000 verdicts of a recipe ({}; {n} points): {}",
@@ -344,6 +346,13 @@ async fn main() {
             },
             stats(v)
         );
+        // The figures, to compare one way of computing them with another.
+        if let Some(f) = first {
+            println!(
+                "  first group: n {} mean {:?} sigma {:?} sigma_within {:?} passed {} failed {} invalid {}",
+                f.n, f.mean, f.sigma, f.sigma_within, f.passed, f.failed, f.invalid
+            );
+        }
     }
     // A part's history: its measurements, newest first, and the part.
     let mut v = Vec::new();

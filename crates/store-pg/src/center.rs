@@ -114,6 +114,103 @@ impl PgStore {
     /// SPC in SQL aggregates ([`SpcQuery`]): one group (station None), or
     /// one per station by id. Voided measurements are left out.
     pub async fn spc(&self, q: &SpcQuery<'_>) -> StoreResult<Vec<SpcGroup>> {
+        let rows = if q.since.is_none() && q.until.is_none() {
+            self.spc_newest(q).await?
+        } else {
+            self.spc_time_window(q).await?
+        };
+        let mut out: Vec<SpcGroup> = rows
+            .iter()
+            .map(|r| SpcGroup {
+                station_id: r.get("g"),
+                spc: summary(Some(r), q),
+            })
+            .collect();
+        if out.is_empty() && !q.per_station {
+            out.push(SpcGroup {
+                station_id: None,
+                spc: summary(None, q),
+            });
+        }
+        Ok(out)
+    }
+
+    /// The newest `last` verdicts (every one without `last`) from the SPC
+    /// points the ingest keeps (migration 0270): the window is the seqs from
+    /// its oldest verdict's on, so its points are one index range in time
+    /// order (the moving range needs no sort across stations); a point that
+    /// began before the window (its first repeats outside) is recomputed
+    /// from the verdicts inside it, as `core::qc::spc` takes a window.
+    async fn spc_newest(&self, q: &SpcQuery<'_>) -> StoreResult<Vec<sqlx::postgres::PgRow>> {
+        let lo: i64 = match q.last {
+            None => 0,
+            Some(n) if n <= 0 => i64::MAX,
+            Some(n) => sqlx::query_scalar(
+                "SELECT seq FROM qc_verdicts \
+                 WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided \
+                 ORDER BY seq DESC OFFSET $2 LIMIT 1",
+            )
+            .bind(q.recipe)
+            .bind(n - 1)
+            .fetch_optional(&self.pool)
+            .await?
+            .unwrap_or(0),
+        };
+        // Across stations: one group, the points in index order (a merge of
+        // the range and the few partial points); per station: a sort.
+        macro_rules! newest {
+            ($g:literal, $g_v:literal, $over:literal) => {
+                concat!(
+                    "WITH pts AS ( \
+                       (SELECT ", $g, " AS g, first_seq, value_sum / n AS value, \
+                               CASE WHEN any_fail THEN 'fail' ELSE min_verdict END AS verdict \
+                        FROM spc_points WHERE recipe_name = $1 AND parameter = $2 AND first_seq >= $3 \
+                        ORDER BY first_seq) \
+                       UNION ALL \
+                       (SELECT ", $g_v, " AS g, MIN(v.seq), AVG(x.value), \
+                               CASE WHEN bool_or(v.verdict = 'fail') THEN 'fail' ELSE MIN(v.verdict) END \
+                        FROM spc_points s JOIN qc_verdicts v ON v.job_id = s.job_id AND v.recipe_name = $1 \
+                             AND v.station_id IS NOT DISTINCT FROM s.station_id \
+                             AND v.level_index IS NOT DISTINCT FROM s.level_index AND v.seq >= $3 \
+                             AND v.measurement_id IS NOT NULL AND NOT v.voided AND v.verdict <> 'invalid' \
+                        JOIN verdict_values x ON x.verdict_seq = v.seq AND x.parameter = $2 \
+                        WHERE s.recipe_name = $1 AND s.parameter = $2 AND s.last_seq >= $3 \
+                          AND s.last_seq > s.first_seq AND s.first_seq < $3 \
+                        GROUP BY v.station_id, v.job_id, v.level_index ORDER BY 2) \
+                       ORDER BY 2), \
+                     d AS (SELECT g, value, verdict, value - LAG(value) OVER (", $over, " ORDER BY first_seq) AS step FROM pts), \
+                     s AS ( \
+                       SELECT g, COUNT(*) AS n, AVG(value) AS mean, STDDEV_SAMP(value) AS sigma, AVG(ABS(step)) AS mr, \
+                              COUNT(*) FILTER (WHERE verdict = 'pass') AS passed, \
+                              COUNT(*) FILTER (WHERE verdict = 'fail') AS failed FROM d GROUP BY g), \
+                     inv AS ( \
+                       SELECT ", $g, " AS g, COUNT(*) AS invalid FROM qc_verdicts \
+                       WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided AND verdict = 'invalid' \
+                         AND seq >= $3 GROUP BY 1), \
+                     k AS (SELECT g FROM s UNION SELECT g FROM inv) \
+                     SELECT k.g, s.n, s.mean, s.sigma, s.mr, s.passed, s.failed, inv.invalid \
+                     FROM k LEFT JOIN s ON s.g IS NOT DISTINCT FROM k.g LEFT JOIN inv ON inv.g IS NOT DISTINCT FROM k.g \
+                     ORDER BY 1 NULLS FIRST"
+                )
+            };
+        }
+        let sql = if q.per_station {
+            newest!("station_id", "v.station_id", "PARTITION BY g")
+        } else {
+            newest!("NULL::text", "NULL::text", "")
+        };
+        Ok(sqlx::query(sql)
+            .bind(q.recipe)
+            .bind(q.parameter)
+            .bind(lo)
+            .fetch_all(&self.pool)
+            .await?)
+    }
+
+    /// Verdicts made in [since, until) (the newest `last` of them): not a
+    /// range of seqs (the stations' clocks interleave), so the window's
+    /// verdicts are joined to their values and their points formed here.
+    async fn spc_time_window(&self, q: &SpcQuery<'_>) -> StoreResult<Vec<sqlx::postgres::PgRow>> {
         // A point's verdict: `fail` when a repeat failed, else its first
         // repeat's (core::qc::spc). The repeats of one job and level share
         // the recipe version, so without a failure they are all `pass` or
@@ -156,20 +253,7 @@ impl PgStore {
         .bind(q.per_station)
         .fetch_all(&self.pool)
         .await?;
-        let mut out: Vec<SpcGroup> = rows
-            .iter()
-            .map(|r| SpcGroup {
-                station_id: r.get("g"),
-                spc: summary(Some(r), q),
-            })
-            .collect();
-        if out.is_empty() && !q.per_station {
-            out.push(SpcGroup {
-                station_id: None,
-                spc: summary(None, q),
-            });
-        }
-        Ok(out)
+        Ok(rows)
     }
 
     /// Yield of recipe `recipe` per station and day (UTC) over its job

@@ -93,8 +93,65 @@ async fn insert_verdicts(
             .bind(&v.recipe_name)
             .execute(&mut **tx)
             .await?;
+            if kind != "invalid" {
+                add_to_spc_points(tx, seq).await?;
+            }
         }
     }
+    Ok(())
+}
+
+/// Adds a measurement verdict's values to their SPC points (migration
+/// 0270): one row per point and parameter, its repeats summed.
+async fn add_to_spc_points(tx: &mut Tx<'_>, verdict_seq: i64) -> StoreResult<()> {
+    sqlx::query(
+        "INSERT INTO spc_points (recipe_name, parameter, point_key, station_id, job_id, level_index, \
+         first_seq, last_seq, n, value_sum, any_fail, min_verdict) \
+         SELECT v.recipe_name, x.parameter, spc_point_key(v.station_id, v.job_id, v.seq, v.level_index), \
+                v.station_id, v.job_id, v.level_index, v.seq, v.seq, 1, x.value, v.verdict = 'fail', v.verdict \
+         FROM qc_verdicts v JOIN verdict_values x ON x.verdict_seq = v.seq WHERE v.seq = $1 \
+         ON CONFLICT (recipe_name, parameter, point_key) DO UPDATE SET \
+         first_seq = LEAST(spc_points.first_seq, EXCLUDED.first_seq), \
+         last_seq = GREATEST(spc_points.last_seq, EXCLUDED.last_seq), \
+         n = spc_points.n + 1, value_sum = spc_points.value_sum + EXCLUDED.value_sum, \
+         any_fail = spc_points.any_fail OR EXCLUDED.any_fail, \
+         min_verdict = LEAST(spc_points.min_verdict, EXCLUDED.min_verdict)",
+    )
+    .bind(verdict_seq)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
+}
+
+/// Recomputes the SPC points of a voided measurement's verdicts from the
+/// verdicts left (a point of no verdict left goes: its rows are derived).
+async fn recompute_spc_points(tx: &mut Tx<'_>, measurement_id: &str) -> StoreResult<()> {
+    let keys = "SELECT DISTINCT recipe_name, station_id, job_id, level_index, \
+                spc_point_key(station_id, job_id, seq, level_index) AS point_key \
+                FROM qc_verdicts WHERE measurement_id = $1";
+    sqlx::query(sqlx::AssertSqlSafe(format!(
+        "DELETE FROM spc_points p USING ({keys}) k \
+         WHERE p.recipe_name = k.recipe_name AND p.point_key = k.point_key"
+    )))
+    .bind(measurement_id)
+    .execute(&mut **tx)
+    .await?;
+    // A point of a job: its other repeats (a verdict without a job is a
+    // point of its own, gone with its void).
+    sqlx::query(sqlx::AssertSqlSafe(format!(
+        "INSERT INTO spc_points (recipe_name, parameter, point_key, station_id, job_id, level_index, \
+         first_seq, last_seq, n, value_sum, any_fail, min_verdict) \
+         SELECT v.recipe_name, x.parameter, k.point_key, k.station_id, k.job_id, k.level_index, \
+                MIN(v.seq), MAX(v.seq), COUNT(*), SUM(x.value), bool_or(v.verdict = 'fail'), MIN(v.verdict) \
+         FROM ({keys}) k JOIN qc_verdicts v ON v.job_id = k.job_id AND v.recipe_name = k.recipe_name \
+              AND v.station_id IS NOT DISTINCT FROM k.station_id AND v.level_index IS NOT DISTINCT FROM k.level_index \
+         JOIN verdict_values x ON x.verdict_seq = v.seq \
+         WHERE v.measurement_id IS NOT NULL AND NOT v.voided AND v.verdict <> 'invalid' \
+         GROUP BY v.recipe_name, x.parameter, k.point_key, k.station_id, k.job_id, k.level_index"
+    )))
+    .bind(measurement_id)
+    .execute(&mut **tx)
+    .await?;
     Ok(())
 }
 
@@ -242,6 +299,7 @@ pub(crate) async fn apply_correction(
                 .bind(m)
                 .execute(&mut **tx)
                 .await?;
+            recompute_spc_points(tx, m).await?;
         }
         "part_kind" => {
             let r = sqlx::query("UPDATE parts SET kind = $2, updated_at = GREATEST(updated_at, $3) WHERE serial = $1")

@@ -318,7 +318,14 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     };
     let made = ingest_fleet(&s).await;
     assert_eq!(made.len(), 390);
-    for last in [390usize, 150, 7] {
+    // Windows whose oldest verdict is a point's second repeat (its first
+    // outside) are among them: the center recomputes that point.
+    let cuts = [390usize, 150, 149, 7, 6]
+        .iter()
+        .filter(|&&last| cuts_a_point(&made, last))
+        .count();
+    assert!(cuts > 0, "a window starts inside a point");
+    for last in [390usize, 150, 149, 7, 6] {
         let all = s
             .spc(&SpcQuery {
                 last: Some(last as i64),
@@ -394,6 +401,90 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
         .unwrap();
     assert_eq!(none[0].spc.n, 0);
     assert_eq!(none[0].spc.mean, None);
+    // A void of one repeat of a point: the point is its other repeat now,
+    // across stations and on its station, in the whole and in a cut window.
+    let gone = made
+        .iter()
+        .rev()
+        .find(|m| m.id.ends_with("-l1-r0") && m.verdict != "invalid")
+        .unwrap();
+    let job: usize = gone
+        .job
+        .as_ref()
+        .unwrap()
+        .rsplit('-')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(s
+        .correct(&Correction {
+            id: "void-1".into(),
+            kind: "void_measurement".into(),
+            part_serial: format!("{}-P{job:03}", gone.station),
+            measurement_id: Some(gone.id.clone()),
+            old_value: None,
+            new_value: None,
+            reason: "clamp not closed".into(),
+            made_by: Some("qe".into()),
+            made_at: time(0),
+        })
+        .await
+        .unwrap());
+    let left: Vec<Made> = made
+        .iter()
+        .filter(|m| m.id != gone.id)
+        .map(|m| Made {
+            station: m.station.clone(),
+            id: m.id.clone(),
+            job: m.job.clone(),
+            level: m.level,
+            value: m.value,
+            verdict: m.verdict,
+            time: m.time.clone(),
+        })
+        .collect();
+    for last in [389usize, 150, 149] {
+        let all = s
+            .spc(&SpcQuery {
+                last: Some(last as i64),
+                ..keff()
+            })
+            .await
+            .unwrap();
+        same_spc(
+            &all[0].spc,
+            &truth(&left, last, None),
+            &format!("after the void, last {last}"),
+        );
+        let per = s
+            .spc(&SpcQuery {
+                last: Some(last as i64),
+                per_station: true,
+                ..keff()
+            })
+            .await
+            .unwrap();
+        for g in &per {
+            let t = truth(&left, last, g.station_id.as_deref());
+            same_spc(
+                &g.spc,
+                &t,
+                &format!("after the void, {:?}, last {last}", g.station_id),
+            );
+        }
+    }
+}
+
+/// Whether the newest `last` of `made` begin with a repeat whose point's
+/// earlier repeat is outside (same job and level, both with a value).
+fn cuts_a_point(made: &[Made], last: usize) -> bool {
+    let i = made.len() - last;
+    i > 0
+        && made[i].job.is_some()
+        && (made[i].job.as_ref(), made[i].level) == (made[i - 1].job.as_ref(), made[i - 1].level)
+        && made[i].verdict != "invalid"
+        && made[i - 1].verdict != "invalid"
 }
 
 #[tokio::test]
