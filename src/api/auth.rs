@@ -34,6 +34,8 @@ pub fn required_role(method: &Method, route: &str) -> Option<Role> {
         "/api/v1/config" => Some(Role::Admin),
         // QC engineering: recipes and the approval of limits.
         "/api/v1/recipes" | "/api/v1/recipes/{name}" if !read => Some(Role::Admin),
+        // A bench calibration changes how the bench's measurements are judged.
+        "/api/v1/recipes/{name}/bench-calibrations" if !read => Some(Role::Admin),
         "/api/v1/limit-proposals/{id}/approve" | "/api/v1/limit-proposals/{id}/reject" => {
             Some(Role::Admin)
         }

@@ -429,3 +429,119 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
         "method": "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); ndc = floor(1.41 PV / GRR)",
     }))
 }
+
+/// `POST /api/v1/recipes/{name}/bench-calibrations`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct BenchCalibrationRequest {
+    /// The bench to calibrate.
+    pub bench: String,
+    /// The bench the recipe's golden units were measured on (its golden
+    /// reference and limits): the calibration maps `bench` onto it.
+    pub reference_bench: String,
+    /// Golden units measured under the recipe on both benches (the newest
+    /// succeeded job of each on each bench), at least 3.
+    #[schema(min_items = 3, max_items = 200)]
+    pub serials: Vec<String>,
+}
+
+fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> Value {
+    json!({
+        "id": r.id,
+        "recipe": r.recipe_name,
+        "bench_id": r.bench_id,
+        "state": r.state,
+        "calibration": r.calibration,
+        "created_by": r.created_by,
+        "created_at": r.created_at,
+    })
+}
+
+#[utoipa::path(post, path = "/api/v1/recipes/{name}/bench-calibrations", tag = "qc",
+    summary = "Calibrate a bench against the reference bench from golden units measured on both (laser sensitivity error, stiffness scale of the clamp mass); later measurements on the bench under the recipe are judged corrected, or invalid when the bench is out of calibration.",
+    params(("name" = String, Path, description = "Recipe name")),
+    request_body(content = BenchCalibrationRequest, content_type = "application/json"),
+    responses(
+        (status = 201, description = "Stored (in or out of calibration)", body = serde_json::Value),
+        (status = 422, description = "Invalid fields, or too few golden units measured on both benches"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
+/// `POST /api/v1/recipes/{name}/bench-calibrations`.
+pub async fn create_calibration(
+    State(st): State<AppState>,
+    Extension(caller): Extension<super::auth::Caller>,
+    Path(name): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let req: BenchCalibrationRequest = parse_body(body)?;
+    for (f, b) in [("bench", &req.bench), ("reference_bench", &req.reference_bench)] {
+        if !st.cfg.benches.iter().any(|c| &c.id == b) {
+            return Err(Problem::field(f, format!("no bench '{b}' is configured")));
+        }
+    }
+    if !(crate::qc::bench_cal::MIN_UNITS..=200).contains(&req.serials.len()) {
+        return Err(Problem::field(
+            "serials",
+            format!(
+                "{} serials; a bench calibration takes {} to 200 golden units",
+                req.serials.len(),
+                crate::qc::bench_cal::MIN_UNITS
+            ),
+        ));
+    }
+    let recipe = super::qc::recipe_for_job(&st, &name).await?.recipe;
+    let mass = recipe
+        .procedure
+        .moving_mass_kg
+        .ok_or_else(|| Problem::field("recipe", "the recipe has no moving mass"))?;
+    let mut units = vec![];
+    let mut missing = vec![];
+    for s in &req.serials {
+        let a = st.store.newest_results_on_bench(&name, s, &req.reference_bench).await?;
+        let b = st.store.newest_results_on_bench(&name, s, &req.bench).await?;
+        let first = |x: Option<(String, Vec<Value>)>| {
+            x.and_then(|(_, v)| v.into_iter().next())
+                .and_then(|v| serde_json::from_value::<crate::identify::Report>(v).ok())
+        };
+        match (first(a), first(b)) {
+            (Some(a), Some(b)) => units.push((s.clone(), a, b)),
+            _ => missing.push(s.clone()),
+        }
+    }
+    if !missing.is_empty() {
+        return Err(Problem::field(
+            "serials",
+            format!(
+                "no succeeded job with a result under recipe '{name}' on both '{}' and '{}' for: {}",
+                req.reference_bench,
+                req.bench,
+                missing.join(", ")
+            ),
+        ));
+    }
+    let cal = crate::qc::bench_cal::estimate(&req.bench, &req.reference_bench, mass, &units)
+        .map_err(|e| Problem::field("serials", e))?;
+    let row = crate::store::BenchCalibrationRow {
+        id: crate::runner::new_id(),
+        recipe_name: name.clone(),
+        bench_id: req.bench.clone(),
+        state: cal.state.as_str().to_string(),
+        calibration: serde_json::to_value(&cal).map_err(Problem::internal)?,
+        created_by: caller.0.clone(),
+        created_at: crate::store::now(),
+    };
+    st.store.insert_bench_calibration(&row).await?;
+    Ok((StatusCode::CREATED, Json(calibration_doc(&row))).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/recipes/{name}/bench-calibrations", tag = "qc",
+    summary = "The bench calibrations of a recipe, newest first (the newest per bench is in effect).",
+    params(("name" = String, Path, description = "Recipe name")),
+    responses((status = 200, description = "Calibrations", body = serde_json::Value)))]
+/// `GET /api/v1/recipes/{name}/bench-calibrations`.
+pub async fn list_calibrations(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let rows = st.store.list_bench_calibrations(&name).await?;
+    Ok(Json(json!({ "items": rows.iter().map(calibration_doc).collect::<Vec<_>>() })))
+}

@@ -218,7 +218,17 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         post(gauge::create).layer(json_limit),
     )
     .add("get", "/api/v1/gauge-studies", get(gauge::list))
-    .add("get", "/api/v1/gauge-studies/{id}", get(gauge::get_one));
+    .add("get", "/api/v1/gauge-studies/{id}", get(gauge::get_one))
+    .add(
+        "post",
+        "/api/v1/recipes/{name}/bench-calibrations",
+        post(gauge::create_calibration).layer(json_limit),
+    )
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/bench-calibrations",
+        get(gauge::list_calibrations),
+    );
     (r.router, r.list)
 }
 

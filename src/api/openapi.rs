@@ -68,6 +68,8 @@ use utoipa::{Modify, OpenApi};
         super::gauge::create,
         super::gauge::list,
         super::gauge::get_one,
+        super::gauge::create_calibration,
+        super::gauge::list_calibrations,
     ),
     components(schemas(Problem, MeasurementDocumentSchema)),
     modifiers(&Conventions),

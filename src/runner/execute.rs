@@ -262,6 +262,7 @@ pub(super) fn execute(
     seed: u64,
     calibration: Option<&crate::store::hardware::CalibrationRecord>,
     recipe: Option<&crate::qc::Recipe>,
+    bench_cal: Option<&crate::qc::BenchCalibration>,
     obs: &mut JobObserver,
 ) -> Result<Done, Stop> {
     let part = job::mounted_part(spec, bench_cfg)
@@ -316,6 +317,7 @@ pub(super) fn execute(
             bench_id: &bench_cfg.id,
             calibration,
             recipe,
+            bench_cal,
             opts: &opts,
             config: &config,
             repeat: r,
@@ -440,6 +442,9 @@ struct Repeat<'a> {
     bench_id: &'a str,
     calibration: Option<&'a crate::store::hardware::CalibrationRecord>,
     recipe: Option<&'a crate::qc::Recipe>,
+    /// The bench's calibration under the recipe: the verdicts judge the
+    /// corrected values (decision 0049); the stored result stays as measured.
+    bench_cal: Option<&'a crate::qc::BenchCalibration>,
     opts: &'a AnalyzeOptions,
     config: &'a Value,
     repeat: u32,
@@ -600,7 +605,7 @@ impl Repeat<'_> {
             };
             self.done
                 .verdicts
-                .push((mid.clone(), crate::qc::judge(r, &facts)));
+                .push((mid.clone(), crate::qc::judge_calibrated(r, &facts, self.bench_cal)));
         }
         let (report, analysis_error) = match analysed {
             // Never stored with a non-finite number written as null

@@ -377,7 +377,31 @@ impl Runner {
             },
             Err(_) => None,
         };
-        let recipe_ok = recipe.clone().transpose();
+        // The bench's calibration from golden units under the recipe (decision 0049).
+        let cal_row = match recipe.as_ref().and_then(|r| r.as_ref().ok()) {
+            Some(r) => {
+                self.store
+                    .latest_bench_calibration(&r.name, &slot.cfg.id)
+                    .await?
+            }
+            None => None,
+        };
+        let bench_cal: Result<Option<crate::qc::BenchCalibration>, String> = cal_row
+            .as_ref()
+            .map(|c| {
+                serde_json::from_value(c.calibration.clone())
+                    .map_err(|e| format!("bench calibration {} unreadable: {e}", c.id))
+            })
+            .transpose();
+        let cal_trace = recipe
+            .as_ref()
+            .is_some_and(|r| r.is_ok())
+            .then(|| records::calibration_trace(cal_row.as_ref()));
+        let recipe_ok = match bench_cal.clone() {
+            Ok(_) => recipe.clone().transpose(),
+            Err(e) => Err(e),
+        };
+        let bench_cal = bench_cal.ok().flatten();
         let outcome = match (spec.as_ref(), recipe_ok) {
             (Err(e), _) => Err(Stop::Failed(problem(
                 "job-unreadable",
@@ -404,6 +428,7 @@ impl Runner {
                         seed,
                         cal.as_ref(),
                         recipe.as_ref(),
+                        bench_cal.as_ref(),
                         &mut obs,
                     )
                 });
@@ -475,7 +500,7 @@ impl Runner {
             &slot.cfg,
             job,
             spec.as_ref().ok(),
-            recipe.and_then(|r| r.ok()).as_ref(),
+            cal_trace.as_ref(),
             &started_at,
             state,
             prob.as_ref(),

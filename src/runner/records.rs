@@ -48,7 +48,7 @@ impl Runner {
         bench: &BenchConfig,
         job: &Job,
         spec: Option<&JobSpec>,
-        _recipe: Option<&crate::qc::Recipe>,
+        bench_cal: Option<&Value>,
         started_at: &str,
         state: JobState,
         prob: Option<&Value>,
@@ -108,6 +108,9 @@ impl Runner {
                     // hardware benches put theirs here.
                     "calibration": Value::Null,
                     "sensors": [],
+                    // The bench calibration from golden units the values were
+                    // judged with (decision 0049), or that there is none.
+                    "bench_calibration": bench_cal.cloned().unwrap_or(Value::Null),
                     "submitted_by": spec.and_then(|s| s.submitted_by.clone()),
                     "job_created_at": job.created_at,
                     "job_started_at": started_at,
@@ -364,4 +367,28 @@ impl Runner {
 pub(super) fn verdict_json(v: &crate::qc::Verdict) -> Value {
     let v = crate::qc::finite_verdict(v.clone());
     crate::finite::to_value(&v).unwrap_or(Value::Null)
+}
+
+/// What a verdict's traceability says about the bench calibration it was
+/// judged with (`None`: the bench has none for the recipe).
+pub fn calibration_trace(row: Option<&crate::store::BenchCalibrationRow>) -> Value {
+    match row {
+        None => json!({
+            "state": "none",
+            "detail": "no bench calibration for this recipe on this bench: judged as measured",
+        }),
+        Some(r) => {
+            let c = &r.calibration;
+            json!({
+                "id": r.id,
+                "state": r.state,
+                "reference_bench_id": c["reference_bench_id"],
+                "laser_gain_error": c["laser_gain_error"],
+                "k_scale": c["k_scale"],
+                "kx_scale": c["kx_scale"],
+                "clamp_mass_kg": c["clamp_mass_kg"],
+                "created_at": r.created_at,
+            })
+        }
+    }
 }

@@ -91,3 +91,119 @@ fn from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<GaugeStudyRow> {
         created_at: r.try_get("created_at")?,
     })
 }
+
+/// A stored bench calibration (issue 21, decision 0049).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BenchCalibrationRow {
+    pub id: String,
+    pub recipe_name: String,
+    pub bench_id: String,
+    pub state: String,
+    /// `core::qc::BenchCalibration` as JSON.
+    pub calibration: Value,
+    pub created_by: Option<String>,
+    pub created_at: String,
+}
+
+impl Store {
+    pub async fn insert_bench_calibration(&self, row: &BenchCalibrationRow) -> StoreResult<()> {
+        sqlx::query(
+            "INSERT INTO bench_calibrations (id, recipe_name, bench_id, state, calibration, created_by, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(&row.id)
+        .bind(&row.recipe_name)
+        .bind(&row.bench_id)
+        .bind(&row.state)
+        .bind(row.calibration.to_string())
+        .bind(&row.created_by)
+        .bind(&row.created_at)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// The calibration in effect for `recipe` on `bench`: the newest.
+    pub async fn latest_bench_calibration(
+        &self,
+        recipe: &str,
+        bench: &str,
+    ) -> StoreResult<Option<BenchCalibrationRow>> {
+        let row = sqlx::query(
+            "SELECT id, recipe_name, bench_id, state, calibration, created_by, created_at \
+             FROM bench_calibrations WHERE recipe_name = ? AND bench_id = ? ORDER BY seq DESC LIMIT 1",
+        )
+        .bind(recipe)
+        .bind(bench)
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| cal_from_row(&r)).transpose()
+    }
+
+    /// Every calibration of `recipe`, newest first.
+    pub async fn list_bench_calibrations(&self, recipe: &str) -> StoreResult<Vec<BenchCalibrationRow>> {
+        let rows = sqlx::query(
+            "SELECT id, recipe_name, bench_id, state, calibration, created_by, created_at \
+             FROM bench_calibrations WHERE recipe_name = ? ORDER BY seq DESC",
+        )
+        .bind(recipe)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(cal_from_row).collect()
+    }
+
+    /// The result documents (level 0 first) of the newest succeeded job of
+    /// `serial` under `recipe` on `bench`, whatever its verdict (a bench out of
+    /// calibration judges its golden units `invalid`; they still calibrate it).
+    pub async fn newest_results_on_bench(
+        &self,
+        recipe: &str,
+        serial: &str,
+        bench: &str,
+    ) -> StoreResult<Option<(String, Vec<Value>)>> {
+        let Some(job) = sqlx::query(
+            "SELECT v.job_id FROM qc_verdicts v JOIN jobs j ON j.id = v.job_id \
+             WHERE v.recipe_name = ? AND v.part_serial = ? AND v.measurement_id IS NULL \
+             AND j.bench_id = ? AND j.state = 'succeeded' ORDER BY v.seq DESC LIMIT 1",
+        )
+        .bind(recipe)
+        .bind(serial)
+        .bind(bench)
+        .fetch_optional(&self.pool)
+        .await?
+        else {
+            return Ok(None);
+        };
+        let job_id: String = job.get(0);
+        let rows = sqlx::query(
+            "SELECT result_json FROM measurements WHERE job_id = ? AND result_json IS NOT NULL \
+             ORDER BY level_index, seq",
+        )
+        .bind(&job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out = vec![];
+        for r in rows {
+            let s: String = r.try_get(0)?;
+            out.push(
+                serde_json::from_str(&s)
+                    .map_err(|e| crate::StoreError::Corrupt(format!("measurements.result_json: {e}")))?,
+            );
+        }
+        Ok(Some((job_id, out)))
+    }
+}
+
+fn cal_from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<BenchCalibrationRow> {
+    let s: String = r.try_get("calibration")?;
+    Ok(BenchCalibrationRow {
+        id: r.try_get("id")?,
+        recipe_name: r.try_get("recipe_name")?,
+        bench_id: r.try_get("bench_id")?,
+        state: r.try_get("state")?,
+        calibration: serde_json::from_str(&s)
+            .map_err(|e| crate::StoreError::Corrupt(format!("bench_calibrations.calibration: {e}")))?,
+        created_by: r.try_get("created_by")?,
+        created_at: r.try_get("created_at")?,
+    })
+}

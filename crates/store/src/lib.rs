@@ -32,7 +32,7 @@ pub use fleet::{
     CenterIngest, IngestReport, ItemBody, MeasurementItem, ReplicationItem, StationHello,
     StationStatus,
 };
-pub use gauge::GaugeStudyRow;
+pub use gauge::{BenchCalibrationRow, GaugeStudyRow};
 pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobState};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};

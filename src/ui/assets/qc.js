@@ -123,6 +123,31 @@ async function drawGauge(el, ctx, name, params) {
     return;
   }
   if (ctx.stale()) return;
+  // Bench calibrations from golden units (decision 0049): the one in effect per bench.
+  const cals = await api(`/api/v1/recipes/${encodeURIComponent(name)}/bench-calibrations`).catch(() => ({ items: [] }));
+  if (ctx.stale()) return;
+  const seen = new Set();
+  const current = (cals.items || []).filter((c) => !seen.has(c.bench_id) && seen.add(c.bench_id));
+  head.push(h('h3', {}, 'Bench calibrations'), current.length
+    ? h('table', { class: 'list bench-cal-table' },
+      h('thead', {}, h('tr', {}, h('th', {}, 'bench'), h('th', {}, 'state'), h('th', {}, 'reference bench'),
+        h('th', { title: 'laser sensitivity error e: the bench reads (1 + e) x' }, 'laser'),
+        h('th', { title: 'extra clamp mass dm: k0 reads m / (m + dm) times' }, 'clamp mass'),
+        h('th', {}, 'golden units'), h('th', {}, 'calibrated'))),
+      h('tbody', {}, current.map((c) => {
+        const k = c.calibration || {};
+        const out = c.state !== 'in_calibration';
+        return h('tr', { dataset: { bench: c.bench_id, state: c.state } },
+          h('td', {}, c.bench_id),
+          h('td', { title: (k.problems || []).join('; ') }, h('span', { class: `badge ${out ? 'verdict-fail' : 'verdict-pass'}` },
+            out ? 'out of calibration: measurements invalid' : 'in calibration: judged corrected')),
+          h('td', {}, k.reference_bench_id || '\u2013'),
+          h('td', {}, Number.isFinite(k.laser_gain_error) ? `${num(100 * k.laser_gain_error, 3)} %` : '\u2013'),
+          h('td', {}, Number.isFinite(k.clamp_mass_kg) ? `${num(1e3 * k.clamp_mass_kg, 3)} g` : '\u2013'),
+          h('td', {}, String((k.units || []).length)),
+          h('td', {}, when(c.created_at)));
+      })))
+    : h('p', { class: 'muted', id: 'no-bench-cal' }, 'No bench calibration: every bench is judged as measured (POST /api/v1/recipes/NAME/bench-calibrations; docs/qc.md, \u201cBench calibration\u201d).'));
   const mine = (list.items || []).filter((s) => s.recipe === name).slice(0, 5);
   if (!mine.length) {
     put(el, ...head, h('p', { class: 'muted', id: 'no-gauge' }, 'No gauge study of this recipe yet (POST /api/v1/gauge-studies; docs/qc.md, \u201cGauge study\u201d).'));

@@ -13,6 +13,7 @@
 //! - [`spc`]: n, mean, sigma, Cp, Cpk, Pp, Ppk, yield and control-chart data.
 
 mod apply;
+pub mod bench_cal;
 pub mod cfx;
 pub mod grr;
 pub mod limits;
@@ -21,6 +22,7 @@ mod recipe;
 pub mod spc;
 mod verdict;
 
+pub use bench_cal::{judge_calibrated, BenchCalibration, CalState};
 pub use production::{GoldenLevel, GoldenReference, ProcedureMode};
 pub use recipe::{
     FieldError, KxMask, ParamSpec, ProcedureSettings, Quantity, Recipe, Validity, KX_MASK,
