@@ -256,18 +256,44 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     };
     // Too few golden units, an unknown bench, units not measured there.
     for (body, field) in [
-        (json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials[..2]}), "serials"),
-        (json!({"bench": "nope", "reference_bench": "virtual-1", "serials": serials}), "bench"),
-        (json!({"bench": "virtual-off", "reference_bench": "virtual-1", "serials": serials}), "serials"),
+        (
+            json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials[..2]}),
+            "serials",
+        ),
+        (
+            json!({"bench": "nope", "reference_bench": "virtual-1", "serials": serials}),
+            "bench",
+        ),
+        (
+            json!({"bench": "virtual-off", "reference_bench": "virtual-1", "serials": serials}),
+            "serials",
+        ),
     ] {
-        let (s, v) = send(c, d, reqwest::Method::POST, "/api/v1/recipes/spider-4in/bench-calibrations",
-                          ADMIN, Some(body)).await;
+        let (s, v) = send(
+            c,
+            d,
+            reqwest::Method::POST,
+            "/api/v1/recipes/spider-4in/bench-calibrations",
+            ADMIN,
+            Some(body),
+        )
+        .await;
         assert_eq!(s, 422, "{field}: {v}");
-        assert!(v.to_string().contains(&format!("\"{field}\"")), "{field}: {v}");
+        assert!(
+            v.to_string().contains(&format!("\"{field}\"")),
+            "{field}: {v}"
+        );
     }
     // The operator may not change how a bench is judged.
-    let (s, _) = send(c, d, reqwest::Method::POST, "/api/v1/recipes/spider-4in/bench-calibrations",
-                      OPERATOR, Some(json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials}))).await;
+    let (s, _) = send(
+        c,
+        d,
+        reqwest::Method::POST,
+        "/api/v1/recipes/spider-4in/bench-calibrations",
+        OPERATOR,
+        Some(json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials})),
+    )
+    .await;
     assert_eq!(s, 403);
 
     let cal = calibrate(c, d, "virtual-2", "virtual-1", &serials).await;
@@ -279,31 +305,58 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     assert!(k["laser_gain_error"].as_f64().unwrap().abs() < 1e-4, "{k}");
     assert!(k["clamp_mass_kg"].as_f64().unwrap().abs() < 2.5e-6, "{k}");
 
-    run_jobs(c, d, (0..3).map(|i| job(&serials[i], 700 + i as u64, "virtual-off")).collect()).await;
+    run_jobs(
+        c,
+        d,
+        (0..3)
+            .map(|i| job(&serials[i], 700 + i as u64, "virtual-off"))
+            .collect(),
+    )
+    .await;
     let off = calibrate(c, d, "virtual-off", "virtual-1", &serials).await;
     let e = off["calibration"]["laser_gain_error"].as_f64().unwrap();
-    eprintln!("virtual-off: laser {:+.4} %, problems {}", 100.0 * e, off["calibration"]["problems"]);
+    eprintln!(
+        "virtual-off: laser {:+.4} %, problems {}",
+        100.0 * e,
+        off["calibration"]["problems"]
+    );
     assert_eq!(off["state"], "out_of_calibration", "{off}");
     assert!((e - 0.02).abs() < 0.001, "{e}");
-    assert!(off["calibration"]["problems"][0].as_str().unwrap().contains("laser"), "{off}");
+    assert!(
+        off["calibration"]["problems"][0]
+            .as_str()
+            .unwrap()
+            .contains("laser"),
+        "{off}"
+    );
 
     // One more measurement on each bench: its verdict's traceability.
     let ids = run_jobs(
         c,
         d,
-        ["virtual-1", "virtual-2", "virtual-off"].iter().map(|b| job("G-0", 700, b)).collect(),
+        ["virtual-1", "virtual-2", "virtual-off"]
+            .iter()
+            .map(|b| job("G-0", 700, b))
+            .collect(),
     )
     .await;
-    let verdict = |id: String| async move { get(c, d, &format!("/api/v1/jobs/{id}/verdict")).await };
+    let verdict =
+        |id: String| async move { get(c, d, &format!("/api/v1/jobs/{id}/verdict")).await };
     let v1 = verdict(ids[0].clone()).await;
-    assert_eq!(v1["measurements"][0]["traceability"]["bench_calibration"]["state"], "none", "{v1}");
+    assert_eq!(
+        v1["measurements"][0]["traceability"]["bench_calibration"]["state"], "none",
+        "{v1}"
+    );
     let v2 = verdict(ids[1].clone()).await;
     let t = &v2["measurements"][0]["traceability"]["bench_calibration"];
     assert_eq!(t["id"], cal["id"], "{v2}");
     assert_eq!(t["state"], "in_calibration");
     assert_eq!(v2["measurements"][0]["verdict"], "pass", "{v2}");
     let v3 = verdict(ids[2].clone()).await;
-    assert_eq!(v3["measurements"][0]["traceability"]["bench_calibration"]["id"], off["id"], "{v3}");
+    assert_eq!(
+        v3["measurements"][0]["traceability"]["bench_calibration"]["id"], off["id"],
+        "{v3}"
+    );
     assert_eq!(v3["verdict"], "invalid", "{v3}");
     assert!(v3.to_string().contains("bench_out_of_calibration"), "{v3}");
     let list = get(c, d, "/api/v1/recipes/spider-4in/bench-calibrations").await;
@@ -314,7 +367,15 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
 async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: Vec<Value>) -> Vec<String> {
     let mut ids = vec![];
     for body in bodies {
-        let (s, v) = send(c, d, reqwest::Method::POST, "/api/v1/jobs", OPERATOR, Some(body)).await;
+        let (s, v) = send(
+            c,
+            d,
+            reqwest::Method::POST,
+            "/api/v1/jobs",
+            OPERATOR,
+            Some(body),
+        )
+        .await;
         assert_eq!(s, 202, "{v}");
         ids.push(v["id"].as_str().unwrap().to_string());
     }
@@ -335,7 +396,13 @@ async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: Vec<Value>) -> Vec<St
 
 /// Calibrates `bench` against `reference` from the golden units `serials`
 /// (as the QC engineer); the stored calibration.
-async fn calibrate(c: &reqwest::Client, d: &Daemon, bench: &str, reference: &str, serials: &[String]) -> Value {
+async fn calibrate(
+    c: &reqwest::Client,
+    d: &Daemon,
+    bench: &str,
+    reference: &str,
+    serials: &[String],
+) -> Value {
     let (s, v) = send(
         c,
         d,
@@ -452,7 +519,10 @@ async fn acceptance_study_full_against_production() {
         assert_eq!(cal["state"], "in_calibration", "{cal}");
         // Within 5 % of the largest difference of the study (0.2 %, 0.05 g).
         assert!((ge - e).abs() < 0.05 * GAIN, "{bench}: e {ge} vs {e}");
-        assert!((gdm - dm).abs() < 0.05 * CLAMP_KG, "{bench}: dm {gdm} vs {dm}");
+        assert!(
+            (gdm - dm).abs() < 0.05 * CLAMP_KG,
+            "{bench}: dm {gdm} vs {dm}"
+        );
     }
 
     // Four studies: (identical | different benches) x (full | production).
@@ -586,7 +656,12 @@ async fn acceptance_study_full_against_production() {
     }
     for i in 0..4 {
         for name in ["k0", "keff", "k_at_4mm"] {
-            assert!(pgrr(i, name) < 10.0, "{:?} {name}: {}", cases[i], pgrr(i, name));
+            assert!(
+                pgrr(i, name) < 10.0,
+                "{:?} {name}: {}",
+                cases[i],
+                pgrr(i, name)
+            );
         }
     }
     // Known truth of the different benches: as measured, a clamp heavier by

@@ -473,7 +473,10 @@ pub async fn create_calibration(
     JsonBody(body): JsonBody,
 ) -> ApiResult<Response> {
     let req: BenchCalibrationRequest = parse_body(body)?;
-    for (f, b) in [("bench", &req.bench), ("reference_bench", &req.reference_bench)] {
+    for (f, b) in [
+        ("bench", &req.bench),
+        ("reference_bench", &req.reference_bench),
+    ] {
         if !st.cfg.benches.iter().any(|c| &c.id == b) {
             return Err(Problem::field(f, format!("no bench '{b}' is configured")));
         }
@@ -496,8 +499,14 @@ pub async fn create_calibration(
     let mut units = vec![];
     let mut missing = vec![];
     for s in &req.serials {
-        let a = st.store.newest_results_on_bench(&name, s, &req.reference_bench).await?;
-        let b = st.store.newest_results_on_bench(&name, s, &req.bench).await?;
+        let a = st
+            .store
+            .newest_results_on_bench(&name, s, &req.reference_bench)
+            .await?;
+        let b = st
+            .store
+            .newest_results_on_bench(&name, s, &req.bench)
+            .await?;
         let first = |x: Option<(String, Vec<Value>)>| {
             x.and_then(|(_, v)| v.into_iter().next())
                 .and_then(|v| serde_json::from_value::<crate::identify::Report>(v).ok())
@@ -543,5 +552,7 @@ pub async fn list_calibrations(
     Path(name): Path<String>,
 ) -> ApiResult<Json<Value>> {
     let rows = st.store.list_bench_calibrations(&name).await?;
-    Ok(Json(json!({ "items": rows.iter().map(calibration_doc).collect::<Vec<_>>() })))
+    Ok(Json(
+        json!({ "items": rows.iter().map(calibration_doc).collect::<Vec<_>>() }),
+    ))
 }

@@ -603,9 +603,10 @@ impl Repeat<'_> {
                 pre_drive_v: Some(pre.sweep.amplitude_v),
                 pre_q_drive_to_x: pre.q_drive_to_x,
             };
-            self.done
-                .verdicts
-                .push((mid.clone(), crate::qc::judge_calibrated(r, &facts, self.bench_cal)));
+            self.done.verdicts.push((
+                mid.clone(),
+                crate::qc::judge_calibrated(r, &facts, self.bench_cal),
+            ));
         }
         let (report, analysis_error) = match analysed {
             // Never stored with a non-finite number written as null

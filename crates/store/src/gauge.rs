@@ -141,7 +141,10 @@ impl Store {
     }
 
     /// Every calibration of `recipe`, newest first.
-    pub async fn list_bench_calibrations(&self, recipe: &str) -> StoreResult<Vec<BenchCalibrationRow>> {
+    pub async fn list_bench_calibrations(
+        &self,
+        recipe: &str,
+    ) -> StoreResult<Vec<BenchCalibrationRow>> {
         let rows = sqlx::query(
             "SELECT id, recipe_name, bench_id, state, calibration, created_by, created_at \
              FROM bench_calibrations WHERE recipe_name = ? ORDER BY seq DESC",
@@ -185,10 +188,9 @@ impl Store {
         let mut out = vec![];
         for r in rows {
             let s: String = r.try_get(0)?;
-            out.push(
-                serde_json::from_str(&s)
-                    .map_err(|e| crate::StoreError::Corrupt(format!("measurements.result_json: {e}")))?,
-            );
+            out.push(serde_json::from_str(&s).map_err(|e| {
+                crate::StoreError::Corrupt(format!("measurements.result_json: {e}"))
+            })?);
         }
         Ok(Some((job_id, out)))
     }
@@ -201,8 +203,9 @@ fn cal_from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<BenchCalibrationRow>
         recipe_name: r.try_get("recipe_name")?,
         bench_id: r.try_get("bench_id")?,
         state: r.try_get("state")?,
-        calibration: serde_json::from_str(&s)
-            .map_err(|e| crate::StoreError::Corrupt(format!("bench_calibrations.calibration: {e}")))?,
+        calibration: serde_json::from_str(&s).map_err(|e| {
+            crate::StoreError::Corrupt(format!("bench_calibrations.calibration: {e}"))
+        })?,
         created_by: r.try_get("created_by")?,
         created_at: r.try_get("created_at")?,
     })
