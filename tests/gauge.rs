@@ -654,14 +654,9 @@ async fn acceptance_study_full_against_production() {
             );
         }
     }
-    for i in 0..4 {
+    for (i, case) in cases.iter().enumerate() {
         for name in ["k0", "keff", "k_at_4mm"] {
-            assert!(
-                pgrr(i, name) < 10.0,
-                "{:?} {name}: {}",
-                cases[i],
-                pgrr(i, name)
-            );
+            assert!(pgrr(i, name) < 10.0, "{case:?} {name}: {}", pgrr(i, name));
         }
     }
     // Known truth of the different benches: as measured, a clamp heavier by
