@@ -391,6 +391,98 @@ fn sticking_friction() {
     check_class("sticking_friction");
 }
 
+/// The plain analysis (a job's result) of creep on the two strongly
+/// hardening spiders, the cases of the suite that were `valid` and wrong
+/// (spider_4in tau 28.6 ms: k0 +13 %, K(x) 9 % RMS, Keff +7 %; spider_3in
+/// tau 20.8 ms): their spider's harmonics fill the whole band's misfit, so
+/// creep is judged below the resonance (decision 0052). Plain analysis
+/// only: seconds.
+#[test]
+fn creep_on_hardening_spiders_in_the_plain_analysis() {
+    let mut failures = Vec::new();
+    for (name, seed) in [("spider_4in", 1), ("spider_3in", 2)] {
+        let case = cases(seed)
+            .into_iter()
+            .find(|c| c.class() == "creep")
+            .unwrap();
+        let (part, opts) = setup(name, case);
+        let sim = simulate(&part, 100 + seed, &opts).unwrap();
+        let mut plain = analyze(&sim.set, &AnalyzeOptions::default()).unwrap();
+        springbench::qc::set_keff_at_target(&mut plain, Some(TARGET_M));
+        let what = format!("{name} {case:?} seed {seed} plain");
+        let c = checks(&part, &plain, &what);
+        for k in &c {
+            eprintln!(
+                "{what}: {:<15} {:>+9.3} % {:<14} {}",
+                k.name,
+                k.error_percent,
+                k.state.as_str(),
+                k.reason.as_deref().unwrap_or("")
+            );
+        }
+        failures.extend(out_of_bound(&what, &c));
+        // The reason names the experiment that would tell.
+        let v = &plain.small_signal.as_ref().unwrap().validity.k0_n_per_m;
+        if !v.is_valid() {
+            let why = v.reason.as_deref().unwrap_or("");
+            assert!(why.contains("would separate"), "{why}");
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The figures of the creep check below the resonance (decision 0052) on
+/// good parts and on every bad-part class, for every preset:
+/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test trust_bad_parts -- --ignored
+/// --nocapture below_resonance_creep_figures`.
+#[test]
+#[ignore]
+fn below_resonance_creep_figures() {
+    let seeds = env_usize("SPRINGBENCH_BAD_SEEDS", 3) as u64;
+    for name in preset_names() {
+        for seed in 0..seeds {
+            let mut all: Vec<Option<Case>> = vec![None];
+            all.extend(cases(seed).into_iter().map(Some));
+            for case in all {
+                let (part, opts) = match case {
+                    Some(c) => setup(name, c),
+                    None => (preset(name).unwrap(), SimulateOptions::default()),
+                };
+                let sim = simulate(&part, 100 + seed, &opts).unwrap();
+                let f = springbench::identify::small_signal_fit(
+                    &sim.set.pre,
+                    sim.set.meta.moving_mass_kg,
+                )
+                .unwrap();
+                let k0 = part.k_coeffs_si[0];
+                let k0_fit = f.result.k0_n_per_m.unwrap_or(f64::NAN);
+                match &f.below_resonance {
+                    Some(b) => eprintln!(
+                        "BELOW {name} {case:?} seed {seed}: band {:.1}-{:.1} Hz misfit {:.2} -> {:.2} % noise {:.2} % share {:.0} % tau {:.1} ms kc {:.0} N/m; k0 {:+.2} %, static k0 with creep {:+.2} % (change {:+.2} %); marked {}",
+                        b.band_hz[0],
+                        b.band_hz[1],
+                        b.misfit_linear_percent,
+                        b.misfit_with_creep_percent,
+                        b.noise_misfit_percent,
+                        b.creep_share_percent(),
+                        b.creep_tau_s * 1e3,
+                        b.creep_k_n_per_m,
+                        pct(k0_fit, k0),
+                        pct(b.creep_k0_n_per_m, k0),
+                        pct(b.creep_k0_n_per_m, k0_fit),
+                        f.creep.is_some()
+                    ),
+                    None => eprintln!(
+                        "BELOW {name} {case:?} seed {seed}: no band; k0 {:+.2} %; marked {}",
+                        pct(k0_fit, k0),
+                        f.creep.is_some()
+                    ),
+                }
+            }
+        }
+    }
+}
+
 /// Acceptance: creep on passive_radiator (tau 20 ms, 12 % of k0; corner
 /// 8 Hz, inside the pre-measurement's 5-100 Hz): the headline small-signal
 /// k0 is within 3 % of the part's k0, or marked with the reason and the

@@ -289,7 +289,7 @@ mod stiffness;
 pub mod validity;
 
 pub use small::{fit as small_signal_fit, SmallFit};
-pub use small::{WideBandResonance, COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
+pub use small::{WideBand, WideBandResonance, COHERENCE_LIMIT, MISFIT_LIMIT_PERCENT};
 pub use stiffness::{MAX_AUTO_ORDER, MAX_ORDER};
 
 /// Relative variation of the microphone's fundamental over the One Signal span
@@ -338,7 +338,7 @@ impl PreSpectra {
     /// and than creep (`small::wide_band_resonance`).
     pub fn wide_band_resonance(&self, set: &RecordingSet) -> Option<WideBandResonance> {
         let m = set.meta.moving_mass_kg;
-        small::wide_band(&set.pre, m, &self.sx, &self.sm, true)?.resonance(m)
+        small::wide_band(&set.pre, m, &self.sx, &self.sm, true, None)?.resonance(m)
     }
 
     /// Displacement and microphone spectra of the whole pre-measurement

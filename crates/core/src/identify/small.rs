@@ -23,6 +23,10 @@ pub struct SmallFit {
     /// the band), when it does: the part creeps in the main sweep too, so a
     /// plain analysis marks its large-signal values as well.
     pub creep: Option<String>,
+    /// The pre-measurement below its resonance against the linear
+    /// resonator and with creep (the figures the creep check judged;
+    /// None when that band is shorter than an octave).
+    pub below_resonance: Option<WideBand>,
 }
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
@@ -197,7 +201,7 @@ pub fn fit_spectra(
     // is partly "explained" by creep too.)
     let mut creep = None;
     if let Some(wb) = reliable
-        .then(|| wide_band(pre, mass_kg, sx, sm, false))
+        .then(|| wide_band(pre, mass_kg, sx, sm, false, None))
         .flatten()
     {
         let share = wb.creep_share_percent();
@@ -218,13 +222,46 @@ pub fn fit_spectra(
             creep = Some(why);
         }
     }
+    // Below the resonance, where x is small and no harmonic of a lower
+    // frequency falls, a strongly hardening spider is a linear resonator,
+    // and creep with its corner near the band's start shows as a stiffness
+    // that rises with frequency. Over the whole band the spider's own
+    // harmonics above the resonance hide it (issue 22, decision 0052).
+    let below = reliable
+        .then(|| wide_band(pre, mass_kg, sx, sm, false, Some(BELOW_RESONANCE * fpk)))
+        .flatten();
+    if let (None, Some(b)) = (&creep, &below) {
+        if let Some(why) = b.creep_below_resonance(k0) {
+            result
+                .validity
+                .mark_all(super::validity::State::Unreliable, &why);
+            warnings.push(format!("small signal: {why}"));
+            creep = Some(why);
+        }
+    }
     super::validity::judge_small_signal(&mut result);
     Ok(SmallFit {
         result,
         warnings,
         creep,
+        below_resonance: below,
     })
 }
+
+/// Top of the band below the resonance the creep check fits, as a share of
+/// the resonance (|H| peak): at 0.7 f0 a Q 6 part moves a third of its
+/// resonance excursion, where a spider's K(x) bends 10 times less.
+pub const BELOW_RESONANCE: f64 = 0.7;
+
+/// How far the DC stiffness of the model with creep below the resonance
+/// may lie from the linear resonator's k0 before k0 is no longer within its
+/// stated accuracy (3 %, docs/diagnostics.md "Bad parts").
+pub const CREEP_K0_SENSITIVITY: f64 = 0.03;
+
+/// The linear resonator's misfit below the resonance must exceed the
+/// sensors' noise misfit by this factor before its structure counts (a
+/// share of a misfit at the noise is a share of noise).
+pub const CREEP_STRUCTURE_OVER_NOISE: f64 = 2.0;
 
 fn smooth_mean(v: &[f64], w: usize) -> Vec<f64> {
     let h = w / 2;
@@ -297,6 +334,10 @@ pub struct WideBand {
     pub misfit_with_creep_percent: f64,
     pub creep_tau_s: f64,
     pub creep_k_n_per_m: f64,
+    /// k0 of the linear resonator over this band, and the static stiffness
+    /// k0 of the model with creep (N/m).
+    pub k0_linear_n_per_m: f64,
+    pub creep_k0_n_per_m: f64,
     /// Best resonance of the grid: (f2, Q, m2, misfit %).
     best_resonance: Option<(f64, f64, f64, f64)>,
 }
@@ -312,6 +353,39 @@ impl WideBand {
         } else {
             0.0
         }
+    }
+
+    /// Why the headline k0 (`k0_n_per_m`, the linear resonator around the
+    /// resonance) cannot be separated from creep, when this band (below the
+    /// resonance) says so: the linear resonator's misfit is structure
+    /// ([`CREEP_STRUCTURE_OVER_NOISE`] x the noise's), creep explains at
+    /// least [`CREEP_SHARE_PERCENT`] of it, and the static stiffness of the
+    /// model with creep lies more than [`CREEP_K0_SENSITIVITY`] from k0.
+    pub fn creep_below_resonance(&self, k0_n_per_m: f64) -> Option<String> {
+        let share = self.creep_share_percent();
+        let change = self.creep_k0_n_per_m / k0_n_per_m - 1.0;
+        let structured =
+            self.misfit_linear_percent > CREEP_STRUCTURE_OVER_NOISE * self.noise_misfit_percent;
+        let found = structured
+            && share >= CREEP_SHARE_PERCENT
+            && self.creep_k_n_per_m > 0.0
+            && self.creep_k0_n_per_m > 0.0
+            && change.abs() > CREEP_K0_SENSITIVITY;
+        let corner_hz = 1.0 / (2.0 * PI * self.creep_tau_s);
+        found.then(|| {
+            format!(
+                "below the resonance ({:.0}-{:.0} Hz) the stiffness rises with frequency as creep's does: creep explains {share:.0} % of the linear resonator's misfit there (misfit {:.1} % -> {:.1} %, tau {:.1} ms, {:.0} N/m), and with it the static k0 is {:.0} N/m, {:+.1} % from the linear resonator's k0 (> {:.0} %), which creep biases with R and Q (and K(x), R and Keff of the main sweep); the diagnostics (--diagnose) fit it; a pre-measurement from below creep's corner ({corner_hz:.1} Hz), or an added mass, would separate them",
+                self.band_hz[0],
+                self.band_hz[1],
+                self.misfit_linear_percent,
+                self.misfit_with_creep_percent,
+                self.creep_tau_s * 1e3,
+                self.creep_k_n_per_m,
+                self.creep_k0_n_per_m,
+                100.0 * change,
+                100.0 * CREEP_K0_SENSITIVITY,
+            )
+        })
     }
 
     /// The second mode, when it explains the band far better than the
@@ -370,6 +444,7 @@ pub fn wide_band(
     sx: &Spectrum,
     sm: &Spectrum,
     with_resonance: bool,
+    below_hz: Option<f64>,
 ) -> Option<WideBand> {
     let fs = pre.sample_rate_hz;
     let fmax = max_hz(fs);
@@ -382,6 +457,7 @@ pub fn wide_band(
     let (lo, hi) = (*f_in.first()?, *f_in.last()?);
     // Away from the sweep's ends (its start and stop transients).
     let (lo, hi) = (lo * 1.1, hi / 1.05);
+    let hi = below_hz.map_or(hi, |b| hi.min(b));
     let idx: Vec<usize> = (0..tf.freq_hz.len())
         .filter(|&k| excited[k] && tf.freq_hz[k] >= lo && tf.freq_hz[k] <= hi)
         .collect();
@@ -462,7 +538,7 @@ pub fn wide_band(
             .map(|i| (a.ln() + (b.ln() - a.ln()) * i as f64 / (k - 1) as f64).exp())
             .collect()
     };
-    let mut creep = (mis_lin, f64::NAN, 0.0);
+    let mut creep = (mis_lin, f64::NAN, 0.0, c_lin[0]);
     for tau in logspace(0.2 / (2.0 * PI * hi), 5.0 / (2.0 * PI * lo), 24) {
         let e: Vec<Complex64> = ws
             .iter()
@@ -473,7 +549,7 @@ pub fn wide_band(
             .collect();
         if let Some((c, m)) = fit(&wgt, Some(&e)) {
             if m < creep.0 {
-                creep = (m, tau, c[3]);
+                creep = (m, tau, c[3], c[0]);
             }
         }
     }
@@ -501,6 +577,8 @@ pub fn wide_band(
         misfit_with_creep_percent: creep.0,
         creep_tau_s: creep.1,
         creep_k_n_per_m: creep.2,
+        k0_linear_n_per_m: c_lin[0],
+        creep_k0_n_per_m: creep.3,
         best_resonance: best,
     })
 }
