@@ -647,3 +647,214 @@ async fn queued_jobs_of_a_retired_recipe_version_are_not_judged_with_it() {
     let p = common::problem(r, 422).await;
     assert_eq!(p["errors"][0]["field"], "recipe", "{p}");
 }
+
+const TOKENS: &str = r#"
+[[auth.tokens]]
+name = "mes"
+token = "viewer-token-0123456789"
+role = "viewer"
+[[auth.tokens]]
+name = "qc"
+token = "operator-token-0123456789"
+role = "operator"
+[[auth.tokens]]
+name = "lab"
+token = "admin-token-0123456789"
+role = "admin"
+"#;
+
+/// Corrections over a station's API: admin only, a reason required, bad
+/// fields named; a void keeps the measurement and takes it out of SPC; a
+/// serial correction moves the measurement; the audit log reads them back
+/// in order with who made them, and they wait in the fleet outbox.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn corrections_over_the_api_keep_an_audit_trail() {
+    let d = Daemon::start(&format!(
+        "[[benches]]\nid = \"virtual-1\"\nseed = 3\n{TOKENS}"
+    ));
+    let c = client();
+    let as_ = |tok: &'static str| move |r: reqwest::RequestBuilder| r.bearer_auth(tok);
+    let (admin, operator, viewer) = (
+        as_("admin-token-0123456789"),
+        as_("operator-token-0123456789"),
+        as_("viewer-token-0123456789"),
+    );
+    let r = admin(c.post(d.url("/api/v1/recipes")))
+        .json(&recipe())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201, "{}", r.text().await.unwrap());
+    let mut mids = vec![];
+    for serial in ["C1", "C2"] {
+        let r = operator(c.post(d.url("/api/v1/jobs")))
+            .json(&json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 202);
+        let id = r.json::<Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        let t = Instant::now();
+        let j = loop {
+            let j: Value = c
+                .get(d.url(&format!("/api/v1/jobs/{id}")))
+                .bearer_auth("viewer-token-0123456789")
+                .send()
+                .await
+                .unwrap()
+                .json()
+                .await
+                .unwrap();
+            if common::terminal(j["state"].as_str().unwrap_or(""))
+                || t.elapsed() > Duration::from_secs(600)
+            {
+                break j;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        };
+        assert_eq!(j["state"], "succeeded", "{j}");
+        mids.push(j["measurement_ids"][0].as_str().unwrap().to_string());
+    }
+    let read = |path: String| {
+        let (c, url) = (c.clone(), d.url(&path));
+        async move {
+            let r = c
+                .get(url)
+                .bearer_auth("viewer-token-0123456789")
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status().as_u16(), 200, "{path}");
+            r.json::<Value>().await.unwrap()
+        }
+    };
+    let spc_ids = || async {
+        let s = read(format!(
+            "/api/v1/recipes/{RECIPE}/spc?parameter=keff&last=100"
+        ))
+        .await;
+        let ids: Vec<String> = s["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| p["measurement_id"].as_str().unwrap().to_string())
+            .collect();
+        (ids, s["n"].as_u64().unwrap())
+    };
+    assert_eq!(spc_ids().await, (mids.clone(), 2));
+    let void = json!({"kind": "void_measurement", "part_serial": "C1", "measurement_id": mids[0],
+                      "reason": "clamp was not closed"});
+    // Not an admin: refused; the audit log stays empty.
+    for who in [operator, viewer] {
+        let r = who(c.post(d.url("/api/v1/corrections")))
+            .json(&void)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 403);
+    }
+    // Bad fields, named.
+    for (body, field) in [
+        (
+            json!({"kind": "void_measurement", "part_serial": "C1", "measurement_id": mids[0], "reason": " "}),
+            "reason",
+        ),
+        (
+            json!({"kind": "delete", "part_serial": "C1", "reason": "x"}),
+            "kind",
+        ),
+        (
+            json!({"kind": "void_measurement", "part_serial": "C2", "measurement_id": mids[0], "reason": "x"}),
+            "measurement_id",
+        ),
+        (
+            json!({"kind": "part_kind", "part_serial": "C9", "new_value": "cone", "reason": "x"}),
+            "part_serial",
+        ),
+        (
+            json!({"kind": "part_serial", "part_serial": "C2", "reason": "x"}),
+            "new_value",
+        ),
+    ] {
+        let r = admin(c.post(d.url("/api/v1/corrections")))
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        let p = common::problem(r, 422).await;
+        assert_eq!(p["errors"][0]["field"], field, "{p}");
+    }
+    assert!(read("/api/v1/corrections".into()).await["items"]
+        .as_array()
+        .unwrap()
+        .is_empty());
+    // The void: the measurement stays, out of SPC; a second void conflicts.
+    let r = admin(c.post(d.url("/api/v1/corrections")))
+        .json(&void)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(
+        (v["kind"].as_str(), v["made_by"].as_str()),
+        (Some("void_measurement"), Some("lab"))
+    );
+    read(format!("/api/v1/measurements/{}", mids[0])).await;
+    assert_eq!(spc_ids().await, (vec![mids[1].clone()], 1));
+    let r = admin(c.post(d.url("/api/v1/corrections")))
+        .json(&void)
+        .send()
+        .await
+        .unwrap();
+    common::problem(r, 409).await;
+    // C2 was C3: the part and its measurement move, C2 stays (empty).
+    let r = admin(c.post(d.url("/api/v1/corrections")))
+        .json(&json!({"kind": "part_serial", "part_serial": "C2", "new_value": "C3", "reason": "label misread"}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let m = read(format!("/api/v1/measurements/{}", mids[1])).await;
+    assert_eq!(m["measurement"]["part_serial"], "C3", "{m}");
+    // The audit log: oldest first, by part, in pages.
+    let log = read("/api/v1/corrections".into()).await;
+    let got: Vec<(&str, &str, Option<&str>, &str)> = log["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["kind"].as_str().unwrap(),
+                e["part_serial"].as_str().unwrap(),
+                e["old_value"].as_str(),
+                e["reason"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            ("void_measurement", "C1", None, "clamp was not closed"),
+            ("part_serial", "C2", Some("C2"), "label misread"),
+        ]
+    );
+    let c3 = read("/api/v1/corrections?part=C3".into()).await;
+    assert_eq!(c3["items"].as_array().unwrap().len(), 1);
+    let first = log["items"][0]["seq"].as_i64().unwrap();
+    let page = read(format!("/api/v1/corrections?after={first}&limit=1")).await;
+    assert_eq!(page["items"][0]["kind"], "part_serial");
+    let bad = c
+        .get(d.url("/api/v1/corrections?limit=0"))
+        .bearer_auth("viewer-token-0123456789")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        common::problem(bad, 422).await["errors"][0]["field"],
+        "limit"
+    );
+}

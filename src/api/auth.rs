@@ -1,7 +1,7 @@
 //! Bearer tokens with roles. Reads need `viewer`, submitting, cancelling,
 //! importing, fitting and proposing limits need `operator`; the
-//! configuration, recipe changes, limit approval and the outbox's retry and
-//! drop need `admin`. The role is decided per matched route template and
+//! configuration, recipe changes, limit approval, corrections and the
+//! outbox's retry and drop need `admin`. The role is decided per matched route template and
 //! method ([`required_role`]), never from the path's text.
 //! `/healthz`, `/readyz`, `/api/v1/session` (who am I) and the UI's pages
 //! (`/`, `/ui/...`) are open. Without configured tokens everything is
@@ -39,6 +39,8 @@ pub fn required_role(method: &Method, route: &str) -> Option<Role> {
         "/api/v1/limit-proposals/{id}/approve" | "/api/v1/limit-proposals/{id}/reject" => {
             Some(Role::Admin)
         }
+        // Corrections of parts and voids of measurements (the audit log is a read).
+        "/api/v1/corrections" if !read => Some(Role::Admin),
         // The MES outbox's retry and drop.
         "/api/v1/outbox/{id}/retry" | "/api/v1/outbox/{id}" if !read => Some(Role::Admin),
         _ if read => Some(Role::Viewer),

@@ -10,6 +10,7 @@
 
 use super::problem::{ApiResult, Problem};
 use crate::config::Config;
+use crate::store::corrections::Corrections;
 use crate::store::fleet::CenterIngest;
 use crate::store::results::{MeasurementReads, PartReads, RecipeReads, VerdictReads};
 use axum::extract::{Path, Query, Request, State};

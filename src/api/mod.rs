@@ -7,6 +7,7 @@
 
 pub mod auth;
 pub mod benches;
+pub mod corrections;
 pub mod derived;
 pub mod events;
 pub mod fleet;
@@ -228,7 +229,13 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "get",
         "/api/v1/recipes/{name}/bench-calibrations",
         get(gauge::list_calibrations),
-    );
+    )
+    .add(
+        "post",
+        "/api/v1/corrections",
+        post(corrections::create).layer(json_limit),
+    )
+    .add("get", "/api/v1/corrections", get(corrections::list));
     (r.router, r.list)
 }
 

@@ -70,6 +70,8 @@ use utoipa::{Modify, OpenApi};
         super::gauge::get_one,
         super::gauge::create_calibration,
         super::gauge::list_calibrations,
+        super::corrections::create,
+        super::corrections::list,
     ),
     components(schemas(Problem, MeasurementDocumentSchema)),
     modifiers(&Conventions),

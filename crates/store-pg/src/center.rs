@@ -1,7 +1,8 @@
 //! What only the center answers: SPC of a recipe across stations and per
 //! station (the station as a subgroup) and yield per station and day, both
 //! as SQL aggregates over an index range (never the rows themselves); a
-//! station's measurements in keyset pages; the audit trail of corrections;
+//! station's measurements in keyset pages; the audit trail of corrections
+//! (`Corrections`, as a station's store answers it);
 //! the center's recipes (written here, pulled by the stations).
 
 use crate::ingest::apply_correction;
@@ -9,6 +10,7 @@ use crate::reads::{meas_from_row, meas_select, recipe_cols, recipe_from_row};
 use crate::PgStore;
 use serde::Serialize;
 use springbench_core::qc::spc::{capability, Spc, D2};
+use springbench_store::corrections::{AuditEntry, Corrections};
 use springbench_store::fleet::Correction;
 use springbench_store::qc::{RecipeExpect, RecipeWrite};
 use springbench_store::results::MeasurementInfo;
@@ -55,19 +57,6 @@ pub struct YieldDay {
     pub no_limits: i64,
     /// passed / (passed + failed); None without either.
     pub yield_fraction: Option<f64>,
-}
-
-/// A row of the audit trail.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
-pub struct AuditEntry {
-    /// The cursor of the audit log's pages.
-    pub seq: i64,
-    /// The station it was made on; None: at the center.
-    pub station_id: Option<String>,
-    #[serde(flatten)]
-    pub correction: Correction,
-    /// When the center applied it.
-    pub applied_at: String,
 }
 
 fn summary(r: Option<&sqlx::postgres::PgRow>, q: &SpcQuery<'_>) -> Spc {
@@ -314,63 +303,6 @@ impl PgStore {
         rows.iter().map(meas_from_row).collect()
     }
 
-    /// Applies a correction made at the center (audit row with station
-    /// None), in one transaction; false when its id is stored already.
-    pub async fn correct(&self, c: &Correction) -> StoreResult<bool> {
-        let mut tx = self.pool.begin().await?;
-        let done = apply_correction(&mut tx, None, c).await?;
-        tx.commit().await?;
-        Ok(done)
-    }
-
-    /// The audit trail, oldest first, in keyset pages (`after_seq`); of one
-    /// part when `part` is given (also the corrections that gave it its serial).
-    pub async fn audit_log(
-        &self,
-        part: Option<&str>,
-        after_seq: Option<i64>,
-        limit: i64,
-    ) -> StoreResult<Vec<AuditEntry>> {
-        let rows = sqlx::query(
-            "SELECT * FROM corrections WHERE ($1::text IS NULL OR part_serial = $1 \
-             OR (kind = 'part_serial' AND new_value = $1)) AND ($2::bigint IS NULL OR seq > $2) ORDER BY seq LIMIT $3",
-        )
-        .bind(part)
-        .bind(after_seq)
-        .bind(limit)
-        .fetch_all(&self.pool)
-        .await?;
-        Ok(rows
-            .iter()
-            .map(|r| AuditEntry {
-                seq: r.get("seq"),
-                station_id: r.get("station_id"),
-                correction: Correction {
-                    id: r.get("id"),
-                    kind: r.get("kind"),
-                    part_serial: r.get("part_serial"),
-                    measurement_id: r.get("measurement_id"),
-                    old_value: r.get("old_value"),
-                    new_value: r.get("new_value"),
-                    reason: r.get("reason"),
-                    made_by: r.get("made_by"),
-                    made_at: r.get("made_at"),
-                },
-                applied_at: r.get("applied_at"),
-            })
-            .collect())
-    }
-
-    /// Whether a measurement is void, and by which correction.
-    pub async fn measurement_void(&self, id: &str) -> StoreResult<Option<String>> {
-        let v: Option<Option<String>> =
-            sqlx::query_scalar("SELECT void_id FROM measurements WHERE id = $1")
-                .bind(id)
-                .fetch_optional(&self.pool)
-                .await?;
-        Ok(v.flatten())
-    }
-
     /// Stores a new version of a recipe at the center (version = last + 1,
     /// or 1) when the stored one is what the caller saw; two writers of one
     /// name are serialised (a transaction-scoped advisory lock on the name).
@@ -476,5 +408,60 @@ impl PgStore {
         .execute(&self.pool)
         .await?;
         Ok(())
+    }
+}
+
+impl Corrections for PgStore {
+    async fn correct(&self, c: &Correction) -> StoreResult<bool> {
+        // At the center: the audit row's station is None.
+        let mut tx = self.pool.begin().await?;
+        let done = apply_correction(&mut tx, None, c).await?;
+        tx.commit().await?;
+        Ok(done)
+    }
+
+    async fn audit_log(
+        &self,
+        part: Option<&str>,
+        after_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<AuditEntry>> {
+        let rows = sqlx::query(
+            "SELECT * FROM corrections WHERE ($1::text IS NULL OR part_serial = $1 \
+             OR (kind = 'part_serial' AND new_value = $1)) AND ($2::bigint IS NULL OR seq > $2) ORDER BY seq LIMIT $3",
+        )
+        .bind(part)
+        .bind(after_seq)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .iter()
+            .map(|r| AuditEntry {
+                seq: r.get("seq"),
+                station_id: r.get("station_id"),
+                correction: Correction {
+                    id: r.get("id"),
+                    kind: r.get("kind"),
+                    part_serial: r.get("part_serial"),
+                    measurement_id: r.get("measurement_id"),
+                    old_value: r.get("old_value"),
+                    new_value: r.get("new_value"),
+                    reason: r.get("reason"),
+                    made_by: r.get("made_by"),
+                    made_at: r.get("made_at"),
+                },
+                applied_at: r.get("applied_at"),
+            })
+            .collect())
+    }
+
+    async fn measurement_void(&self, id: &str) -> StoreResult<Option<String>> {
+        let v: Option<Option<String>> =
+            sqlx::query_scalar("SELECT void_id FROM measurements WHERE id = $1")
+                .bind(id)
+                .fetch_optional(&self.pool)
+                .await?;
+        Ok(v.flatten())
     }
 }

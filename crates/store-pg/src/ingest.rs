@@ -269,9 +269,7 @@ pub(crate) async fn apply_correction(
     c: &Correction,
 ) -> StoreResult<bool> {
     let bad = |m: String| StoreError::Invalid(format!("correction {}: {m}", c.id));
-    if c.reason.trim().is_empty() {
-        return Err(bad("a reason is required".into()));
-    }
+    springbench_store::corrections::check(c)?;
     let known: Option<i64> = sqlx::query_scalar("SELECT seq FROM corrections WHERE id = $1")
         .bind(&c.id)
         .fetch_optional(&mut **tx)

@@ -18,7 +18,8 @@ mod ingest;
 mod reads;
 pub mod test_server;
 
-pub use center::{AuditEntry, SpcGroup, SpcQuery, YieldDay};
+pub use center::{SpcGroup, SpcQuery, YieldDay};
+pub use springbench_store::corrections::{AuditEntry, Corrections};
 
 use springbench_store::{StoreError, StoreResult};
 use sqlx::postgres::{PgConnectOptions, PgPool, PgPoolOptions};

@@ -9,6 +9,7 @@
 use serde_json::json;
 use springbench_core::qc::spc::{compute, Spc, SpcPoint};
 use springbench_core::qc::VerdictKind;
+use springbench_store::corrections::Corrections;
 use springbench_store::fleet::{
     BenchState, CenterIngest, Correction, ItemBody, JobVerdictsItem, MeasurementItem,
     RecordingItem, ReplicationItem, StationHello, VerdictItem,
@@ -174,6 +175,7 @@ fn same_spc(pg: &Spc, core: &Spc, what: &str) {
 }
 
 /// What went in, to compute the truth from.
+#[derive(Clone)]
 struct Made {
     station: String,
     id: String,
@@ -378,15 +380,7 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
     let inside: Vec<Made> = made
         .iter()
         .filter(|m| m.time >= since && m.time < until)
-        .map(|m| Made {
-            station: m.station.clone(),
-            id: m.id.clone(),
-            job: m.job.clone(),
-            level: m.level,
-            value: m.value,
-            verdict: m.verdict,
-            time: m.time.clone(),
-        })
+        .cloned()
         .collect();
     same_spc(&w[0].spc, &truth(&inside, usize::MAX, None), "time window");
     // Unknown parameter: no points, the invalid verdicts still counted.
@@ -431,19 +425,7 @@ async fn spc_in_sql_equals_core_across_and_per_station() {
         })
         .await
         .unwrap());
-    let left: Vec<Made> = made
-        .iter()
-        .filter(|m| m.id != gone.id)
-        .map(|m| Made {
-            station: m.station.clone(),
-            id: m.id.clone(),
-            job: m.job.clone(),
-            level: m.level,
-            value: m.value,
-            verdict: m.verdict,
-            time: m.time.clone(),
-        })
-        .collect();
+    let left: Vec<Made> = made.iter().filter(|m| m.id != gone.id).cloned().collect();
     for last in [389usize, 150, 149] {
         let all = s
             .spc(&SpcQuery {
@@ -871,4 +853,153 @@ async fn a_stopped_server_mid_batch_stores_nothing_and_the_retry_all() {
     let r = s.ingest("line-1", &batch).await.unwrap();
     assert_eq!((r.inserted, r.already_stored), (0, 50));
     s.close().await;
+}
+
+/// A station's corrections travel its outbox to the center: the center
+/// applies them after the measurements of their part, in the station's
+/// order, with the station in its audit log; nothing is deleted there either.
+#[tokio::test]
+async fn a_stations_corrections_reach_the_center_in_order() {
+    use springbench_store::results::{FinishedMeasurement, NewMeasurement, ResultIngest};
+    let Some(center) = store("station_corrections").await else {
+        return;
+    };
+    let station = springbench_store::Store::memory().await.unwrap();
+    for (i, serial) in ["P-X", "P-X", "P-Y"].iter().enumerate() {
+        let id = format!("m-{i}");
+        let rec = |kind: &'static str, tag: u8| NewRecording {
+            kind,
+            sample_rate_hz: 48_000.0,
+            frames: 4,
+            stored: springbench_recording::codec::Stored {
+                bytes: vec![tag, i as u8, 2, 3],
+                channel_scale: None,
+            },
+        };
+        let f = FinishedMeasurement {
+            part: (serial.to_string(), Some("spider".into()), None),
+            measurement: NewMeasurement {
+                id: id.clone(),
+                part_serial: serial.to_string(),
+                job_id: None,
+                source: "import",
+                bench_id: None,
+                config: json!({}),
+                meta: json!({"id": id}),
+                analysis_error: None,
+                result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
+                target_xpeak_m: Some(0.002),
+                repeat_index: None,
+                level_index: None,
+                pre: 0,
+                main: 1,
+            },
+            recordings: vec![rec("pre", 1), rec("main", 2)],
+            verdicts: vec![],
+            software_version: "0.9.0".into(),
+            created_at: time(i),
+        };
+        station.upsert_measurement(&f).await.unwrap();
+    }
+    let c = |id: &str, kind: &str, part: &str, m: Option<&str>, new: Option<&str>| Correction {
+        id: id.into(),
+        kind: kind.into(),
+        part_serial: part.into(),
+        measurement_id: m.map(str::to_string),
+        old_value: None,
+        new_value: new.map(str::to_string),
+        reason: format!("why {id}"),
+        made_by: Some("admin".into()),
+        made_at: time(10),
+    };
+    // P-X's second measurement was P-Y's; then m-0 is voided; P-Y is a cone.
+    for x in [
+        c("c-1", "part_serial", "P-X", Some("m-1"), Some("P-Y")),
+        c("c-2", "void_measurement", "P-X", Some("m-0"), None),
+        c("c-3", "part_kind", "P-Y", None, Some("cone")),
+    ] {
+        assert!(station.correct(&x).await.unwrap());
+    }
+    let rows = station.outbox_next(100).await.unwrap();
+    let items = station.outbox_items(&rows, false).await.unwrap();
+    let kinds: Vec<&str> = items
+        .iter()
+        .map(|i| match &i.body {
+            ItemBody::Measurement(_) => "measurement",
+            ItemBody::JobVerdicts(_) => "job",
+            ItemBody::Correction(_) => "correction",
+        })
+        .collect();
+    assert_eq!(
+        kinds,
+        [
+            "measurement",
+            "measurement",
+            "measurement",
+            "correction",
+            "correction",
+            "correction"
+        ]
+    );
+    let r = center.ingest("line-1", &items).await.unwrap();
+    assert_eq!(r.inserted, 6);
+    // The center holds what the station holds.
+    for s in ["P-X", "P-Y"] {
+        let (a, b) = (
+            station.get_part(s).await.unwrap().unwrap(),
+            center.get_part(s).await.unwrap().unwrap(),
+        );
+        assert_eq!(
+            (a.kind.clone(), a.measurement_count),
+            (b.kind, b.measurement_count),
+            "{s}"
+        );
+    }
+    assert_eq!(
+        center
+            .get_part("P-Y")
+            .await
+            .unwrap()
+            .unwrap()
+            .measurement_count,
+        2
+    );
+    assert_eq!(
+        center
+            .get_measurement("m-1")
+            .await
+            .unwrap()
+            .unwrap()
+            .0
+            .part_serial,
+        "P-Y"
+    );
+    assert_eq!(
+        center.measurement_void("m-0").await.unwrap().as_deref(),
+        Some("c-2")
+    );
+    assert!(
+        center.get_measurement("m-0").await.unwrap().is_some(),
+        "kept"
+    );
+    let log: Vec<(String, Option<String>, Option<String>)> = center
+        .audit_log(None, None, 10)
+        .await
+        .unwrap()
+        .into_iter()
+        .map(|e| (e.correction.id, e.station_id, e.correction.old_value))
+        .collect();
+    let line = Some("line-1".to_string());
+    assert_eq!(
+        log,
+        [
+            ("c-1".into(), line.clone(), Some("P-X".into())),
+            ("c-2".into(), line.clone(), None),
+            ("c-3".into(), line, Some("spider".into())),
+        ]
+    );
+    // Delivered again (a lost acknowledgement): applied once.
+    let again = center.ingest("line-1", &items).await.unwrap();
+    assert_eq!((again.inserted, again.already_stored), (0, 6));
+    assert_eq!(center.audit_log(None, None, 10).await.unwrap().len(), 3);
 }

@@ -7,6 +7,7 @@
 //! the schema lives in `migrations/`.
 
 mod blob;
+pub mod corrections;
 mod derived;
 mod events;
 mod fits;

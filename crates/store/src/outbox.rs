@@ -147,7 +147,7 @@ pub struct Correction {
     pub made_at: String,
 }
 
-fn correction_from_row(r: &SqliteRow) -> Correction {
+pub(crate) fn correction_from_row(r: &SqliteRow) -> Correction {
     Correction {
         id: r.get("id"),
         kind: r.get("kind"),
@@ -389,32 +389,6 @@ impl Store {
             .fetch_optional(&self.pool)
             .await?;
         Ok(r.as_ref().map(correction_from_row))
-    }
-
-    /// The audit log of corrections, newest first, optionally of one part
-    /// (its serial before or after a serial correction).
-    pub async fn corrections(
-        &self,
-        part: Option<&str>,
-        before_seq: Option<i64>,
-        limit: i64,
-    ) -> StoreResult<Vec<(i64, Correction)>> {
-        let rows = sqlx::query(
-            "SELECT * FROM corrections WHERE (? IS NULL OR part_serial = ? OR (kind = 'part_serial' AND new_value = ?)) \
-             AND (? IS NULL OR seq < ?) ORDER BY seq DESC LIMIT ?",
-        )
-        .bind(part.map(str::to_string))
-        .bind(part.map(str::to_string))
-        .bind(part.map(str::to_string))
-        .bind(before_seq)
-        .bind(before_seq)
-        .bind(limit)
-        .fetch_all(&self.pool)
-        .await?;
-        Ok(rows
-            .iter()
-            .map(|r| (r.get("seq"), correction_from_row(r)))
-            .collect())
     }
 }
 

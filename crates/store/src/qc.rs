@@ -718,6 +718,8 @@ impl VerdictReads for Store {
         let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), ", \
              (SELECT m.level_index FROM measurements m WHERE m.id = qc_verdicts.measurement_id) AS level_index \
              FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
+             AND NOT EXISTS (SELECT 1 FROM corrections c WHERE c.kind = 'void_measurement' \
+                             AND c.measurement_id = qc_verdicts.measurement_id) \
              AND (? IS NULL OR created_at >= ?) AND (? IS NULL OR created_at < ?) ORDER BY seq DESC LIMIT ?) ORDER BY seq"))
         .bind(recipe.to_string())
         .bind(since.map(str::to_string))

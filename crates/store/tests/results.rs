@@ -12,6 +12,8 @@
 //! pages and oldest-first SPC verdicts.
 
 use serde_json::{json, Value};
+use springbench_store::corrections::Corrections;
+use springbench_store::fleet::Correction;
 use springbench_store::qc::{NewVerdict, RecipeExpect};
 use springbench_store::{
     FinishedMeasurement, FitReads, NewMeasurement, NewRecording, RecipeReads, ResultStore, Store,
@@ -364,6 +366,196 @@ macro_rules! seed {
             .await
             .unwrap();
     }};
+}
+
+fn correction(
+    id: &str,
+    kind: &str,
+    part: &str,
+    m: Option<&str>,
+    old: Option<&str>,
+    new: Option<&str>,
+) -> Correction {
+    Correction {
+        id: id.into(),
+        kind: kind.into(),
+        part_serial: part.into(),
+        measurement_id: m.map(str::to_string),
+        old_value: old.map(str::to_string),
+        new_value: new.map(str::to_string),
+        reason: format!("reason of {id}"),
+        made_by: Some("admin".into()),
+        made_at: T3.into(),
+    }
+}
+
+/// Corrections and voids: nothing deleted, SPC without the void, the audit
+/// log in order and by part, bad corrections refused and not recorded.
+pub async fn corrections_suite<S: ResultStore + Corrections>(s: &S) {
+    for (id, serial, v) in [
+        ("m-1", "P-1", "pass"),
+        ("m-2", "P-1", "fail"),
+        ("m-3", "P-X", "pass"),
+    ] {
+        let m = finished(
+            id,
+            serial,
+            Some("spider"),
+            T1,
+            Some(0),
+            Some(result(1200.0, 1500.0, true)),
+            vec![verdict(id, serial, v)],
+        );
+        assert_eq!(s.upsert_measurement(&m).await.unwrap(), Upserted::Inserted);
+    }
+    let spc_ids = || async {
+        s.recipe_verdicts("R", None, None, None)
+            .await
+            .unwrap()
+            .into_iter()
+            .map(|v| v.measurement_id.unwrap())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(spc_ids().await, ["m-1", "m-2", "m-3"]);
+    // A void: the measurement stays, out of SPC; once.
+    let void = correction("c-1", "void_measurement", "P-1", Some("m-2"), None, None);
+    assert!(s.correct(&void).await.unwrap());
+    assert!(!s.correct(&void).await.unwrap(), "applied once");
+    assert!(s.get_measurement("m-2").await.unwrap().is_some());
+    assert_eq!(
+        s.measurement_void("m-2").await.unwrap().as_deref(),
+        Some("c-1")
+    );
+    assert_eq!(s.measurement_void("m-1").await.unwrap(), None);
+    assert_eq!(spc_ids().await, ["m-1", "m-3"]);
+    // A serial: P-X was P-2; the old part row stays, empty.
+    let fix = correction("c-2", "part_serial", "P-X", None, Some("P-X"), Some("P-2"));
+    assert!(s.correct(&fix).await.unwrap());
+    assert_eq!(
+        s.get_part("P-2").await.unwrap().unwrap().measurement_count,
+        1
+    );
+    assert_eq!(
+        s.get_part("P-X")
+            .await
+            .unwrap()
+            .expect("nothing is deleted")
+            .measurement_count,
+        0
+    );
+    assert_eq!(
+        s.measurement_verdict("m-3")
+            .await
+            .unwrap()
+            .unwrap()
+            .part_serial,
+        "P-2"
+    );
+    assert_eq!(
+        s.get_measurement("m-3")
+            .await
+            .unwrap()
+            .unwrap()
+            .0
+            .part_serial,
+        "P-2"
+    );
+    // A kind.
+    let kind = correction(
+        "c-3",
+        "part_kind",
+        "P-2",
+        None,
+        Some("spider"),
+        Some("cone"),
+    );
+    assert!(s.correct(&kind).await.unwrap());
+    assert_eq!(
+        s.get_part("P-2").await.unwrap().unwrap().kind.as_deref(),
+        Some("cone")
+    );
+    assert_eq!(
+        s.get_part("P-1").await.unwrap().unwrap().kind.as_deref(),
+        Some("spider")
+    );
+    // Refused, and not recorded: no reason, an unknown kind, part or
+    // measurement, a serial onto itself.
+    let mut no_reason = correction("c-4", "part_kind", "P-1", None, None, Some("cone"));
+    no_reason.reason = " ".into();
+    for bad in [
+        no_reason,
+        correction("c-5", "rename", "P-1", None, None, Some("x")),
+        correction("c-6", "part_kind", "P-none", None, None, Some("cone")),
+        correction("c-7", "void_measurement", "P-1", Some("m-none"), None, None),
+        correction("c-8", "part_serial", "P-1", None, None, Some("P-1")),
+    ] {
+        let r = s.correct(&bad).await;
+        assert!(
+            matches!(r, Err(StoreError::Invalid(_))),
+            "{}: {r:?}",
+            bad.id
+        );
+    }
+    // The audit log: oldest first, by part (old or new serial), in pages.
+    let log = s.audit_log(None, None, 10).await.unwrap();
+    type Row<'a> = (&'a str, &'a str, Option<&'a str>, Option<&'a str>, &'a str);
+    let got: Vec<Row> = log
+        .iter()
+        .map(|e| {
+            let c = &e.correction;
+            (
+                c.id.as_str(),
+                c.part_serial.as_str(),
+                c.old_value.as_deref(),
+                c.new_value.as_deref(),
+                c.reason.as_str(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            ("c-1", "P-1", None, None, "reason of c-1"),
+            ("c-2", "P-X", Some("P-X"), Some("P-2"), "reason of c-2"),
+            ("c-3", "P-2", Some("spider"), Some("cone"), "reason of c-3"),
+        ]
+    );
+    assert!(log
+        .iter()
+        .all(|e| e.station_id.is_none() && e.correction.made_by.as_deref() == Some("admin")));
+    let ids = |v: Vec<springbench_store::corrections::AuditEntry>| {
+        v.into_iter().map(|e| e.correction.id).collect::<Vec<_>>()
+    };
+    assert_eq!(
+        ids(s.audit_log(Some("P-2"), None, 10).await.unwrap()),
+        ["c-2", "c-3"]
+    );
+    assert_eq!(
+        ids(s.audit_log(Some("P-1"), None, 10).await.unwrap()),
+        ["c-1"]
+    );
+    assert_eq!(
+        ids(s.audit_log(None, Some(log[0].seq), 1).await.unwrap()),
+        ["c-2"]
+    );
+}
+
+#[tokio::test]
+async fn sqlite_and_corrections() {
+    corrections_suite(&Store::memory().await.unwrap()).await;
+}
+
+#[tokio::test]
+async fn postgres_and_corrections() {
+    use springbench_store_pg::test_server::{fresh_schema, url_or_skip};
+    let Some(url) = url_or_skip("postgres_and_corrections") else {
+        return;
+    };
+    let s = springbench_store_pg::PgStore::connect_schema(&url, Some(&fresh_schema("corrections")))
+        .await
+        .unwrap();
+    corrections_suite(&s).await;
+    s.close().await;
 }
 
 #[tokio::test]
