@@ -1207,12 +1207,13 @@ async fn a_cancelled_series_keeps_its_finished_levels() {
 }
 
 /// Issue 24's series: 16 levels x 10 repeats, cancelled at 30 %. The daemon
-/// stays below 150 MB resident throughout (it held every level's samples
-/// until the repeat's end before: 456-485 MB), and the cancel keeps the
-/// finished levels. About 2 minutes; run with
+/// stays below 150 MB resident throughout (136 MB; it held every level's
+/// samples until the repeat's end at first: 456-485 MB, then 230 MB with
+/// each level stored as it finished, the joint fit's memory), and the
+/// cancel keeps the finished levels. About 70 s; run with
 /// `cargo test --test qc_faults -- --ignored a_16_by_10_series --nocapture`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "about 2 minutes: run on purpose (docs/http-hardening.md)"]
+#[ignore = "about 70 s: run on purpose (docs/qc.md, docs/performance.md)"]
 async fn a_16_by_10_series_stays_below_150_mb_and_keeps_its_levels() {
     let d = Daemon::start("");
     let rss0 = common::rss_kb(d.pid());

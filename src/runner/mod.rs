@@ -128,6 +128,7 @@ impl Runner {
         events: EventBus,
         cfg: &Config,
     ) -> StoreResult<(Arc<Runner>, Vec<JoinHandle<()>>)> {
+        map_large_buffers();
         let known: Vec<String> = cfg.benches.iter().map(|b| b.id.clone()).collect();
         for id in store.fail_queued_on_unknown_benches(&known).await? {
             let problem = store.get_job(&id).await?.and_then(|j| j.problem);

@@ -44,11 +44,11 @@ pub fn attach(
         ..Default::default()
     };
     let t = std::time::Instant::now();
-    let mut fit = match fit_series(&data, &opts) {
+    // taken by the fit: the levels are dropped once joined into one record
+    let mut fit = match fit_series(data, &opts) {
         Ok(f) => f,
         Err(e) => return vec![format!("level series: the joint fit failed: {e}")],
     };
-    drop(data);
     for (lf, l) in fit.levels.iter_mut().zip(&levels) {
         lf.measurement_id = Some(l.1.clone());
         lf.target_xpeak_m = Some(l.2);

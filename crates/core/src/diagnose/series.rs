@@ -79,13 +79,19 @@ fn level_fit(d: &ForceBalanceData, r: &EngineResult) -> LevelFit {
 }
 
 /// Fits every level alone and all levels jointly with the same options.
-pub fn fit_series(levels: &[ForceBalanceData], opts: &EngineOptions) -> Result<SeriesFit, String> {
+/// Takes the levels: they are dropped once joined, so that the joint fit
+/// does not hold every sample twice.
+pub fn fit_series(
+    levels: Vec<ForceBalanceData>,
+    opts: &EngineOptions,
+) -> Result<SeriesFit, String> {
     let mut per = Vec::with_capacity(levels.len());
     for (i, d) in levels.iter().enumerate() {
         let r = engine::run(d, opts).map_err(|e| format!("level {}: {e}", i + 1))?;
         per.push(level_fit(d, &r));
     }
-    let all = concat(levels)?;
+    let all = concat(&levels)?;
+    drop(levels);
     let r = engine::run(&all, opts).map_err(|e| format!("joint fit: {e}"))?;
     let [lo, hi] = range(&all);
     let ambiguities = super::ambiguities(&all, &r, opts);
@@ -126,5 +132,5 @@ pub fn fit_series_sets(
             .map_err(|e| format!("level {}: {e}", i + 1))?;
         data.push(d);
     }
-    fit_series(&data, opts)
+    fit_series(data, opts)
 }

@@ -298,8 +298,33 @@ pub const ONE_SIGNAL_MIC_VARIATION_LIMIT: f64 = 0.2;
 
 /// Analyses a recording set.
 pub fn analyze(set: &RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
-    let p = prep::prepare(set)?;
-    let (mut r, creep) = analyze_prepared(set, &p, opts, None)?;
+    analyze_sweeps(Sweeps::of(set), opts)
+}
+
+/// The two sweeps of a recording set and the moving mass, borrowed: a
+/// caller that holds the pre-measurement once for many main sweeps (a level
+/// series) analyses each level without copying it into a set.
+#[derive(Debug, Clone, Copy)]
+pub struct Sweeps<'a> {
+    pub moving_mass_kg: f64,
+    pub pre: &'a crate::recording::Signals,
+    pub main: &'a crate::recording::Signals,
+}
+
+impl<'a> Sweeps<'a> {
+    pub fn of(set: &'a RecordingSet) -> Sweeps<'a> {
+        Sweeps {
+            moving_mass_kg: set.meta.moving_mass_kg,
+            pre: &set.pre,
+            main: &set.main,
+        }
+    }
+}
+
+/// [`analyze`] of borrowed sweeps.
+pub fn analyze_sweeps(s: Sweeps<'_>, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
+    let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
+    let (mut r, creep) = analyze_prepared(s.pre, &p, opts, None)?;
     validity::judge_plain(&mut r, creep.as_deref());
     Ok(r)
 }
@@ -310,8 +335,16 @@ pub fn analyze_with_force_balance(
     set: &RecordingSet,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
-    let p = prep::prepare(set)?;
-    let (mut report, creep) = analyze_prepared(set, &p, opts, None)?;
+    analyze_sweeps_with_force_balance(Sweeps::of(set), opts)
+}
+
+/// [`analyze_with_force_balance`] of borrowed sweeps.
+pub fn analyze_sweeps_with_force_balance(
+    s: Sweeps<'_>,
+    opts: &AnalyzeOptions,
+) -> Result<(Report, ForceBalanceData), AnalyzeError> {
+    let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
+    let (mut report, creep) = analyze_prepared(s.pre, &p, opts, None)?;
     validity::judge_plain(&mut report, creep.as_deref());
     Ok((report, force_balance_of(&p, false)))
 }
@@ -359,12 +392,12 @@ pub fn analyze_for_diagnosis(
     let (sx, sm) = prep::spectra(&set.pre);
     // The diagnostics fit creep themselves: the plain analysis's mark for it
     // is not theirs.
-    let (report, _) = analyze_prepared(set, &p, opts, Some((&sx, &sm)))?;
+    let (report, _) = analyze_prepared(&set.pre, &p, opts, Some((&sx, &sm)))?;
     Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
 fn analyze_prepared(
-    set: &RecordingSet,
+    pre: &crate::recording::Signals,
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
     pre_spectra: Option<(&crate::dsp::Spectrum, &crate::dsp::Spectrum)>,
@@ -372,8 +405,8 @@ fn analyze_prepared(
     let mut warnings = Vec::new();
 
     let fitted = match pre_spectra {
-        Some((sx, sm)) => small::fit_spectra(&set.pre, p.mass_kg, sx, sm),
-        None => small::fit(&set.pre, p.mass_kg),
+        Some((sx, sm)) => small::fit_spectra(pre, p.mass_kg, sx, sm),
+        None => small::fit(pre, p.mass_kg),
     };
     let (mut small_signal, creep) = match fitted {
         Ok(f) => {
@@ -414,7 +447,7 @@ fn analyze_prepared(
     }
     let large_signal = large_signal(p, &kf, &mut warnings)?;
     if let Some(ss) = small_signal.as_mut() {
-        mark_pre_level_bend(ss, &set.pre.displacement_m, &kf.k);
+        mark_pre_level_bend(ss, &pre.displacement_m, &kf.k);
     }
     let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
     let k0 = kf.k_of_x(0.0);

@@ -43,7 +43,6 @@ impl Role {
 pub struct Prepared<'a> {
     pub(super) d: &'a ForceBalanceData,
     pub(super) y: Vec<f64>,
-    ones: Vec<f64>,
     /// x / x_scale in [-1, 1].
     u: Vec<f64>,
     pub(super) x_scale: f64,
@@ -256,16 +255,16 @@ fn creep_columns(
 fn creep_chains<const K: usize>(x: &[f64], alpha: &[f64], xr0: &[f64]) -> Vec<Vec<f64>> {
     let alpha: [f64; K] = std::array::from_fn(|j| alpha[j]);
     let mut xr: [f64; K] = std::array::from_fn(|j| xr0[j]);
-    let mut rows = vec![[0.0f64; K]; x.len()];
-    for (row, &xi) in rows.iter_mut().zip(x) {
+    // Straight into the K columns: rows then columns held both at once
+    // (twice the columns' memory).
+    let mut cols: [Vec<f64>; K] = std::array::from_fn(|_| Vec::with_capacity(x.len()));
+    for &xi in x {
         for j in 0..K {
-            row[j] = xi - xr[j];
+            cols[j].push(xi - xr[j]);
             xr[j] += alpha[j] * (xi - xr[j]);
         }
     }
-    (0..K)
-        .map(|j| rows.iter().map(|r| r[j]).collect())
-        .collect()
+    cols.into()
 }
 
 /// mic(t + d) by 4-point Lagrange interpolation (d in seconds, any sign).
@@ -350,7 +349,6 @@ impl<'a> Prepared<'a> {
         let bounds = block_bounds(n, blocks.max(4));
         Ok(Prepared {
             d,
-            ones: vec![1.0; n],
             u: d.x_m.iter().map(|x| x / x_scale).collect(),
             x_scale,
             v_max,
@@ -427,7 +425,9 @@ impl<'a> Prepared<'a> {
             Col::Mic(None) => self.d.mic_v.clone(),
             Col::Mic(Some(d)) => shifted(&self.d.mic_v, self.fs(), f64::from_bits(d)),
             Col::DMic(m) => derivative(&self.column(Col::Mic(m)), self.fs()),
-            Col::Ones => self.ones.clone(),
+            // made when first used and kept in the cache (a copy of a kept
+            // vector of ones held it twice)
+            Col::Ones => vec![1.0; self.d.x_m.len()],
             Col::V => self.d.v_m_per_s.clone(),
             Col::K(i) => {
                 let mut cols = legendre_cols(&self.d.x_m, &self.u, i);
