@@ -706,7 +706,7 @@ async fn qc_recipe_limits_verdicts_and_spc() {
         "the recipe list",
     )
     .await;
-    b.screenshot("qc-recipes").await;
+    b.screenshot_sizes("qc-recipes").await;
     b.goto(&format!("{}/#/qc/spider-4in", d.base)).await;
     b.wait_js(
         "document.querySelector('#golden-serials')",
@@ -732,6 +732,8 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     )
     .await;
     b.screenshot_element("#proposals", "qc-proposal").await;
+    // The recipe page with its proposal, at the station and office screen sizes.
+    b.screenshot_sizes("qc-recipe-proposal").await;
     b.click(&format!("#approve-{pid}")).await;
     b.wait_js(
         "document.querySelector('#confirm').open",
@@ -790,7 +792,7 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     assert_eq!(good["verdict"], "pass", "{good}");
     assert_eq!(good["request"]["recipe"]["version"], 2, "{good}");
     assert_eq!(b.text("#verdict-big").await, "PASS");
-    b.screenshot("operator-verdict-pass").await;
+    b.screenshot_sizes("operator-verdict-pass").await;
     // A stiff defective part (posted by the line): FAIL with the failing parameters.
     let r = c
         .post(d.url("/api/v1/jobs"))
@@ -964,6 +966,7 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     )
     .await;
     b.screenshot_element("#spc", "qc-spc").await;
+    b.screenshot_sizes("qc-spc").await;
     b.assert_no_console_errors("in the SPC view").await;
     b.quit().await;
 }
@@ -1794,7 +1797,17 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
                 );
             }
         }
-        b.screenshot(&format!("trust-{}", serial.to_lowercase()))
+        // Ceff at Xpeak is 1/Keff: it shows Keff's state, never a plain number
+        // beside an unreliable Keff.
+        let keff_state = at(&doc, "large_signal.validity.keff_n_per_m")["state"].clone();
+        let ceff = b
+            .js(
+                "const e = document.getElementById('fig-ceff'); return e ? e.dataset.state : null;",
+                vec![],
+            )
+            .await;
+        assert_eq!(ceff, keff_state, "{serial}: Ceff's state beside Keff's");
+        b.screenshot_sizes(&format!("trust-{}", serial.to_lowercase()))
             .await;
         // The printable report (UI) and the exported parameters: the
         // validity column says the same.
@@ -1926,6 +1939,7 @@ async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
     )
     .await;
     b.screenshot_element("#gauge", "qc-gauge").await;
+    b.screenshot_sizes("qc-gauge").await;
     let legend = b.text("#gauge-legend").await;
     for s in [
         "< 10 % acceptable",

@@ -333,7 +333,33 @@ impl Browser {
         for (w, h) in [(1024, 768), (1920, 1080), (1280, 800)] {
             self.set_viewport(w, h).await;
             self.screenshot(&format!("{name}-{w}x{h}")).await;
+            self.assert_nothing_overflows(&format!("{name} at {w}x{h}"))
+                .await;
         }
+    }
+
+    /// No card, header or table cell of the page is wider than its box: a
+    /// wider one is drawn past its border, clipped by the window or by a
+    /// neighbour (the gauge table's AIAG column at 1024 px was). Scrolling
+    /// containers (`overflow-x: auto`) are allowed to be wider inside.
+    pub async fn assert_nothing_overflows(&self, at: &str) {
+        let over = self
+            .js(
+                "const out = [];
+                 for (const e of document.querySelectorAll('header, .card, .card > *, table.kv td, table.list td')) {
+                   if (e.offsetParent === null && e.tagName !== 'HEADER') continue;
+                   const cs = getComputedStyle(e);
+                   if (cs.overflowX === 'auto' || cs.overflowX === 'scroll') continue;
+                   if (e.scrollWidth > e.clientWidth + 1) {
+                     out.push(`${e.tagName.toLowerCase()}${e.id ? '#' + e.id : ''}.${[...e.classList].join('.')} ${e.scrollWidth} > ${e.clientWidth} px: ${e.textContent.trim().slice(0, 60)}`);
+                   }
+                 }
+                 return out;",
+                vec![],
+            )
+            .await;
+        let over = over.as_array().cloned().unwrap_or_default();
+        assert!(over.is_empty(), "{at}: wider than its box: {over:#?}");
     }
 
     /// The page printed to PDF by Chromium (WebDriver print), on A4 or

@@ -151,11 +151,18 @@ pub fn table(r: &Report) -> String {
             b.resonance_hz, b.keff_n_per_m
         );
     }
+    // Ceff is 1/Keff: it has Keff's state (its reason is Keff's note).
+    let ceff = shown(l.ceff_m_per_n, &lv.keff_n_per_m);
     let _ = writeln!(
         o,
-        "  Ceff    {:>10.4e} m/N ({:.4} mm/N)",
-        l.ceff_m_per_n,
-        l.ceff_m_per_n * 1e3
+        "  Ceff    {:>10} m/N ({} mm/N){}",
+        ceff.map_or("not determined".to_string(), |c| format!("{c:.4e}")),
+        num(ceff.map(|c| c * 1e3), 4),
+        if lv.keff_n_per_m.is_valid() {
+            String::new()
+        } else {
+            format!("   [{}, as Keff]", state_word(&lv.keff_n_per_m))
+        }
     );
     let _ = writeln!(
         o,
@@ -321,5 +328,32 @@ mod tests {
         );
         assert!(t.contains("the fit gave -4.000000e-1"), "{t}");
         assert!(t.contains("the fit gave 2.512500e3"), "{t}");
+        // Ceff is 1/Keff: no number either, and Keff's state.
+        let cl = line("Ceff ");
+        assert!(cl.contains("not determined"), "{cl}");
+        assert!(cl.contains("[NOT DETERMINED, as Keff]"), "{cl}");
+    }
+
+    /// Ceff beside an unreliable Keff carries the same state (issue 22:
+    /// before, Ceff printed as a plain number under an UNRELIABLE Keff).
+    #[test]
+    fn ceff_has_keffs_state() {
+        let mut r = Report::default();
+        r.stiffness.coefficients_n_per_m_pow_i_plus_1 = vec![2400.0];
+        r.stiffness.valid_range_m = [-0.001, 0.001];
+        r.large_signal.keff_n_per_m = 2500.0;
+        r.large_signal.ceff_m_per_n = 4e-4;
+        crate::identify::validity::judge(&mut r);
+        r.large_signal
+            .validity
+            .keff_n_per_m
+            .mark(State::Unreliable, "test: noise floor");
+        let t = table(&r);
+        let cl = t
+            .lines()
+            .find(|l| l.trim_start().starts_with("Ceff "))
+            .unwrap();
+        assert!(cl.contains("4.0000e-4 m/N (0.4000 mm/N)"), "{cl}");
+        assert!(cl.contains("[UNRELIABLE, as Keff]"), "{cl}");
     }
 }

@@ -134,7 +134,8 @@ export function figuresTable(doc) {
     Number.isFinite(ls.target_xpeak_m)
       ? row(`Keff at the target ${q(ls.target_xpeak_m, 'mm', 1e3)} (judged by QC)`, stated(q(ls.keff_at_target_n_per_m, 'N/mm', 1e-3), v('large_signal.keff_at_target_n_per_m'), { unit: 'N/mm', scale: 1e-3, id: 'keff-at-target' }))
       : null,
-    row('Ceff at Xpeak', q(ls.ceff_m_per_n, 'mm/N', 1e3)),
+    // Ceff is 1/Keff: it carries Keff's state.
+    row('Ceff at Xpeak', stated(q(ls.ceff_m_per_n, 'mm/N', 1e3), asKeff(v('large_signal.keff_n_per_m')), { unit: 'mm/N', scale: 1e3, raw: ls.ceff_m_per_n, id: 'fig-ceff' })),
     row('Xpeak', q(ls.xpeak_m, 'mm', 1e3)),
     row('x range', `${q(ls.x_min_m, 'mm', 1e3)} \u2026 ${q(ls.x_max_m, 'mm', 1e3)}`),
     row('resonance (large signal)', stated(q(ls.resonance_hz, 'Hz'), v('large_signal.resonance_hz'), { unit: 'Hz', raw: ls.resonance_hz, id: 'fig-resonance' })),
@@ -150,6 +151,12 @@ export function figuresTable(doc) {
     row('effects in the model', effectsText(model.effects)),
     row('method, order', `${pick(doc, 'stiffness.method') || '\u2013'}, ${pick(doc, 'stiffness.order') ?? '\u2013'}`),
   );
+}
+
+/** Ceff = 1/Keff: Keff's state, Keff's fit value inverted, the reason pointing at Keff's. */
+function asKeff(kv) {
+  if (!kv || kv.state === 'valid') return kv;
+  return { ...kv, reason: 'Ceff is 1/Keff: the reason is given at Keff at Xpeak', fit_value: Number.isFinite(kv.fit_value) ? 1 / kv.fit_value : undefined };
 }
 
 /** Q's state; a document from before the states with a null Q: not determined with its reason. */
