@@ -1259,6 +1259,89 @@ async fn every_route_answers_as_its_schema_says() {
     let id = study["id"].as_str().unwrap();
     a.get(one, &format!("{gs}/{id}"), 200).await;
     a.get(one, &format!("{gs}/nope"), 404).await;
+    // Bench calibration (issue 21): three golden units measured under the
+    // recipe on both benches; virtual-2 against virtual-1 (201), listed; an
+    // unknown bench names its field.
+    let bc = "/api/v1/recipes/{name}/bench-calibrations";
+    let bcurl = "/api/v1/recipes/contract-gauge/bench-calibrations".to_string();
+    let bserials: Vec<String> = (0..3).map(|i| format!("BC-{i}")).collect();
+    let mut bjobs = vec![];
+    for (i, serial) in bserials.iter().enumerate() {
+        for bench in ["virtual-1", "virtual-2"] {
+            let body = json!({"part": {"serial": serial, "kind": "spider"}, "bench": bench,
+                "recipe": "contract-gauge", "production": {"preset": "spider_4in", "seed": 300 + i}});
+            let (s, j) = a
+                .call(
+                    "post",
+                    "/api/v1/jobs",
+                    "/api/v1/jobs",
+                    Some(OPERATOR),
+                    Some(body),
+                )
+                .await;
+            assert_eq!(s, 202, "{j}");
+            bjobs.push(j["id"].as_str().unwrap().to_string());
+        }
+    }
+    for id in &bjobs {
+        let j = a.wait_job(id).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+    }
+    let (s, v) = a
+        .call(
+            "post",
+            bc,
+            &bcurl,
+            Some(ADMIN),
+            Some(json!({"bench": "nope", "reference_bench": "virtual-1", "serials": bserials})),
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    let (s, cal) = a
+        .call(
+            "post",
+            bc,
+            &bcurl,
+            Some(ADMIN),
+            Some(
+                json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": bserials}),
+            ),
+        )
+        .await;
+    assert_eq!(s, 201, "{cal}");
+    let listed = a.get(bc, &bcurl, 200).await;
+    assert_eq!(listed["items"][0]["id"], cal["id"], "{listed}");
+
+    // Corrections (issue 20): a part's serial corrected by an admin (201),
+    // the audit log lists it; a body without a reason names the field.
+    let co = "/api/v1/corrections";
+    let (s, v) = a
+        .call(
+            "post",
+            co,
+            co,
+            Some(ADMIN),
+            Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B"})),
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    let (s, corr) = a
+        .call(
+            "post",
+            co,
+            co,
+            Some(ADMIN),
+            Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B", "reason": "label misread"})),
+        )
+        .await;
+    assert_eq!(s, 201, "{corr}");
+    let log = a.get(co, co, 200).await;
+    assert_eq!(
+        (&log["items"][0]["part_serial"], &log["items"][0]["reason"]),
+        (&json!("BC-2"), &json!("label misread")),
+        "{log}"
+    );
+
     let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
     let mut missing = vec![];
     let mut no_success = vec![];
