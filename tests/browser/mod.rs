@@ -346,7 +346,7 @@ impl Browser {
         let over = self
             .js(
                 "const out = [];
-                 for (const e of document.querySelectorAll('header, .card, .card > *, table.kv td, table.list td')) {
+                 for (const e of document.querySelectorAll('header, .card, .card > *, .report, .report > *, table.kv td, table.list td')) {
                    if (e.offsetParent === null && e.tagName !== 'HEADER') continue;
                    const cs = getComputedStyle(e);
                    if (cs.overflowX === 'auto' || cs.overflowX === 'scroll') continue;

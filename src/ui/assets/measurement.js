@@ -209,19 +209,19 @@ export function drawCurves(els, doc, { mask, golden, jointSeries, height } = {})
   }
   chart(els.kx, {
     title: 'Stiffness K(x)', kind: 'K(x)',
-    x: { label: 'displacement x', unit: 'mm' }, y: { label: 'stiffness K', unit: 'N/mm' },
+    x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'K' : 'stiffness K', unit: 'N/mm' },
     series: kSeries, data: kData, validRange: [lo, hi], areas, height,
   });
   if (els.kx && mask) els.kx.dataset.mask = String(mask.x.length);
   if (els.kx && golden) els.kx.dataset.golden = `${golden.n},${golden.version},${golden.proposal}`;
   chart(els.cx, {
     title: 'Compliance C(x) = 1/K(x)', kind: 'C(x)',
-    x: { label: 'displacement x', unit: 'mm' }, y: { label: 'compliance C', unit: 'mm/N' },
+    x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'C' : 'compliance C', unit: 'mm/N' },
     series: [{ label: 'C(x)', unit: 'mm/N', color: '#2ca02c' }], data: [xs, k.map((v) => (v > 0 ? 1 / v : null))], validRange: [lo, hi], height,
   });
   chart(els.fx, {
     title: 'Restoring force F(x) = \u222b K dx', kind: 'F(x)',
-    x: { label: 'displacement x', unit: 'mm' }, y: { label: 'force F', unit: 'N' },
+    x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'F' : 'force F', unit: 'N' },
     series: [{ label: 'F(x)', unit: 'N', color: '#9467bd' }], data: [xs, xs.map((x) => polyIntegral(c, x))], validRange: [lo, hi], height,
   });
 }

@@ -114,7 +114,7 @@ async function comparisonReport(main, ctx, ids) {
       h('header', { class: 'report-head' },
         h('h1', {}, `Suspension comparison report: ${ok.length} measurements`),
         h('p', { class: 'muted' }, `printed ${when(new Date().toISOString())}`)),
-      h('table', { class: 'list report-params', id: 'report-parameters' },
+      h('table', { class: 'list report-params report-compare', id: 'report-parameters' },
         h('thead', {}, h('tr', {}, ['', 'part', 'measurement', 'measured', 'verdict', 'Keff at Xpeak', 'Xpeak', 'k0 (small signal)', 'f0', 'model error', 'software'].map((t) => h('th', {}, t)))),
         h('tbody', {}, docs.map((d) => {
           const i = ok.indexOf(d);
@@ -138,9 +138,9 @@ async function comparisonReport(main, ctx, ids) {
   if (!ok.length) return;
   const [kx, cx, fx, lev] = els;
   const base = { x: { label: 'displacement x', unit: 'mm' }, height: PLOT_H };
-  chart(kx, { ...base, title: 'Stiffness K(x)', kind: 'K(x)', y: { label: 'stiffness K', unit: 'N/mm' }, series: series('N/mm'), data: [xs, ...all.map((s) => inside(s, (x) => poly(s.c, x)))] });
-  chart(cx, { ...base, title: 'Compliance C(x)', kind: 'C(x)', y: { label: 'compliance C', unit: 'mm/N' }, series: series('mm/N'), data: [xs, ...all.map((s) => inside(s, (x) => 1 / poly(s.c, x)))] });
-  chart(fx, { ...base, title: 'Restoring force F(x)', kind: 'F(x)', y: { label: 'force F', unit: 'N' }, series: series('N'), data: [xs, ...all.map((s) => inside(s, (x) => polyIntegral(s.c, x)))] });
+  chart(kx, { ...base, title: 'Stiffness K(x)', kind: 'K(x)', y: { label: 'K', unit: 'N/mm' }, series: series('N/mm'), data: [xs, ...all.map((s) => inside(s, (x) => poly(s.c, x)))] });
+  chart(cx, { ...base, title: 'Compliance C(x)', kind: 'C(x)', y: { label: 'C', unit: 'mm/N' }, series: series('mm/N'), data: [xs, ...all.map((s) => inside(s, (x) => 1 / poly(s.c, x)))] });
+  chart(fx, { ...base, title: 'Restoring force F(x)', kind: 'F(x)', y: { label: 'F', unit: 'N' }, series: series('N'), data: [xs, ...all.map((s) => inside(s, (x) => polyIntegral(s.c, x)))] });
   keffChart(lev, ok, PLOT_H);
   main.querySelector('#report').dataset.ready = 'true';
 }
