@@ -376,6 +376,9 @@ fn policy(method: &str, route: &str) -> Option<u8> {
         ("post", "/api/v1/limit-proposals/{id}/reject"),
         ("post", "/api/v1/outbox/{id}/retry"),
         ("delete", "/api/v1/outbox/{id}"),
+        // issue 20: corrections are an admin's; issue 21: how a bench is judged too
+        ("post", "/api/v1/corrections"),
+        ("post", "/api/v1/recipes/{name}/bench-calibrations"),
     ];
     Some(if admin_routes.contains(&(method, route)) {
         ADM
