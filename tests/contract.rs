@@ -348,6 +348,21 @@ impl Api<'_> {
         v
     }
 
+    /// POST a job with the operator token; it must be accepted (202). Its id.
+    async fn submit(&mut self, body: Value) -> String {
+        let (s, j) = self
+            .call(
+                "post",
+                "/api/v1/jobs",
+                "/api/v1/jobs",
+                Some(OPERATOR),
+                Some(body),
+            )
+            .await;
+        assert_eq!(s, 202, "{j}");
+        j["id"].as_str().unwrap().to_string()
+    }
+
     async fn wait_job(&mut self, id: &str) -> Value {
         let t = Instant::now();
         loop {
@@ -612,17 +627,7 @@ async fn every_route_answers_as_its_schema_says() {
     for i in 0..5 {
         let body = json!({"part": {"serial": format!("G-{i}"), "kind": "spider"},
             "recipe": "contract-spider", "production": {"preset": "spider_4in", "seed": 100 + i}});
-        let (s, j) = a
-            .call(
-                "post",
-                "/api/v1/jobs",
-                "/api/v1/jobs",
-                Some(OPERATOR),
-                Some(body),
-            )
-            .await;
-        assert_eq!(s, 202, "{j}");
-        ids.push(j["id"].as_str().unwrap().to_string());
+        ids.push(a.submit(body).await);
     }
     // A queued job cancelled (or stopping, if its bench took it already).
     let (s, q) = a
@@ -1270,17 +1275,7 @@ async fn every_route_answers_as_its_schema_says() {
         for bench in ["virtual-1", "virtual-2"] {
             let body = json!({"part": {"serial": serial, "kind": "spider"}, "bench": bench,
                 "recipe": "contract-gauge", "production": {"preset": "spider_4in", "seed": 300 + i}});
-            let (s, j) = a
-                .call(
-                    "post",
-                    "/api/v1/jobs",
-                    "/api/v1/jobs",
-                    Some(OPERATOR),
-                    Some(body),
-                )
-                .await;
-            assert_eq!(s, 202, "{j}");
-            bjobs.push(j["id"].as_str().unwrap().to_string());
+            bjobs.push(a.submit(body).await);
         }
     }
     for id in &bjobs {
