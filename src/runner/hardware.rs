@@ -287,7 +287,9 @@ impl Runner {
                     "self-check passed: calibration record {} (latency {} s)",
                     rec.id, rec.result["latency_s"]
                 )];
-                self.store
+                self.settle(slot);
+                if let Err(e) = self
+                    .store
                     .finish_job(
                         &job.id,
                         JobState::Succeeded,
@@ -298,7 +300,11 @@ impl Runner {
                         vec![],
                         vec![],
                     )
-                    .await?;
+                    .await
+                {
+                    Self::unsettle(slot, &job.id);
+                    return Err(e);
+                }
                 tracing::info!(job = %job.id, bench = %slot.cfg.id, wall_s = started.elapsed().as_secs_f64(), "self-check passed");
                 self.events
                     .publish(

@@ -322,18 +322,35 @@ impl Runner {
             ok => ok,
         };
         self.running.lock().unwrap().remove(&job.id);
-        {
-            let mut st = slot.status.lock().unwrap();
-            st.state = if self.shutdown.load(Ordering::SeqCst) {
-                "stopped"
-            } else if st.fault.is_some() {
-                "faulted"
-            } else {
-                "idle"
-            };
-            st.job_id = None;
-        }
+        self.settle(slot);
         res
+    }
+
+    /// The bench's state once its job has ended: `stopped` (shutdown),
+    /// `faulted` or `idle`. Called before the job's end is stored, so that
+    /// whoever sees the job ended also sees its bench settled (a client
+    /// that read `succeeded` and then the bench read `running`: the CI
+    /// failure of session 11's hardware_serial test).
+    fn settle(&self, slot: &Slot) {
+        let mut st = slot.status.lock().unwrap();
+        st.state = if self.shutdown.load(Ordering::SeqCst) {
+            "stopped"
+        } else if st.fault.is_some() {
+            "faulted"
+        } else {
+            "idle"
+        };
+        st.job_id = None;
+    }
+
+    /// Back to `running` job `job_id` when storing its end failed: the
+    /// bench takes no other job while the runner retries.
+    fn unsettle(slot: &Slot, job_id: &str) {
+        let mut st = slot.status.lock().unwrap();
+        if st.state != "stopped" {
+            st.state = "running";
+        }
+        st.job_id = Some(job_id.to_string());
     }
 
     async fn run_registered(
@@ -515,6 +532,7 @@ impl Runner {
             .find(|v| v.measurement_id.is_none())
             .map(|v| v.verdict);
         let new_measurements: Vec<String> = meas.iter().map(|m| m.id.clone()).collect();
+        self.settle(slot);
         if let Err(e) = self
             .store
             .finish_job_qc(
@@ -532,6 +550,7 @@ impl Runner {
             .await
         {
             // The results could not be written: do not leave the job running.
+            Self::unsettle(slot, &job.id);
             tracing::error!(job = %job.id, "storing the results failed: {e}");
             let p = problem(
                 "storage",

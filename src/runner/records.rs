@@ -222,15 +222,7 @@ impl Runner {
         warnings: &[String],
     ) -> StoreResult<()> {
         let ended = self
-            .end_running_until_stored(
-                &slot.cfg,
-                job,
-                JobState::Failed,
-                p,
-                bench_time_s,
-                log,
-                warnings,
-            )
+            .end_running_until_stored(slot, job, JobState::Failed, p, bench_time_s, log, warnings)
             .await?;
         if ended {
             let _ = self
@@ -252,7 +244,7 @@ impl Runner {
     #[allow(clippy::too_many_arguments)]
     pub(super) async fn end_running_until_stored(
         &self,
-        bench: &BenchConfig,
+        slot: &Slot,
         job: &Job,
         state: JobState,
         p: &Value,
@@ -261,8 +253,10 @@ impl Runner {
         warnings: &[String],
     ) -> StoreResult<bool> {
         let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let bench = &slot.cfg;
         let mut wait = Duration::from_millis(250);
         loop {
+            self.settle(slot);
             let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
             let records = self.job_records(
                 bench,
@@ -297,6 +291,7 @@ impl Runner {
                 }
                 Err(e) if self.shutdown.load(Ordering::SeqCst) => return Err(e),
                 Err(e) => {
+                    Self::unsettle(slot, &job.id);
                     tracing::error!(job = %job.id, "ending the job {} failed, trying again: {e}", state.as_str());
                     tokio::time::sleep(wait).await;
                     wait = (wait * 2).min(Duration::from_secs(2));
