@@ -354,6 +354,19 @@ impl Browser {
                      out.push(`${e.tagName.toLowerCase()}${e.id ? '#' + e.id : ''}.${[...e.classList].join('.')} ${e.scrollWidth} > ${e.clientWidth} px: ${e.textContent.trim().slice(0, 60)}`);
                    }
                  }
+                 // A visible input's placeholder (the only hint what to type)
+                 // measured in the input's own font against its content box.
+                 const ctx2d = document.createElement('canvas').getContext('2d');
+                 for (const e of document.querySelectorAll('input[placeholder]')) {
+                   if (e.offsetParent === null || !e.placeholder) continue;
+                   const cs = getComputedStyle(e);
+                   ctx2d.font = `${cs.fontStyle} ${cs.fontWeight} ${cs.fontSize} ${cs.fontFamily}`;
+                   const text = ctx2d.measureText(e.placeholder).width;
+                   const room = e.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight);
+                   if (text > room + 1) {
+                     out.push(`input${e.id ? '#' + e.id : ''} placeholder ${Math.ceil(text)} > ${Math.floor(room)} px: ${e.placeholder}`);
+                   }
+                 }
                  return out;",
                 vec![],
             )
