@@ -1594,6 +1594,37 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
             )
             .await;
         assert!(rows.as_u64().unwrap() >= 2, "{name}: parameter rows {rows}");
+        if name == "report-comparison" {
+            // P2's unreliable Keff, k0 and f0 carry two distinct reasons:
+            // each is written once, as a numbered note below the table, and
+            // each of the three cells keeps its state word and a reference.
+            let notes = b
+                .js(
+                    "const t = document.querySelector('#report-parameters');
+                     return {
+                       refs: [...t.querySelectorAll('.note-ref')].map(r => [r.closest('.validity').dataset.state, Number(r.dataset.note)]),
+                       inline: t.querySelectorAll('.validity-reason').length,
+                       notes: [...document.querySelectorAll('#report-notes li')].map(l => l.textContent),
+                     };",
+                    vec![],
+                )
+                .await;
+            let texts: Vec<&str> = notes["notes"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|t| t.as_str().unwrap())
+                .collect();
+            assert_eq!(texts.len(), 2, "{notes}");
+            assert_ne!(texts[0], texts[1], "{notes}");
+            assert!(texts.iter().all(|t| t.contains("model error")), "{notes}");
+            assert_eq!(notes["inline"], 0, "{notes}");
+            assert_eq!(
+                notes["refs"],
+                json!([["unreliable", 1], ["unreliable", 2], ["unreliable", 2]]),
+                "{notes}"
+            );
+        }
         b.screenshot_sizes(name).await;
         for letter in [false, true] {
             let pdf = b.print_pdf(letter).await;

@@ -135,6 +135,7 @@ async function comparisonReport(main, ctx, ids) {
             h('td', {}, d.measurement.software_version));
         }))),
       h('section', { class: 'report-plots' }, h('h2', {}, 'Curves, each over its own valid range'), h('div', { class: 'report-grid' }, els))));
+  reasonsAsNotes(main.querySelector('#report-parameters'));
   if (!ok.length) return;
   const [kx, cx, fx, lev] = els;
   const base = { x: { label: 'displacement x', unit: 'mm' }, height: PLOT_H };
@@ -143,6 +144,28 @@ async function comparisonReport(main, ctx, ids) {
   chart(fx, { ...base, title: 'Restoring force F(x)', kind: 'F(x)', y: { label: 'F', unit: 'N' }, series: series('N'), data: [xs, ...all.map((s) => inside(s, (x) => polyIntegral(s.c, x)))] });
   keffChart(lev, ok, PLOT_H);
   main.querySelector('#report').dataset.ready = 'true';
+}
+
+/**
+ * The comparison table's state reasons as numbered notes below it: a cell
+ * keeps its value, its state word and a reference [n]; each distinct reason
+ * is written once. In the cells, the same long reason stood in three narrow
+ * columns of one row (a row 300 px tall on the screen and the page).
+ */
+function reasonsAsNotes(table) {
+  if (!table) return;
+  const notes = [];
+  for (const why of table.querySelectorAll('.validity-reason')) {
+    const text = why.textContent;
+    let n = notes.indexOf(text) + 1;
+    if (!n) n = notes.push(text);
+    const br = why.previousSibling;
+    if (br && br.nodeName === 'BR') br.remove();
+    why.replaceWith(h('sup', { class: 'note-ref', dataset: { note: String(n) } }, `[${n}]`));
+  }
+  if (!notes.length) return;
+  table.after(h('ol', { class: 'report-notes', id: 'report-notes' },
+    notes.map((t, i) => h('li', { dataset: { note: String(i + 1) } }, t))));
 }
 
 /** Keff against Xpeak of several measurements (one point each; a level series joined). */
