@@ -443,6 +443,11 @@ pub struct BenchCalibrationRequest {
     /// succeeded job of each on each bench), at least 3.
     #[schema(min_items = 3, max_items = 200)]
     pub serials: Vec<String>,
+    /// The procedure the golden units were measured with on both benches
+    /// and whose later measurements the calibration corrects (default: the
+    /// recipe's `procedure.mode`). A station running both calibrates both.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub procedure: Option<crate::qc::ProcedureMode>,
 }
 
 fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> Value {
@@ -450,6 +455,7 @@ fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> Value {
         "id": r.id,
         "recipe": r.recipe_name,
         "bench_id": r.bench_id,
+        "procedure": r.procedure,
         "state": r.state,
         "calibration": r.calibration,
         "created_by": r.created_by,
@@ -496,16 +502,18 @@ pub async fn create_calibration(
         .procedure
         .moving_mass_kg
         .ok_or_else(|| Problem::field("recipe", "the recipe has no moving mass"))?;
+    let procedure = req.procedure.unwrap_or(recipe.procedure.mode);
+    let pname = procedure.as_str();
     let mut units = vec![];
     let mut missing = vec![];
     for s in &req.serials {
         let a = st
             .store
-            .newest_results_on_bench(&name, s, &req.reference_bench)
+            .newest_results_on_bench(&name, s, &req.reference_bench, pname)
             .await?;
         let b = st
             .store
-            .newest_results_on_bench(&name, s, &req.bench)
+            .newest_results_on_bench(&name, s, &req.bench, pname)
             .await?;
         let first = |x: Option<(String, Vec<Value>)>| {
             x.and_then(|(_, v)| v.into_iter().next())
@@ -520,19 +528,21 @@ pub async fn create_calibration(
         return Err(Problem::field(
             "serials",
             format!(
-                "no succeeded job with a result under recipe '{name}' on both '{}' and '{}' for: {}",
+                "no succeeded job with a result under recipe '{name}' measured with the {pname} procedure on both '{}' and '{}' for: {}",
                 req.reference_bench,
                 req.bench,
                 missing.join(", ")
             ),
         ));
     }
-    let cal = crate::qc::bench_cal::estimate(&req.bench, &req.reference_bench, mass, &units)
-        .map_err(|e| Problem::field("serials", e))?;
+    let cal =
+        crate::qc::bench_cal::estimate(&req.bench, &req.reference_bench, procedure, mass, &units)
+            .map_err(|e| Problem::field("serials", e))?;
     let row = crate::store::BenchCalibrationRow {
         id: crate::runner::new_id(),
         recipe_name: name.clone(),
         bench_id: req.bench.clone(),
+        procedure: pname.to_string(),
         state: cal.state.as_str().to_string(),
         calibration: serde_json::to_value(&cal).map_err(Problem::internal)?,
         created_by: caller.0.clone(),

@@ -396,13 +396,15 @@ impl Runner {
             Err(_) => None,
         };
         // The bench's calibration from golden units under the recipe (decision 0049).
-        let cal_row = match recipe.as_ref().and_then(|r| r.as_ref().ok()) {
-            Some(r) => {
+        // The calibration of the procedure the job asks for (a production
+        // job that falls back is still judged with it; docs/qc.md).
+        let cal_row = match (recipe.as_ref().and_then(|r| r.as_ref().ok()), spec.as_ref()) {
+            (Some(r), Ok(s)) => {
                 self.store
-                    .latest_bench_calibration(&r.name, &slot.cfg.id)
+                    .latest_bench_calibration(&r.name, &slot.cfg.id, s.procedure.as_str())
                     .await?
             }
-            None => None,
+            _ => None,
         };
         let bench_cal: Result<Option<crate::qc::BenchCalibration>, String> = cal_row
             .as_ref()

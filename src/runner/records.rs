@@ -377,6 +377,7 @@ pub fn calibration_trace(row: Option<&crate::store::BenchCalibrationRow>) -> Val
             json!({
                 "id": r.id,
                 "state": r.state,
+                "procedure": r.procedure,
                 "reference_bench_id": c["reference_bench_id"],
                 "laser_gain_error": c["laser_gain_error"],
                 "k_scale": c["k_scale"],

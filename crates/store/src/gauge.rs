@@ -98,6 +98,8 @@ pub struct BenchCalibrationRow {
     pub id: String,
     pub recipe_name: String,
     pub bench_id: String,
+    /// `full` or `production`: the procedure it was measured with and corrects.
+    pub procedure: String,
     pub state: String,
     /// `core::qc::BenchCalibration` as JSON.
     pub calibration: Value,
@@ -108,12 +110,13 @@ pub struct BenchCalibrationRow {
 impl Store {
     pub async fn insert_bench_calibration(&self, row: &BenchCalibrationRow) -> StoreResult<()> {
         sqlx::query(
-            "INSERT INTO bench_calibrations (id, recipe_name, bench_id, state, calibration, created_by, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO bench_calibrations (id, recipe_name, bench_id, procedure, state, calibration, created_by, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
         )
         .bind(&row.id)
         .bind(&row.recipe_name)
         .bind(&row.bench_id)
+        .bind(&row.procedure)
         .bind(&row.state)
         .bind(row.calibration.to_string())
         .bind(&row.created_by)
@@ -123,18 +126,22 @@ impl Store {
         Ok(())
     }
 
-    /// The calibration in effect for `recipe` on `bench`: the newest.
+    /// The calibration in effect for `recipe` on `bench` for measurements
+    /// with `procedure`: the newest.
     pub async fn latest_bench_calibration(
         &self,
         recipe: &str,
         bench: &str,
+        procedure: &str,
     ) -> StoreResult<Option<BenchCalibrationRow>> {
         let row = sqlx::query(
-            "SELECT id, recipe_name, bench_id, state, calibration, created_by, created_at \
-             FROM bench_calibrations WHERE recipe_name = ? AND bench_id = ? ORDER BY seq DESC LIMIT 1",
+            "SELECT id, recipe_name, bench_id, procedure, state, calibration, created_by, created_at \
+             FROM bench_calibrations WHERE recipe_name = ? AND bench_id = ? AND procedure = ? \
+             ORDER BY seq DESC LIMIT 1",
         )
         .bind(recipe)
         .bind(bench)
+        .bind(procedure)
         .fetch_optional(&self.pool)
         .await?;
         row.map(|r| cal_from_row(&r)).transpose()
@@ -146,7 +153,7 @@ impl Store {
         recipe: &str,
     ) -> StoreResult<Vec<BenchCalibrationRow>> {
         let rows = sqlx::query(
-            "SELECT id, recipe_name, bench_id, state, calibration, created_by, created_at \
+            "SELECT id, recipe_name, bench_id, procedure, state, calibration, created_by, created_at \
              FROM bench_calibrations WHERE recipe_name = ? ORDER BY seq DESC",
         )
         .bind(recipe)
@@ -156,22 +163,29 @@ impl Store {
     }
 
     /// The result documents (level 0 first) of the newest succeeded job of
-    /// `serial` under `recipe` on `bench`, whatever its verdict (a bench out of
-    /// calibration judges its golden units `invalid`; they still calibrate it).
+    /// `serial` under `recipe` on `bench` measured with `procedure` (a
+    /// production job that fell back does not count), whatever its verdict
+    /// (a bench out of calibration judges its golden units `invalid`; they
+    /// still calibrate it).
     pub async fn newest_results_on_bench(
         &self,
         recipe: &str,
         serial: &str,
         bench: &str,
+        procedure: &str,
     ) -> StoreResult<Option<(String, Vec<Value>)>> {
         let Some(job) = sqlx::query(
             "SELECT v.job_id FROM qc_verdicts v JOIN jobs j ON j.id = v.job_id \
              WHERE v.recipe_name = ? AND v.part_serial = ? AND v.measurement_id IS NULL \
-             AND j.bench_id = ? AND j.state = 'succeeded' ORDER BY v.seq DESC LIMIT 1",
+             AND j.bench_id = ? AND j.state = 'succeeded' AND EXISTS (SELECT 1 FROM measurements m \
+             WHERE m.job_id = v.job_id AND json_extract(m.config_json, '$.procedure_mode') = ? \
+             AND json_extract(m.config_json, '$.procedure_run.fallback') IS NULL) \
+             ORDER BY v.seq DESC LIMIT 1",
         )
         .bind(recipe)
         .bind(serial)
         .bind(bench)
+        .bind(procedure)
         .fetch_optional(&self.pool)
         .await?
         else {
@@ -202,6 +216,7 @@ fn cal_from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<BenchCalibrationRow>
         id: r.try_get("id")?,
         recipe_name: r.try_get("recipe_name")?,
         bench_id: r.try_get("bench_id")?,
+        procedure: r.try_get("procedure")?,
         state: r.try_get("state")?,
         calibration: serde_json::from_str(&s).map_err(|e| {
             crate::StoreError::Corrupt(format!("bench_calibrations.calibration: {e}"))

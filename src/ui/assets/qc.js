@@ -123,22 +123,24 @@ async function drawGauge(el, ctx, name, params) {
     return;
   }
   if (ctx.stale()) return;
-  // Bench calibrations from golden units (decision 0049): the one in effect per bench.
+  // Bench calibrations from golden units (decision 0049): the one in effect per bench and procedure.
   const cals = await api(`/api/v1/recipes/${encodeURIComponent(name)}/bench-calibrations`).catch(() => ({ items: [] }));
   if (ctx.stale()) return;
   const seen = new Set();
-  const current = (cals.items || []).filter((c) => !seen.has(c.bench_id) && seen.add(c.bench_id));
+  const key = (c) => `${c.bench_id}/${c.procedure}`;
+  const current = (cals.items || []).filter((c) => !seen.has(key(c)) && seen.add(key(c)));
   head.push(h('h3', {}, 'Bench calibrations'), current.length
     ? h('table', { class: 'list bench-cal-table' },
-      h('thead', {}, h('tr', {}, h('th', {}, 'bench'), h('th', {}, 'state'), h('th', {}, 'reference bench'),
+      h('thead', {}, h('tr', {}, h('th', {}, 'bench'), h('th', {}, 'procedure'), h('th', {}, 'state'), h('th', {}, 'reference bench'),
         h('th', { title: 'laser sensitivity error e: the bench reads (1 + e) x' }, 'laser'),
         h('th', { title: 'extra clamp mass dm: k0 reads m / (m + dm) times' }, 'clamp mass'),
         h('th', {}, 'golden units'), h('th', {}, 'calibrated'))),
       h('tbody', {}, current.map((c) => {
         const k = c.calibration || {};
         const out = c.state !== 'in_calibration';
-        return h('tr', { dataset: { bench: c.bench_id, state: c.state } },
+        return h('tr', { dataset: { bench: c.bench_id, procedure: c.procedure, state: c.state } },
           h('td', {}, c.bench_id),
+          h('td', {}, c.procedure),
           h('td', { title: (k.problems || []).join('; ') }, h('span', { class: `badge ${out ? 'verdict-fail' : 'verdict-pass'}` },
             out ? 'out of calibration: measurements invalid' : 'in calibration: judged corrected')),
           h('td', {}, k.reference_bench_id || '\u2013'),

@@ -84,6 +84,12 @@ pub struct BenchCalibration {
     pub bench_id: String,
     /// The bench the golden units' reference values were measured on.
     pub reference_bench_id: String,
+    /// The procedure the golden units were measured with on both benches:
+    /// the calibration corrects measurements made with it (the full
+    /// procedure's pre-measurement reaches its level on the laser's scale,
+    /// the production one drives the golden voltage, so a laser error moves
+    /// k0 differently in each).
+    pub procedure: crate::job::ProcedureMode,
     pub state: CalState,
     /// Why the calibration is out of calibration (empty when in).
     pub problems: Vec<String>,
@@ -93,6 +99,7 @@ pub struct BenchCalibration {
     pub k_scale_sd: f64,
     /// Mean K(x) scale of the fit (1): K(x) and Keff are corrected by it.
     pub kx_scale: f64,
+    pub kx_scale_sd: f64,
     /// Mean laser sensitivity error e (the bench reads (1 + e) x).
     pub laser_gain_error: f64,
     pub laser_gain_error_sd: f64,
@@ -211,6 +218,7 @@ pub fn estimate_unit(
 pub fn estimate(
     bench_id: &str,
     reference_bench_id: &str,
+    procedure: crate::job::ProcedureMode,
     moving_mass_kg: f64,
     units: &[(String, Report, Report)],
 ) -> Result<BenchCalibration, String> {
@@ -229,7 +237,7 @@ pub fn estimate(
         .collect::<Result<Vec<_>, _>>()?;
     let col = |f: fn(&UnitEstimate) -> f64| est.iter().map(f).collect::<Vec<_>>();
     let (k_scale, k_scale_sd) = mean_sd(&col(|u| u.k0_ratio));
-    let (kx_scale, _) = mean_sd(&col(|u| u.kx_scale));
+    let (kx_scale, kx_scale_sd) = mean_sd(&col(|u| u.kx_scale));
     let (e, e_sd) = mean_sd(&col(|u| u.laser_gain_error));
     let mut problems = vec![];
     if e.abs() > MAX_LASER_GAIN_ERROR {
@@ -265,6 +273,7 @@ pub fn estimate(
     Ok(BenchCalibration {
         bench_id: bench_id.to_string(),
         reference_bench_id: reference_bench_id.to_string(),
+        procedure,
         state: if problems.is_empty() {
             CalState::InCalibration
         } else {
@@ -274,6 +283,7 @@ pub fn estimate(
         k_scale,
         k_scale_sd,
         kx_scale,
+        kx_scale_sd,
         laser_gain_error: e,
         laser_gain_error_sd: e_sd,
         moving_mass_kg,
@@ -427,7 +437,14 @@ mod tests {
         // A clamp 0.05 g heavier on 50 g, a laser reading 0.2 % long.
         let (m, dm, e) = (0.05, 0.00005, 0.002);
         let s = m / (m + dm);
-        let c = estimate("b", "ref", m, &golden(s, e)).unwrap();
+        let c = estimate(
+            "b",
+            "ref",
+            crate::job::ProcedureMode::Full,
+            m,
+            &golden(s, e),
+        )
+        .unwrap();
         assert_eq!(c.state, CalState::InCalibration, "{:?}", c.problems);
         assert!(
             (c.laser_gain_error - e).abs() < 1e-9,
@@ -461,23 +478,37 @@ mod tests {
 
     #[test]
     fn a_bench_beyond_the_bounds_or_with_disagreeing_units_is_out_of_calibration() {
-        let c = estimate("b", "ref", 0.05, &golden(1.0, 0.02)).unwrap();
+        let c = estimate(
+            "b",
+            "ref",
+            crate::job::ProcedureMode::Full,
+            0.05,
+            &golden(1.0, 0.02),
+        )
+        .unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(c.problems[0].contains("laser"), "{:?}", c.problems);
-        let c = estimate("b", "ref", 0.05, &golden(0.97, 0.0)).unwrap();
+        let c = estimate(
+            "b",
+            "ref",
+            crate::job::ProcedureMode::Full,
+            0.05,
+            &golden(0.97, 0.0),
+        )
+        .unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(c.problems.iter().any(|p| p.contains("clamp")));
         // One unit read on the bench with a 0.5 % other laser error.
         let mut g = golden(1.0, 0.0);
         g[2].2 = unit(1.0, 1.0, 0.005, 1.03);
-        let c = estimate("b", "ref", 0.05, &g).unwrap();
+        let c = estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, &g).unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(
             c.problems.iter().any(|p| p.contains("spread")),
             "{:?}",
             c.problems
         );
-        assert!(estimate("b", "ref", 0.05, &g[..2]).is_err());
+        assert!(estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, &g[..2]).is_err());
     }
 
     #[test]
@@ -530,7 +561,14 @@ mod tests {
         };
         let raw = judge_calibrated(&recipe, &facts, None);
         assert_eq!(raw.verdict, VerdictKind::Fail, "{raw:?}");
-        let mut c = estimate("b", "ref", 0.05, &golden(s, 0.005)).unwrap();
+        let mut c = estimate(
+            "b",
+            "ref",
+            crate::job::ProcedureMode::Full,
+            0.05,
+            &golden(s, 0.005),
+        )
+        .unwrap();
         let v = judge_calibrated(&recipe, &facts, Some(&c));
         assert_eq!(v.verdict, VerdictKind::Pass, "{v:?}");
         c.state = CalState::OutOfCalibration;
