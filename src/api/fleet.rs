@@ -10,17 +10,24 @@
 
 use super::problem::{ApiResult, Problem};
 use crate::config::Config;
+use crate::store::corrections::AuditEntry;
 use crate::store::corrections::Corrections;
 use crate::store::fleet::CenterIngest;
-use crate::store::results::{MeasurementReads, PartReads, RecipeReads, VerdictReads};
+use crate::store::fleet::StationStatus;
+use crate::store::results::{
+    MeasurementInfo, MeasurementReads, Part, PartReads, RecipeReads, RecipeRow, VerdictReads,
+    VerdictRow,
+};
 use axum::extract::{Path, Query, Request, State};
 use axum::http::{header, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, MethodRouter};
 use axum::{Json, Router};
+use serde::Serialize;
 use serde_json::{json, Value};
-use springbench_store_pg::PgStore;
+use springbench_core::qc::spc::Spc;
+use springbench_store_pg::{PgStore, SpcGroup, YieldDay};
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -32,34 +39,48 @@ pub struct FleetState {
     pub cfg: Arc<Config>,
 }
 
+/// The fleet role's API routes, every one a GET (the OpenAPI document
+/// describes these; its test compares them with the document).
+fn table() -> Vec<(&'static str, MethodRouter<FleetState>)> {
+    vec![
+        ("/api/v1/fleet/stations", get(stations)),
+        ("/api/v1/fleet/parts", get(parts)),
+        ("/api/v1/fleet/parts/{serial}", get(part)),
+        ("/api/v1/fleet/measurements", get(measurements)),
+        ("/api/v1/fleet/measurements/{id}", get(measurement)),
+        ("/api/v1/fleet/recipes", get(recipes)),
+        ("/api/v1/fleet/recipes/{name}/verdicts", get(verdicts)),
+        ("/api/v1/fleet/recipes/{name}/spc", get(spc)),
+        ("/api/v1/fleet/recipes/{name}/yield", get(yield_per_day)),
+        ("/api/v1/fleet/audit", get(audit)),
+    ]
+}
+
+/// The paths of the fleet role's API (all GET; `/healthz` apart).
+pub fn paths() -> Vec<&'static str> {
+    table().into_iter().map(|(p, _)| p).collect()
+}
+
 /// The fleet role's routes (every one a read).
 pub fn router(state: FleetState) -> Router {
-    Router::new()
-        .route("/healthz", get(healthz))
-        .route("/api/v1/fleet/stations", get(stations))
-        .route("/api/v1/fleet/parts", get(parts))
-        .route("/api/v1/fleet/parts/{serial}", get(part))
-        .route("/api/v1/fleet/measurements", get(measurements))
-        .route("/api/v1/fleet/measurements/{id}", get(measurement))
-        .route("/api/v1/fleet/recipes", get(recipes))
-        .route("/api/v1/fleet/recipes/{name}/verdicts", get(verdicts))
-        .route("/api/v1/fleet/recipes/{name}/spc", get(spc))
-        .route("/api/v1/fleet/recipes/{name}/yield", get(yield_per_day))
-        .route("/api/v1/fleet/audit", get(audit))
-        .fallback(|uri: axum::http::Uri| async move {
-            Problem::new(
-                StatusCode::NOT_FOUND,
-                "not-found",
-                "Not found",
-                format!(
-                    "no route {} (the fleet role serves /api/v1/fleet/...)",
-                    uri.path()
-                ),
-            )
-        })
-        .layer(axum::middleware::from_fn_with_state(state.clone(), viewer))
-        .layer(axum::middleware::from_fn(super::guard::problem_everywhere))
-        .with_state(state)
+    let mut r = Router::new().route("/healthz", get(healthz));
+    for (path, h) in table() {
+        r = r.route(path, h);
+    }
+    r.fallback(|uri: axum::http::Uri| async move {
+        Problem::new(
+            StatusCode::NOT_FOUND,
+            "not-found",
+            "Not found",
+            format!(
+                "no route {} (the fleet role serves /api/v1/fleet/...)",
+                uri.path()
+            ),
+        )
+    })
+    .layer(axum::middleware::from_fn_with_state(state.clone(), viewer))
+    .layer(axum::middleware::from_fn(super::guard::problem_everywhere))
+    .with_state(state)
 }
 
 /// Every route but `/healthz` needs a viewer token (or none when no tokens
@@ -154,43 +175,179 @@ async fn healthz(State(st): State<FleetState>) -> Response {
     }
 }
 
+/// Every station the center heard of.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct StationList {
+    pub items: Vec<StationStatus>,
+}
+
+/// A page of parts across stations.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetPartPage {
+    /// Each with the station of its newest measurement (`station_id`).
+    pub items: Vec<Part>,
+    /// The `after` of the next page (null at the end).
+    pub next_after: Option<String>,
+}
+
+/// A part at the center: the part, its newest job verdict, its measurements.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetPart {
+    pub part: Part,
+    /// The newest job verdict of a job without a voided measurement (null: none).
+    pub verdict: Option<VerdictRow>,
+    /// Newest first, at most 100, each with its station.
+    pub measurements: Vec<MeasurementInfo>,
+}
+
+/// A page of measurements, newest first.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetMeasurementPage {
+    pub items: Vec<MeasurementInfo>,
+    /// The `cursor` of the next page (null at the end).
+    pub next_cursor: Option<String>,
+}
+
+/// A measurement at the center.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetMeasurement {
+    pub measurement: MeasurementInfo,
+    /// The result document (null when the analysis failed: `analysis_error`).
+    #[schema(value_type = Option<Object>)]
+    pub result: Option<Value>,
+    /// The station's meta.json of the measurement.
+    #[schema(value_type = Object)]
+    pub meta: Value,
+    /// The correction that voided it (its reason: `GET /api/v1/fleet/audit`);
+    /// null: not voided. A voided measurement counts in no SPC, yield or verdict.
+    pub void_correction_id: Option<String>,
+}
+
+/// The newest version of every recipe.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetRecipeList {
+    pub items: Vec<RecipeRow>,
+}
+
+/// A measurement verdict with the measurement's level in its series.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetVerdict {
+    #[serde(flatten)]
+    pub verdict: VerdictRow,
+    pub level_index: Option<i64>,
+}
+
+/// A recipe's measurement verdicts across stations, oldest first.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetVerdictList {
+    pub items: Vec<FleetVerdict>,
+}
+
+/// SPC of a parameter across stations and per station.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetSpc {
+    pub recipe: String,
+    /// The recipe version whose limits judge capability (the newest).
+    pub version: i64,
+    pub parameter: String,
+    /// Every station together (no `points`: the center does not ship them).
+    pub fleet: Option<Spc>,
+    /// Each station as a subgroup of the same window.
+    pub stations: Vec<SpcGroup>,
+}
+
+/// Job verdicts per station and day.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetYield {
+    pub items: Vec<YieldDay>,
+}
+
+/// A page of the fleet's audit trail.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetAudit {
+    /// Oldest first; `station_id` the station it was made on.
+    pub items: Vec<AuditEntry>,
+    /// The `after` of the next page (null at the end).
+    pub next_after: Option<i64>,
+}
+
 /// `GET /api/v1/fleet/stations`: every station the center heard of.
-async fn stations(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<Value>> {
+#[utoipa::path(get, path = "/api/v1/fleet/stations", tag = "fleet",
+    summary = "Every station the center heard of: last contact (center's clock), software and contract version, bench states, backlog (as the station reported it), items held and missing outbox sequence numbers.",
+    responses(
+        (status = 200, description = "Stations", body = StationList),
+        (status = 422, description = "An unknown query parameter")))]
+pub async fn stations(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<StationList>> {
     Params::of(q, &[])?;
     let items = st.store.stations().await?;
-    Ok(Json(json!({ "items": items })))
+    Ok(Json(StationList { items }))
 }
 
 /// `GET /api/v1/fleet/parts?after=&limit=` (keyset on serial).
-async fn parts(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<Value>> {
+#[utoipa::path(get, path = "/api/v1/fleet/parts", tag = "fleet",
+    summary = "Parts of every station, by serial (keyset pages).",
+    params(
+        ("after" = Option<String>, Query, description = "The `next_after` of the previous page"),
+        ("limit" = Option<i64>, Query, minimum = 1, maximum = 1000, description = "Page size (default 100)")),
+    responses(
+        (status = 200, description = "A page of parts", body = FleetPartPage),
+        (status = 422, description = "A bad or unknown query parameter")))]
+pub async fn parts(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<FleetPartPage>> {
     let p = Params::of(q, &["after", "limit"])?;
     let limit = p.int("limit", 1..=1000)?.unwrap_or(100);
     let items = st.store.list_parts(p.str("after"), limit).await?;
-    let next = (items.len() as i64 == limit)
+    let next_after = (items.len() as i64 == limit)
         .then(|| items.last().map(|x| x.serial.clone()))
         .flatten();
-    Ok(Json(json!({ "items": items, "next_after": next })))
+    Ok(Json(FleetPartPage { items, next_after }))
 }
 
 /// `GET /api/v1/fleet/parts/{serial}`: the part, its newest job verdict and
 /// its measurements (newest first, at most 100), each with its station.
-async fn part(State(st): State<FleetState>, Path(serial): Path<String>) -> ApiResult<Json<Value>> {
-    let p = st
+#[utoipa::path(get, path = "/api/v1/fleet/parts/{serial}", tag = "fleet",
+    summary = "A part's history across stations: the part, its newest job verdict (jobs with a voided measurement do not count), its measurements newest first (at most 100) with their stations.",
+    params(("serial" = String, Path, description = "Part serial")),
+    responses(
+        (status = 200, description = "The part", body = FleetPart),
+        (status = 404, description = "No such part at the center")))]
+pub async fn part(
+    State(st): State<FleetState>,
+    Path(serial): Path<String>,
+) -> ApiResult<Json<FleetPart>> {
+    let part = st
         .store
         .get_part(&serial)
         .await?
         .ok_or_else(|| Problem::not_found("part", &serial))?;
-    let ms = st
+    let measurements = st
         .store
         .list_measurements(Some(&serial), None, None, 100)
         .await?;
-    let v = st.store.part_verdict(&serial).await?;
-    Ok(Json(json!({ "part": p, "verdict": v, "measurements": ms })))
+    let verdict = st.store.part_verdict(&serial).await?;
+    Ok(Json(FleetPart {
+        part,
+        verdict,
+        measurements,
+    }))
 }
 
 /// `GET /api/v1/fleet/measurements?station=&part=&job=&cursor=&limit=`
 /// newest first; `next_cursor` is the cursor of the next page (as on a station).
-async fn measurements(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<Value>> {
+#[utoipa::path(get, path = "/api/v1/fleet/measurements", tag = "fleet",
+    summary = "Measurements of every station, newest first (keyset pages): of one station, or of a part and / or a job.",
+    params(
+        ("station" = Option<String>, Query, description = "A station's id (not with part or job)"),
+        ("part" = Option<String>, Query, description = "A part's serial"),
+        ("job" = Option<String>, Query, description = "A job's id"),
+        ("cursor" = Option<i64>, Query, minimum = 1, description = "The `next_cursor` of the previous page"),
+        ("limit" = Option<i64>, Query, minimum = 1, maximum = 1000, description = "Page size (default 100)")),
+    responses(
+        (status = 200, description = "A page of measurements", body = FleetMeasurementPage),
+        (status = 422, description = "A bad or unknown query parameter, or station with part or job")))]
+pub async fn measurements(
+    State(st): State<FleetState>,
+    Query(q): Q,
+) -> ApiResult<Json<FleetMeasurementPage>> {
     let p = Params::of(q, &["station", "part", "job", "cursor", "limit"])?;
     let limit = p.int("limit", 1..=1000)?.unwrap_or(100);
     let before = p.int("cursor", 1..=i64::MAX)?;
@@ -210,41 +367,70 @@ async fn measurements(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Js
                 .await?
         }
     };
-    let next = (items.len() as i64 == limit)
+    let next_cursor = (items.len() as i64 == limit)
         .then(|| items.last().map(|m| m.seq.to_string()))
         .flatten();
-    Ok(Json(json!({ "items": items, "next_cursor": next })))
+    Ok(Json(FleetMeasurementPage { items, next_cursor }))
 }
 
 /// `GET /api/v1/fleet/measurements/{id}`: record, result document, meta.
-async fn measurement(
+#[utoipa::path(get, path = "/api/v1/fleet/measurements/{id}", tag = "fleet",
+    summary = "A measurement at the center: its record (with its station), result document, meta.json, and the correction that voided it, if any.",
+    params(("id" = String, Path, description = "Measurement id")),
+    responses(
+        (status = 200, description = "The measurement", body = FleetMeasurement),
+        (status = 404, description = "No such measurement at the center")))]
+pub async fn measurement(
     State(st): State<FleetState>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
-    let (info, result, meta) = st
+) -> ApiResult<Json<FleetMeasurement>> {
+    let (measurement, result, meta) = st
         .store
         .get_measurement(&id)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", &id))?;
-    let void = st.store.measurement_void(&id).await?;
-    Ok(Json(
-        json!({ "measurement": info, "result": result, "meta": meta, "void_reason": void }),
-    ))
+    let void_correction_id = st.store.measurement_void(&id).await?;
+    Ok(Json(FleetMeasurement {
+        measurement,
+        result,
+        meta,
+        void_correction_id,
+    }))
 }
 
 /// `GET /api/v1/fleet/recipes`: the newest version of every recipe.
-async fn recipes(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<Value>> {
+#[utoipa::path(get, path = "/api/v1/fleet/recipes", tag = "fleet",
+    summary = "The newest version of every recipe the center holds (the stations run these).",
+    responses(
+        (status = 200, description = "Recipes", body = FleetRecipeList),
+        (status = 422, description = "An unknown query parameter")))]
+pub async fn recipes(
+    State(st): State<FleetState>,
+    Query(q): Q,
+) -> ApiResult<Json<FleetRecipeList>> {
     Params::of(q, &[])?;
-    Ok(Json(json!({ "items": st.store.list_recipes().await? })))
+    Ok(Json(FleetRecipeList {
+        items: st.store.list_recipes().await?,
+    }))
 }
 
 /// `GET /api/v1/fleet/recipes/{name}/verdicts?last=&since=&until=`: the
 /// measurement verdicts of a recipe across stations, oldest first.
-async fn verdicts(
+#[utoipa::path(get, path = "/api/v1/fleet/recipes/{name}/verdicts", tag = "fleet",
+    summary = "A recipe's measurement verdicts across stations (voided measurements left out), oldest first: the newest `last` (default 100 without since / until), or those judged in [since, until).",
+    params(
+        ("name" = String, Path, description = "Recipe name"),
+        ("last" = Option<i64>, Query, minimum = 1, maximum = 1000000, description = "The newest N verdicts"),
+        ("since" = Option<String>, Query, format = DateTime, description = "RFC 3339"),
+        ("until" = Option<String>, Query, format = DateTime, description = "RFC 3339 (exclusive)")),
+    responses(
+        (status = 200, description = "Verdicts", body = FleetVerdictList),
+        (status = 422, description = "A bad or unknown query parameter")))]
+pub async fn verdicts(
     State(st): State<FleetState>,
     Path(name): Path<String>,
     Query(q): Q,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<FleetVerdictList>> {
     let p = Params::of(q, &["last", "since", "until"])?;
     let (since, until) = (p.time("since")?, p.time("until")?);
     let last = window_last(&p, &since, &until)?;
@@ -252,15 +438,14 @@ async fn verdicts(
         .store
         .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
         .await?;
-    let items: Vec<Value> = rows
-        .iter()
-        .map(|r| {
-            let mut v = serde_json::to_value(r).unwrap_or(Value::Null);
-            v["level_index"] = json!(r.level_index);
-            v
+    let items = rows
+        .into_iter()
+        .map(|verdict| FleetVerdict {
+            level_index: verdict.level_index,
+            verdict,
         })
         .collect();
-    Ok(Json(json!({ "items": items })))
+    Ok(Json(FleetVerdictList { items }))
 }
 
 fn window_last(
@@ -278,11 +463,23 @@ fn window_last(
 /// the statistics of a parameter over the window, every station together
 /// (`fleet`) and each station as a subgroup of the same window
 /// (`stations`); limits are the newest recipe version's.
-async fn spc(
+#[utoipa::path(get, path = "/api/v1/fleet/recipes/{name}/spc", tag = "fleet",
+    summary = "SPC of one parameter over a window of a recipe's valid measurement verdicts across stations (`fleet`) and per station (`stations`: the station as a subgroup, Cpk per line); one point per part and job and level, as on a station; limits of the newest recipe version. No chart points.",
+    params(
+        ("name" = String, Path, description = "Recipe name"),
+        ("parameter" = String, Query, description = "The recipe parameter's name (required)"),
+        ("last" = Option<i64>, Query, minimum = 1, maximum = 1000000, description = "The newest N verdicts (default 100 without since / until)"),
+        ("since" = Option<String>, Query, format = DateTime, description = "RFC 3339"),
+        ("until" = Option<String>, Query, format = DateTime, description = "RFC 3339 (exclusive)")),
+    responses(
+        (status = 200, description = "SPC", body = FleetSpc),
+        (status = 404, description = "No such recipe"),
+        (status = 422, description = "A bad, unknown or missing query parameter")))]
+pub async fn spc(
     State(st): State<FleetState>,
     Path(name): Path<String>,
     Query(q): Q,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<FleetSpc>> {
     let p = Params::of(q, &["parameter", "last", "since", "until"])?;
     let row = st
         .store
@@ -331,22 +528,31 @@ async fn spc(
     };
     let fleet = st.store.spc(&q(false)).await?;
     let stations = st.store.spc(&q(true)).await?;
-    Ok(Json(json!({
-        "recipe": name,
-        "version": row.version,
-        "parameter": pname,
-        "fleet": fleet.into_iter().next().map(|g| g.spc),
-        "stations": stations,
-    })))
+    Ok(Json(FleetSpc {
+        recipe: name.clone(),
+        version: row.version,
+        parameter: pname.to_string(),
+        fleet: fleet.into_iter().next().map(|g| g.spc),
+        stations,
+    }))
 }
 
 /// `GET /api/v1/fleet/recipes/{name}/yield?since=&until=`: job verdicts per
 /// station and day (UTC); default the last 30 days.
-async fn yield_per_day(
+#[utoipa::path(get, path = "/api/v1/fleet/recipes/{name}/yield", tag = "fleet",
+    summary = "Job verdicts of a recipe per station and day (UTC) and the yield (pass / (pass + fail)); jobs with a voided measurement do not count. Default: the last 30 days.",
+    params(
+        ("name" = String, Path, description = "Recipe name"),
+        ("since" = Option<String>, Query, format = DateTime, description = "RFC 3339 (default 30 days ago)"),
+        ("until" = Option<String>, Query, format = DateTime, description = "RFC 3339, exclusive (default tomorrow)")),
+    responses(
+        (status = 200, description = "Yield per station and day", body = FleetYield),
+        (status = 422, description = "A bad or unknown query parameter, or since not before until")))]
+pub async fn yield_per_day(
     State(st): State<FleetState>,
     Path(name): Path<String>,
     Query(q): Q,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<FleetYield>> {
     let p = Params::of(q, &["since", "until"])?;
     let until = p.time("until")?.unwrap_or_else(|| {
         (chrono::Utc::now() + chrono::Duration::days(1))
@@ -360,16 +566,28 @@ async fn yield_per_day(
         return Err(Problem::field("since", "must be before until"));
     }
     let items = st.store.yield_per_day(&name, &since, &until).await?;
-    Ok(Json(json!({ "items": items })))
+    Ok(Json(FleetYield { items }))
 }
 
 /// `GET /api/v1/fleet/audit?part=&after=&limit=`: corrections, oldest first.
-async fn audit(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<Value>> {
+#[utoipa::path(get, path = "/api/v1/fleet/audit", tag = "fleet",
+    summary = "The audit trail of corrections the stations made (serial, kind, voids), oldest first, in keyset pages; `part` matches the old or the new serial. Corrections are made on the station (decision 0056).",
+    params(
+        ("part" = Option<String>, Query, description = "A part's serial (old or new)"),
+        ("after" = Option<i64>, Query, minimum = 0, description = "The `next_after` of the previous page"),
+        ("limit" = Option<i64>, Query, minimum = 1, maximum = 1000, description = "Page size (default 100)")),
+    responses(
+        (status = 200, description = "Audit log", body = FleetAudit),
+        (status = 422, description = "A bad or unknown query parameter")))]
+pub async fn audit(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<FleetAudit>> {
     let p = Params::of(q, &["part", "after", "limit"])?;
     let limit = p.int("limit", 1..=1000)?.unwrap_or(100);
     let after = p.int("after", 0..=i64::MAX)?;
     let items = st.store.audit_log(p.str("part"), after, limit).await?;
-    Ok(Json(json!({ "items": items })))
+    let next_after = (items.len() as i64 == limit)
+        .then(|| items.last().map(|e| e.seq))
+        .flatten();
+    Ok(Json(FleetAudit { items, next_after }))
 }
 
 /// Runs the fleet role on `addr` until `stop` resolves (`springbench serve`

@@ -72,6 +72,16 @@ use utoipa::{Modify, OpenApi};
         super::gauge::list_calibrations,
         super::corrections::create,
         super::corrections::list,
+        super::fleet::stations,
+        super::fleet::parts,
+        super::fleet::part,
+        super::fleet::measurements,
+        super::fleet::measurement,
+        super::fleet::recipes,
+        super::fleet::verdicts,
+        super::fleet::spc,
+        super::fleet::yield_per_day,
+        super::fleet::audit,
     ),
     components(schemas(Problem, MeasurementDocumentSchema)),
     modifiers(&Conventions),
@@ -83,6 +93,10 @@ use utoipa::{Modify, OpenApi};
         (name = "events", description = "Websocket event stream"),
         (name = "qc", description = "Recipes, limits, verdicts, SPC"),
         (name = "mes", description = "MES outbox"),
+        (name = "fleet", description = "The fleet's center: served only by a daemon in the fleet role \
+            (`database = \"postgres://...\"`, no benches; docs/fleet.md), read-only, every route a GET. \
+            A station does not serve these; the fleet role serves none of the others (its `/healthz` \
+            answers `{\"status\": \"ok\", \"role\": \"fleet\"}`)."),
     )
 )]
 struct ApiDoc;
@@ -267,11 +281,18 @@ mod tests {
             }
         }
         let (_, list) = super::super::routes(&crate::config::Config::default());
+        // A station's routes and the fleet role's (all GET).
+        let fleet = super::super::fleet::paths();
         let served: BTreeSet<(String, String)> = list
             .iter()
             .map(|(m, p)| (m.to_string(), p.to_string()))
+            .chain(fleet.iter().map(|p| ("get".to_string(), p.to_string())))
             .collect();
-        assert_eq!(served.len(), list.len(), "a route is registered twice");
+        assert_eq!(
+            served.len(),
+            list.len() + fleet.len(),
+            "a route is registered twice"
+        );
         let missing: Vec<_> = served.difference(&documented).collect();
         let extra: Vec<_> = documented.difference(&served).collect();
         assert!(

@@ -59,9 +59,12 @@ async fn insert_verdicts(
             StoreError::Invalid(format!("verdict {}: unknown kind '{}'", v.id, v.verdict))
         })?;
         let seq: Option<i64> = sqlx::query_scalar(
+            // A job's verdict that arrives after a void of one of its
+            // measurements arrives voided (decision 0057).
             "INSERT INTO qc_verdicts (id, station_id, job_id, measurement_id, part_serial, recipe_name, recipe_version, \
-             recipe_sha256, verdict, detail_json, trace_json, created_at, level_index) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10::jsonb, $11::jsonb, $12, $13) \
+             recipe_sha256, verdict, detail_json, trace_json, created_at, level_index, voided) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10::jsonb, $11::jsonb, $12, $13, \
+             $4::text IS NULL AND EXISTS (SELECT 1 FROM measurements m WHERE m.job_id = $3 AND m.void_id IS NOT NULL)) \
              ON CONFLICT (id) DO NOTHING RETURNING seq",
         )
         .bind(&v.id)
@@ -297,6 +300,15 @@ pub(crate) async fn apply_correction(
                 .bind(m)
                 .execute(&mut **tx)
                 .await?;
+            // Its job's verdict no longer judges the part or counts in the
+            // yield (decision 0057); it stays readable as judged.
+            sqlx::query(
+                "UPDATE qc_verdicts SET voided = true WHERE measurement_id IS NULL \
+                 AND job_id = (SELECT job_id FROM measurements WHERE id = $1)",
+            )
+            .bind(m)
+            .execute(&mut **tx)
+            .await?;
             recompute_spc_points(tx, m).await?;
         }
         "part_kind" => {

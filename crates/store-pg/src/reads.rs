@@ -47,7 +47,8 @@ macro_rules! part_select {
     () => {
         "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
          (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
-         (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1), \
+         (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL AND NOT v.voided \
+          ORDER BY v.seq DESC LIMIT 1), \
          p.station_id FROM parts p"
     };
 }
@@ -237,7 +238,8 @@ impl VerdictReads for PgStore {
         let row = sqlx::query(concat!(
             "SELECT ",
             verdict_cols!(),
-            " FROM qc_verdicts WHERE part_serial = $1 AND measurement_id IS NULL ORDER BY seq DESC LIMIT 1"
+            // a job with a voided measurement no longer judges the part (decision 0057)
+            " FROM qc_verdicts WHERE part_serial = $1 AND measurement_id IS NULL AND NOT voided ORDER BY seq DESC LIMIT 1"
         ))
         .bind(serial)
         .fetch_optional(&self.pool)

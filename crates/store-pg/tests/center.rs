@@ -1003,3 +1003,182 @@ async fn a_stations_corrections_reach_the_center_in_order() {
     assert_eq!((again.inserted, again.already_stored), (0, 6));
     assert_eq!(center.audit_log(None, None, 10).await.unwrap().len(), 3);
 }
+
+/// A void takes its job out of the part's verdict and the yield, on the
+/// station and at the center: the job was judged with the voided
+/// measurement among its repeats, so its verdict no longer judges the part
+/// (decision 0057). The part's verdict falls back to its newest job without
+/// a void (none: no verdict); the job's own verdict stays readable.
+#[tokio::test]
+async fn a_void_takes_its_job_out_of_the_parts_verdict_and_the_yield() {
+    use springbench_store::qc::JobRecords;
+    use springbench_store::results::{NewMeasurement, NewVerdict};
+    use springbench_store::{Inserted, JobState};
+    let Some(center) = store("void_verdicts").await else {
+        return;
+    };
+    let station = springbench_store::Store::memory().await.unwrap();
+    let rec = |kind: &'static str, tag: u8| NewRecording {
+        kind,
+        sample_rate_hz: 48_000.0,
+        frames: 4,
+        stored: springbench_recording::codec::Stored {
+            bytes: vec![tag, 1, 2, 3],
+            channel_scale: None,
+        },
+    };
+    let verdict =
+        |id: &str, job: &str, m: Option<&str>, serial: &str, v: &'static str| NewVerdict {
+            id: id.into(),
+            job_id: Some(job.into()),
+            measurement_id: m.map(str::to_string),
+            part_serial: serial.into(),
+            recipe_name: "r".into(),
+            recipe_version: 1,
+            recipe_sha256: "ab".repeat(32),
+            verdict: v,
+            detail: json!({"verdict": v}),
+            trace: json!({"recipe": {"name": "r", "version": 1}}),
+        };
+    // P-1: job j1 passes (m1); job j2 fails (m2 passes, m3 fails).
+    // P-2: job j3 passes (m4).
+    // (job, part, its measurements and their verdicts, the job's verdict)
+    type Job<'a> = (
+        &'a str,
+        &'a str,
+        &'a [(&'a str, &'static str)],
+        &'static str,
+    );
+    let jobs: [Job; 3] = [
+        ("j1", "P-1", &[("m1", "pass")], "pass"),
+        ("j2", "P-1", &[("m2", "pass"), ("m3", "fail")], "fail"),
+        ("j3", "P-2", &[("m4", "pass")], "pass"),
+    ];
+    for (job, serial, ms, jv) in jobs {
+        let r = station
+            .insert_job(job, "b1", (serial, None, None), 0, &json!({}), job, None)
+            .await
+            .unwrap();
+        assert!(matches!(r, Inserted::New(_)));
+        assert!(station.start_job(job).await.unwrap());
+        let mut verdicts: Vec<NewVerdict> = ms
+            .iter()
+            .map(|(m, v)| verdict(&format!("v-{m}"), job, Some(m), serial, v))
+            .collect();
+        verdicts.push(verdict(&format!("v-{job}"), job, None, serial, jv));
+        let meas = ms
+            .iter()
+            .enumerate()
+            .map(|(i, (m, _))| NewMeasurement {
+                id: m.to_string(),
+                part_serial: serial.into(),
+                job_id: Some(job.into()),
+                source: "bench",
+                bench_id: Some("b1".into()),
+                config: json!({}),
+                meta: json!({"id": m}),
+                result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
+                analysis_error: None,
+                target_xpeak_m: Some(0.002),
+                repeat_index: Some(i as i64),
+                level_index: Some(0),
+                pre: 0,
+                main: 1,
+            })
+            .collect();
+        station
+            .finish_job_qc(
+                job,
+                JobState::Succeeded,
+                None,
+                Some(1.0),
+                &[],
+                &[],
+                vec![rec("pre", 1), rec("main", 2)],
+                meas,
+                &JobRecords {
+                    verdicts,
+                    ..JobRecords::default()
+                },
+            )
+            .await
+            .unwrap();
+    }
+    let c = |id: &str, serial: &str, m: &str| Correction {
+        id: id.into(),
+        kind: "void_measurement".into(),
+        part_serial: serial.into(),
+        measurement_id: Some(m.into()),
+        old_value: None,
+        new_value: None,
+        reason: format!("why {id}"),
+        made_by: Some("admin".into()),
+        made_at: time(10),
+    };
+    let verdict_of = |p: Option<springbench_store::results::Part>| p.unwrap().verdict;
+    assert_eq!(
+        station.part_verdict("P-1").await.unwrap().unwrap().id,
+        "v-j2"
+    );
+    // m3 was mis-clamped: j2 no longer judges P-1, j1 does; P-2's only job goes.
+    assert!(station.correct(&c("c-1", "P-1", "m3")).await.unwrap());
+    assert!(station.correct(&c("c-2", "P-2", "m4")).await.unwrap());
+    assert_eq!(
+        station.part_verdict("P-1").await.unwrap().map(|v| v.id),
+        Some("v-j1".into()),
+        "station"
+    );
+    assert_eq!(
+        verdict_of(station.get_part("P-1").await.unwrap()).as_deref(),
+        Some("pass")
+    );
+    assert_eq!(
+        station.part_verdict("P-2").await.unwrap().map(|v| v.id),
+        None
+    );
+    let listed: Vec<_> = station
+        .list_parts(None, 10)
+        .await
+        .unwrap()
+        .into_iter()
+        .map(|p| (p.serial, p.verdict))
+        .collect();
+    assert_eq!(
+        listed,
+        [
+            ("P-1".to_string(), Some("pass".to_string())),
+            ("P-2".to_string(), None)
+        ]
+    );
+    // The job's own verdict stays as it was judged.
+    assert_eq!(station.job_verdicts("j2").await.unwrap()[0].verdict, "fail");
+
+    // The center, after the station's outbox: the same answers, and the
+    // yield counts j1 only.
+    let rows = station.outbox_next(100).await.unwrap();
+    let items = station.outbox_items(&rows, false).await.unwrap();
+    center.ingest("line-1", &items).await.unwrap();
+    assert_eq!(
+        center.part_verdict("P-1").await.unwrap().map(|v| v.id),
+        Some("v-j1".into()),
+        "center"
+    );
+    assert_eq!(
+        verdict_of(center.get_part("P-1").await.unwrap()).as_deref(),
+        Some("pass")
+    );
+    assert_eq!(
+        center.part_verdict("P-2").await.unwrap().map(|v| v.id),
+        None
+    );
+    assert_eq!(verdict_of(center.get_part("P-2").await.unwrap()), None);
+    let days = center
+        .yield_per_day("r", "2000-01-01T00:00:00.000Z", "2100-01-01T00:00:00.000Z")
+        .await
+        .unwrap();
+    let (passed, failed): (i64, i64) = days
+        .iter()
+        .fold((0, 0), |(p, f), d| (p + d.passed, f + d.failed));
+    assert_eq!((passed, failed), (1, 0), "{days:?}");
+    assert_eq!(center.job_verdicts("j2").await.unwrap()[0].verdict, "fail");
+}

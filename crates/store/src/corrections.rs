@@ -54,6 +54,13 @@ pub trait Corrections: Sync {
     ) -> impl Future<Output = StoreResult<Option<String>>> + Send;
 }
 
+/// SQL (SQLite): the job of the verdict row `v` has no voided measurement.
+/// A void takes its job out of the part's verdict (decision 0057); the
+/// indexes `measurements_job` and `corrections_one_void` answer it.
+pub(crate) const JOB_WITHOUT_VOID: &str = "NOT EXISTS (SELECT 1 FROM measurements vm \
+     JOIN corrections vc ON vc.measurement_id = vm.id AND vc.kind = 'void_measurement' \
+     WHERE vm.job_id = v.job_id)";
+
 /// The checks both backends make before applying `c`.
 pub fn check(c: &Correction) -> StoreResult<()> {
     let bad = |m: &str| Err(StoreError::Invalid(format!("correction {}: {m}", c.id)));

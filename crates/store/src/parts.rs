@@ -44,14 +44,25 @@ fn part_from_row(r: &SqliteRow) -> Part {
     }
 }
 
+/// A part with its measurement count and its verdict: the newest job
+/// verdict of a job without a voided measurement (decision 0057).
+fn part_select() -> String {
+    format!(
+        "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
+         (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
+         (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL \
+          AND {} ORDER BY v.seq DESC LIMIT 1) \
+         FROM parts p",
+        crate::corrections::JOB_WITHOUT_VOID
+    )
+}
+
 impl PartReads for Store {
     async fn get_part(&self, serial: &str) -> StoreResult<Option<Part>> {
-        let row = sqlx::query(
-            "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
-             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
-             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
-             FROM parts p WHERE p.serial = ?",
-        )
+        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "{} WHERE p.serial = ?",
+            part_select()
+        )))
         .bind(serial.to_string())
         .fetch_optional(&self.pool)
         .await?;
@@ -59,12 +70,10 @@ impl PartReads for Store {
     }
 
     async fn list_parts(&self, after: Option<&str>, limit: i64) -> StoreResult<Vec<Part>> {
-        let rows = sqlx::query(
-            "SELECT p.serial, p.kind, p.notes, p.created_at, p.updated_at, \
-             (SELECT COUNT(*) FROM measurements m WHERE m.part_serial = p.serial), \
-             (SELECT v.verdict FROM qc_verdicts v WHERE v.part_serial = p.serial AND v.measurement_id IS NULL ORDER BY v.seq DESC LIMIT 1) \
-             FROM parts p WHERE (? IS NULL OR p.serial > ?) ORDER BY p.serial LIMIT ?",
-        )
+        let rows = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "{} WHERE (? IS NULL OR p.serial > ?) ORDER BY p.serial LIMIT ?",
+            part_select()
+        )))
         .bind(after.map(str::to_string))
         .bind(after.map(str::to_string))
         .bind(limit)

@@ -677,7 +677,13 @@ impl RecipeReads for Store {
 
 impl VerdictReads for Store {
     async fn part_verdict(&self, serial: &str) -> StoreResult<Option<VerdictRow>> {
-        let row = sqlx::query(concat!("SELECT ", verdict_cols!(), " FROM qc_verdicts WHERE part_serial = ? AND measurement_id IS NULL ORDER BY seq DESC LIMIT 1"))
+        // The newest job verdict of a job without a voided measurement (decision 0057).
+        let row = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "SELECT {} FROM qc_verdicts v WHERE v.part_serial = ? AND v.measurement_id IS NULL AND {} \
+             ORDER BY v.seq DESC LIMIT 1",
+            verdict_cols!(),
+            crate::corrections::JOB_WITHOUT_VOID
+        )))
         .bind(serial.to_string())
         .fetch_optional(&self.pool)
         .await?;
