@@ -775,3 +775,226 @@ async fn the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses() {
         done[0]
     );
 }
+
+// ---------------------------------------------------------------------------
+// Where the production procedure's repeatability comes from (issue 21, the
+// 1.5x %GRR criterion; decision 0059): per sensor and per narrow sweep length.
+mod explore {
+    use super::*;
+    use springbench::bench::Bench;
+    use springbench::physics::model::BenchParams;
+    use springbench::recording::Signals;
+
+    fn sd(v: &[f64]) -> (f64, f64) {
+        let n = v.len() as f64;
+        let m = v.iter().sum::<f64>() / n;
+        let s = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        (m, s)
+    }
+
+    /// k0, Keff at 8 mm, K(4 mm) of a pre + main.
+    fn figures(p: &PartSpec, pre: &Signals, main: &Signals) -> Option<[f64; 3]> {
+        let mut meta = springbench::recording::Meta::standard(p.moving_mass_kg, pre.sample_rate_hz);
+        meta.channels.drive = Some(2);
+        let set = springbench::recording::RecordingSet {
+            meta,
+            pre: pre.clone(),
+            main: main.clone(),
+        };
+        let mut r = identify::analyze(&set, &OPTS).ok()?;
+        qc::set_keff_at_target(&mut r, Some(0.008));
+        Some([
+            r.small_signal.as_ref()?.k0_n_per_m?,
+            r.large_signal.keff_at_target_n_per_m?,
+            qc::k_of_x(&r, 0.004),
+        ])
+    }
+
+    /// A log sweep made of segments (f_a, f_b, seconds), each exponential, with
+    /// 0.25 s half-cosine fades over the whole and `silence_s` after.
+    pub fn chirp(segs: &[(f64, f64, f64)], v: f64, fs: f64, silence_s: f64) -> Vec<f64> {
+        let total: f64 = segs.iter().map(|s| s.2).sum();
+        let n = (total * fs).round() as usize;
+        let mut out = Vec::with_capacity(n + (silence_s * fs) as usize);
+        let mut ph = 0.0f64;
+        let (mut seg, mut t0) = (0usize, 0.0f64);
+        for k in 0..n {
+            let t = k as f64 / fs;
+            while seg + 1 < segs.len() && t >= t0 + segs[seg].2 {
+                t0 += segs[seg].2;
+                seg += 1;
+            }
+            let (fa, fb, d) = segs[seg];
+            let f = fa * (fb / fa).powf(((t - t0) / d).min(1.0));
+            let tf = 0.25;
+            let env = if t < tf {
+                0.5 * (1.0 - (std::f64::consts::PI * t / tf).cos())
+            } else if t > total - tf {
+                0.5 * (1.0 - (std::f64::consts::PI * (total - t) / tf).cos())
+            } else {
+                1.0
+            };
+            out.push(v * env * ph.sin());
+            ph += 2.0 * std::f64::consts::PI * f / fs;
+        }
+        out.extend(std::iter::repeat_n(0.0, (silence_s * fs) as usize));
+        out
+    }
+
+    fn play(vb: &mut VirtualBench, drive: &[f64]) -> Signals {
+        vb.run(drive, &mut |_| springbench::bench::Control::Continue)
+            .unwrap()
+    }
+
+    fn xpeak(s: &Signals) -> f64 {
+        s.displacement_m.iter().fold(0.0f64, |a, x| a.max(x.abs()))
+    }
+
+    /// `N=8 cargo test --test production -- --ignored --nocapture explore_grr`
+    /// (about 1 min): prints the sd of k0, Keff at 8 mm and K(4 mm) over N
+    /// noise seeds of one part; figures in decision 0059.
+    #[test]
+    #[ignore = "a measurement: prints figures for decision 0059"]
+    fn explore_grr() {
+        let l = &lines()[0];
+        let rec = approved_recipe(l);
+        let g = rec.procedure.golden.clone().unwrap();
+        let nominal = preset(l.preset).unwrap();
+        let p = part(&nominal, &Spread::default(), 800, None);
+        let n: u64 = std::env::var("N")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(12);
+        let seeds: Vec<u64> = (0..n).map(|i| 3000 + i).collect();
+        // 1. Full and production as they are; their time split.
+        let runs = par_map(&seeds, |&s| {
+            let f = measure(&p, s, DEFAULT_LIMITS, 0.008, None);
+            let q = measure(&p, s, DEFAULT_LIMITS, 0.008, Some(Some(&g)));
+            (f, q)
+        });
+        let q0 = &runs[0].1.outcome;
+        eprintln!("production log: {:#?}", q0.log);
+        eprintln!("full log: {:#?}", runs[0].0.outcome.log);
+        let fig = |m: &Measured| -> [f64; 3] {
+            figures(&p, &m.outcome.pre, &m.outcome.narrow[0].signals).unwrap()
+        };
+        let names = ["k0", "Keff@8mm", "K(4mm)"];
+        let report = |label: &str, v: &[[f64; 3]]| {
+            let mut s = format!("{label:>40}:");
+            for (i, nm) in names.iter().enumerate() {
+                let col: Vec<f64> = v.iter().map(|a| a[i]).collect();
+                let (m, d) = sd(&col);
+                s += &format!("  {nm} {m:.2} sd {d:.4}");
+            }
+            eprintln!("{s}");
+        };
+        let full: Vec<[f64; 3]> = runs.iter().map(|r| fig(&r.0)).collect();
+        let prod: Vec<[f64; 3]> = runs.iter().map(|r| fig(&r.1)).collect();
+        report("full", &full);
+        report("production", &prod);
+        let truth_k4 = p.k_coeffs_si.iter().rev().fold(0.0, |a, c| a * 0.004 + c);
+        eprintln!("truth k0 {:.2} K(4mm) {truth_k4:.2}", p.k_coeffs_si[0]);
+        // 2. Which sensor: the same with one noise off.
+        let mut quiet_laser = BenchParams::default();
+        quiet_laser.laser.noise_m = 0.0;
+        let mut quiet_mic = BenchParams::default();
+        quiet_mic.microphone.noise_pa = 0.0;
+        let mut quiet_both = quiet_laser;
+        quiet_both.microphone.noise_pa = 0.0;
+        for (label, b) in [
+            ("mic noise only", quiet_laser),
+            ("laser noise only", quiet_mic),
+            ("no sensor noise", quiet_both),
+        ] {
+            let rr = par_map(&seeds, |&s| {
+                let cfg = ProcedureConfig {
+                    moving_mass_kg: p.moving_mass_kg,
+                    levels_m: vec![0.008],
+                    ..ProcedureConfig::default()
+                };
+                let mut vb = VirtualBench::new(p.clone(), s).with_bench(b);
+                let f = procedure::run(&mut vb, &cfg, &mut Quiet).unwrap();
+                let mut vb = VirtualBench::new(p.clone(), s).with_bench(b);
+                let q = procedure::run_production(&mut vb, &cfg, Some(&g), &mut Quiet).unwrap();
+                (
+                    figures(&p, &f.pre, &f.narrow[0].signals).unwrap(),
+                    figures(&p, &q.pre, &q.narrow[0].signals).unwrap(),
+                )
+            });
+            report(
+                &format!("full, {label}"),
+                &rr.iter().map(|r| r.0).collect::<Vec<_>>(),
+            );
+            report(
+                &format!("production, {label}"),
+                &rr.iter().map(|r| r.1).collect::<Vec<_>>(),
+            );
+        }
+        // 3. Sweep designs in the production's band, drive found per design.
+        let nw = &q0.narrow[0];
+        let (fa, fb) = (nw.f_start_hz, nw.f_end_hz);
+        let fr = nw.resonance_hz;
+        let fs = 48000.0;
+        // (label, segments (f_a, f_b, s), silence s)
+        type Design = (String, Vec<(f64, f64, f64)>, f64);
+        let designs: Vec<Design> = {
+            let mut d = vec![];
+            for t in [1.0, 2.0, 3.0, 4.4, 10.0] {
+                d.push((
+                    format!("uniform {t} s, silence 0.5"),
+                    vec![(fa, fb, t)],
+                    0.5,
+                ));
+            }
+            d.push(("uniform 3 s, silence 0.2".into(), vec![(fa, fb, 3.0)], 0.2));
+            // slow within [fr 2^-a, fr 2^b]
+            for (a, b, tslow, tfast) in [
+                (0.2, 0.05, 2.0, 0.5),
+                (0.3, 0.05, 2.0, 0.5),
+                (0.2, 0.1, 2.5, 0.5),
+                (0.15, 0.05, 2.0, 0.5),
+            ] {
+                let (f1, f2) = (fr * 2f64.powf(-a), fr * 2f64.powf(b));
+                let oct_out = (fa.log2() - f1.log2()).abs() + (fb.log2() - f2.log2()).abs();
+                let r = tfast / oct_out; // s per octave outside
+                d.push((
+                    format!("slow {a}/{b} oct in {tslow} s, rest {tfast} s"),
+                    vec![
+                        (fa, f1, (f1 / fa).log2() * r),
+                        (f1, f2, tslow),
+                        (f2, fb, (fb / f2).log2() * r),
+                    ],
+                    0.2,
+                ));
+            }
+            d
+        };
+        for (label, segs, sil) in &designs {
+            // level: scale the drive to reach 8 mm (3 passes, no noise counted)
+            let mut v = nw.drive_v * (1.0 / segs.iter().map(|s| s.2).sum::<f64>()).powf(0.3);
+            let mut vb = VirtualBench::new(p.clone(), 1).with_bench(quiet_both);
+            for _ in 0..4 {
+                let x = xpeak(&play(&mut vb, &chirp(segs, v, fs, *sil)));
+                v *= (0.008 / x).powf(0.7);
+            }
+            let drive = chirp(segs, v, fs, *sil);
+            let rr: Vec<Option<[f64; 3]>> = par_map(&seeds, |&s| {
+                let mut vb = VirtualBench::new(p.clone(), s + 77);
+                let pre = {
+                    let d = q0.pre_sweep.samples(fs);
+                    play(&mut vb, &d)
+                };
+                let main = play(&mut vb, &drive);
+                figures(&p, &pre, &main).map(|mut f| {
+                    f[0] = xpeak(&main) * 1e3;
+                    f
+                })
+            });
+            let ok: Vec<[f64; 3]> = rr.into_iter().flatten().collect();
+            report(
+                &format!("{label} ({} ok, v {v:.3}; k0 col = Xpeak mm)", ok.len()),
+                &ok,
+            );
+        }
+    }
+}

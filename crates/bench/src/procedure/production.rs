@@ -40,8 +40,12 @@ const PRE_OCT: f64 = 1.5;
 /// half-power bandwidth f / Q (production-notes: 3-5; the lower end keeps
 /// the passive radiator's 20 Hz, Q 10 within the 5 s cycle).
 pub const N_TAU: f64 = 3.0;
-/// Shortest narrow sweep (s): its fades take 0.5 s.
-const MIN_NARROW_S: f64 = 1.0;
+/// Shortest narrow sweep (s). Its fades take 0.5 s; measured on a
+/// spider_4in part (`explore_grr` in tests/production.rs, decision 0059),
+/// the sd of Keff at target and K(4 mm) from a 1 s sweep is 1.8-2.6x the
+/// 10 s sweep's, from a 2 s sweep in the same band within the estimate's
+/// own spread of it (laser noise is all of it).
+const MIN_NARROW_S: f64 = 2.0;
 /// Fewest periods a short narrow sweep holds: the analysis needs 20 periods
 /// found along the main sweep (`identify`'s preparation), and the fades'
 /// quiet ends hold some that are not found.
