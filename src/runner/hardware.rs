@@ -287,24 +287,17 @@ impl Runner {
                     "self-check passed: calibration record {} (latency {} s)",
                     rec.id, rec.result["latency_s"]
                 )];
-                self.settle(slot);
-                if let Err(e) = self
-                    .store
-                    .finish_job(
-                        &job.id,
-                        JobState::Succeeded,
-                        None,
-                        None,
-                        &log,
-                        &[],
-                        vec![],
-                        vec![],
-                    )
-                    .await
-                {
-                    Self::unsettle(slot, &job.id);
-                    return Err(e);
-                }
+                let commit = self.store.finish_job(
+                    &job.id,
+                    JobState::Succeeded,
+                    None,
+                    None,
+                    &log,
+                    &[],
+                    vec![],
+                    vec![],
+                );
+                self.commit_settled(slot, &job.id, commit).await?;
                 tracing::info!(job = %job.id, bench = %slot.cfg.id, wall_s = started.elapsed().as_secs_f64(), "self-check passed");
                 self.events
                     .publish(

@@ -343,6 +343,23 @@ impl Runner {
         st.job_id = None;
     }
 
+    /// Stores a job's end (`commit`) with its bench settled first; if the
+    /// store fails, the bench is `running` the job again (see [`Self::unsettle`]).
+    /// The one way each of the three places that end a job commits it.
+    async fn commit_settled<T>(
+        &self,
+        slot: &Slot,
+        job_id: &str,
+        commit: impl std::future::Future<Output = StoreResult<T>>,
+    ) -> StoreResult<T> {
+        self.settle(slot);
+        let r = commit.await;
+        if r.is_err() {
+            Self::unsettle(slot, job_id);
+        }
+        r
+    }
+
     /// Back to `running` job `job_id` when storing its end failed: the
     /// bench takes no other job while the runner retries.
     fn unsettle(slot: &Slot, job_id: &str) {
@@ -534,25 +551,20 @@ impl Runner {
             .find(|v| v.measurement_id.is_none())
             .map(|v| v.verdict);
         let new_measurements: Vec<String> = meas.iter().map(|m| m.id.clone()).collect();
-        self.settle(slot);
-        if let Err(e) = self
-            .store
-            .finish_job_qc(
-                &job.id,
-                state,
-                prob.as_ref(),
-                bench_time,
-                &log,
-                &warnings,
-                // stored as each level finished (Msg::Store)
-                vec![],
-                vec![],
-                &records,
-            )
-            .await
-        {
+        let commit = self.store.finish_job_qc(
+            &job.id,
+            state,
+            prob.as_ref(),
+            bench_time,
+            &log,
+            &warnings,
+            // stored as each level finished (Msg::Store)
+            vec![],
+            vec![],
+            &records,
+        );
+        if let Err(e) = self.commit_settled(slot, &job.id, commit).await {
             // The results could not be written: do not leave the job running.
-            Self::unsettle(slot, &job.id);
             tracing::error!(job = %job.id, "storing the results failed: {e}");
             let p = problem(
                 "storage",

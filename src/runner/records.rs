@@ -256,7 +256,6 @@ impl Runner {
         let bench = &slot.cfg;
         let mut wait = Duration::from_millis(250);
         loop {
-            self.settle(slot);
             let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
             let records = self.job_records(
                 bench,
@@ -270,19 +269,16 @@ impl Runner {
                 &[],
                 vec![],
             );
-            match self
-                .store
-                .end_running_job(
-                    &job.id,
-                    state,
-                    Some(p),
-                    bench_time_s,
-                    log,
-                    warnings,
-                    &records,
-                )
-                .await
-            {
+            let commit = self.store.end_running_job(
+                &job.id,
+                state,
+                Some(p),
+                bench_time_s,
+                log,
+                warnings,
+                &records,
+            );
+            match self.commit_settled(slot, &job.id, commit).await {
                 Ok(ended) => {
                     if ended && !records.messages.is_empty() && !records.webhooks.is_empty() {
                         self.outbox.notify_one();
@@ -291,7 +287,6 @@ impl Runner {
                 }
                 Err(e) if self.shutdown.load(Ordering::SeqCst) => return Err(e),
                 Err(e) => {
-                    Self::unsettle(slot, &job.id);
                     tracing::error!(job = %job.id, "ending the job {} failed, trying again: {e}", state.as_str());
                     tokio::time::sleep(wait).await;
                     wait = (wait * 2).min(Duration::from_secs(2));
