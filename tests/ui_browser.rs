@@ -565,6 +565,25 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
                 );
                 assert_eq!(drawn, json!([[x], [k]]), "Xpeak {x} mm, Keff {k} N/mm");
             }
+            if name == "measurement" && role == "viewer" {
+                // p1_spider's residual is within its noise floor, so its
+                // model error is 0: the page says why, with both figures,
+                // rather than a bare "0 %" that reads as a perfect model.
+                let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+                let model = &m["model"];
+                assert_eq!(model["model_error_percent"], json!(0.0), "{model}");
+                let sig4 =
+                    |v: f64| format!("{:.*}", (3 - v.log10().floor() as i32).max(0) as usize, v);
+                let (r, n) = (
+                    sig4(model["residual_percent"].as_f64().unwrap()),
+                    sig4(model["noise_floor_percent"].as_f64().unwrap()),
+                );
+                let shown = b.text("#fig-model-error").await;
+                assert_eq!(
+                    shown,
+                    format!("0 % of RMS(m\u{b7}x\u{2033}): the residual {r} % is within the noise floor {n} %"),
+                );
+            }
             if name == "diagnostics" {
                 let add = b.exists("#candidates button").await;
                 assert_eq!(add, role != "viewer", "'add this effect' for {role}");
@@ -1624,6 +1643,31 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
                 json!([["unreliable", 1], ["unreliable", 2], ["unreliable", 2]]),
                 "{notes}"
             );
+            // Each cell stands under its own header: P1's row read by header.
+            let p1 = b
+                .js(
+                    "const t = document.querySelector('#report-parameters');
+                     const heads = [...t.querySelectorAll('thead th')].map(th => th.textContent);
+                     const cells = [...t.querySelector('tbody tr').children].map(td => td.textContent);
+                     return { n: [heads.length, cells.length], row: Object.fromEntries(heads.map((h, i) => [h, cells[i]])) };",
+                    vec![],
+                )
+                .await;
+            assert_eq!(p1["n"][0], p1["n"][1], "{p1}");
+            assert_eq!(p1["row"]["part"], "P1-REPORT", "{p1}");
+            assert!(
+                p1["row"]["Keff at Xpeak"]
+                    .as_str()
+                    .unwrap()
+                    .ends_with("N/mm"),
+                "{p1}"
+            );
+            assert!(
+                p1["row"]["Xpeak"].as_str().unwrap().ends_with(" mm"),
+                "{p1}"
+            );
+            // p1_spider's residual is within its noise floor.
+            assert_eq!(p1["row"]["model error"], "0 % (\u{2264} noise)", "{p1}");
         }
         b.screenshot_sizes(name).await;
         for letter in [false, true] {

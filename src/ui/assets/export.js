@@ -84,6 +84,7 @@ export function parameters(doc) {
   const kname = kv.state === 'not_determined' ? 'K(x) fit coefficient (diagnostic, not a measurement)' : 'K(x) coefficient';
   c.forEach((k, i) => out.push(prow(`${kname} k${i}`, `stiffness.coefficients_n_per_m_pow_i_plus_1[${i}]`, k, se[i], i === 0 ? 'N/m' : `N/m^${i + 1}`, kstate)));
   out.push(...hrows(doc, 'mechanical resistance R (large signal)', 'stiffness.r_ns_per_m', st.r_ns_per_m, st.r_se_ns_per_m, 'N s/m'));
+  out.push(prow('residual', 'model.residual_percent', m.residual_percent, null, '%', 'valid'));
   out.push(prow('model error', 'model.model_error_percent', m.model_error_percent, null, '%', 'valid'));
   out.push(prow('noise floor', 'model.noise_floor_percent', m.noise_floor_percent, null, '%', 'valid'));
   for (const [effect, ps] of Object.entries(m.effects || pick(doc, 'model.effects') || {})) {

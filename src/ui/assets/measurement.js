@@ -6,7 +6,7 @@
 // clipboard), the printable report and the recordings to download.
 
 import { api, download } from './api.js';
-import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated } from './util.js';
+import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated, modelErrorText } from './util.js';
 import { chart } from './plots.js';
 import { verdictCard } from './verdict.js';
 import { parametersCsv, curvesCsv, exportJson, saveText, copyText, GRID_POINTS } from './export.js';
@@ -146,7 +146,7 @@ export function figuresTable(doc) {
     ss ? row('R (small signal)', stated(withSe(ss.r_ns_per_m, ss.r_se_ns_per_m, 'N\u00b7s/m'), v('small_signal.r_ns_per_m'), { unit: 'N\u00b7s/m', id: 'fig-r-small' })) : null,
     ss ? row('Q (small signal)', stated(withSe(ss.q, ss.q_se), qValidity(doc), { id: 'fig-q' })) : null,
     row('R (large signal)', stated(withSe(st.r_ns_per_m, st.r_se_ns_per_m, 'N\u00b7s/m'), v('stiffness.r_ns_per_m'), { unit: 'N\u00b7s/m', raw: st.r_ns_per_m, id: 'fig-r' })),
-    row('model error', h('span', { id: 'fig-model-error' }, q(model.model_error_percent, '% of RMS(m\u00b7x\u2033)', 1, 3))),
+    row('model error', h('span', { id: 'fig-model-error' }, modelErrorText(model, '% of RMS(m\u00b7x\u2033)'))),
     row('noise floor', q(model.noise_floor_percent, '%', 1, 3)),
     row('effects in the model', effectsText(model.effects)),
     row('method, order', `${pick(doc, 'stiffness.method') || '\u2013'}, ${pick(doc, 'stiffness.order') ?? '\u2013'}`),
@@ -304,7 +304,7 @@ function fitsCard(id, fits, headline, ctx) {
         fits.map((f) => h('tr', { class: f.id === chosen ? 'current' : '', dataset: { fit: f.id } },
           h('td', { class: 'mono' }, shortId(f.id)),
           h('td', {}, eff(f)),
-          h('td', {}, q(pick(f, 'result.model.model_error_percent'), '%', 1, 3)),
+          h('td', {}, modelErrorText(pick(f, 'result.model'))),
           h('td', {}, q((pick(f, 'result.stiffness.coefficients_n_per_m_pow_i_plus_1') || [])[0], 'N/mm', 1e-3)),
           h('td', {}, when(f.created_at)),
           h('td', {}, f.id === chosen ? h('strong', {}, 'headline') : btn(f.id, 'use as headline')))))),

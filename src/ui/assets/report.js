@@ -6,7 +6,7 @@
 // curves overlaid. Print it with the browser (Ctrl+P, or "Print" here).
 
 import { api } from './api.js';
-import { h, put, q, when, shortId, poly, polyIntegral, linspace, withSe, displayUnit, coefUnitMm, VERDICT_WORDS, validityOf, stated } from './util.js';
+import { h, put, q, when, shortId, poly, polyIntegral, linspace, withSe, displayUnit, coefUnitMm, VERDICT_WORDS, validityOf, stated, modelErrorText } from './util.js';
 import { chart, COLORS } from './plots.js';
 import { stiffnessMm, headlineDoc, drawCurves, drawLevels, effectsText, recipeBands } from './measurement.js';
 import { parameters } from './export.js';
@@ -108,14 +108,18 @@ async function comparisonReport(main, ctx, ids) {
   const series = (unit) => ok.map((d, i) => ({ label: label(d), unit, color: COLORS[i % COLORS.length] }));
   const inside = (s, f) => xs.map((x) => (x >= s.lo - 1e-9 && x <= s.hi + 1e-9 ? f(x) : null));
   const els = ['kx', 'cx', 'fx', 'levels'].map((k) => h('div', { id: `report-${k}` }));
+  // One software version for all (the usual case) is said once, in the
+  // header, which leaves the table's width to the values.
+  const versions = [...new Set(docs.map((d) => d.measurement.software_version))];
+  const oneSoftware = versions.length === 1;
   put(main,
     printButton(),
     h('article', { class: 'report', id: 'report', dataset: { compare: ids.join(',') } },
       h('header', { class: 'report-head' },
         h('h1', {}, `Suspension comparison report: ${ok.length} measurements`),
-        h('p', { class: 'muted' }, `printed ${when(new Date().toISOString())}`)),
+        h('p', { class: 'muted' }, `printed ${when(new Date().toISOString())}${oneSoftware ? `; every measurement by Springbench ${versions[0]}` : ''}`)),
       h('table', { class: 'list report-params report-compare', id: 'report-parameters' },
-        h('thead', {}, h('tr', {}, ['', 'part', 'measurement', 'measured', 'verdict', 'Keff at Xpeak', 'Xpeak', 'k0 (small signal)', 'f0', 'model error', 'software'].map((t) => h('th', {}, t)))),
+        h('thead', {}, h('tr', {}, ['', 'part', 'measurement', 'measured', 'verdict', 'Keff at Xpeak', 'Xpeak', 'k0 (small signal)', 'f0', 'model error', oneSoftware ? null : 'software'].filter((t) => t !== null).map((t) => h('th', {}, t)))),
         h('tbody', {}, docs.map((d) => {
           const i = ok.indexOf(d);
           const ls = d.large_signal || {};
@@ -131,8 +135,8 @@ async function comparisonReport(main, ctx, ids) {
             h('td', { class: 'num' }, q(ls.xpeak_m, 'mm', 1e3)),
             h('td', { class: 'num' }, stated(withSe(ss.k0_n_per_m, ss.k0_se_n_per_m, 'N/mm', 1e-3), validityOf(d, 'small_signal.k0_n_per_m'), { unit: 'N/mm', scale: 1e-3 })),
             h('td', { class: 'num' }, stated(withSe(ss.f0_hz, ss.f0_se_hz, 'Hz'), validityOf(d, 'small_signal.f0_hz'), { unit: 'Hz' })),
-            h('td', { class: 'num' }, q((d.model || {}).model_error_percent, '%', 1, 3)),
-            h('td', {}, d.measurement.software_version));
+            h('td', { class: 'num' }, modelErrorText(d.model, '%', true)),
+            oneSoftware ? null : h('td', {}, d.measurement.software_version));
         }))),
       h('section', { class: 'report-plots' }, h('h2', {}, 'Curves, each over its own valid range'), h('div', { class: 'report-grid' }, els))));
   reasonsAsNotes(main.querySelector('#report-parameters'));

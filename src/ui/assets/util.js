@@ -42,6 +42,24 @@ export function q(v, unit, scale = 1, digits = 4) {
   return `${num(v * scale, digits)} ${unit}`;
 }
 
+/**
+ * The model error (the residual's part above the sensor noise) with its
+ * unit. It is 0 when the residual is within the noise floor: then nothing
+ * above the noise is left to explain, which is not the same as a perfect
+ * model, so the residual and the noise floor are named beside it.
+ */
+export function modelErrorText(m, unit = '%', short = false) {
+  const e = m ? m.model_error_percent : undefined;
+  if (!Number.isFinite(e)) return '\u2013';
+  const r = m.residual_percent;
+  const n = m.noise_floor_percent;
+  if (e === 0 && Number.isFinite(r) && Number.isFinite(n)) {
+    if (short) return `0 ${unit} (\u2264 noise)`;
+    return `0 ${unit}: the residual ${num(r, 4)} % is within the noise floor ${num(n, 4)} %`;
+  }
+  return `${num(e, 3)} ${unit}`;
+}
+
 /** Seconds as "1 min 05 s" / "12 s". */
 export function dur(s) {
   if (s === undefined || s === null || !Number.isFinite(s)) return '\u2013';
