@@ -129,7 +129,8 @@ async function drawGauge(el, ctx, name, params) {
   const seen = new Set();
   const key = (c) => `${c.bench_id}/${c.procedure}`;
   const current = (cals.items || []).filter((c) => !seen.has(key(c)) && seen.add(key(c)));
-  head.push(h('h3', {}, 'Bench calibrations'), current.length
+  // After the studies: the legend above explains the studies' table, not this one.
+  const calBlock = [h('h3', {}, 'Bench calibrations'), current.length
     ? h('table', { class: 'list bench-cal-table' },
       h('thead', {}, h('tr', {}, h('th', {}, 'bench'), h('th', {}, 'procedure'), h('th', {}, 'state'), h('th', {}, 'reference bench'),
         h('th', { title: 'laser sensitivity error e: the bench reads (1 + e) x' }, 'laser'),
@@ -149,10 +150,10 @@ async function drawGauge(el, ctx, name, params) {
           h('td', {}, String((k.units || []).length)),
           h('td', {}, when(c.created_at)));
       })))
-    : h('p', { class: 'muted', id: 'no-bench-cal' }, 'No bench calibration: every bench is judged as measured (POST /api/v1/recipes/NAME/bench-calibrations; docs/qc.md, \u201cBench calibration\u201d).'));
+    : h('p', { class: 'muted', id: 'no-bench-cal' }, 'No bench calibration: every bench is judged as measured (POST /api/v1/recipes/NAME/bench-calibrations; docs/qc.md, \u201cBench calibration\u201d).')];
   const mine = (list.items || []).filter((s) => s.recipe === name).slice(0, 5);
   if (!mine.length) {
-    put(el, ...head, h('p', { class: 'muted', id: 'no-gauge' }, 'No gauge study of this recipe yet (POST /api/v1/gauge-studies; docs/qc.md, \u201cGauge study\u201d).'));
+    put(el, ...head, h('p', { class: 'muted', id: 'no-gauge' }, 'No gauge study of this recipe yet (POST /api/v1/gauge-studies; docs/qc.md, \u201cGauge study\u201d).'), ...calBlock);
     return;
   }
   const docs = await Promise.all(mine.map((s) => api(`/api/v1/gauge-studies/${s.id}`).catch((e) => ({ id: s.id, error: e.message }))));
@@ -196,7 +197,7 @@ async function drawGauge(el, ctx, name, params) {
         ? h('ul', { class: 'error' }, g.not_computed.map((n) => h('li', {}, `${label(n.parameter)}: not computed, ${n.reason}`)))
         : null);
   });
-  put(el, ...head, ...studies);
+  put(el, ...head, ...studies, ...calBlock);
 }
 
 function drawProposals(el, ctx, name, items) {
