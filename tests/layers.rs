@@ -178,11 +178,7 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// A file's code without comments, and without its unit tests (a test may
 /// use a module above the one it tests; the layering is about the code).
 fn code_of(path: &Path) -> String {
-    let text = std::fs::read_to_string(path).unwrap();
-    let text = match text.find("#[cfg(test)]\nmod ") {
-        Some(i) => &text[..i],
-        None => &text[..],
-    };
+    let text = without_test_modules(&std::fs::read_to_string(path).unwrap());
     if path
         .file_name()
         .is_some_and(|n| n.to_string_lossy().ends_with("_tests.rs"))
@@ -196,6 +192,36 @@ fn code_of(path: &Path) -> String {
         })
         .collect::<Vec<_>>()
         .join("\n")
+}
+
+/// `text` without its `#[cfg(test)]` modules: a `mod x;` line, or a
+/// `mod x { ... }` block up to its closing `}` at the start of a line (the
+/// code is rustfmt-formatted; CI checks that). Only the module is left
+/// out: code after it is still read.
+fn without_test_modules(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
+        if line == "#[cfg(test)]" {
+            let mut rest = lines.clone();
+            if let Some(next) = rest.next() {
+                if next.starts_with("mod ") {
+                    lines = rest;
+                    if next.ends_with('{') {
+                        for l in lines.by_ref() {
+                            if l == "}" {
+                                break;
+                            }
+                        }
+                    }
+                    continue;
+                }
+            }
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
 }
 
 /// The top-level module a file belongs to (`src/api/jobs.rs` -> `api`);
@@ -350,6 +376,13 @@ fn circle_finder_finds_a_circle() {
         g.entry(b.into()).or_default();
     }
     assert_eq!(circles(&g), vec![vec!["a", "b", "c"]]);
+    // A test module is left out, the code after it is read.
+    assert_eq!(
+        without_test_modules(
+            "use crate::a;\n#[cfg(test)]\nmod tests {\n    use crate::t;\n}\nuse crate::b;\n#[cfg(test)]\nmod more;\nuse crate::c;\n"
+        ),
+        "use crate::a;\nuse crate::b;\nuse crate::c;\n"
+    );
     assert_eq!(
         crate_refs("use crate::{api, ui::x};\nlet a = crate::store::Store;"),
         ["api", "store", "ui"]
