@@ -1872,6 +1872,48 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
                 );
             }
         }
+        // Each distinct reason is written out once; a repeat keeps its state
+        // word and folds its reason away under the value that has it.
+        let reasons = b
+            .js(
+                "const shown = {}, folded = [];
+                 for (const r of document.querySelector('#figures').parentElement.querySelectorAll('.validity-reason')) {
+                   const d = r.closest('details');
+                   if (d && !d.open) folded.push(d.querySelector('summary').textContent);
+                   else shown[r.textContent] = (shown[r.textContent] || 0) + 1;
+                 }
+                 return { shown, folded };",
+                vec![],
+            )
+            .await;
+        let distinct: std::collections::BTreeSet<&str> = states
+            .iter()
+            .filter(|(_, s, _)| s != "valid")
+            .map(|(_, _, r)| r.as_str())
+            .collect();
+        for r in &distinct {
+            assert_eq!(
+                reasons["shown"][*r],
+                json!(1),
+                "{serial}: '{r}' written once: {reasons}"
+            );
+        }
+        assert!(
+            reasons["folded"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|f| f.as_str().unwrap().starts_with("the same reason as ")),
+            "{serial}: {reasons}"
+        );
+        if serial == "SN-DARK" {
+            // Keff, Ceff's pointer aside, the resonance, K(x), R and the
+            // coefficients share the noise-floor reason.
+            assert!(
+                reasons["folded"].as_array().unwrap().len() >= 3,
+                "{reasons}"
+            );
+        }
         // Ceff at Xpeak is 1/Keff: it shows Keff's state, never a plain number
         // beside an unreliable Keff.
         let keff_state = at(&doc, "large_signal.validity.keff_n_per_m")["state"].clone();

@@ -6,7 +6,7 @@
 // clipboard), the printable report and the recordings to download.
 
 import { api, download } from './api.js';
-import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated, modelErrorText } from './util.js';
+import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated, modelErrorText, foldRepeatedReasons } from './util.js';
 import { chart } from './plots.js';
 import { verdictCard } from './verdict.js';
 import { parametersCsv, curvesCsv, exportJson, saveText, copyText, GRID_POINTS } from './export.js';
@@ -380,7 +380,7 @@ export async function render(main, ctx) {
         ? h('p', { class: 'headline-note', id: 'headline-source', dataset: { fit: fit.id } }, `Headline from fit ${shortId(fit.id)} (${((fit.request && fit.request.effects) || []).map(effectName).join(', ') || 'refit'}), chosen by ${info.headline.chosen_by || 'open access'} at ${when(info.headline.chosen_at)}.`)
         : h('p', { class: 'muted', id: 'headline-source', dataset: { fit: '' } }, 'Headline from the measurement\u2019s own result.'),
       (shown.warnings || []).length ? h('ul', { class: 'warnings', id: 'warnings' }, shown.warnings.map((w) => h('li', {}, w))) : null,
-      h('div', { class: 'two' }, figuresTable(shown), coefficientTable(shown)),
+      foldRepeatedReasons(h('div', { class: 'two', id: 'headline-values' }, figuresTable(shown), coefficientTable(shown))),
     ),
     info.verdict ? verdictCard(info.verdict, { title: 'QC verdict of this measurement', id: 'measurement-verdict' }) : null,
     h('section', { class: 'card' }, h('h2', {}, 'Stiffness, compliance, force and Keff(Xpeak) (shaded: outside the measured, valid range)'), plotsEl),

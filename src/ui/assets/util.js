@@ -278,6 +278,30 @@ export function stateText(v) {
 }
 
 /**
+ * Each reason written out once: a value whose reason repeats an earlier
+ * value's keeps its state word, and its reason folds away under "the same
+ * reason as <that value>" (the text stays on the page, one click away).
+ * A dark surface made five values unreliable for one reason, written five
+ * times.
+ */
+export function foldRepeatedReasons(el) {
+  const first = new Map();
+  for (const why of el.querySelectorAll('.validity-reason')) {
+    const text = why.textContent;
+    if (!first.has(text)) {
+      const th = why.closest('tr') && why.closest('tr').querySelector('th');
+      first.set(text, th ? th.textContent : '');
+      continue;
+    }
+    const at = first.get(text);
+    const fold = h('details', { class: 'validity-again' }, h('summary', {}, at ? `the same reason as ${at}` : 'the same reason as above'));
+    why.replaceWith(fold);
+    fold.append(why);
+  }
+  return el;
+}
+
+/**
  * A headline value as every page shows it: `text` (the formatted number)
  * when valid; with its state word and reason visible when not; a
  * `not_determined` value shows no number, the fit's own number (the
