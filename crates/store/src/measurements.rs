@@ -9,17 +9,20 @@ use crate::{now, parse_json, Store, StoreError, StoreResult};
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
+// The summary's numbers are taken with `->` (the JSON text as stored, every
+// digit), not `json_extract` (a REAL, which `json_object` prints with 15
+// significant digits): the same numbers as the result document and the center's.
 macro_rules! meas_select {
     () => {
         "SELECT m.seq, m.id, m.part_serial, m.job_id, m.source, m.bench_id, m.software_version, \
      m.target_xpeak_m, m.repeat_index, m.level_index, m.analysis_error, m.created_at, m.config_json, \
-     json_object('keff_n_per_m', json_extract(m.result_json, '$.large_signal.keff_n_per_m'), \
+     json_object('keff_n_per_m', m.result_json -> '$.large_signal.keff_n_per_m', \
                  'keff_validity', json_extract(m.result_json, '$.large_signal.validity.keff_n_per_m'), \
                  'resonance_validity', json_extract(m.result_json, '$.large_signal.validity.resonance_hz'), \
-                 'xpeak_m', json_extract(m.result_json, '$.large_signal.xpeak_m'), \
-                 'resonance_hz', json_extract(m.result_json, '$.large_signal.resonance_hz'), \
+                 'xpeak_m', m.result_json -> '$.large_signal.xpeak_m', \
+                 'resonance_hz', m.result_json -> '$.large_signal.resonance_hz', \
                  'k0_n_per_m', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 THEN NULL \
-                                    ELSE json_extract(m.result_json, '$.small_signal.k0_n_per_m') END, \
+                                    ELSE m.result_json -> '$.small_signal.k0_n_per_m' END, \
                  'k0_null_reason', CASE WHEN json_extract(m.result_json, '$.small_signal.reliable') = 0 \
                                     THEN printf('small_signal.reliable is false (k0 %.1f +- %.1f N/m, misfit %.2f %%): not a plain number', \
                                          json_extract(m.result_json, '$.small_signal.k0_n_per_m'), \

@@ -37,6 +37,9 @@ fn recording(kind: &'static str, tag: u8) -> NewRecording {
     }
 }
 
+/// A Keff of 16 significant digits (the summary must keep them all).
+const KEFF: f64 = 2781.628737573798;
+
 /// A result document with the figures the listing's `summary` is made of.
 fn result(keff_n_per_m: f64, k0_n_per_m: f64, reliable: bool) -> Value {
     json!({
@@ -116,7 +119,7 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
         Some("spider"),
         T1,
         Some(0),
-        Some(result(1234.5, 1500.0, true)),
+        Some(result(KEFF, 1500.0, true)),
         vec![verdict("m-1", "P-1", "pass")],
     );
     let mut m2 = finished(
@@ -176,9 +179,10 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
     assert_eq!(info.level_index, Some(0));
     assert_eq!(info.target_xpeak_m, Some(0.002));
     assert_eq!(info.bench_id.as_deref(), Some("line-1"));
-    assert_eq!(doc, Some(result(1234.5, 1500.0, true)));
+    assert_eq!(doc, Some(result(KEFF, 1500.0, true)));
     assert_eq!(meta, json!({"sample_rate_hz": 48000, "id": "m-1"}));
-    assert_eq!(info.summary["keff_n_per_m"], json!(1234.5));
+    // Every digit, as in the result document (a REAL printed with 15 digits lost them).
+    assert_eq!(info.summary["keff_n_per_m"], json!(KEFF));
     assert_eq!(info.summary["xpeak_m"], json!(0.002));
     assert_eq!(info.summary["resonance_hz"], json!(31.5));
     assert_eq!(info.summary["k0_n_per_m"], json!(1500.0));
