@@ -11,11 +11,18 @@
 //! order, each station's item sequence without gaps, and the fleet's SPC
 //! equals what the stations' own values give.
 //!
+//! Beside it: the fleet role serving the web UI and a station's reads from
+//! the center (the same values as at the station, the station in every
+//! row), in HTTP and in a browser.
+//!
 //! Without PostgreSQL binaries the test prints why it skips;
 //! `SPRINGBENCH_PG_TESTS=require` (set by `.ci/run`) makes that a failure.
 
+mod browser;
 mod common;
+mod contract_check;
 
+use browser::Browser;
 use common::{client, Daemon};
 use serde_json::{json, Value};
 use springbench::qc::spc::{compute, SpcPoint};
@@ -42,6 +49,44 @@ fn recipe() -> Value {
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     })
+}
+
+/// The center holds the recipe; the stations pull it.
+async fn center_holds_the_recipe(url: &str) {
+    let center = PgStore::connect(url).await.unwrap();
+    let r: springbench::qc::Recipe = serde_json::from_value(recipe()).unwrap();
+    center
+        .write_recipe(
+            RECIPE,
+            &r.sha256(),
+            &recipe(),
+            "created",
+            Some("qc-engineer"),
+            springbench::store::qc::RecipeExpect::Absent,
+        )
+        .await
+        .unwrap();
+    center.close().await;
+}
+
+/// Waits until the station `d` holds the center's recipe.
+async fn recipe_arrived(c: &reqwest::Client, id: &str, d: &Daemon) {
+    let t0 = Instant::now();
+    loop {
+        let r = c
+            .get(d.url(&format!("/api/v1/recipes/{RECIPE}")))
+            .send()
+            .await
+            .unwrap();
+        if r.status().as_u16() == 200 {
+            return;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{id} never got the recipe"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
 }
 
 async fn get(c: &reqwest::Client, base: &str, path: &str) -> Value {
@@ -212,23 +257,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     }
     let pg = TestServer::start(55471).expect("a private PostgreSQL server");
     let url = pg.url();
-    // The center holds the recipe; the stations pull it.
-    {
-        let center = PgStore::connect(&url).await.unwrap();
-        let r: springbench::qc::Recipe = serde_json::from_value(recipe()).unwrap();
-        center
-            .write_recipe(
-                RECIPE,
-                &r.sha256(),
-                &recipe(),
-                "created",
-                Some("qc-engineer"),
-                springbench::store::qc::RecipeExpect::Absent,
-            )
-            .await
-            .unwrap();
-        center.close().await;
-    }
+    center_holds_the_recipe(&url).await;
     let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
     let mut proxies = vec![];
     for _ in 0..3 {
@@ -250,22 +279,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let c = client();
     // Each station runs the recipe it pulled from the center.
     for (id, d) in &stations {
-        let t0 = Instant::now();
-        loop {
-            let r = c
-                .get(d.url(&format!("/api/v1/recipes/{RECIPE}")))
-                .send()
-                .await
-                .unwrap();
-            if r.status().as_u16() == 200 {
-                break;
-            }
-            assert!(
-                t0.elapsed() < Duration::from_secs(60),
-                "{id} never got the recipe"
-            );
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
+        recipe_arrived(&c, id, d).await;
     }
 
     // Concurrent polling while the lots run.
@@ -803,7 +817,11 @@ async fn corrections_over_the_api_keep_an_audit_trail() {
         (v["kind"].as_str(), v["made_by"].as_str()),
         (Some("void_measurement"), Some("lab"))
     );
-    read(format!("/api/v1/measurements/{}", mids[0])).await;
+    // The measurement stays readable and says that (and by which correction) it was voided.
+    let m0 = read(format!("/api/v1/measurements/{}", mids[0])).await;
+    assert_eq!(m0["measurement"]["void_correction_id"], v["id"], "{m0}");
+    let m1 = read(format!("/api/v1/measurements/{}", mids[1])).await;
+    assert_eq!(m1["measurement"]["void_correction_id"], Value::Null);
     assert_eq!(spc_ids().await, (vec![mids[1].clone()], 1));
     let r = admin(c.post(d.url("/api/v1/corrections")))
         .json(&void)
@@ -857,4 +875,586 @@ async fn corrections_over_the_api_keep_an_audit_trail() {
         common::problem(bad, 422).await["errors"][0]["field"],
         "limit"
     );
+}
+
+/// A station (open access, `[fleet]` straight to `pg`) that ran two jobs of
+/// the recipe and voided the measurement of the second, everything at the
+/// center; and the fleet daemon on the same database.
+struct OneStation {
+    /// The center's database.
+    url: String,
+    fleet: Daemon,
+    station: Daemon,
+    jobs: Vec<String>,
+    /// The measurements of each job.
+    mids: Vec<Vec<String>>,
+    void_id: String,
+}
+
+const STATION: &str = "line-7";
+
+async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
+    let url = pg.url();
+    center_holds_the_recipe(&url).await;
+    let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
+    let station = Daemon::start(&format!(
+        "[fleet]\ncenter = \"{url}\"\nstation_id = \"{STATION}\"\nrecordings = \"reference\"\nretry_max_s = 1\n\
+         [[benches]]\nid = \"virtual-1\"\nseed = 7\n"
+    ));
+    let c = client();
+    recipe_arrived(&c, STATION, &station).await;
+    let (mut jobs, mut mids) = (vec![], vec![]);
+    for serial in ["U1", "U2"] {
+        let r = c
+            .post(station.url("/api/v1/jobs"))
+            .json(&json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 202);
+        let id = r.json::<Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        let j = common::wait_job(
+            &c,
+            &station,
+            &id,
+            Duration::from_secs(300),
+            common::terminal,
+        )
+        .await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let m = get(&c, &station.base, &format!("/api/v1/measurements?job={id}")).await;
+        mids.push(
+            m["items"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x["id"].as_str().unwrap().to_string())
+                .collect::<Vec<_>>(),
+        );
+        jobs.push(id);
+    }
+    let r = c
+        .post(station.url("/api/v1/corrections"))
+        .json(&json!({"kind": "void_measurement", "part_serial": "U2",
+            "measurement_id": mids[1][0], "reason": "spider torn at the clamp"}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let void_id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    // Replicated: both jobs' verdicts and the void (the station's last item).
+    let t0 = Instant::now();
+    loop {
+        let v = c
+            .get(fleet.url(&format!("/api/v1/measurements/{}", mids[1][0])))
+            .send()
+            .await
+            .unwrap();
+        let done = v.status().as_u16() == 200
+            && v.json::<Value>().await.unwrap()["measurement"]["void_correction_id"]
+                == json!(void_id);
+        if done {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the station's items did not reach the center"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    OneStation {
+        url,
+        fleet,
+        station,
+        jobs,
+        mids,
+        void_id,
+    }
+}
+
+/// Takes every `station_id` out of `v`; returns how many named `station`
+/// (and fails on another station's).
+fn strip_station(v: &mut Value, station: &str) -> usize {
+    match v {
+        Value::Object(m) => {
+            let mut n = 0;
+            if let Some(s) = m.remove("station_id") {
+                assert_eq!(s, json!(station));
+                n += 1;
+            }
+            n + m
+                .values_mut()
+                .map(|x| strip_station(x, station))
+                .sum::<usize>()
+        }
+        Value::Array(a) => a.iter_mut().map(|x| strip_station(x, station)).sum(),
+        _ => 0,
+    }
+}
+
+/// Takes the times out of every part row (an object with `measurement_count`).
+fn without_part_times(v: &mut Value) {
+    match v {
+        Value::Object(m) => {
+            if m.contains_key("measurement_count") {
+                m.remove("created_at");
+                m.remove("updated_at");
+            }
+            m.values_mut().for_each(without_part_times);
+        }
+        Value::Array(a) => a.iter_mut().for_each(without_part_times),
+        _ => {}
+    }
+}
+
+/// The fleet role serves a station's reads that the UI's parts,
+/// measurement, compare and QC views use, from the center's store: every
+/// answer equals the station's own, value for value, once the station of
+/// each row is taken out; each listed row names its station; a void made
+/// at the station reads the same at both; nothing that writes or runs a
+/// bench is offered at the center.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_center_answers_the_stations_reads_with_the_stations_values() {
+    if !can_start_private("center reads test") {
+        return;
+    }
+    let pg = TestServer::start(55472).expect("a private PostgreSQL server");
+    let o = one_station_at_the_center(&pg).await;
+    let c = client();
+    let (m1, m2) = (&o.mids[0][0], &o.mids[1][0]);
+    let mut paths = vec![
+        "/api/v1/parts".to_string(),
+        "/api/v1/parts?limit=1".into(),
+        "/api/v1/parts/U1".into(),
+        "/api/v1/parts/U1/measurements".into(),
+        "/api/v1/parts/U1/verdict".into(),
+        "/api/v1/parts/U2/verdict".into(),
+        "/api/v1/parts/U9".into(),
+        format!("/api/v1/measurements?job={}", o.jobs[1]),
+        "/api/v1/measurements?part=U1&limit=0".into(),
+        "/api/v1/recipes".into(),
+        format!("/api/v1/recipes/{RECIPE}"),
+        format!("/api/v1/recipes/{RECIPE}/versions"),
+        format!("/api/v1/recipes/{RECIPE}/versions/1"),
+        format!("/api/v1/recipes/{RECIPE}/spc?parameter=keff&last=100"),
+        format!("/api/v1/recipes/{RECIPE}/spc?parameter=nope"),
+    ];
+    for (j, ms) in o.jobs.iter().zip(&o.mids) {
+        paths.push(format!("/api/v1/jobs/{j}/verdict"));
+        for m in ms {
+            paths.push(format!("/api/v1/measurements/{m}"));
+            paths.push(format!("/api/v1/measurements/{m}/fits"));
+        }
+    }
+    let mut named = 0;
+    for p in &paths {
+        let at = |d: &Daemon| c.get(d.url(p)).send();
+        let (a, b) = (at(&o.station).await.unwrap(), at(&o.fleet).await.unwrap());
+        let status = a.status().as_u16();
+        assert_eq!(status, b.status().as_u16(), "{p}");
+        let mut a: Value = a.json().await.unwrap();
+        let mut b: Value = b.json().await.unwrap();
+        if status >= 400 {
+            // The same problem: status, type and the field it names.
+            assert_eq!(
+                (&a["type"], &a["errors"]),
+                (&b["type"], &b["errors"]),
+                "{p}"
+            );
+            continue;
+        }
+        // (A station's verdicts name it in their traceability.)
+        let at_station = strip_station(&mut a, STATION);
+        named += strip_station(&mut b, STATION) - at_station;
+        // A part's times are its own at each: at the station from its first
+        // job's submission, at the center from its oldest measurement.
+        without_part_times(&mut a);
+        without_part_times(&mut b);
+        assert_eq!(a, b, "{p}: the center's answer differs from the station's");
+    }
+    // Each row a view lists names its station at the center.
+    let rows = |v: &Value, k: &str| -> Vec<Value> {
+        v[k].as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x["station_id"].clone())
+            .collect()
+    };
+    let parts = get(&c, &o.fleet.base, "/api/v1/parts").await;
+    assert_eq!(rows(&parts, "items"), [json!(STATION), json!(STATION)]);
+    let ms = get(&c, &o.fleet.base, "/api/v1/parts/U1/measurements").await;
+    assert_eq!(rows(&ms, "items"), vec![json!(STATION); o.mids[0].len()]);
+    let jv = get(
+        &c,
+        &o.fleet.base,
+        &format!("/api/v1/jobs/{}/verdict", o.jobs[0]),
+    )
+    .await;
+    assert_eq!(jv["station_id"], STATION);
+    assert!(named >= 10, "{named} rows named the station");
+    // The figures themselves, at both: K(x), Keff, the verdict and its value.
+    let doc = |d: &Daemon| {
+        let (c, base) = (c.clone(), d.base.clone());
+        async move { get(&c, &base, &format!("/api/v1/measurements/{m1}")).await }
+    };
+    let (a, b) = (doc(&o.station).await, doc(&o.fleet).await);
+    let keff = a["large_signal"]["keff_n_per_m"].as_f64().unwrap();
+    assert!(keff.is_finite() && keff > 0.0, "{keff}");
+    assert_eq!(b["large_signal"]["keff_n_per_m"].as_f64(), Some(keff));
+    let kx = a["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone();
+    assert!(kx.as_array().is_some_and(|k| k.len() >= 3), "{kx}");
+    assert_eq!(b["stiffness"]["coefficients_n_per_m_pow_i_plus_1"], kx);
+    let verdict = a["measurement"]["verdict"]["verdict"].clone();
+    assert!(verdict == "pass" || verdict == "fail", "{verdict}");
+    assert_eq!(b["measurement"]["verdict"]["verdict"], verdict);
+    assert_eq!(b["measurement"]["verdict"]["station_id"], STATION);
+    let judged = a["measurement"]["verdict"]["detail"]["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "keff")
+        .unwrap()["value"]
+        .as_f64()
+        .unwrap();
+    assert!(judged.is_finite() && judged > 0.0, "{judged}");
+    // SPC leaves the voided U2 out at both: one point, the Keff U1 was judged by.
+    let spc = get(
+        &c,
+        &o.fleet.base,
+        &format!("/api/v1/recipes/{RECIPE}/spc?parameter=keff"),
+    )
+    .await;
+    assert_eq!(
+        (spc["n"].as_i64(), spc["mean"].as_f64()),
+        (Some(1), Some(judged)),
+        "{spc}"
+    );
+    let voided = get(&c, &o.fleet.base, &format!("/api/v1/measurements/{m2}")).await;
+    assert_eq!(
+        voided["measurement"]["void_correction_id"],
+        json!(o.void_id)
+    );
+    // The center offers no job, bench or write.
+    let session = get(&c, &o.fleet.base, "/api/v1/session").await;
+    assert_eq!(session["daemon"], "center");
+    assert_eq!(
+        get(&c, &o.station.base, "/api/v1/session").await["daemon"],
+        "station"
+    );
+    for p in [
+        "/api/v1/jobs",
+        "/api/v1/benches",
+        "/api/v1/events",
+        "/api/v1/gauge-studies",
+    ] {
+        let r = c.get(o.fleet.url(p)).send().await.unwrap();
+        common::problem(r, 404).await;
+    }
+    let r = c
+        .post(o.fleet.url("/api/v1/jobs"))
+        .json(&json!({"part": {"serial": "U3"}}))
+        .send()
+        .await
+        .unwrap();
+    common::problem(r, 405).await;
+    let ui = c.get(o.fleet.url("/")).send().await.unwrap();
+    assert_eq!(ui.status().as_u16(), 200);
+    assert!(ui.text().await.unwrap().contains("/ui/app.js"));
+    fleet_role_contract(&o).await;
+}
+
+/// Every route of the fleet role (its `/api/v1/fleet/...` and the station's
+/// reads it serves) against the OpenAPI document, strictly as
+/// `tests/contract.rs` checks a station's: each answers a validated success
+/// and, where it takes parameters, a 422 naming the bad one.
+async fn fleet_role_contract(o: &OneStation) {
+    let c = client();
+    let mut k = contract_check::Contract::new(
+        serde_json::from_str(springbench::api::openapi::json()).unwrap(),
+    );
+    let (m1, m2, j1) = (&o.mids[0][0], &o.mids[1][0], &o.jobs[0]);
+    let r = RECIPE;
+    let f = "/api/v1/fleet";
+    #[rustfmt::skip]
+    let cases: Vec<(&str, String, u16, Option<&str>)> = vec![
+        ("/healthz", "/healthz".into(), 200, None),
+        ("/api/v1/session", "/api/v1/session".into(), 200, None),
+        ("/api/v1/fleet/stations", format!("{f}/stations"), 200, None),
+        ("/api/v1/fleet/stations", format!("{f}/stations?x=1"), 422, Some("x")),
+        ("/api/v1/fleet/parts", format!("{f}/parts"), 200, None),
+        ("/api/v1/fleet/parts", format!("{f}/parts?limit=0"), 422, Some("limit")),
+        ("/api/v1/fleet/parts/{serial}", format!("{f}/parts/U1"), 200, None),
+        ("/api/v1/fleet/parts/{serial}", format!("{f}/parts/U9"), 404, None),
+        ("/api/v1/fleet/measurements", format!("{f}/measurements?station={STATION}"), 200, None),
+        ("/api/v1/fleet/measurements", format!("{f}/measurements?part=U1&job={j1}"), 200, None),
+        ("/api/v1/fleet/measurements", format!("{f}/measurements?cursor=x"), 422, Some("cursor")),
+        ("/api/v1/fleet/measurements", format!("{f}/measurements?station={STATION}&part=U1"), 422, Some("station")),
+        ("/api/v1/fleet/measurements/{id}", format!("{f}/measurements/{m2}"), 200, None),
+        ("/api/v1/fleet/measurements/{id}", format!("{f}/measurements/nope"), 404, None),
+        ("/api/v1/fleet/recipes", format!("{f}/recipes"), 200, None),
+        ("/api/v1/fleet/recipes", format!("{f}/recipes?x=1"), 422, Some("x")),
+        ("/api/v1/fleet/recipes/{name}/verdicts", format!("{f}/recipes/{r}/verdicts"), 200, None),
+        ("/api/v1/fleet/recipes/{name}/verdicts", format!("{f}/recipes/{r}/verdicts?last=0"), 422, Some("last")),
+        ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/{r}/spc?parameter=keff"), 200, None),
+        ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/{r}/spc"), 422, Some("parameter")),
+        ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/nope/spc?parameter=keff"), 404, None),
+        ("/api/v1/fleet/recipes/{name}/yield", format!("{f}/recipes/{r}/yield"), 200, None),
+        ("/api/v1/fleet/recipes/{name}/yield", format!("{f}/recipes/{r}/yield?since=yesterday"), 422, Some("since")),
+        ("/api/v1/fleet/audit", format!("{f}/audit?part=U2"), 200, None),
+        ("/api/v1/fleet/audit", format!("{f}/audit?after=-1"), 422, Some("after")),
+        ("/api/v1/parts", "/api/v1/parts".into(), 200, None),
+        ("/api/v1/parts", "/api/v1/parts?limit=0".into(), 422, Some("limit")),
+        ("/api/v1/parts/{serial}", "/api/v1/parts/U1".into(), 200, None),
+        ("/api/v1/parts/{serial}", "/api/v1/parts/U9".into(), 404, None),
+        ("/api/v1/parts/{serial}/measurements", "/api/v1/parts/U1/measurements".into(), 200, None),
+        ("/api/v1/parts/{serial}/measurements", "/api/v1/parts/U1/measurements?limit=0".into(), 422, Some("limit")),
+        ("/api/v1/parts/{serial}/verdict", "/api/v1/parts/U1/verdict".into(), 200, None),
+        ("/api/v1/parts/{serial}/verdict", "/api/v1/parts/U2/verdict".into(), 404, None),
+        ("/api/v1/measurements", format!("/api/v1/measurements?job={j1}"), 200, None),
+        ("/api/v1/measurements", "/api/v1/measurements?since=x".into(), 422, Some("since")),
+        ("/api/v1/measurements/{id}", format!("/api/v1/measurements/{m1}"), 200, None),
+        ("/api/v1/measurements/{id}", format!("/api/v1/measurements/{m2}"), 200, None),
+        ("/api/v1/measurements/{id}/fits", format!("/api/v1/measurements/{m1}/fits"), 200, None),
+        ("/api/v1/jobs/{id}/verdict", format!("/api/v1/jobs/{j1}/verdict"), 200, None),
+        ("/api/v1/recipes", "/api/v1/recipes".into(), 200, None),
+        ("/api/v1/recipes/{name}", format!("/api/v1/recipes/{r}"), 200, None),
+        ("/api/v1/recipes/{name}/versions", format!("/api/v1/recipes/{r}/versions"), 200, None),
+        ("/api/v1/recipes/{name}/versions/{version}", format!("/api/v1/recipes/{r}/versions/1"), 200, None),
+        ("/api/v1/recipes/{name}/versions/{version}", format!("/api/v1/recipes/{r}/versions/9"), 404, None),
+        ("/api/v1/recipes/{name}/spc", format!("/api/v1/recipes/{r}/spc?parameter=keff"), 200, None),
+        ("/api/v1/recipes/{name}/spc", format!("/api/v1/recipes/{r}/spc?parameter=keff&format=csv"), 200, None),
+        ("/api/v1/recipes/{name}/spc", format!("/api/v1/recipes/{r}/spc?parameter=nope"), 422, Some("parameter")),
+    ];
+    // The same center with tokens: every route needs one (a viewer's
+    // does), but /healthz, /api/v1/session and the UI's pages.
+    let guarded = Daemon::start(&format!("database = \"{}\"\nbenches = []\n{TOKENS}", o.url));
+    for (route, url, status, _) in &cases {
+        let open = ["/healthz", "/api/v1/session"].contains(route);
+        let r = c.get(guarded.url(url)).send().await.unwrap();
+        assert_eq!(
+            r.status().as_u16(),
+            if open { 200 } else { 401 },
+            "{url} without a token"
+        );
+        let r = c
+            .get(guarded.url(url))
+            .bearer_auth("viewer-token-0123456789")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), *status, "{url} as a viewer");
+    }
+    for page in ["/", "/ui/app.js", "/ui/qc.js"] {
+        let r = c.get(guarded.url(page)).send().await.unwrap();
+        assert_eq!(r.status().as_u16(), 200, "{page}");
+    }
+    let s = c
+        .get(guarded.url("/api/v1/session"))
+        .bearer_auth("viewer-token-0123456789")
+        .send()
+        .await
+        .unwrap()
+        .json::<Value>()
+        .await
+        .unwrap();
+    assert_eq!(
+        (&s["role"], &s["daemon"]),
+        (&json!("viewer"), &json!("center"))
+    );
+    for (route, url, status, field) in cases {
+        let resp = c.get(o.fleet.url(&url)).send().await.unwrap();
+        let got = resp.status().as_u16();
+        let ct = resp
+            .headers()
+            .get("content-type")
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default();
+        let body = resp.bytes().await.unwrap();
+        let v = k.check("get", route, got, &ct, &body);
+        assert_eq!(got, status, "GET {url}: {v}");
+        if let Some(field) = field {
+            assert_eq!(v["errors"][0]["field"], field, "GET {url}: {v}");
+        }
+    }
+    let fleet_routes = springbench::api::fleet::paths()
+        .into_iter()
+        .chain(springbench::api::fleet::station_paths())
+        .chain(["/healthz"]);
+    for p in fleet_routes {
+        let seen = k.seen.get(&("get".to_string(), p.to_string()));
+        assert!(
+            seen.is_some_and(|st| st.iter().any(|s| *s < 300)),
+            "the fleet role's GET {p}: no validated success"
+        );
+    }
+}
+
+/// The web UI on a center, in a browser: the parts, measurement, compare
+/// and QC views show the station's data with the station named, the same
+/// figures as the same views on the station, and no job or bench control.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_ui_on_the_center_shows_the_stations_data() {
+    if !can_start_private("center UI test") {
+        return;
+    }
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let pg = TestServer::start(55474).expect("a private PostgreSQL server");
+    let o = one_station_at_the_center(&pg).await;
+    let (m1, m2) = (&o.mids[0][0], &o.mids[1][0]);
+    const T: Duration = Duration::from_secs(30);
+    let (center, station) = (o.fleet.base.clone(), o.station.base.clone());
+    // Parts: both, each with its station; no operator view.
+    b.goto(&format!("{center}/#/parts")).await;
+    b.wait_js(
+        "document.querySelectorAll('#parts tr[data-serial]').length === 2",
+        T,
+        "the parts at the center",
+    )
+    .await;
+    let cells = b
+        .js(
+            "return [...document.querySelectorAll('#parts td.station')].map((e) => e.textContent);",
+            vec![],
+        )
+        .await;
+    assert_eq!(cells, json!([STATION, STATION]));
+    assert!(b.exists("#daemon-center").await);
+    assert_eq!(
+        b.js(
+            "return document.querySelector('a[data-view=operator]').hidden;",
+            vec![]
+        )
+        .await,
+        json!(true)
+    );
+    b.assert_no_console_errors("on the center's parts view")
+        .await;
+    // A part: its measurements with their station, its verdict, no jobs table.
+    b.goto(&format!("{center}/#/part/U1")).await;
+    b.wait_js(
+        "document.querySelector('#part-measurements td.station')",
+        T,
+        "U1's measurements",
+    )
+    .await;
+    assert_eq!(b.text("#part-measurements td.station").await, STATION);
+    assert!(b.exists("#part-jobs-center").await && !b.exists("#part-jobs").await);
+    let verdict = b
+        .js(
+            "return document.querySelector('#part-verdict').dataset.verdict;",
+            vec![],
+        )
+        .await;
+    assert!(verdict == "pass" || verdict == "fail", "{verdict}");
+    b.assert_no_console_errors("on the center's part view")
+        .await;
+    // A view's text at the station and at the center (the station named at the center only).
+    async fn shown(b: &Browser, url: String, ready: &str, css: &str) -> Vec<String> {
+        b.goto(&url).await;
+        b.wait_js(ready, T, css).await;
+        let v = b
+            .js(
+                &format!("return [...document.querySelectorAll('{css}')].map((e) => e.innerText);"),
+                vec![],
+            )
+            .await;
+        serde_json::from_value(v).unwrap()
+    }
+    let fig = "#figures, #coefficients, #measurement-verdict-parameters";
+    let ready = "document.querySelector('#figures') && document.querySelector('#plot-kx canvas')";
+    let at_station = shown(&b, format!("{station}/#/measurement/{m1}"), ready, fig).await;
+    let at_center = shown(&b, format!("{center}/#/measurement/{m1}"), ready, fig).await;
+    assert_eq!(at_station.len(), 3, "{at_station:?}");
+    assert_eq!(
+        at_center, at_station,
+        "the measurement's figures differ at the center"
+    );
+    assert_eq!(b.text("#trace-station").await, STATION);
+    assert!(b.text("#measurement-origin").await.contains(STATION));
+    assert!(b.exists("#center-recordings").await && !b.exists("#open-diagnostics").await);
+    assert!(!b.exists("#headline-base").await && !b.exists("#fit-list button").await);
+    b.assert_no_console_errors("on the center's measurement view")
+        .await;
+    b.goto(&format!("{center}/#/measurement/{m2}")).await;
+    b.wait_js(
+        "document.querySelector('#measurement-void')",
+        T,
+        "the void at the center",
+    )
+    .await;
+    // Compare: the same rows, the station beside the part at the center.
+    let rows = "#compare-rows tr[data-measurement]";
+    let ready = "document.querySelectorAll('#compare-rows tr[data-measurement]').length === 2 && document.querySelector('#plot-compare canvas')";
+    let at_station = shown(
+        &b,
+        format!("{station}/#/compare?ids={m1},{m2}"),
+        ready,
+        rows,
+    )
+    .await;
+    let at_center = shown(&b, format!("{center}/#/compare?ids={m1},{m2}"), ready, rows).await;
+    let named = format!(" ({STATION})");
+    assert!(
+        at_center.iter().all(|r| r.contains(&named)),
+        "{at_center:?}"
+    );
+    let at_center: Vec<String> = at_center
+        .iter()
+        .map(|r| r.replacen(&named, "", 1))
+        .collect();
+    assert_eq!(at_center, at_station);
+    b.assert_no_console_errors("on the center's compare view")
+        .await;
+    // QC: the recipe's SPC as at the station, and per station.
+    let stats =
+        "document.querySelector('#spc-stats') && document.querySelector('#spc-stats').dataset.n";
+    let qc = format!("/#/qc/{RECIPE}?parameter=keff");
+    let at_station = shown(&b, format!("{station}{qc}"), stats, "#spc-stats").await;
+    b.goto(&format!("{center}{qc}")).await;
+    b.wait_js(
+        "document.querySelector('#spc-per-station tr[data-station]')",
+        T,
+        "SPC per station",
+    )
+    .await;
+    let at_center = b
+        .js(
+            "return [document.querySelector('#spc-stats').innerText];",
+            vec![],
+        )
+        .await;
+    assert_eq!(at_center, json!(at_station), "SPC differs at the center");
+    let n = b
+        .js(
+            "return document.querySelector('#spc-stats').dataset.n;",
+            vec![],
+        )
+        .await;
+    assert_eq!(n, json!("1"), "U2 is voided: one point");
+    let per = b
+        .js("return [...document.querySelectorAll('#spc-per-station tr[data-station]')].map((r) => [r.dataset.station, r.dataset.n]);", vec![])
+        .await;
+    assert_eq!(per, json!([[STATION, "1"]]));
+    assert!(b.exists("#center-station-only").await && !b.exists("#gauge").await);
+    b.screenshot("center-qc").await;
+    b.assert_no_console_errors("on the center's QC view").await;
+    // The operator view says why it is not here.
+    b.goto(&format!("{center}/#/operator")).await;
+    b.wait_js(
+        "document.querySelector('#center-note')",
+        T,
+        "the center's note",
+    )
+    .await;
+    b.assert_no_console_errors("on the center").await;
+    b.quit().await;
 }

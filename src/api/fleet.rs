@@ -6,7 +6,10 @@
 //! station (the station as a subgroup), yield per station and day, and the
 //! audit trail of corrections. Bad query parameters get problem+json naming
 //! the parameter. The reads go through the results interface and
-//! `springbench_store_pg::PgStore`'s center queries.
+//! `springbench_store_pg::PgStore`'s center queries. It also serves the web
+//! UI and the station's read routes its parts, measurement, compare and QC
+//! views use, with the station's own handlers over the center's store
+//! ([`station_reads`], decision 0066).
 
 use super::problem::{ApiResult, Problem};
 use crate::config::Config;
@@ -61,19 +64,86 @@ pub fn paths() -> Vec<&'static str> {
     table().into_iter().map(|(p, _)| p).collect()
 }
 
-/// The fleet role's routes (every one a read).
+impl super::reads::Reads for FleetState {
+    type Store = PgStore;
+    fn results(&self) -> &PgStore {
+        &self.store
+    }
+}
+
+/// A station's read routes that the web UI's parts, measurement, compare
+/// and QC views call, served by the same handlers from the center's store
+/// (the same shapes, with the station of every row). Nothing that writes,
+/// runs a bench or needs a station's own tables (jobs, events, proposals,
+/// gauge studies, recordings' bytes, diagnostics) is among them.
+fn station_reads() -> Vec<(&'static str, MethodRouter<FleetState>)> {
+    use super::{jobs, measurements, qc};
+    type F = FleetState;
+    vec![
+        ("/api/v1/session", get(session)),
+        ("/api/v1/parts", get(jobs::list_parts::<F>)),
+        ("/api/v1/parts/{serial}", get(jobs::get_part::<F>)),
+        (
+            "/api/v1/parts/{serial}/measurements",
+            get(jobs::part_measurements::<F>),
+        ),
+        ("/api/v1/parts/{serial}/verdict", get(qc::part_verdict::<F>)),
+        ("/api/v1/measurements", get(measurements::list::<F>)),
+        ("/api/v1/measurements/{id}", get(measurements::get_one::<F>)),
+        (
+            "/api/v1/measurements/{id}/fits",
+            get(measurements::list_fits::<F>),
+        ),
+        ("/api/v1/jobs/{id}/verdict", get(qc::job_verdict::<F>)),
+        ("/api/v1/recipes", get(qc::list::<F>)),
+        ("/api/v1/recipes/{name}", get(qc::get_one::<F>)),
+        ("/api/v1/recipes/{name}/versions", get(qc::versions::<F>)),
+        (
+            "/api/v1/recipes/{name}/versions/{version}",
+            get(qc::version::<F>),
+        ),
+        ("/api/v1/recipes/{name}/spc", get(qc::spc::<F>)),
+    ]
+}
+
+/// The station routes the fleet role serves too (all GET).
+pub fn station_paths() -> Vec<&'static str> {
+    station_reads().into_iter().map(|(p, _)| p).collect()
+}
+
+/// `GET /api/v1/session` at the center: as a station's, with `daemon: "center"`
+/// (the UI then offers no job, bench or write control and says why).
+async fn session(State(st): State<FleetState>, headers: axum::http::HeaderMap) -> Json<Value> {
+    if st.cfg.open_access() {
+        return Json(
+            json!({"name": null, "role": "admin", "auth_required": false, "daemon": "center"}),
+        );
+    }
+    let t = super::auth::bearer_token(&st.cfg, &headers);
+    Json(json!({
+        "name": t.map(|t| t.name.clone()),
+        "role": t.map(|t| t.role),
+        "auth_required": true,
+        "daemon": "center",
+    }))
+}
+
+/// The fleet role's routes (every one a read) and the web UI.
 pub fn router(state: FleetState) -> Router {
     let mut r = Router::new().route("/healthz", get(healthz));
-    for (path, h) in table() {
+    for (path, h) in table().into_iter().chain(station_reads()) {
         r = r.route(path, h);
     }
-    r.fallback(|uri: axum::http::Uri| async move {
+    r.merge(crate::ui::router(|path| {
+        Problem::not_found("UI file", path).into_response()
+    }))
+    .fallback(|uri: axum::http::Uri| async move {
         Problem::new(
             StatusCode::NOT_FOUND,
             "not-found",
             "Not found",
             format!(
-                "no route {} (the fleet role serves /api/v1/fleet/...)",
+                "no route {} (the fleet role serves /api/v1/fleet/..., the web UI and a station's reads of parts, measurements and recipes)",
                 uri.path()
             ),
         )
@@ -83,9 +153,13 @@ pub fn router(state: FleetState) -> Router {
     .with_state(state)
 }
 
-/// Every route but `/healthz` needs a viewer token (or none when no tokens
-/// are configured: then the daemon listens on loopback only). Only reads.
+/// Every route but `/healthz`, `/api/v1/session` and the UI's pages needs
+/// a viewer token (or none when no tokens are configured: then the daemon
+/// listens on loopback only). Only reads; Host and Origin as on a station.
 async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Response {
+    if let Some(r) = super::guard::host_and_origin(&st.cfg.http, &req) {
+        return r;
+    }
     if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD {
         return Problem::new(
             StatusCode::METHOD_NOT_ALLOWED,
@@ -95,7 +169,12 @@ async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Respo
         )
         .into_response();
     }
-    if st.cfg.open_access() || req.uri().path() == "/healthz" {
+    let path = req.uri().path();
+    if st.cfg.open_access()
+        || path == "/healthz"
+        || path == "/api/v1/session"
+        || crate::ui::is_public(path)
+    {
         return next.run(req).await;
     }
     if super::auth::bearer_token(&st.cfg, req.headers()).is_none() {
@@ -164,7 +243,8 @@ type Q = Query<Vec<(String, String)>>;
 
 async fn healthz(State(st): State<FleetState>) -> Response {
     match st.store.ping().await {
-        Ok(()) => Json(json!({"status": "ok", "role": "fleet"})).into_response(),
+        Ok(()) => Json(json!({"status": "ok", "version": crate::VERSION, "role": "fleet"}))
+            .into_response(),
         Err(e) => Problem::new(
             StatusCode::SERVICE_UNAVAILABLE,
             "database-unreachable",

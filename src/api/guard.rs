@@ -97,9 +97,9 @@ fn forbidden(kind: &'static str, title: &'static str, detail: String) -> Respons
     Problem::new(StatusCode::FORBIDDEN, kind, title, detail).into_response()
 }
 
-/// The checks of the module docs, in that order.
-pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next) -> Response {
-    let http = &st.cfg.http;
+/// The Host and Origin rules of the module docs (also the fleet role's,
+/// which serves the UI too): Some: the 403 to answer.
+pub fn host_and_origin(http: &crate::config::HttpConfig, req: &Request) -> Option<Response> {
     let headers = req.headers();
     let host = headers
         .get(header::HOST)
@@ -108,26 +108,35 @@ pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next
         .or_else(|| req.uri().authority().map(|a| a.to_string()));
     if let Some(h) = &host {
         if !host_allowed(h, &http.allowed_hosts) {
-            return forbidden(
+            return Some(forbidden(
                 "host-not-allowed",
                 "Host not allowed",
                 format!(
                     "Host '{}' is not a name of this daemon (IP literals, localhost and http.allowed_hosts are)",
                     host_name(h)
                 ),
-            );
+            ));
         }
     }
     if let Some(o) = headers.get(header::ORIGIN) {
         let o = o.to_str().unwrap_or("<not text>");
         if !origin_allowed(o, host.as_deref(), &http.allowed_origins) {
-            return forbidden(
+            return Some(forbidden(
                 "origin-not-allowed",
                 "Origin not allowed",
                 format!("requests from origin '{o}' are refused (the daemon's own origin and http.allowed_origins are allowed)"),
-            );
+            ));
         }
     }
+    None
+}
+
+/// The checks of the module docs, in that order.
+pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next) -> Response {
+    if let Some(r) = host_and_origin(&st.cfg.http, &req) {
+        return r;
+    }
+    let headers = req.headers();
     let m = req.method();
     let safe = m == Method::GET || m == Method::HEAD || m == Method::OPTIONS;
     if !safe && !is_json(headers) && !has_bearer(headers) {

@@ -1,6 +1,7 @@
 //! Jobs and parts.
 
 use super::problem::{ApiResult, Problem};
+use super::reads::Reads;
 use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
 use crate::runner::{job, new_id, CancelOutcome};
 use crate::store::PartReads;
@@ -266,10 +267,13 @@ pub struct PageQuery {
         (status = 200, description = "A page of parts", body = super::schema::PartPage),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/parts`: by serial.
-pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiResult<Json<Value>> {
+pub async fn list_parts<R: Reads>(
+    State(st): State<R>,
+    Q(q): Q<PageQuery>,
+) -> ApiResult<Json<Value>> {
     let limit = page_limit(q.limit)?;
     let items = st
-        .store
+        .results()
         .list_parts(q.cursor.as_deref().filter(|c| !c.is_empty()), limit)
         .await?;
     let next = (items.len() as i64 == limit)
@@ -284,12 +288,12 @@ pub async fn list_parts(State(st): State<AppState>, Q(q): Q<PageQuery>) -> ApiRe
     responses(
         (status = 200, description = "The part", body = super::schema::PartDocument),
         (status = 404, description = "No such part")))]
-pub async fn get_part(
-    State(st): State<AppState>,
+pub async fn get_part<R: Reads>(
+    State(st): State<R>,
     Path(serial): Path<String>,
 ) -> ApiResult<Json<Value>> {
     let p = st
-        .store
+        .results()
         .get_part(&serial)
         .await?
         .ok_or_else(|| Problem::not_found("part", &serial))?;
@@ -305,14 +309,21 @@ pub async fn get_part(
         (status = 200, description = "A page of measurements", body = super::schema::MeasurementPage),
         (status = 404, description = "No such part"),
         (status = 422, description = "A bad query parameter")))]
-pub async fn part_measurements(
-    State(st): State<AppState>,
+pub async fn part_measurements<R: Reads>(
+    State(st): State<R>,
     Path(serial): Path<String>,
     Q(q): Q<PageQuery>,
 ) -> ApiResult<Json<Value>> {
-    if st.store.get_part(&serial).await?.is_none() {
+    if st.results().get_part(&serial).await?.is_none() {
         return Err(Problem::not_found("part", &serial));
     }
-    super::measurements::list_page(&st, Some(&serial), None, None, q.limit, q.cursor.as_deref())
-        .await
+    super::measurements::list_page(
+        st.results(),
+        Some(&serial),
+        None,
+        None,
+        q.limit,
+        q.cursor.as_deref(),
+    )
+    .await
 }

@@ -4,6 +4,7 @@
 //! blocking threads.
 
 use super::problem::{ApiResult, Problem};
+use super::reads::Reads;
 use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
 use crate::diagnose::{self, DiagnoseOptions};
 use crate::effects::EffectId;
@@ -11,6 +12,7 @@ use crate::identify::{AnalyzeOptions, Method};
 use crate::recording::codec::{self, WavStream};
 use crate::recording::{Meta, RecordingSet};
 use crate::runner::{new_id, FieldError};
+use crate::store::corrections::Corrections;
 use crate::store::MeasurementInfo;
 use crate::store::{FitReads, MeasurementReads, VerdictReads};
 use axum::extract::{Path, State};
@@ -37,7 +39,7 @@ pub struct MeasQuery {
 }
 
 pub async fn list_page(
-    st: &AppState,
+    store: &impl MeasurementReads,
     part: Option<&str>,
     job: Option<&str>,
     since: Option<&str>,
@@ -47,8 +49,7 @@ pub async fn list_page(
     let limit = page_limit(limit)?;
     let before = parse_cursor(cursor)?;
     let since = super::qc::parse_time("since", since)?;
-    let items = st
-        .store
+    let items = store
         .list_measurements_since(part, job, since.as_deref(), before, limit)
         .await?;
     let next = (items.len() as i64 == limit)
@@ -64,9 +65,9 @@ pub async fn list_page(
         (status = 200, description = "A page of measurements", body = super::schema::MeasurementPage),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/measurements?part=&job=&limit=&cursor=`: newest first.
-pub async fn list(State(st): State<AppState>, Q(q): Q<MeasQuery>) -> ApiResult<Json<Value>> {
+pub async fn list<R: Reads>(State(st): State<R>, Q(q): Q<MeasQuery>) -> ApiResult<Json<Value>> {
     list_page(
-        &st,
+        st.results(),
         q.part.as_deref(),
         q.job.as_deref(),
         q.since.as_deref(),
@@ -99,19 +100,24 @@ pub(super) fn document(info: &MeasurementInfo, result: Option<Value>, meta: Valu
     responses(
         (status = 200, description = "The result", body = super::schema::MeasurementDocumentSchema),
         (status = 404, description = "No such measurement")))]
-pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
-    let (info, result, meta) = st
-        .store
+pub async fn get_one<R: Reads>(
+    State(st): State<R>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let store = st.results();
+    let (info, result, meta) = store
         .get_measurement(&id)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", &id))?;
     let mut doc = document(&info, result, meta);
     // The QC verdict of this measurement (with its traceability), null without a recipe.
     doc["measurement"]["verdict"] =
-        serde_json::to_value(st.store.measurement_verdict(&id).await?).unwrap_or(Value::Null);
+        serde_json::to_value(store.measurement_verdict(&id).await?).unwrap_or(Value::Null);
     // Which stored fit supplies the headline (chosen by a person), null: this result.
     doc["measurement"]["headline"] =
-        serde_json::to_value(st.store.headline_choice(&id).await?).unwrap_or(Value::Null);
+        serde_json::to_value(store.headline_choice(&id).await?).unwrap_or(Value::Null);
+    // The correction that voided it (the reason: the audit log), null: not voided.
+    doc["measurement"]["void_correction_id"] = json!(store.measurement_void(&id).await?);
     Ok(Json(doc))
 }
 
@@ -511,14 +517,14 @@ pub async fn choose_headline(
     responses(
         (status = 200, description = "Fits", body = super::schema::FitList),
         (status = 404, description = "No such measurement")))]
-pub async fn list_fits(
-    State(st): State<AppState>,
+pub async fn list_fits<R: Reads>(
+    State(st): State<R>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
-    if st.store.get_measurement(&id).await?.is_none() {
+    if st.results().get_measurement(&id).await?.is_none() {
         return Err(Problem::not_found("measurement", &id));
     }
-    let items = st.store.list_fits(&id).await?;
+    let items = st.results().list_fits(&id).await?;
     Ok(Json(json!({"items": items})))
 }
 

@@ -22,6 +22,7 @@ pub mod ops;
 pub mod problem;
 pub mod problem_io;
 pub mod qc;
+pub mod reads;
 pub mod report;
 pub mod schema;
 pub mod server;
@@ -108,14 +109,22 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add("get", "/api/v1/jobs", get(jobs::list))
     .add("get", "/api/v1/jobs/{id}", get(jobs::get_one))
     .add("post", "/api/v1/jobs/{id}/cancel", post(jobs::cancel))
-    .add("get", "/api/v1/parts", get(jobs::list_parts))
-    .add("get", "/api/v1/parts/{serial}", get(jobs::get_part))
+    .add("get", "/api/v1/parts", get(jobs::list_parts::<AppState>))
+    .add(
+        "get",
+        "/api/v1/parts/{serial}",
+        get(jobs::get_part::<AppState>),
+    )
     .add(
         "get",
         "/api/v1/parts/{serial}/measurements",
-        get(jobs::part_measurements),
+        get(jobs::part_measurements::<AppState>),
     )
-    .add("get", "/api/v1/measurements", get(measurements::list))
+    .add(
+        "get",
+        "/api/v1/measurements",
+        get(measurements::list::<AppState>),
+    )
     .add(
         "post",
         "/api/v1/measurements",
@@ -125,7 +134,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/measurements/{id}",
-        get(measurements::get_one),
+        get(measurements::get_one::<AppState>),
     )
     .add(
         "get",
@@ -140,7 +149,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/measurements/{id}/fits",
-        get(measurements::list_fits),
+        get(measurements::list_fits::<AppState>),
     )
     .add(
         "get",
@@ -168,19 +177,27 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/recipes",
         post(qc::create).layer(json_limit),
     )
-    .add("get", "/api/v1/recipes", get(qc::list))
-    .add("get", "/api/v1/recipes/{name}", get(qc::get_one))
+    .add("get", "/api/v1/recipes", get(qc::list::<AppState>))
+    .add(
+        "get",
+        "/api/v1/recipes/{name}",
+        get(qc::get_one::<AppState>),
+    )
     .add(
         "put",
         "/api/v1/recipes/{name}",
         put(qc::update).layer(json_limit),
     )
     .add("delete", "/api/v1/recipes/{name}", delete(qc::retire))
-    .add("get", "/api/v1/recipes/{name}/versions", get(qc::versions))
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/versions",
+        get(qc::versions::<AppState>),
+    )
     .add(
         "get",
         "/api/v1/recipes/{name}/versions/{version}",
-        get(qc::version),
+        get(qc::version::<AppState>),
     )
     .add(
         "post",
@@ -192,7 +209,11 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/recipes/{name}/limit-proposals",
         get(qc::list_proposals),
     )
-    .add("get", "/api/v1/recipes/{name}/spc", get(qc::spc))
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/spc",
+        get(qc::spc::<AppState>),
+    )
     .add("get", "/api/v1/limit-proposals/{id}", get(qc::get_proposal))
     .add(
         "post",
@@ -207,9 +228,13 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add(
         "get",
         "/api/v1/parts/{serial}/verdict",
-        get(qc::part_verdict),
+        get(qc::part_verdict::<AppState>),
     )
-    .add("get", "/api/v1/jobs/{id}/verdict", get(qc::job_verdict))
+    .add(
+        "get",
+        "/api/v1/jobs/{id}/verdict",
+        get(qc::job_verdict::<AppState>),
+    )
     .add("get", "/api/v1/outbox", get(qc::outbox))
     .add("post", "/api/v1/outbox/{id}/retry", post(qc::outbox_retry))
     .add("delete", "/api/v1/outbox/{id}", delete(qc::outbox_drop))

@@ -95,8 +95,11 @@ use utoipa::{Modify, OpenApi};
         (name = "mes", description = "MES outbox"),
         (name = "fleet", description = "The fleet's center: served only by a daemon in the fleet role \
             (`database = \"postgres://...\"`, no benches; docs/fleet.md), read-only, every route a GET. \
-            A station does not serve these; the fleet role serves none of the others (its `/healthz` \
-            answers `{\"status\": \"ok\", \"role\": \"fleet\"}`)."),
+            A station does not serve these. Of the others the fleet role serves the web UI and the \
+            reads its parts, measurement, compare and QC views use (`/api/v1/session` with `daemon: center`, \
+            parts, measurements, fits, verdicts, recipes, SPC) from the center's store, in the station's \
+            shapes with the station of every row; its `/healthz` answers \
+            `{\"status\": \"ok\", \"version\": ..., \"role\": \"fleet\"}`."),
     )
 )]
 struct ApiDoc;
@@ -293,6 +296,14 @@ mod tests {
             list.len() + fleet.len(),
             "a route is registered twice"
         );
+        // The station's reads the fleet role serves too are a station's GET
+        // routes (documented once, the same shapes).
+        for p in super::super::fleet::station_paths() {
+            assert!(
+                list.contains(&("get", p)),
+                "the fleet role serves {p}, which is no station GET route"
+            );
+        }
         let missing: Vec<_> = served.difference(&documented).collect();
         let extra: Vec<_> = documented.difference(&served).collect();
         assert!(

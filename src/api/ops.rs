@@ -10,8 +10,10 @@ use serde_json::{json, Value};
 use std::fmt::Write;
 
 #[utoipa::path(get, path = "/healthz", tag = "operations",
-    summary = "Liveness (always 200 while the process serves).",
-    responses((status = 200, description = "Serving", body = super::schema::Health)))]
+    summary = "Liveness (always 200 while the process serves; the fleet role: 503 while its database does not answer).",
+    responses(
+        (status = 200, description = "Serving", body = super::schema::Health),
+        (status = 503, description = "The fleet role only: its database does not answer")))]
 pub async fn healthz() -> Json<Value> {
     Json(json!({"status": "ok", "version": crate::VERSION}))
 }

@@ -36,6 +36,9 @@ pub struct Health {
     pub status: String,
     /// The daemon's software version.
     pub version: String,
+    /// `fleet` at the fleet's center (`database = "postgres://..."`); absent at a station.
+    #[schema(required = false, pattern = "^fleet$")]
+    pub role: Option<String>,
 }
 
 /// `GET /readyz`.
@@ -68,6 +71,10 @@ pub struct Session {
     pub role: Option<Role>,
     /// False with open access.
     pub auth_required: bool,
+    /// `station` (runs benches) or `center` (the fleet role: reads only, no
+    /// jobs, benches or writes; docs/fleet.md).
+    #[schema(pattern = "^(station|center)$")]
+    pub daemon: String,
 }
 
 /// A job with its QC verdict (`GET /api/v1/jobs/{id}`; the job's `verdict`,
@@ -146,6 +153,12 @@ pub struct MeasurementRecord {
     /// measurement's own result).
     #[schema(required = false)]
     pub headline: Option<crate::store::HeadlineChoice>,
+    /// The correction that voided this measurement (`GET
+    /// /api/v1/measurements/{id}` only; its reason and who: the audit log);
+    /// null: not voided. A voided measurement counts in no SPC, yield or
+    /// part verdict; it stays readable.
+    #[schema(required = false)]
+    pub void_correction_id: Option<String>,
 }
 
 /// The measurement's record alone: the document of a measurement whose

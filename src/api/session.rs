@@ -15,12 +15,15 @@ use serde_json::{json, Value};
 pub async fn session(State(st): State<AppState>, headers: HeaderMap) -> Json<Value> {
     if st.cfg.open_access() {
         // No tokens configured: everything is open (loopback only).
-        return Json(json!({"name": null, "role": "admin", "auth_required": false}));
+        return Json(
+            json!({"name": null, "role": "admin", "auth_required": false, "daemon": "station"}),
+        );
     }
     let t = super::auth::bearer_token(&st.cfg, &headers);
     Json(json!({
         "name": t.map(|t| t.name.clone()),
         "role": t.map(|t| t.role),
         "auth_required": true,
+        "daemon": "station",
     }))
 }

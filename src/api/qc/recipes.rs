@@ -4,6 +4,7 @@
 use super::parse_body;
 use crate::api::auth::Caller;
 use crate::api::problem::{ApiResult, Problem};
+use crate::api::reads::Reads;
 use crate::api::{AppState, JsonBody};
 use crate::qc::Recipe;
 use crate::store::qc::{RecipeExpect, RecipeRow, RecipeWrite};
@@ -203,9 +204,9 @@ pub async fn update(
 #[utoipa::path(get, path = "/api/v1/recipes", tag = "qc",
     summary = "The newest version of every recipe.",
     responses((status = 200, description = "Recipes", body = crate::api::schema::RecipeList)))]
-pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
+pub async fn list<R: Reads>(State(st): State<R>) -> ApiResult<Json<Value>> {
     let items: Vec<Value> = st
-        .store
+        .results()
         .list_recipes()
         .await?
         .iter()
@@ -221,9 +222,12 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
         (status = 200, description = "Recipe", body = crate::api::schema::RecipeDocument,
             headers(("ETag" = String, description = "The version's ETag, for `If-Match` on PUT"))),
         (status = 404, description = "No such recipe")))]
-pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> ApiResult<Response> {
+pub async fn get_one<R: Reads>(
+    State(st): State<R>,
+    Path(name): Path<String>,
+) -> ApiResult<Response> {
     let r = st
-        .store
+        .results()
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
@@ -236,11 +240,11 @@ pub async fn get_one(State(st): State<AppState>, Path(name): Path<String>) -> Ap
     responses(
         (status = 200, description = "Versions", body = crate::api::schema::RecipeList),
         (status = 404, description = "No such recipe")))]
-pub async fn versions(
-    State(st): State<AppState>,
+pub async fn versions<R: Reads>(
+    State(st): State<R>,
     Path(name): Path<String>,
 ) -> ApiResult<Json<Value>> {
-    let v = st.store.recipe_versions(&name).await?;
+    let v = st.results().recipe_versions(&name).await?;
     if v.is_empty() {
         return Err(Problem::not_found("recipe", &name));
     }
@@ -254,12 +258,12 @@ pub async fn versions(
     responses(
         (status = 200, description = "Recipe version", body = crate::api::schema::RecipeDocument),
         (status = 404, description = "No such recipe version")))]
-pub async fn version(
-    State(st): State<AppState>,
+pub async fn version<R: Reads>(
+    State(st): State<R>,
     Path((name, version)): Path<(String, i64)>,
 ) -> ApiResult<Json<Value>> {
     let r = st
-        .store
+        .results()
         .get_recipe(&name, Some(version))
         .await?
         .ok_or_else(|| Problem::not_found("recipe version", &format!("{name}@{version}")))?;

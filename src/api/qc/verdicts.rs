@@ -1,7 +1,8 @@
 //! Verdicts of a part and a job, and SPC of a recipe, over HTTP.
 
 use crate::api::problem::{ApiResult, Problem};
-use crate::api::{AppState, Q};
+use crate::api::reads::Reads;
+use crate::api::Q;
 use crate::qc::Recipe;
 use crate::store::{RecipeReads, VerdictReads};
 use axum::extract::{Path, State};
@@ -18,12 +19,12 @@ use serde_json::{json, Value};
     responses(
         (status = 200, description = "Verdict", body = crate::store::qc::VerdictRow),
         (status = 404, description = "No verdict for this part")))]
-pub async fn part_verdict(
-    State(st): State<AppState>,
+pub async fn part_verdict<R: Reads>(
+    State(st): State<R>,
     Path(serial): Path<String>,
 ) -> ApiResult<Json<Value>> {
     let v = st
-        .store
+        .results()
         .part_verdict(&serial)
         .await?
         .ok_or_else(|| Problem::not_found("verdict of part", &serial))?;
@@ -37,11 +38,11 @@ pub async fn part_verdict(
     responses(
         (status = 200, description = "Verdicts", body = crate::api::schema::JobVerdict),
         (status = 404, description = "No verdict for this job")))]
-pub async fn job_verdict(
-    State(st): State<AppState>,
+pub async fn job_verdict<R: Reads>(
+    State(st): State<R>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
-    let v = st.store.job_verdicts(&id).await?;
+    let v = st.results().job_verdicts(&id).await?;
     let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
         return Err(Problem::not_found("verdict of job", &id));
     };
@@ -96,13 +97,13 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
             (String = "text/csv"))),
         (status = 404, description = "No such recipe"),
         (status = 422, description = "A bad or missing query parameter")))]
-pub async fn spc(
-    State(st): State<AppState>,
+pub async fn spc<R: Reads>(
+    State(st): State<R>,
     Path(name): Path<String>,
     Q(q): Q<SpcQuery>,
 ) -> ApiResult<Response> {
     let row = st
-        .store
+        .results()
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
@@ -146,7 +147,7 @@ pub async fn spc(
         ));
     };
     let rows = st
-        .store
+        .results()
         .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
         .await?;
     let mut points = Vec::new();

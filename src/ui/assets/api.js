@@ -10,6 +10,13 @@ export const token = {
   clear: () => sessionStorage.removeItem(KEY),
 };
 
+/**
+ * Which daemon serves the page: a station, or the fleet's center (issue 20:
+ * reads only, the station of every row; no jobs, benches or writes). Set
+ * from `GET /api/v1/session` at sign-in.
+ */
+export const daemon = { center: false };
+
 /** An answer of the daemon that is not 2xx (body: the RFC 9457 problem document). */
 export class ApiError extends Error {
   constructor(status, problem) {

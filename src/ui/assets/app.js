@@ -2,7 +2,7 @@
 // "daemon unreachable" banner. Each view is a module with
 // `render(main, ctx)` that may return a cleanup function.
 
-import { api, token, on, ApiError, Unreachable } from './api.js';
+import { api, token, on, ApiError, Unreachable, daemon } from './api.js';
 import { h, put } from './util.js';
 import * as operator from './operator.js';
 import * as parts from './parts.js';
@@ -59,7 +59,7 @@ function parseRoute() {
   const [path, query] = raw.split('?');
   const [name, ...rest] = path.split('/');
   return {
-    name: name || 'operator',
+    name: name || (daemon.center ? 'parts' : 'operator'),
     arg: rest.map(decodeURIComponent).join('/'),
     params: new URLSearchParams(query || ''),
   };
@@ -90,7 +90,9 @@ async function route() {
     return;
   }
   const r = parseRoute();
-  const view = views[r.name];
+  // The fleet's center runs no bench and holds no recordings' analyses: say so
+  // instead of a view that would only show errors.
+  const view = daemon.center && CENTER_ONLY_AT_STATION[r.name] ? centerNote(CENTER_ONLY_AT_STATION[r.name]) : views[r.name];
   for (const a of nav.querySelectorAll('a')) a.classList.toggle('active', a.dataset.view === r.name);
   const seq = ++state.renderSeq;
   main.replaceChildren();
@@ -128,10 +130,22 @@ export function errorText(e) {
   return `Error: ${e.message || e}`;
 }
 
+// Views a station has and the fleet's center has not, and why.
+const CENTER_ONLY_AT_STATION = {
+  operator: 'The fleet\u2019s center runs no bench: jobs are submitted and watched at a station. Here: the parts, measurements, comparisons and QC of every station.',
+  diagnostics: 'The diagnostics workspace refits a measurement from its recordings: open it on the station that measured it.',
+};
+
+function centerNote(text) {
+  return (main) => put(main, h('section', { class: 'card', id: 'center-note' }, h('h1', {}, 'Not at the fleet\u2019s center'), h('p', {}, text), h('a', { href: '#/parts' }, 'Parts of every station')));
+}
+
 function showWho() {
   const s = state.session;
   put(
     who,
+    daemon.center ? h('span', { class: 'role', id: 'daemon-center', title: 'The fleet\u2019s center: every station\u2019s results, read only' }, 'fleet center') : null,
+    daemon.center ? ' ' : null,
     h('span', { class: `role role-${s.role}`, id: 'role' }, s.role),
     s.name ? h('span', { class: 'muted' }, ` ${s.name}`) : h('span', { class: 'muted' }, ' open access'),
     s.auth_required ? h('button', { id: 'logout', class: 'link', onclick: logout }, 'Log out') : null,
@@ -192,6 +206,9 @@ function loginView(message) {
 let started = false;
 function start(session) {
   state.session = session;
+  daemon.center = session.daemon === 'center';
+  nav.querySelector('a[data-view="operator"]').hidden = daemon.center;
+  document.querySelector('.brand').setAttribute('href', daemon.center ? '#/parts' : '#/operator');
   nav.hidden = false;
   showWho();
   if (!started) {

@@ -85,7 +85,8 @@ export async function render(main, ctx) {
     const remove = h('button', { class: 'link', onclick: () => { location.hash = `#/compare?ids=${ids.filter((x) => x !== d.measurement.id).join(',')}`; } }, 'remove');
     return h('tr', { dataset: { measurement: d.measurement.id } },
       h('td', {}, i >= 0 ? h('span', { class: 'swatch', style: undefined, dataset: { color: String(i % COLORS.length) } }) : ''),
-      h('td', {}, h('a', { href: `#/part/${encodeURIComponent(d.measurement.part_serial)}` }, d.measurement.part_serial)),
+      h('td', {}, h('a', { href: `#/part/${encodeURIComponent(d.measurement.part_serial)}` }, d.measurement.part_serial),
+        d.measurement.station_id ? h('span', { class: 'muted station' }, ` (${d.measurement.station_id})`) : null),
       h('td', {}, h('a', { href: `#/measurement/${d.measurement.id}` }, shortId(d.measurement.id))),
       h('td', {}, when(d.measurement.created_at)),
       h('td', {}, q(ls.xpeak_m, 'mm', 1e3, 3)),

@@ -5,7 +5,7 @@
 // fit, the coefficients, the stored fits, warnings, exports (CSV, JSON,
 // clipboard), the printable report and the recordings to download.
 
-import { api, download } from './api.js';
+import { api, download, daemon } from './api.js';
 import { h, put, q, num, when, shortId, poly, polyIntegral, linspace, pick, row, withSe, effectName, effectParam, coefUnitMm, validityOf, stated, modelErrorText, foldRepeatedReasons } from './util.js';
 import { chart } from './plots.js';
 import { verdictCard } from './verdict.js';
@@ -101,7 +101,8 @@ export async function recipeBands(verdict) {
   const name = encodeURIComponent(verdict.recipe_name);
   const [rec, props] = await Promise.all([
     api(`/api/v1/recipes/${name}/versions/${verdict.recipe_version}`).catch(() => null),
-    api(`/api/v1/recipes/${name}/limit-proposals`).catch(() => null),
+    // Limit proposals are a station's (the center holds the approved versions).
+    daemon.center ? null : api(`/api/v1/recipes/${name}/limit-proposals`).catch(() => null),
   ]);
   const m = rec && rec.recipe && rec.recipe.kx_mask;
   const mask = m && m.x_m && m.x_m.length
@@ -285,7 +286,7 @@ function fitsCard(id, fits, headline, ctx) {
       alert(`Not chosen: ${e.message}`);
     }
   };
-  const btn = (fitId, label) => (ctx.can('operator')
+  const btn = (fitId, label) => (ctx.can('operator') && !daemon.center
     ? h('button', { class: 'link', id: `headline-${fitId || 'base'}`, onclick: () => choose(fitId) }, label)
     : null);
   const eff = (f) => {
@@ -368,13 +369,16 @@ export async function render(main, ctx) {
     main,
     h('section', { class: 'card' },
       h('h1', {}, 'Measurement ', h('span', { class: 'mono' }, shortId(id)), ' of part ', h('a', { href: `#/part/${encodeURIComponent(info.part_serial || '')}`, class: 'serial' }, info.part_serial || '?')),
-      h('p', { class: 'muted' }, `${when(info.created_at)}; ${info.source || ''}${info.bench_id ? ` on ${info.bench_id}` : ''}${info.job_id ? `, job ${shortId(info.job_id)}` : ''}; software ${info.software_version || '?'}`),
+      h('p', { class: 'muted', id: 'measurement-origin' }, `${when(info.created_at)}; ${info.station_id ? `station ${info.station_id}, ` : ''}${info.source || ''}${info.bench_id ? ` on ${info.bench_id}` : ''}${info.job_id ? `, job ${shortId(info.job_id)}` : ''}; software ${info.software_version || '?'}`),
       h('div', { class: 'toolbar' },
-        h('a', { href: `#/diagnostics/${id}`, class: 'button', id: 'open-diagnostics' }, 'Diagnostics workspace'),
+        daemon.center ? null : h('a', { href: `#/diagnostics/${id}`, class: 'button', id: 'open-diagnostics' }, 'Diagnostics workspace'),
         h('a', { href: `#/compare?ids=${id}`, class: 'button' }, 'Compare\u2026'),
         h('a', { href: `#/report/${id}`, class: 'button', id: 'open-report' }, 'Printable report'),
-        h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav')),
+        daemon.center
+          ? h('span', { class: 'muted', id: 'center-recordings' }, `Recordings and the diagnostics workspace: on station ${info.station_id || '?'}, which measured it.`)
+          : [h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav')]),
       exports,
+      info.void_correction_id ? h('p', { class: 'error', id: 'measurement-void', dataset: { correction: info.void_correction_id } }, `Voided (correction ${shortId(info.void_correction_id)}; the reason is in the audit log): it counts in no SPC, yield or part verdict.`) : null,
       info.analysis_error ? h('p', { class: 'error' }, `The analysis failed: ${info.analysis_error}. The recordings are kept; a fit can be run again.`) : null,
       fit
         ? h('p', { class: 'headline-note', id: 'headline-source', dataset: { fit: fit.id } }, `Headline from fit ${shortId(fit.id)} (${((fit.request && fit.request.effects) || []).map(effectName).join(', ') || 'refit'}), chosen by ${info.headline.chosen_by || 'open access'} at ${when(info.headline.chosen_at)}.`)

@@ -2,7 +2,7 @@
 // kind) and one part's page: its verdict with the recipe, limits and
 // traceability, its measurements and jobs, with a selection to compare.
 
-import { api } from './api.js';
+import { api, daemon } from './api.js';
 import { h, put, q, when, shortId, VERDICT_WORDS, stated } from './util.js';
 import { verdictCard } from './verdict.js';
 
@@ -49,7 +49,7 @@ export async function render(main, ctx) {
         h('label', { for: 'filter-verdict' }, 'Verdict '), verdictSel,
         h('label', { for: 'filter-kind' }, 'Kind '), kindSel),
       h('table', { class: 'list' },
-        h('thead', {}, h('tr', {}, h('th', {}, 'serial'), h('th', {}, 'kind'), h('th', {}, 'verdict'), h('th', {}, 'measurements'), h('th', {}, 'last change'))),
+        h('thead', {}, h('tr', {}, h('th', {}, 'serial'), daemon.center ? h('th', {}, 'station') : null, h('th', {}, 'kind'), h('th', {}, 'verdict'), h('th', {}, 'measurements'), h('th', {}, 'last change'))),
         body)),
   );
   search.focus();
@@ -70,11 +70,12 @@ export async function render(main, ctx) {
     put(body, hits.length
       ? hits.slice(0, 500).map((p) => h('tr', { dataset: { serial: p.serial, verdict: p.verdict || '', kind: p.kind || '' } },
         h('td', {}, h('a', { href: `#/part/${encodeURIComponent(p.serial)}` }, p.serial)),
+        daemon.center ? h('td', { class: 'station' }, p.station_id || '\u2013') : null,
         h('td', {}, p.kind ? p.kind.replace(/_/g, ' ') : '\u2013'),
         h('td', {}, verdictBadge(p.verdict)),
         h('td', {}, String(p.measurement_count)),
         h('td', {}, when(p.updated_at))))
-      : h('tr', {}, h('td', { colspan: '5', class: 'muted' }, parts.length ? 'no part matches' : 'no part measured yet')));
+      : h('tr', {}, h('td', { colspan: daemon.center ? '6' : '5', class: 'muted' }, parts.length ? 'no part matches' : 'no part measured yet')));
   }
   const keep = () => {
     const ps = new URLSearchParams();
@@ -101,7 +102,8 @@ export async function renderPart(main, ctx) {
   const [part, meas, jobs] = await Promise.all([
     api(`/api/v1/parts/${encodeURIComponent(serial)}`),
     api(`/api/v1/parts/${encodeURIComponent(serial)}/measurements?limit=200`),
-    api(`/api/v1/jobs?part=${encodeURIComponent(serial)}&limit=50`),
+    // The center holds no job queue (a station's); it has the jobs' verdicts.
+    daemon.center ? null : api(`/api/v1/jobs?part=${encodeURIComponent(serial)}&limit=50`),
   ]);
   // The newest job verdict with its detail, for a part judged under a recipe
   // (the part's `verdict`; asking for the others would be a 404).
@@ -133,12 +135,13 @@ export async function renderPart(main, ctx) {
     return h('tr', { dataset: { measurement: m.id } },
       h('td', {}, cb),
       h('td', {}, h('a', { href: `#/measurement/${m.id}` }, when(m.created_at))),
+      daemon.center ? h('td', { class: 'station' }, m.station_id || '\u2013') : null,
       h('td', {}, m.source),
       h('td', {}, q(m.target_xpeak_m, 'mm', 1e3, 3)),
       h('td', {}, q(s.xpeak_m, 'mm', 1e3, 3)),
       h('td', {}, stated(q(s.keff_n_per_m, 'N/mm', 1e-3), s.keff_validity, { unit: 'N/mm', scale: 1e-3, raw: s.keff_n_per_m })),
       h('td', {}, stated(q(s.resonance_hz, 'Hz', 1, 3), s.resonance_validity, { unit: 'Hz', raw: s.resonance_hz })),
-      h('td', {}, m.analysis_error ? h('span', { class: 'error' }, 'analysis failed') : h('a', { href: `#/diagnostics/${m.id}` }, 'diagnostics')),
+      h('td', {}, m.analysis_error ? h('span', { class: 'error' }, 'analysis failed') : daemon.center ? '' : h('a', { href: `#/diagnostics/${m.id}` }, 'diagnostics')),
     );
   });
   put(
@@ -154,11 +157,11 @@ export async function renderPart(main, ctx) {
     h('section', { class: 'card' },
       h('h2', {}, 'Measurements'),
       h('table', { class: 'list', id: 'part-measurements' },
-        h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'measured'), h('th', {}, 'source'), h('th', {}, 'target Xpeak'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'resonance'), h('th', {}, ''))),
-        h('tbody', {}, mrows.length ? mrows : h('tr', {}, h('td', { colspan: '8', class: 'muted' }, 'none')))),
+        h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'measured'), daemon.center ? h('th', {}, 'station') : null, h('th', {}, 'source'), h('th', {}, 'target Xpeak'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'resonance'), h('th', {}, ''))),
+        h('tbody', {}, mrows.length ? mrows : h('tr', {}, h('td', { colspan: daemon.center ? '9' : '8', class: 'muted' }, 'none')))),
       compareBtn,
       h('h2', { class: 'after-toolbar' }, 'Jobs'),
-      h('table', { class: 'list', id: 'part-jobs' },
+      !jobs ? h('p', { class: 'muted', id: 'part-jobs-center' }, 'Jobs are held by the station that ran them; the fleet\u2019s center holds their measurements and verdicts (above).') : h('table', { class: 'list', id: 'part-jobs' },
         h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'state'), h('th', {}, 'verdict'), h('th', {}, 'recipe'), h('th', {}, 'bench'), h('th', {}, 'submitted'), h('th', {}, 'bench time'), h('th', {}, 'problem'))),
         h('tbody', {}, jobs.items.length ? null : h('tr', {}, h('td', { colspan: '8', class: 'muted' }, mrows.length ? 'none: this part was not measured by a job here (its measurements were imported)' : 'none')),
           jobs.items.map((j) => h('tr', { dataset: { job: j.id, verdict: j.verdict || '' } },

@@ -3,7 +3,7 @@
 // approve / reject: admin), and SPC per parameter (capability figures and an
 // individuals chart with the specification and control limits).
 
-import { api, download, ApiError } from './api.js';
+import { api, download, ApiError, daemon } from './api.js';
 import { h, put, num, when, shortId, siq, limitsText, displayUnit } from './util.js';
 import { chart } from './plots.js';
 
@@ -62,7 +62,8 @@ async function renderRecipe(main, ctx, name) {
   const rec = r.recipe || {};
   const params = rec.parameters || [];
   const versions = await api(`/api/v1/recipes/${encodeURIComponent(name)}/versions`).catch(() => ({ items: [] }));
-  const proposals = await api(`/api/v1/recipes/${encodeURIComponent(name)}/limit-proposals`).catch(() => ({ items: [] }));
+  // Limit proposals, gauge studies and bench calibrations are a station's.
+  const proposals = daemon.center ? null : await api(`/api/v1/recipes/${encodeURIComponent(name)}/limit-proposals`).catch(() => ({ items: [] }));
   if (ctx.stale()) return;
 
   const spcEl = h('section', { class: 'card', id: 'spc' });
@@ -92,8 +93,14 @@ async function renderRecipe(main, ctx, name) {
       gaugeEl,
     ),
   );
-  drawProposals(propEl, ctx, name, proposals.items || []);
   drawSpc(spcEl, ctx, name, params);
+  if (daemon.center) {
+    const why = 'Limit proposals from golden units, gauge studies and bench calibrations are made on a station (its benches and parts); the fleet\u2019s center receives the approved recipe versions and every station\u2019s verdicts.';
+    put(propEl, h('h2', {}, 'Limit proposals and gauge studies'), h('p', { class: 'muted', id: 'center-station-only' }, why));
+    gaugeEl.remove();
+    return;
+  }
+  drawProposals(propEl, ctx, name, proposals.items || []);
   drawGauge(gaugeEl, ctx, name, params);
 }
 
@@ -293,6 +300,7 @@ function drawSpc(el, ctx, name, params) {
   const plot = h('div', { id: 'spc-plot' });
   const note = h('p', { class: 'muted', id: 'spc-note' });
   const csv = h('button', { id: 'spc-csv', class: 'link' }, 'download CSV');
+  const perStation = h('div', { id: 'spc-stations' });
   const want = ctx.params.get('parameter');
   if (want) sel.value = want;
   async function load() {
@@ -322,6 +330,7 @@ function drawSpc(el, ctx, name, params) {
       row('yield', s.yield_fraction === null || s.yield_fraction === undefined ? '\u2013' : `${num(100 * s.yield_fraction, 4)} % (${s.passed} pass, ${s.failed} fail; ${s.invalid} invalid not counted)`),
     );
     stats.dataset.cpk = s.cpk === null || s.cpk === undefined ? '' : String(s.cpk);
+    if (daemon.center) drawStations(perStation, name, sel.value, Number(last.value) || 100, u);
     stats.dataset.n = String(s.n);
     const pts = s.points || [];
     note.textContent = pts.length < 2 ? 'The chart needs at least two valid measurements.' : `Individuals chart of the last ${pts.length} valid measurements (x: the measurement's place in time order; hover for the part).`;
@@ -355,6 +364,27 @@ function drawSpc(el, ctx, name, params) {
   last.addEventListener('change', load);
   put(el, h('h2', {}, 'SPC'),
     h('div', { class: 'form-grid' }, h('label', { for: 'spc-parameter' }, 'Parameter'), sel, h('label', { for: 'spc-last' }, 'Last N measurements'), last),
-    stats, note, plot, csv);
+    stats, perStation, note, plot, csv);
   load();
+}
+
+/** At the fleet's center: the same window with each station as a subgroup (Cpk per line). */
+async function drawStations(el, name, parameter, last, u) {
+  let f;
+  try {
+    f = await api(`/api/v1/fleet/recipes/${encodeURIComponent(name)}/spc?parameter=${encodeURIComponent(parameter)}&last=${last}`);
+  } catch (e) {
+    put(el, h('p', { class: 'error' }, `SPC per station: ${e.message}`));
+    return;
+  }
+  put(el, h('h3', {}, 'Per station (the same window; each station a subgroup)'), h('table', { class: 'list', id: 'spc-per-station' },
+    h('thead', {}, h('tr', {}, h('th', {}, 'station'), h('th', {}, 'n'), h('th', {}, 'mean'), h('th', {}, '\u03c3 within'), h('th', {}, 'Cpk'), h('th', {}, 'Ppk'), h('th', {}, 'pass / fail / invalid'))),
+    h('tbody', {}, (f.stations || []).map((g) => h('tr', { dataset: { station: g.station_id || '', n: String(g.spc.n), cpk: g.spc.cpk === null || g.spc.cpk === undefined ? '' : String(g.spc.cpk) } },
+      h('td', { class: 'station' }, g.station_id || '\u2013'),
+      h('td', {}, String(g.spc.n)),
+      h('td', {}, lim(g.spc.mean, u)),
+      h('td', {}, lim(g.spc.sigma_within, u)),
+      h('td', {}, num(g.spc.cpk, 3)),
+      h('td', {}, num(g.spc.ppk, 3)),
+      h('td', {}, `${g.spc.passed} / ${g.spc.failed} / ${g.spc.invalid}`))))));
 }

@@ -63,6 +63,7 @@ export function traceTable(v) {
   return h('table', { class: 'kv trace', id: 'traceability' },
     row('recipe', `${v.recipe_name} version ${v.recipe_version}`),
     row('recipe hash (SHA-256)', h('span', { class: 'mono' }, v.recipe_sha256 || '\u2013')),
+    v.station_id ? row('station', h('span', { id: 'trace-station' }, v.station_id)) : null,
     row('software', t.software_version || '\u2013'),
     row('bench', `${t.bench_id || '\u2013'}${t.bench_kind ? ` (${t.bench_kind})` : ''}`),
     row('calibration record', cal ? (cal.id ? `${cal.id}${cal.created_at ? `, ${when(cal.created_at)}` : ''}` : JSON.stringify(cal)) : 'none (virtual bench)'),
