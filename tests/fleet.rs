@@ -905,17 +905,8 @@ async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
     recipe_arrived(&c, STATION, &station).await;
     let (mut jobs, mut mids) = (vec![], vec![]);
     for serial in ["U1", "U2"] {
-        let r = c
-            .post(station.url("/api/v1/jobs"))
-            .json(&json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 202);
-        let id = r.json::<Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_string();
+        let body = json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE});
+        let id = common::submit(&c, &station, body).await;
         let j = common::wait_job(
             &c,
             &station,

@@ -114,18 +114,7 @@ pub fn station_paths() -> Vec<&'static str> {
 /// `GET /api/v1/session` at the center: as a station's, with `daemon: "center"`
 /// (the UI then offers no job, bench or write control and says why).
 async fn session(State(st): State<FleetState>, headers: axum::http::HeaderMap) -> Json<Value> {
-    if st.cfg.open_access() {
-        return Json(
-            json!({"name": null, "role": "admin", "auth_required": false, "daemon": "center"}),
-        );
-    }
-    let t = super::auth::bearer_token(&st.cfg, &headers);
-    Json(json!({
-        "name": t.map(|t| t.name.clone()),
-        "role": t.map(|t| t.role),
-        "auth_required": true,
-        "daemon": "center",
-    }))
+    Json(super::session::caller(&st.cfg, &headers, "center"))
 }
 
 /// The fleet role's routes (every one a read) and the web UI.

@@ -13,17 +13,21 @@ use serde_json::{json, Value};
     summary = "Who the caller is (token name and role); open, so a client can tell whether it needs a token. The web UI shows the controls of this role.",
     responses((status = 200, description = "The caller", body = super::schema::Session)))]
 pub async fn session(State(st): State<AppState>, headers: HeaderMap) -> Json<Value> {
-    if st.cfg.open_access() {
+    Json(caller(&st.cfg, &headers, "station"))
+}
+
+/// Who the caller is, at a `station` or at the fleet's `center` (the fleet
+/// role's `/api/v1/session`).
+pub fn caller(cfg: &crate::config::Config, headers: &HeaderMap, daemon: &str) -> Value {
+    if cfg.open_access() {
         // No tokens configured: everything is open (loopback only).
-        return Json(
-            json!({"name": null, "role": "admin", "auth_required": false, "daemon": "station"}),
-        );
+        return json!({"name": null, "role": "admin", "auth_required": false, "daemon": daemon});
     }
-    let t = super::auth::bearer_token(&st.cfg, &headers);
-    Json(json!({
+    let t = super::auth::bearer_token(cfg, headers);
+    json!({
         "name": t.map(|t| t.name.clone()),
         "role": t.map(|t| t.role),
         "auth_required": true,
-        "daemon": "station",
-    }))
+        "daemon": daemon,
+    })
 }
