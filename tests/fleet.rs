@@ -466,6 +466,22 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
             "{id}: the center holds each measurement once, in the station's order"
         );
         assert!(theirs.iter().all(|m| m["station_id"] == json!(id)));
+        // line-2 sends references only: its WAV is the station's to serve.
+        let wav = format!("/api/v1/measurements/{}/recordings/main.wav", b[0]);
+        let r = c.get(fleet.url(&wav)).send().await.unwrap();
+        if id == cut_id {
+            let p = common::problem(r, 404).await;
+            assert_eq!(
+                p["type"]
+                    .as_str()
+                    .map(|t| t.ends_with("recording-at-station")),
+                Some(true),
+                "{p}"
+            );
+            assert!(p["detail"].as_str().unwrap().contains(id.as_str()), "{p}");
+        } else {
+            assert_eq!(r.status().as_u16(), 200, "{wav}");
+        }
         total += b.len();
         // Verdicts: one per measurement of this station, each once.
         let n = all_verdicts
@@ -898,7 +914,7 @@ async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
     center_holds_the_recipe(&url).await;
     let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
     let station = Daemon::start(&format!(
-        "[fleet]\ncenter = \"{url}\"\nstation_id = \"{STATION}\"\nrecordings = \"reference\"\nretry_max_s = 1\n\
+        "[fleet]\ncenter = \"{url}\"\nstation_id = \"{STATION}\"\nrecordings = \"full\"\nretry_max_s = 1\n\
          [[benches]]\nid = \"virtual-1\"\nseed = 7\n"
     ));
     let c = client();
@@ -1069,6 +1085,24 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
         without_part_times(&mut b);
         assert_eq!(a, b, "{p}: the center's answer differs from the station's");
     }
+    // The recordings, sent in full: the same WAV, byte for byte.
+    for file in ["pre.wav", "main.wav"] {
+        let url = format!("/api/v1/measurements/{m1}/recordings/{file}");
+        let wav = |d: &Daemon| c.get(d.url(&url)).send();
+        let (a, b) = (wav(&o.station).await.unwrap(), wav(&o.fleet).await.unwrap());
+        assert_eq!(
+            (a.status().as_u16(), b.status().as_u16()),
+            (200, 200),
+            "{url}"
+        );
+        let (a, b) = (a.bytes().await.unwrap(), b.bytes().await.unwrap());
+        assert!(
+            a.len() > 100_000 && &a[..4] == b"RIFF",
+            "{file}: {} bytes",
+            a.len()
+        );
+        assert!(a == b, "{file} differs at the center");
+    }
     // Each row a view lists names its station at the center.
     let rows = |v: &Value, k: &str| -> Vec<Value> {
         v[k].as_array()
@@ -1212,6 +1246,8 @@ async fn fleet_role_contract(o: &OneStation) {
         ("/api/v1/measurements/{id}", format!("/api/v1/measurements/{m1}"), 200, None),
         ("/api/v1/measurements/{id}", format!("/api/v1/measurements/{m2}"), 200, None),
         ("/api/v1/measurements/{id}/fits", format!("/api/v1/measurements/{m1}/fits"), 200, None),
+        ("/api/v1/measurements/{id}/recordings/{file}", format!("/api/v1/measurements/{m1}/recordings/main.wav"), 200, None),
+        ("/api/v1/measurements/{id}/recordings/{file}", format!("/api/v1/measurements/{m1}/recordings/x.wav"), 404, None),
         ("/api/v1/jobs/{id}/verdict", format!("/api/v1/jobs/{j1}/verdict"), 200, None),
         ("/api/v1/recipes", "/api/v1/recipes".into(), 200, None),
         ("/api/v1/recipes/{name}", format!("/api/v1/recipes/{r}"), 200, None),

@@ -94,6 +94,10 @@ fn station_reads() -> Vec<(&'static str, MethodRouter<FleetState>)> {
             "/api/v1/measurements/{id}/fits",
             get(measurements::list_fits::<F>),
         ),
+        (
+            "/api/v1/measurements/{id}/recordings/{file}",
+            get(recording),
+        ),
         ("/api/v1/jobs/{id}/verdict", get(qc::job_verdict::<F>)),
         ("/api/v1/recipes", get(qc::list::<F>)),
         ("/api/v1/recipes/{name}", get(qc::get_one::<F>)),
@@ -104,6 +108,42 @@ fn station_reads() -> Vec<(&'static str, MethodRouter<FleetState>)> {
         ),
         ("/api/v1/recipes/{name}/spc", get(qc::spc::<F>)),
     ]
+}
+
+/// `GET /api/v1/measurements/{id}/recordings/{pre|main}.wav` at the center:
+/// the WAV as the station serves it, when the station sends its recordings
+/// (`[fleet] recordings = "full"`); a 404 naming the station when it sends
+/// references only.
+async fn recording(
+    State(st): State<FleetState>,
+    Path((id, file)): Path<(String, String)>,
+) -> ApiResult<Response> {
+    let kind = file
+        .strip_suffix(".wav")
+        .filter(|k| ["pre", "main"].contains(k))
+        .ok_or_else(|| Problem::not_found("recording (use pre.wav or main.wav)", &file))?;
+    let r = st
+        .store
+        .recording(&id, kind)
+        .await?
+        .ok_or_else(|| Problem::not_found("measurement", &id))?;
+    let Some(bytes) = r.bytes else {
+        return Err(Problem::new(
+            StatusCode::NOT_FOUND,
+            "recording-at-station",
+            "Recording held by the station",
+            format!(
+                "the raw signals of measurement '{id}' are on station '{}', which sends the center references only ([fleet] recordings = \"reference\")",
+                r.station_id.as_deref().unwrap_or("?")
+            ),
+        ));
+    };
+    let scale = r
+        .channel_scale_json
+        .map(|j| serde_json::from_str(&j))
+        .transpose()
+        .map_err(|e| Problem::internal(format!("stored channel scale unreadable: {e}")))?;
+    super::measurements::wav_response(Box::new(std::io::Cursor::new(bytes)), scale).await
 }
 
 /// The station routes the fleet role serves too (all GET).

@@ -190,7 +190,15 @@ pub async fn recording(
         DOWNLOAD_READ_BYTES,
         st.store.blob_reader(info.blob),
     ));
-    let scale = info.channel_scale;
+    wav_response(reader, info.channel_scale).await
+}
+
+/// A stored recording (FLAC or WAV bytes from `reader`) as a float32 WAV
+/// response, decoded while it is sent (a station's and the center's).
+pub(super) async fn wav_response(
+    reader: codec::BlobRead,
+    scale: Option<crate::recording::ChannelScale>,
+) -> ApiResult<Response> {
     let stream = tokio::task::spawn_blocking(move || WavStream::from_reader(reader, scale))
         .await
         .map_err(Problem::internal)?

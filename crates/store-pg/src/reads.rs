@@ -333,3 +333,40 @@ impl RecipeReads for PgStore {
         rows.iter().map(recipe_from_row).collect()
     }
 }
+
+/// A measurement's recording as the center holds it.
+#[derive(Debug, Clone)]
+pub struct CenterRecording {
+    /// The bytes as the station stored them (FLAC, or WAV for some
+    /// imports); None when the station sends references only
+    /// (`[fleet] recordings = "reference"`).
+    pub bytes: Option<Vec<u8>>,
+    /// The channel scale of a FLAC recording (JSON), as the station sent it.
+    pub channel_scale_json: Option<String>,
+    /// The station that measured it.
+    pub station_id: Option<String>,
+}
+
+impl PgStore {
+    /// The `pre` or `main` recording of a measurement (None: no such measurement).
+    pub async fn recording(
+        &self,
+        measurement_id: &str,
+        kind: &str,
+    ) -> StoreResult<Option<CenterRecording>> {
+        let row = sqlx::query(
+            "SELECT r.wav, r.channel_scale_json, m.station_id FROM measurements m \
+             JOIN recordings r ON r.id = CASE WHEN $2 = 'pre' THEN m.pre_recording_id ELSE m.main_recording_id END \
+             WHERE m.id = $1",
+        )
+        .bind(measurement_id)
+        .bind(kind)
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(row.map(|r| CenterRecording {
+            bytes: r.get(0),
+            channel_scale_json: r.get(1),
+            station_id: r.get(2),
+        }))
+    }
+}

@@ -374,9 +374,8 @@ export async function render(main, ctx) {
         daemon.center ? null : h('a', { href: `#/diagnostics/${id}`, class: 'button', id: 'open-diagnostics' }, 'Diagnostics workspace'),
         h('a', { href: `#/compare?ids=${id}`, class: 'button' }, 'Compare\u2026'),
         h('a', { href: `#/report/${id}`, class: 'button', id: 'open-report' }, 'Printable report'),
-        daemon.center
-          ? h('span', { class: 'muted', id: 'center-recordings' }, `Recordings and the diagnostics workspace: on station ${info.station_id || '?'}, which measured it.`)
-          : [h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav')]),
+        h('span', {}, 'Recordings: '), dl('pre.wav'), dl('main.wav'),
+        daemon.center ? h('span', { class: 'muted', id: 'center-recordings' }, ` (here when station ${info.station_id || '?'} sends them to the center; the diagnostics workspace: on that station)`) : null),
       exports,
       info.void_correction_id ? h('p', { class: 'error', id: 'measurement-void', dataset: { correction: info.void_correction_id } }, `Voided (correction ${shortId(info.void_correction_id)}; the reason is in the audit log): it counts in no SPC, yield or part verdict.`) : null,
       info.analysis_error ? h('p', { class: 'error' }, `The analysis failed: ${info.analysis_error}. The recordings are kept; a fit can be run again.`) : null,
