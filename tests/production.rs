@@ -777,6 +777,79 @@ async fn the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses() {
 }
 
 // ---------------------------------------------------------------------------
+/// The laser's noise in a 2 s production narrow sweep (decision 0069): a
+/// spider_4in part's sweep recorded once without sensor noise, then with 8
+/// draws of the virtual laser's 1 um white noise added, each analysed as the
+/// runner does. Keff at 8 mm and K(4 mm) must lie within 1e-5 of the
+/// virtual truth (RMS over the draws; the true K(x), Keff over the excursion
+/// the analysis centres). 1e-5 is half the repeatability the 10 s sweep of
+/// the full procedure had before 0069 (Keff at target 0.088 N/m of 4530,
+/// docs/qc.md): a 2 s sweep can reach it only if the fit does not spend
+/// its variance on the laser noise that differentiation lifts far above
+/// the part's motion. The unweighted fit before 0069 gave 4.0e-5 / 2.3e-5
+/// (it failed here); the whitened one 3.0e-6 / 2.8e-6.
+#[test]
+fn a_2_s_sweep_measures_keff_and_k_of_x_to_1e_5_through_the_laser_noise() {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    use springbench::physics::model::BenchParams;
+    let nominal = preset("spider_4in").unwrap();
+    let p = part(&nominal, &Spread::default(), 800, None);
+    let fs = 48000.0;
+    let mut quiet = BenchParams::default();
+    let laser_noise_m = quiet.laser.noise_m;
+    quiet.laser.noise_m = 0.0;
+    quiet.microphone.noise_pa = 0.0;
+    let mut vb = VirtualBench::new(p.clone(), 1).with_bench(quiet);
+    // The production procedure's sweeps for this part (its log with the
+    // golden units of `approved_recipe`): pre 12.45-99.59 Hz in 1.5 s at
+    // 7.898 V, narrow 32.93-59.36 Hz in 2 s at 54.0 V (Xpeak 7.7 mm).
+    let pre = explore::play(
+        &mut vb,
+        &explore::chirp(&[(12.45, 99.59, 1.5)], 7.898, fs, 0.2),
+    );
+    let main = explore::play(
+        &mut vb,
+        &explore::chirp(&[(32.93, 59.36, 2.0)], 54.0, fs, 0.5),
+    );
+    let truth = |x: f64| p.k_coeffs_si.iter().rev().fold(0.0, |a, c| a * x + c);
+    let draws: Vec<u64> = (0..8).collect();
+    let errors = par_map(&draws, |&d| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(d);
+        let noise = rand_distr::Normal::new(0.0, laser_noise_m).unwrap();
+        let (mut pre, mut main) = (pre.clone(), main.clone());
+        for x in pre
+            .displacement_m
+            .iter_mut()
+            .chain(main.displacement_m.iter_mut())
+        {
+            *x += noise.sample(&mut rng);
+        }
+        let mut meta = springbench::recording::Meta::standard(p.moving_mass_kg, fs);
+        meta.channels.drive = Some(2);
+        let set = springbench::recording::RecordingSet { meta, pre, main };
+        let mut r = identify::analyze(&set, &OPTS).unwrap();
+        qc::set_keff_at_target(&mut r, Some(0.008));
+        let ls = &r.large_signal;
+        let c = 0.5 * (ls.x_min_at_resonance_m + ls.x_max_at_resonance_m);
+        let k_true: Vec<f64> = p.k_coeffs_si.clone();
+        let keff_true = identify::large::describing_function_keff(&k_true, c - 0.008, c + 0.008);
+        [
+            ls.keff_at_target_n_per_m.unwrap() / keff_true - 1.0,
+            qc::k_of_x(&r, 0.004) / truth(0.004) - 1.0,
+        ]
+    });
+    let rms =
+        |i: usize| (errors.iter().map(|e| e[i] * e[i]).sum::<f64>() / errors.len() as f64).sqrt();
+    let (keff, k4) = (rms(0), rms(1));
+    eprintln!(
+        "RMS relative error over {} laser-noise draws: Keff at 8 mm {keff:.2e}, K(4 mm) {k4:.2e}",
+        errors.len()
+    );
+    assert!(keff < 1e-5, "Keff at 8 mm: RMS relative error {keff:.2e}");
+    assert!(k4 < 1e-5, "K(4 mm): RMS relative error {k4:.2e}");
+}
+
 // Where the production procedure's repeatability comes from (issue 21, the
 // 1.5x %GRR criterion; decision 0059): per sensor and per narrow sweep length.
 mod explore {
@@ -841,13 +914,132 @@ mod explore {
         out
     }
 
-    fn play(vb: &mut VirtualBench, drive: &[f64]) -> Signals {
+    pub fn play(vb: &mut VirtualBench, drive: &[f64]) -> Signals {
         vb.run(drive, &mut |_| springbench::bench::Control::Continue)
             .unwrap()
     }
 
     fn xpeak(s: &Signals) -> f64 {
         s.displacement_m.iter().fold(0.0f64, |a, x| a.max(x.abs()))
+    }
+
+    /// `N=96 cargo test --test production -- --ignored --nocapture explore_designs`
+    /// (about 30 s): sweep designs in the production band of one spider_4in
+    /// part, each recorded once without sensor noise at the drive that
+    /// reaches `XT` (default 7.7 mm), then analysed with N draws of the
+    /// laser's 1 um noise added; prints the sd of Keff at 8 mm, K(4 mm), the
+    /// force per mic volt, and the scatter over the stated standard error of
+    /// k2 and k4. `DESIGNS` adds designs slow from fR 2^-a to fR 2^b
+    /// (`a:b:slow_s:rest_s,...`). Figures in decision 0069.
+    #[test]
+    #[ignore = "a measurement: prints figures for decision 0069"]
+    fn explore_designs() {
+        use rand::SeedableRng;
+        use rand_distr::Distribution;
+        let l = &lines()[0];
+        let rec = approved_recipe(l);
+        let g = rec.procedure.golden.clone().unwrap();
+        let nominal = preset(l.preset).unwrap();
+        let pseed: u64 = std::env::var("PART")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(800);
+        let p = part(&nominal, &Spread::default(), pseed, None);
+        let n: u64 = std::env::var("N")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(24);
+        let target: f64 = std::env::var("XT")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(7.7e-3);
+        let seeds: Vec<u64> = (0..n).map(|i| 5000 + i).collect();
+        let q0 = measure(&p, 1, DEFAULT_LIMITS, 0.008, Some(Some(&g))).outcome;
+        let nw = &q0.narrow[0];
+        let (fa, fb, fr) = (nw.f_start_hz, nw.f_end_hz, nw.resonance_hz);
+        let fs = 48000.0;
+        let mut quiet = BenchParams::default();
+        quiet.laser.noise_m = 0.0;
+        quiet.microphone.noise_pa = 0.0;
+        type Design = (String, Vec<(f64, f64, f64)>);
+        let mut designs: Vec<Design> = vec![
+            ("full band 10 s".into(), vec![(fa, fb, 10.0)]),
+            ("uniform 2 s".into(), vec![(fa, fb, 2.0)]),
+            ("uniform 2.8 s".into(), vec![(fa, fb, 2.8)]),
+        ];
+        let spec: String = std::env::var("DESIGNS")
+            .unwrap_or("0.3:0.05:1.5:0.5,0.5:0.05:1.8:0.5,0.2:0.05:1.5:0.5".into());
+        for d in spec.split(',') {
+            let v: Vec<f64> = d.split(':').map(|x| x.parse().unwrap()).collect();
+            let (a, b, tslow, tfast) = (v[0], v[1], v[2], v[3]);
+            let (f1, f2) = (fr * 2f64.powf(-a), fr * 2f64.powf(b));
+            let oct_out = (f1 / fa).log2() + (fb / f2).log2();
+            let r = tfast / oct_out;
+            designs.push((
+                format!("slow -{a}/+{b} oct {tslow} s, rest {tfast} s"),
+                vec![
+                    (fa, f1, (f1 / fa).log2() * r),
+                    (f1, f2, tslow),
+                    (f2, fb, (fb / f2).log2() * r),
+                ],
+            ));
+        }
+        let analyse = |pre: &Signals, main: Signals| -> Option<[f64; 7]> {
+            let mut meta = springbench::recording::Meta::standard(p.moving_mass_kg, fs);
+            meta.channels.drive = Some(2);
+            let set = springbench::recording::RecordingSet {
+                meta,
+                pre: pre.clone(),
+                main,
+            };
+            let mut r = identify::analyze(&set, &OPTS).ok()?;
+            qc::set_keff_at_target(&mut r, Some(0.008));
+            let k = &r.stiffness.coefficients_n_per_m_pow_i_plus_1;
+            let se = &r.stiffness.coefficients_se_n_per_m_pow_i_plus_1;
+            Some([
+                r.large_signal.keff_at_target_n_per_m?,
+                qc::k_of_x(&r, 0.004),
+                r.stiffness.force_per_mic_v_n_per_v?,
+                k[2],
+                se[2],
+                k[4],
+                se[4],
+            ])
+        };
+        let rows = par_map(&designs, |(label, segs)| {
+            let tot: f64 = segs.iter().map(|s| s.2).sum();
+            let mut v = nw.drive_v * (2.0 / tot).powf(0.3);
+            let mut vb = VirtualBench::new(p.clone(), 1).with_bench(quiet);
+            let pre = play(&mut vb, &q0.pre_sweep.samples(fs));
+            let mut main = None;
+            for _ in 0..6 {
+                let m = play(&mut vb, &chirp(segs, v, fs, 0.5));
+                let x = xpeak(&m);
+                main = Some(m);
+                if (x / target - 1.0).abs() < 0.002 {
+                    break;
+                }
+                v *= (target / x).powf(0.8);
+            }
+            let main = main.unwrap();
+            let rr: Vec<[f64; 7]> = seeds
+                .iter()
+                .filter_map(|&s| {
+                    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(s);
+                    let nd = rand_distr::Normal::new(0.0, 1e-6).unwrap();
+                    let mut m = main.clone();
+                    for x in &mut m.displacement_m {
+                        *x += nd.sample(&mut rng);
+                    }
+                    analyse(&pre, m)
+                })
+                .collect();
+            let c = |i: usize| sd(&rr.iter().map(|a| a[i]).collect::<Vec<_>>());
+            format!("{label:>40} ({tot:.2} s, {v:.2} V, Xpeak {:.3} mm, {} ok): Keff {:.3} sd {:.4}  K4 {:.3} sd {:.4}  s rel sd {:.2e} k2 sd/se {:.2} k4 sd/se {:.2}", xpeak(&main)*1e3, rr.len(), c(0).0, c(0).1, c(1).0, c(1).1, c(2).1/c(2).0, c(3).1/c(4).0, c(5).1/c(6).0)
+        });
+        for r in rows {
+            eprintln!("{r}");
+        }
     }
 
     /// `N=8 cargo test --test production -- --ignored --nocapture explore_grr`
