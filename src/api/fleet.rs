@@ -69,6 +69,11 @@ impl super::reads::Reads for FleetState {
     fn results(&self) -> &PgStore {
         &self.store
     }
+    /// The chart's SPC reads every verdict of its window: 1.5 s for 8 000
+    /// at the center (docs/fleet.md), so at most 10 000 here; the fleet's
+    /// own SPC (in SQL, no points) answers larger windows.
+    const SPC_WINDOW_MAX: i64 = 10_000;
+    const SPC_WINDOW_HINT: &'static str = " (at the fleet's center; GET /api/v1/fleet/recipes/{name}/spc gives the figures of larger windows, without chart points)";
 }
 
 /// A station's read routes that the web UI's parts, measurement, compare

@@ -13,6 +13,11 @@ pub trait Reads: Clone + Send + Sync + 'static {
     /// The backend: the station's `Store` or the center's `PgStore`.
     type Store: ResultStore + Corrections + Send + Sync + 'static;
     fn results(&self) -> &Self::Store;
+    /// The most verdicts `GET /api/v1/recipes/{name}/spc` reads for one
+    /// answer (it reads each verdict of the window to give the chart's points).
+    const SPC_WINDOW_MAX: i64 = 100_000;
+    /// Appended to the 422 of a larger window.
+    const SPC_WINDOW_HINT: &'static str = "";
 }
 
 impl Reads for super::AppState {

@@ -61,7 +61,8 @@ pub async fn job_verdict<R: Reads>(
 pub struct SpcQuery {
     /// The recipe parameter's name (required).
     parameter: Option<String>,
-    /// The newest N verdicts (1-100000; default 100 without since/until).
+    /// The newest N verdicts (1-100000, at the fleet's center 1-10000; default
+    /// 100 without since/until). A since/until window may hold as many.
     last: Option<i64>,
     #[param(format = DateTime)]
     since: Option<String>,
@@ -115,14 +116,15 @@ pub async fn spc<R: Reads>(
     };
     let since = parse_time("since", q.since.as_deref())?;
     let until = parse_time("until", q.until.as_deref())?;
+    let max = R::SPC_WINDOW_MAX;
     let last = match q.last {
         None if since.is_none() && until.is_none() => Some(100),
         None => None,
-        Some(n) if (1..=100_000).contains(&n) => Some(n),
+        Some(n) if (1..=max).contains(&n) => Some(n),
         Some(n) => {
             return Err(Problem::field(
                 "last",
-                format!("must be 1 to 100000, got {n}"),
+                format!("must be 1 to {max}, got {n}{}", R::SPC_WINDOW_HINT),
             ))
         }
     };
@@ -148,8 +150,22 @@ pub async fn spc<R: Reads>(
     };
     let rows = st
         .results()
-        .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
+        .recipe_verdicts(
+            &name,
+            since.as_deref(),
+            until.as_deref(),
+            Some(last.unwrap_or(max + 1)),
+        )
         .await?;
+    if rows.len() as i64 > max {
+        return Err(Problem::field(
+            "since",
+            format!(
+                "the window [since, until) holds more than {max} verdicts: narrow it or give last{}",
+                R::SPC_WINDOW_HINT
+            ),
+        ));
+    }
     let mut points = Vec::new();
     let mut invalid = 0;
     for r in &rows {

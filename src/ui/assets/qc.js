@@ -295,7 +295,7 @@ function drawSpc(el, ctx, name, params) {
     return;
   }
   const sel = h('select', { id: 'spc-parameter' }, params.map((p) => h('option', { value: p.name }, paramLabel(p))));
-  const last = h('input', { id: 'spc-last', type: 'number', min: '2', max: '100000', value: '100' });
+  const last = h('input', { id: 'spc-last', type: 'number', min: '2', max: daemon.center ? '10000' : '100000', value: '100' });
   const stats = h('table', { class: 'kv', id: 'spc-stats' });
   const plot = h('div', { id: 'spc-plot' });
   const note = h('p', { class: 'muted', id: 'spc-note' });
