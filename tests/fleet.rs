@@ -950,11 +950,10 @@ async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
         .send()
         .await
         .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let void_id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let status = r.status().as_u16();
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(status, 201, "{v}");
+    let void_id = v["id"].as_str().unwrap().to_string();
     // Replicated: both jobs' verdicts and the void (the station's last item).
     let t0 = Instant::now();
     loop {

@@ -98,7 +98,9 @@ impl Corrections for Store {
     async fn correct(&self, c: &Correction) -> StoreResult<bool> {
         check(c)?;
         let bad = |m: String| StoreError::Invalid(format!("correction {}: {m}", c.id));
-        let mut tx = self.pool.begin().await?;
+        // The write lock first (as every station write, lib.rs): this reads,
+        // then writes, and a deferred transaction cannot wait for it.
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         let known: Option<i64> = sqlx::query_scalar("SELECT seq FROM corrections WHERE id = ?")
             .bind(c.id.clone())
             .fetch_optional(&mut *tx)

@@ -594,3 +594,50 @@ async fn postgres_passes_the_results_suite() {
     recipe_and_fit_reads(&s, "R", "m-1", "f-1", "engineer").await;
     s.close().await;
 }
+
+/// A correction on a station's database file while another connection
+/// keeps writing (the fleet worker marking its outbox, jobs ending): it
+/// waits for the write lock. A deferred transaction that reads and then
+/// writes cannot wait: it failed at once with "database is locked" (seen
+/// as a 500 of `POST /api/v1/corrections` right after two jobs ended).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_correction_waits_for_another_writer() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let dir = tempfile::tempdir().unwrap();
+    let s = Store::open(dir.path()).await.unwrap();
+    s.upsert_part("P", Some("spider"), None).await.unwrap();
+    let on = std::sync::Arc::new(AtomicBool::new(true));
+    let writer = tokio::spawn({
+        let (s, on) = (s.clone(), on.clone());
+        async move {
+            let mut n = 0u32;
+            while on.load(Ordering::SeqCst) {
+                s.append_event("test.write", None, &json!({"n": n}))
+                    .await
+                    .unwrap();
+                n += 1;
+            }
+            n
+        }
+    });
+    for i in 0..100 {
+        let c = Correction {
+            id: format!("c-{i}"),
+            kind: "part_kind".into(),
+            part_serial: "P".into(),
+            measurement_id: None,
+            old_value: None,
+            new_value: Some(format!("kind-{i}")),
+            reason: "relabelled".into(),
+            made_by: None,
+            made_at: springbench_store::now(),
+        };
+        let r = s.correct(&c).await;
+        assert!(matches!(r, Ok(true)), "correction {i}: {r:?}");
+    }
+    on.store(false, Ordering::SeqCst);
+    let writes = writer.await.unwrap();
+    assert!(writes > 0, "the other connection wrote meanwhile");
+    assert_eq!(s.audit_log(Some("P"), None, 1000).await.unwrap().len(), 100);
+    s.close().await;
+}
