@@ -1454,6 +1454,17 @@ async fn the_ui_on_the_center_shows_the_stations_data() {
     assert_eq!(at_center, at_station);
     b.assert_no_console_errors("on the center's compare view")
         .await;
+    // The measurement's printable report: the same parameters.
+    let ready = "document.querySelector('#report-parameters') && document.querySelector('#report-kx canvas')";
+    let params = "#report-parameters";
+    let at_station = shown(&b, format!("{station}/#/report/{m1}"), ready, params).await;
+    let at_center = shown(&b, format!("{center}/#/report/{m1}"), ready, params).await;
+    assert_eq!(
+        at_center, at_station,
+        "the report's parameters differ at the center"
+    );
+    b.assert_no_console_errors("on the center's printable report")
+        .await;
     // QC: the recipe's SPC as at the station, and per station.
     let stats =
         "document.querySelector('#spc-stats') && document.querySelector('#spc-stats').dataset.n";
