@@ -182,7 +182,7 @@ async fn cancel_during_a_sweep_ramps_the_drive_down_within_50_ms() {
 /// and golden reference; then 3 lot parts (seeds 800-802) are measured with
 /// each procedure on the same emulated bench. Asserted as on the virtual
 /// bench (tests/production.rs): the same verdict, no fall-back, k0, Keff at
-/// target and K(4 mm) within 1 % of the full procedure's. 11 jobs, 14 s of
+/// target and K(4 mm) (`k_at_half`) within 1 % of the full procedure's. 11 jobs, 14 s of
 /// wall time (the emulator is not paced), `#[ignore]` to keep CI's time
 /// (issue 19):
 /// `cargo test --features hardware --test hardware_emulated -- --ignored --nocapture production`
@@ -197,16 +197,7 @@ async fn production_procedure_agrees_with_the_full_one_on_the_emulated_bench() {
         "name": "spider-4in",
         "part_kind": "spider",
         "procedure": {"mode": "production", "levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
-        "parameters": [
-            {"name": "k0", "quantity": "k0"},
-            {"name": "f0", "quantity": "f0"},
-            {"name": "q", "quantity": "q"},
-            {"name": "r", "quantity": "r"},
-            {"name": "keff", "quantity": "keff"},
-            {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004},
-            {"name": "asym_4mm", "quantity": "k_asymmetry", "x_m": 0.004},
-            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
-        ]
+        "parameters": common::production_equivalence_parameters(0.004)
     });
     let post = |path: &'static str, body: Value| {
         let (c, d) = (&c, &d);
@@ -298,7 +289,7 @@ async fn production_procedure_agrees_with_the_full_one_on_the_emulated_bench() {
             "{serial}: {vf} {vp}"
         );
         for ((n, f), (_, p)) in full.iter().zip(&prod) {
-            if ["k0", "keff", "k_at_4mm"].contains(&n.as_str()) {
+            if ["k0", "keff", "k_at_half"].contains(&n.as_str()) {
                 assert!(
                     (p / f - 1.0).abs() <= 0.01,
                     "{serial} {n}: full {f} production {p}"

@@ -80,16 +80,7 @@ fn recipe(l: &Line) -> Recipe {
     serde_json::from_value(serde_json::json!({
         "name": l.preset,
         "procedure": {"levels_m": [l.level_m], "method": "two-signal", "order": 4, "mode": "production"},
-        "parameters": [
-            {"name": "k0", "quantity": "k0"},
-            {"name": "f0", "quantity": "f0"},
-            {"name": "q", "quantity": "q"},
-            {"name": "r", "quantity": "r"},
-            {"name": "keff", "quantity": "keff"},
-            {"name": "k_at_half", "quantity": "k_at_x", "x_m": x(0.5)},
-            {"name": "asym_half", "quantity": "k_asymmetry", "x_m": x(0.5)},
-            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
-        ],
+        "parameters": common::production_equivalence_parameters(x(0.5)),
         "validity": l.validity,
     }))
     .unwrap()

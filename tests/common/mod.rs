@@ -368,3 +368,20 @@ pub fn read_response(r: &mut impl BufRead) -> Option<(u16, String, Vec<u8>)> {
     }
     Some((status, headers, body))
 }
+
+/// The parameters of issue 21's equivalence recipes: every quantity a recipe
+/// can judge (k0, f0, Q, R, Keff at target, K at `x_m`, the asymmetry there,
+/// model error below 5 %). Shared by `tests/production.rs` (virtual bench)
+/// and `tests/hardware_emulated.rs` (emulated hardware bench).
+pub fn production_equivalence_parameters(x_m: f64) -> Value {
+    serde_json::json!([
+        {"name": "k0", "quantity": "k0"},
+        {"name": "f0", "quantity": "f0"},
+        {"name": "q", "quantity": "q"},
+        {"name": "r", "quantity": "r"},
+        {"name": "keff", "quantity": "keff"},
+        {"name": "k_at_half", "quantity": "k_at_x", "x_m": x_m},
+        {"name": "asym_half", "quantity": "k_asymmetry", "x_m": x_m},
+        {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+    ])
+}
