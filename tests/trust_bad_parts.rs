@@ -463,6 +463,44 @@ fn creep_at_the_ends_of_the_tau_range_on_cone_18in() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
+/// The diagnosed documents of creep at the ends of the tau range on
+/// passive_radiator (f0 16 Hz), which were `valid` outside their accuracy
+/// (decision 0072): tau 5 ms (creep a damping at the resonance: it trades
+/// against R) small-signal R -14.6 %, Q +16.9 %; tau 50 ms (corner 3.2 Hz,
+/// below the band: creep a constant stiffness, it trades against K(x))
+/// K(x) 2.3 % RMS, Keff -2.0 %. With creep's tau free their uncertainty
+/// exceeds their accuracy: marked, with the experiment that would tell.
+/// Diagnosed only, one seed: seconds.
+#[test]
+fn creep_at_the_ends_of_the_tau_range_on_the_passive_radiator_diagnosed() {
+    let mut failures = Vec::new();
+    for tau in [0.005, 0.05] {
+        let (part, opts) = setup("passive_radiator", Case::Creep(tau));
+        let sim = simulate(&part, 100, &opts).unwrap();
+        let mut d = diagnose(&sim.set, &DiagnoseOptions::default())
+            .unwrap()
+            .report;
+        springbench::qc::set_keff_at_target(&mut d, Some(TARGET_M));
+        let what = format!("passive_radiator creep tau {tau} s seed 100 diagnosed");
+        let c = checks(&part, &d, &what);
+        failures.extend(out_of_bound(&what, &c));
+        for k in c.iter().filter(|k| k.state != State::Valid) {
+            let why = k.reason.as_deref().unwrap_or("");
+            eprintln!(
+                "{what}: {} {:+.2} % {}: {why}",
+                k.name,
+                k.error_percent,
+                k.state.as_str()
+            );
+            // (Keff and Keff at the target give K(x)'s state as theirs.)
+            if !k.name.starts_with("Keff") {
+                assert!(why.contains("would separate"), "{what}: {}: {why}", k.name);
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
 /// The figures of the creep check below the resonance (decision 0052) on
 /// good parts and on every bad-part class, for every preset:
 /// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test trust_bad_parts -- --ignored
@@ -470,27 +508,13 @@ fn creep_at_the_ends_of_the_tau_range_on_cone_18in() {
 #[test]
 #[ignore]
 fn below_resonance_creep_figures() {
-    let seeds = env_usize("SPRINGBENCH_BAD_SEEDS", 3) as u64;
-    for name in preset_names() {
-        for seed in 0..seeds {
-            let mut all: Vec<Option<Case>> = vec![None];
-            all.extend(cases(seed).into_iter().map(Some));
-            for case in all {
-                let (part, opts) = match case {
-                    Some(c) => setup(name, c),
-                    None => (preset(name).unwrap(), SimulateOptions::default()),
-                };
-                let sim = simulate(&part, 100 + seed, &opts).unwrap();
-                let f = springbench::identify::small_signal_fit(
-                    &sim.set.pre,
-                    sim.set.meta.moving_mass_kg,
-                )
-                .unwrap();
-                let k0 = part.k_coeffs_si[0];
-                let k0_fit = f.result.k0_n_per_m.unwrap_or(f64::NAN);
-                match &f.below_resonance {
+    let all: Vec<String> = preset_names().iter().map(|s| s.to_string()).collect();
+    small_fits_of_every_part(&all, |what, part, f| {
+        let k0 = part.k_coeffs_si[0];
+        let k0_fit = f.result.k0_n_per_m.unwrap_or(f64::NAN);
+        match &f.below_resonance {
                     Some(b) => eprintln!(
-                        "BELOW {name} {case:?} seed {seed}: band {:.1}-{:.1} Hz misfit {:.2} -> {:.2} % noise {:.2} % share {:.0} % tau {:.1} ms kc {:.0} N/m; k0 {:+.2} %, static k0 with creep {:+.2} % (change {:+.2} %); marked {}",
+                        "BELOW {what}: band {:.1}-{:.1} Hz misfit {:.2} -> {:.2} % noise {:.2} % share {:.0} % tau {:.1} ms kc {:.0} N/m; k0 {:+.2} %, static k0 with creep {:+.2} % (change {:+.2} %); marked {}",
                         b.band_hz[0],
                         b.band_hz[1],
                         b.misfit_linear_percent,
@@ -505,13 +529,85 @@ fn below_resonance_creep_figures() {
                         f.creep.is_some()
                     ),
                     None => eprintln!(
-                        "BELOW {name} {case:?} seed {seed}: no band; k0 {:+.2} %; marked {}",
+                        "BELOW {what}: no band; k0 {:+.2} %; marked {}",
                         pct(k0_fit, k0),
                         f.creep.is_some()
                     ),
                 }
+    });
+}
+
+/// Runs the small-signal fit (the plain analysis's) of every part, good and
+/// of every bad-part class, on `presets` over `SPRINGBENCH_BAD_SEEDS` seeds
+/// (3 unless set) and hands each to `f` with its name.
+fn small_fits_of_every_part(
+    presets: &[String],
+    mut f: impl FnMut(&str, &PartSpec, &springbench::identify::SmallFit),
+) {
+    let seeds = env_usize("SPRINGBENCH_BAD_SEEDS", 3) as u64;
+    for name in presets {
+        for seed in 0..seeds {
+            let mut all: Vec<Option<Case>> = vec![None];
+            all.extend(cases(seed).into_iter().map(Some));
+            for case in all {
+                let (part, opts) = match case {
+                    Some(c) => setup(name, c),
+                    None => (preset(name).unwrap(), SimulateOptions::default()),
+                };
+                let sim = simulate(&part, 100 + seed, &opts).unwrap();
+                let fit = springbench::identify::small_signal_fit(
+                    &sim.set.pre,
+                    sim.set.meta.moving_mass_kg,
+                )
+                .unwrap();
+                f(&format!("{name} {case:?} seed {seed}"), &part, &fit);
             }
         }
+    }
+}
+
+/// The figures of the whole band's creep check (decisions 0062, 0073) on good parts and on every
+/// bad-part class, for every preset, plain analysis:
+/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test trust_bad_parts -- --ignored
+/// --nocapture whole_band_creep_figures`.
+#[test]
+#[ignore]
+fn whole_band_creep_figures() {
+    small_fits_of_every_part(&presets_or_all(), |what, part, f| {
+        let s = &f.result;
+        let (Some(k0), Some(r)) = (s.k0_n_per_m, s.r_ns_per_m) else {
+            return;
+        };
+        let Some(w) = &f.whole_band else {
+            eprintln!("WHOLE {what}: no band");
+            return;
+        };
+        eprintln!(
+                    "WHOLE {what}: misfit {:.2} -> {:.2} %, {} of 5 blocks (held-out gain z {:.1}), tau {:.1} ms, kc {:.0} N/m; static k0 {:+.2} % (se {:.2} %), R {:+.2} % (se {:.2} %) of the headline's (of the band's linear resonator: {:+.2} %, {:+.2} %); headline k0 {:+.2} %, R {:+.2} % of the part's; marked {}",
+                    w.misfit_linear_percent,
+                    w.misfit_with_creep_percent,
+                    w.creep_folds_won,
+                    w.creep_held_out_gain_z,
+                    w.creep_tau_s * 1e3,
+                    w.creep_k_n_per_m,
+                    pct(w.creep_k0_n_per_m, k0),
+                    100.0 * w.creep_k0_se_n_per_m / k0,
+                    pct(w.creep_r_ns_per_m, r),
+                    100.0 * w.creep_r_se_ns_per_m / r,
+                    pct(w.creep_k0_n_per_m, w.k0_linear_n_per_m),
+                    pct(w.creep_r_ns_per_m, w.r_linear_ns_per_m),
+                    pct(k0, part.k_coeffs_si[0]),
+                    pct(r, part.r_ns_per_m),
+                    f.creep.is_some()
+                );
+    });
+}
+
+/// The presets of `SPRINGBENCH_BAD_PRESETS`, every preset when unset.
+fn presets_or_all() -> Vec<String> {
+    match std::env::var("SPRINGBENCH_BAD_PRESETS") {
+        Ok(_) => presets(),
+        Err(_) => preset_names().iter().map(|s| s.to_string()).collect(),
     }
 }
 

@@ -3,7 +3,11 @@
 //! were asked for); the base model's values stay beside them with the change
 //! at the ends of the measured range. Pure.
 
-use super::engine::{EngineResult, FittedModel};
+use super::engine::{CreepTauFree, EngineResult, FittedModel};
+use crate::identify::validity::{
+    State, ACCURACY_F0, ACCURACY_K0, ACCURACY_K_OF_X, ACCURACY_Q, ACCURACY_R,
+    ACCURACY_SMALL_SIGNAL_R,
+};
 use crate::identify::{
     large::describing_function_keff, LargeSignal, SmallSignal, Stiffness, StiffnessChange,
 };
@@ -253,4 +257,115 @@ pub fn small_signal(
             m.r_se_ns_per_m
         )),
     )
+}
+
+/// Half-width of a value's interval in standard errors (two: about 95 %)
+/// that must lie within its stated accuracy for creep's tau not to matter.
+pub const TAU_FREE_COVERAGE: f64 = 2.0;
+
+/// True when [`TAU_FREE_COVERAGE`] relative standard errors `rel` exceed
+/// the accuracy `acc`, or `rel` is not a number (no uncertainty known).
+fn beyond(rel: f64, acc: f64) -> bool {
+    rel.is_nan() || TAU_FREE_COVERAGE * rel > acc
+}
+
+/// RMS over `range` (201 points) of the standard error of K(x) from the
+/// coefficients' covariance, relative to the RMS of K(x).
+fn k_of_x_relative_se(m: &FittedModel, range: [f64; 2]) -> f64 {
+    let k = &m.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let c = &m.stiffness_covariance;
+    let (mut var, mut kk) = (0.0, 0.0);
+    for i in 0..=200 {
+        let x = range[0] + (range[1] - range[0]) * i as f64 / 200.0;
+        let phi: Vec<f64> = (0..k.len()).map(|j| x.powi(j as i32)).collect();
+        for (a, pa) in phi.iter().enumerate() {
+            for (b, pb) in phi.iter().enumerate() {
+                var += pa * pb * c.get(a).and_then(|r| r.get(b)).copied().unwrap_or(0.0);
+            }
+        }
+        kk += k_of(k, x).powi(2);
+    }
+    if kk > 0.0 {
+        (var.max(0.0) / kk).sqrt()
+    } else {
+        f64::NAN
+    }
+}
+
+/// The reason a value is marked when creep's tau trades against it, with
+/// the experiment that separates them: creep's corner below the resonance
+/// `f_res_hz` (creep nearly a constant stiffness there): a
+/// pre-measurement from below the corner; above it (creep a damping that
+/// falls with frequency, R a constant one): an added mass.
+fn tau_reason(what: &str, c: &CreepTauFree, rel_se: f64, accuracy: f64, f_res_hz: f64) -> String {
+    let corner = 1.0 / (2.0 * std::f64::consts::PI * c.tau_s);
+    let experiment = if corner < f_res_hz {
+        format!("a pre-measurement from below creep's corner ({corner:.1} Hz), or an added mass that moves the resonance, would separate them")
+    } else {
+        "an added mass that moves the resonance (creep's damping changes with frequency, R does not) would separate them".to_string()
+    };
+    format!(
+        "creep's time constant trades against {what} in this sweep: with tau free (best {:.1} ms, corner {corner:.1} Hz) {what} is uncertain by +-{:.1} % ({TAU_FREE_COVERAGE} standard errors), more than its stated accuracy of {:.1} %; {experiment}",
+        c.tau_s * 1e3,
+        100.0 * TAU_FREE_COVERAGE * rel_se,
+        100.0 * accuracy,
+    )
+}
+
+/// Marks K(x) and R of the main sweep `unreliable` when the chosen model
+/// holds creep and, with creep's tau free, their uncertainty is wider than
+/// their stated accuracy (decision 0072): a tau the sweep cannot pin down
+/// trades against K(x) (creep's corner below the band: creep is a
+/// constant stiffness there) or R (above it: a damping). Keff follows K(x).
+pub fn mark_creep_tau_main(s: &mut Stiffness, r: &EngineResult, f_res_hz: f64) {
+    let Some(c) = r.creep_tau_free.as_ref().filter(|_| {
+        r.model
+            .effect_ids
+            .contains(&crate::effects::EffectId::Creep)
+    }) else {
+        return;
+    };
+    let exp = f_res_hz;
+    let rel_k = k_of_x_relative_se(&c.model, s.valid_range_m);
+    if beyond(rel_k, ACCURACY_K_OF_X) {
+        let why = tau_reason("K(x)", c, rel_k, ACCURACY_K_OF_X, exp);
+        s.validity.k_of_x.mark(State::Unreliable, &why);
+    }
+    let rel_r = c.model.r_se_ns_per_m / c.model.r_ns_per_m.abs();
+    if beyond(rel_r, ACCURACY_R) {
+        let why = tau_reason("R", c, rel_r, ACCURACY_R, exp);
+        s.validity.r_ns_per_m.mark(State::Unreliable, &why);
+    }
+}
+
+/// Marks the small-signal values from the model with creep `unreliable`
+/// when, with creep's tau free, their uncertainty is wider than their
+/// stated accuracy (decision 0072); see [`mark_creep_tau_main`].
+pub fn mark_creep_tau_small(s: &mut SmallSignal, pre: &EngineResult) {
+    let Some(c) = pre.creep_tau_free.as_ref() else {
+        return;
+    };
+    if s.effects.creep.is_none() {
+        return;
+    }
+    let m = &c.model;
+    let k0 = m.stiffness_coefficients_n_per_m_pow_i_plus_1[0];
+    let rel_k = m
+        .stiffness_coefficients_se_n_per_m_pow_i_plus_1
+        .first()
+        .map_or(f64::NAN, |se| se / k0.abs());
+    let rel_r = m.r_se_ns_per_m / m.r_ns_per_m.abs();
+    let rel_q = ((0.5 * rel_k).powi(2) + rel_r.powi(2)).sqrt();
+    let exp = s.f0_hz.unwrap_or(f64::NAN);
+    let v = &mut s.validity;
+    for (what, rel, acc, state) in [
+        ("k0", rel_k, ACCURACY_K0, &mut v.k0_n_per_m),
+        ("f0", 0.5 * rel_k, ACCURACY_F0, &mut v.f0_hz),
+        ("R", rel_r, ACCURACY_SMALL_SIGNAL_R, &mut v.r_ns_per_m),
+        ("Q", rel_q, ACCURACY_Q, &mut v.q),
+    ] {
+        if beyond(rel, acc) {
+            state.mark(State::Unreliable, &tau_reason(what, c, rel, acc, exp));
+        }
+    }
 }

@@ -112,6 +112,8 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         engine::EngineResult {
             model: result.base.clone(),
             model_error_percent: result.base_model_error_percent,
+            // (the final model's, not the base model's)
+            creep_tau_free: None,
             ..result.clone()
         }
     };
@@ -120,6 +122,11 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
     // model's (the engine's force balance is the Two Signal one).
     if opts.analyze.method == crate::identify::Method::TwoSignal {
         report.stiffness = headline::stiffness(&report.stiffness, &claimed);
+        headline::mark_creep_tau_main(
+            &mut report.stiffness,
+            &claimed,
+            report.large_signal.resonance_hz,
+        );
         report.large_signal = headline::large_signal(&report.large_signal, &claimed);
     } else if !claimed.model.effect_ids.is_empty() {
         warnings.push(
@@ -200,7 +207,10 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
                         .mark_all(crate::identify::validity::State::Unreliable, &why);
                     (linear, Some(format!("{why}: the small-signal values are the linear resonator's")))
                 } else {
-                    headline::small_signal(&plain, &pre, set.meta.moving_mass_kg)
+                    let (mut ss, not_taken) =
+                        headline::small_signal(&plain, &pre, set.meta.moving_mass_kg);
+                    headline::mark_creep_tau_small(&mut ss, &pre);
+                    (ss, not_taken)
                 };
                 warnings.extend(not_taken);
                 if unexplained.present {

@@ -208,7 +208,13 @@ pub fn fit_spectra(
         .flatten();
     if let Some(wb) = &whole {
         let share = wb.creep_share_percent();
-        if share >= CREEP_SHARE_PERCENT && wb.creep_k_n_per_m > 0.0 {
+        // (its gain over the left-out bins out of the noise, decision 0073:
+        // a noisy good part's misfit, 5.1 % -> 5.1 %, counted 69 % after
+        // the noise's share was taken off)
+        if share >= CREEP_SHARE_PERCENT
+            && wb.creep_k_n_per_m > 0.0
+            && wb.creep_held_out_gain_z > CREEP_STANDARD_ERRORS
+        {
             let why = format!(
                 "creep explains {share:.0} % of the linear resonator's misfit over {:.0}-{:.0} Hz (misfit {:.1} % -> {:.1} %, tau {:.1} ms, {:.0} N/m), which biases k0, R and Q; the diagnostics (--diagnose) fit it, a wider band or an added mass would separate it",
                 wb.band_hz[0],
@@ -365,9 +371,17 @@ pub struct WideBand {
     /// creep (N s/m).
     pub r_linear_ns_per_m: f64,
     pub creep_r_ns_per_m: f64,
+    /// Standard errors of that static k0 and R (N/m, N s/m) from the
+    /// residual's variance over the band's bins (tau held at its best).
+    pub creep_k0_se_n_per_m: f64,
+    pub creep_r_se_ns_per_m: f64,
     /// In how many of [`CREEP_FOLDS`] blocks of the band (left out in turn)
     /// the model with creep predicts X better than the linear resonator.
     pub creep_folds_won: usize,
+    /// The mean over the band's bins (each left out once) of the linear
+    /// resonator's squared relative error of X less creep's, in standard
+    /// errors of that mean (NaN without creep).
+    pub creep_held_out_gain_z: f64,
     /// Best resonance of the grid: (f2, Q, m2, misfit %).
     best_resonance: Option<(f64, f64, f64, f64)>,
 }
@@ -421,10 +435,13 @@ impl WideBand {
     /// Why the headline k0 and R (`k0_n_per_m`, `r_ns_per_m`: the linear
     /// resonator around the resonance) cannot be taken, when this band says
     /// so: creep predicts the blocks of the band left out in turn better
-    /// than the linear resonator in most of them ([`CREEP_FOLDS`]), with a
-    /// positive stiffness, and the model with creep puts the static k0 or R
+    /// than the linear resonator in most of them ([`CREEP_FOLDS`]) by a
+    /// gain over the left-out bins of more than
+    /// [`CREEP_STANDARD_ERRORS`] standard errors, with a positive
+    /// stiffness, and the model with creep puts the static k0 or R
     /// farther from the headline values than their stated accuracy (k0
-    /// [`CREEP_K0_SENSITIVITY`], R [`CREEP_R_SENSITIVITY`]). A creep the
+    /// [`CREEP_K0_SENSITIVITY`], R [`CREEP_R_SENSITIVITY`]) by more than
+    /// [`CREEP_STANDARD_ERRORS`] of their standard errors. A creep the
     /// data hold and that moves no value beyond its accuracy is no reason to
     /// distrust it; one that does is, however small its share of a misfit
     /// other structure dominates (cone_18in, tau 50 ms: 46 %, k0 +11 %).
@@ -435,7 +452,15 @@ impl WideBand {
     pub fn creep_moves_values(&self, k0_n_per_m: f64, r_ns_per_m: f64) -> Option<String> {
         let dk = self.creep_k0_n_per_m / k0_n_per_m - 1.0;
         let dr = self.creep_r_ns_per_m / r_ns_per_m - 1.0;
-        let held = 2 * self.creep_folds_won > CREEP_FOLDS;
+        // Their noise (relative standard errors of the model with creep):
+        // a move beyond the accuracy by less than its noise is no evidence.
+        let sk = self.creep_k0_se_n_per_m / k0_n_per_m.abs();
+        let sr = self.creep_r_se_ns_per_m / r_ns_per_m.abs();
+        // Held out: most blocks won, and the gain over the left-out bins
+        // stands out of its own scatter (noise alone scatters it about
+        // zero; decision 0073).
+        let held = 2 * self.creep_folds_won > CREEP_FOLDS
+            && self.creep_held_out_gain_z > CREEP_STANDARD_ERRORS;
         // The band must be the linear resonator the fit assumes, creep
         // aside (the fit's own limit): a spider's harmonics at 1 mm fill
         // its whole band (misfit 11-25 %), and a creep fitted into them
@@ -446,7 +471,8 @@ impl WideBand {
             && self.creep_k_n_per_m > 0.0
             && self.creep_k0_n_per_m > 0.0
             && self.creep_r_ns_per_m > 0.0
-            && (dk.abs() > CREEP_K0_SENSITIVITY || dr.abs() > CREEP_R_SENSITIVITY);
+            && (dk.abs() - CREEP_STANDARD_ERRORS * sk > CREEP_K0_SENSITIVITY
+                || dr.abs() - CREEP_STANDARD_ERRORS * sr > CREEP_R_SENSITIVITY);
         let corner_hz = 1.0 / (2.0 * PI * self.creep_tau_s);
         let [lo, hi] = self.band_hz;
         found.then(|| {
@@ -458,17 +484,20 @@ impl WideBand {
                 "the diagnostics (--diagnose) fit it".to_string()
             };
             format!(
-                "creep predicts {} of {CREEP_FOLDS} blocks of {lo:.0}-{hi:.0} Hz left out in turn better than the linear resonator (misfit {:.2} % -> {:.2} %, tau {:.1} ms, {:.0} N/m), and with it the static k0 is {:.0} N/m ({:+.1} %, accuracy {:.0} %) and R {:.3} N s/m ({:+.1} %, accuracy {:.0} %) of the linear resonator's, which creep biases with Q (and K(x), R and Keff of the main sweep); {separable}; a pre-measurement from below creep's corner ({:.1} Hz), or an added mass, would separate them",
+                "creep predicts {} of {CREEP_FOLDS} blocks of {lo:.0}-{hi:.0} Hz left out in turn better than the linear resonator (gain {:.1} standard errors; misfit {:.2} % -> {:.2} %, tau {:.1} ms, {:.0} N/m), and with it the static k0 is {:.0} N/m ({:+.1} +- {:.1} %, accuracy {:.0} %) and R {:.3} N s/m ({:+.1} +- {:.1} %, accuracy {:.0} %) of the linear resonator's, which creep biases with Q (and K(x), R and Keff of the main sweep); {separable}; a pre-measurement from below creep's corner ({:.1} Hz), or an added mass, would separate them",
                 self.creep_folds_won,
+                self.creep_held_out_gain_z,
                 self.misfit_linear_percent,
                 self.misfit_with_creep_percent,
                 self.creep_tau_s * 1e3,
                 self.creep_k_n_per_m,
                 self.creep_k0_n_per_m,
                 100.0 * dk,
+                100.0 * CREEP_STANDARD_ERRORS * sk,
                 100.0 * CREEP_K0_SENSITIVITY,
                 self.creep_r_ns_per_m,
                 100.0 * dr,
+                100.0 * CREEP_STANDARD_ERRORS * sr,
                 100.0 * CREEP_R_SENSITIVITY,
                 corner_hz,
             )
@@ -527,6 +556,14 @@ fn creep_column(ws: &[f64], tau_s: f64) -> Vec<Complex64> {
 /// left-out block better in most of them, not in one block's luck.
 pub const CREEP_FOLDS: usize = 5;
 
+/// Standard errors (two: about 95 %, the coverage of the diagnostics'
+/// tau-free check, decision 0072) by which the whole band's creep must
+/// stand out of the noise (decision 0073): its gain over the left-out bins
+/// above zero (the bins' own scatter: noise alone scatters it about zero),
+/// and its move of k0 or R beyond their accuracy (the model with creep's
+/// standard errors from its residual).
+pub const CREEP_STANDARD_ERRORS: f64 = 2.0;
+
 /// Share (%) of the linear resonator's structured misfit over the whole
 /// band that creep must explain for the plain analysis to mark its
 /// small-signal values unreliable (creep with its corner in the band).
@@ -579,11 +616,12 @@ pub fn wide_band(
         .zip(&xs)
         .map(|(w, x)| 1.0 / (w * w * mass_kg * x.norm()).max(f64::MIN_POSITIVE))
         .collect();
-    // Least squares over the bins `use_bin` keeps: (k0, R, A[, added]).
-    let solve = |wgt: &[f64],
-                 extra: Option<&[Complex64]>,
-                 use_bin: &dyn Fn(usize) -> bool|
-     -> Option<Vec<f64>> {
+    // Least squares over the bins `use_bin` keeps: (k0, R, A[, added]),
+    // with the standard errors of the residual's variance.
+    let solve_se = |wgt: &[f64],
+                    extra: Option<&[Complex64]>,
+                    use_bin: &dyn Fn(usize) -> bool|
+     -> Option<dsp::Lstsq> {
         let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(2 * n); 3 + extra.is_some() as usize];
         let mut y = Vec::with_capacity(2 * n);
         for i in (0..n).filter(|&i| use_bin(i)) {
@@ -600,7 +638,10 @@ pub fn wide_band(
             y.extend([g * t.re, g * t.im]);
         }
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        Some(dsp::lstsq(&refs, &y).ok()?.coefficients)
+        dsp::lstsq(&refs, &y).ok()
+    };
+    let solve = |wgt: &[f64], extra: Option<&[Complex64]>, use_bin: &dyn Fn(usize) -> bool| {
+        solve_se(wgt, extra, use_bin).map(|l| l.coefficients)
     };
     // Squared relative error of X predicted from the microphone at bin i.
     let err2 = |c: &[f64], extra: Option<&[Complex64]>, i: usize| -> f64 {
@@ -612,10 +653,13 @@ pub fn wide_band(
         ((xs[i] - pred) / xs[i]).norm_sqr()
     };
     // Misfit: RMS over the bins of the relative error of X.
-    let fit = |wgt: &[f64], extra: Option<&[Complex64]>| -> Option<(Vec<f64>, f64)> {
-        let c = solve(wgt, extra, &|_| true)?;
-        let num: f64 = (0..n).map(|i| err2(&c, extra, i)).sum();
-        Some((c, 100.0 * (num / n as f64).sqrt()))
+    let fit_se = |wgt: &[f64], extra: Option<&[Complex64]>| -> Option<(dsp::Lstsq, f64)> {
+        let l = solve_se(wgt, extra, &|_| true)?;
+        let num: f64 = (0..n).map(|i| err2(&l.coefficients, extra, i)).sum();
+        Some((l, 100.0 * (num / n as f64).sqrt()))
+    };
+    let fit = |wgt: &[f64], extra: Option<&[Complex64]>| {
+        fit_se(wgt, extra).map(|(l, m)| (l.coefficients, m))
     };
     for _ in 0..2 {
         let (c, _) = fit(&wgt, None)?;
@@ -648,17 +692,22 @@ pub fn wide_band(
             .collect()
     };
     let mut creep = (mis_lin, f64::NAN, 0.0, c_lin[0], c_lin[1]);
+    let mut creep_se = [f64::NAN; 2];
     for tau in logspace(0.2 / (2.0 * PI * hi), 5.0 / (2.0 * PI * lo), 24) {
         let e = creep_column(&ws, tau);
-        if let Some((c, m)) = fit(&wgt, Some(&e)) {
+        if let Some((l, m)) = fit_se(&wgt, Some(&e)) {
             if m < creep.0 {
+                let c = &l.coefficients;
                 creep = (m, tau, c[3], c[0], c[1]);
+                creep_se = [l.standard_errors[0], l.standard_errors[1]];
             }
         }
     }
     // Creep's held-out gain: CREEP_FOLDS contiguous blocks of the band in
     // log frequency, each left out in turn; both models are fitted on the
     // rest (creep at its tau) and judged on the block left out.
+    // Per left-out bin: the linear resonator's squared error less creep's.
+    let mut held_gain: Vec<f64> = Vec::with_capacity(n);
     let creep_folds_won = if creep.1.is_finite() {
         let e = creep_column(&ws, creep.1);
         let fold = |i: usize| {
@@ -680,11 +729,24 @@ pub fn wide_band(
                         .map(|i| err2(c, x, i))
                         .sum()
                 };
+                held_gain.extend(
+                    (0..n)
+                        .filter(|&i| fold(i) == k)
+                        .map(|i| err2(&cl, None, i) - err2(&cc, Some(&e), i)),
+                );
                 held(&cc, Some(&e)) < held(&cl, None)
             })
             .count()
     } else {
         0
+    };
+    // The held-out gain against its own scatter over the bins: its mean
+    // in standard errors of the mean (noise alone scatters it about zero).
+    let creep_held_out_gain_z = {
+        let m = held_gain.len() as f64;
+        let mean = held_gain.iter().sum::<f64>() / m;
+        let var = held_gain.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / (m - 1.0);
+        mean / (var / m).sqrt()
     };
     let mut best: Option<(f64, f64, f64, f64)> = None;
     if with_resonance {
@@ -714,7 +776,10 @@ pub fn wide_band(
         creep_k0_n_per_m: creep.3,
         r_linear_ns_per_m: c_lin[1],
         creep_r_ns_per_m: creep.4,
+        creep_k0_se_n_per_m: creep_se[0],
+        creep_r_se_ns_per_m: creep_se[1],
         creep_folds_won,
+        creep_held_out_gain_z,
         best_resonance: best,
     })
 }

@@ -148,6 +148,16 @@ pub const NOISE_FLOOR_LIMIT_PERCENT: f64 = 10.0;
 /// threshold for unexplained structure, decision 0019).
 pub const STRUCTURE_RATIO: f64 = 0.3;
 
+/// The stated accuracy (relative) of a `valid` value (docs/diagnostics.md,
+/// "Bad parts"): K(x) RMS over the valid range, R of the main sweep, k0,
+/// f0, small-signal R and Q. Keff follows K(x).
+pub const ACCURACY_K_OF_X: f64 = 0.01;
+pub const ACCURACY_R: f64 = 0.05;
+pub const ACCURACY_K0: f64 = 0.03;
+pub const ACCURACY_F0: f64 = 0.015;
+pub const ACCURACY_SMALL_SIGNAL_R: f64 = 0.10;
+pub const ACCURACY_Q: f64 = 0.10;
+
 /// Keff at a target whose excursion reaches beyond the measured range by
 /// less than this share of the range's half-span is `valid` (the level
 /// control stops near, not at, the target).

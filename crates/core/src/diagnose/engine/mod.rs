@@ -17,7 +17,7 @@ mod result;
 pub use crate::identify::documents::{CandidateResult, LadderStep};
 pub use design::Prepared;
 pub use options::{EngineOptions, Term};
-pub use result::{fundamental_range_hz, EngineResult, FittedModel};
+pub use result::{fundamental_range_hz, CreepTauFree, EngineResult, FittedModel};
 
 use crate::diagnose::spectrum;
 use crate::effects::EffectId;
@@ -130,6 +130,7 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         });
     }
     let (model, beta) = describe(&p, &built, opts.folds);
+    let creep_tau_free = creep_tau_free(&p, &built, opts.folds);
     // The fit of the same Gram gives the same coefficients: the step's
     // residual and spectrum are the final model's.
     let (res, modelled, spectrum) = current.unwrap_or_else(|| {
@@ -178,5 +179,34 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
         spectrum,
         base_spectrum,
         order_note,
+        creep_tau_free,
     })
 }
+
+/// The model of `built` with creep's time constant free, when it holds
+/// creep: creep's column at tau is replaced by its columns at tau e^-h and
+/// tau e^h, which span the column and its derivative in ln tau (the
+/// Gauss-Newton linearisation of a free tau), so that the block-robust
+/// standard errors of K(x) and R include what tau's uncertainty does to
+/// them (decision 0072). The fit's own standard errors hold tau fixed at
+/// the grid search's best.
+fn creep_tau_free(p: &Prepared, built: &Built, folds: usize) -> Option<CreepTauFree> {
+    let i = built
+        .spec
+        .effects
+        .iter()
+        .position(|(e, _)| *e == EffectId::Creep)?;
+    let tau = built.spec.effects[i].1;
+    let mut spec = built.spec.clone();
+    spec.effects.remove(i);
+    let h = CREEP_TAU_STEP;
+    spec.effects.push((EffectId::Creep, tau * (-h).exp()));
+    spec.effects.push((EffectId::Creep, tau * h.exp()));
+    let model = describe(p, &Built::new(p, spec), folds).0;
+    Some(CreepTauFree { tau_s: tau, model })
+}
+
+/// Step in ln tau of the two creep columns that span the derivative: a
+/// tenth, well inside the tau grid's spacing (ln of its ratio 0.4-0.6), so
+/// that the span is the linearisation's.
+const CREEP_TAU_STEP: f64 = 0.1;

@@ -33,6 +33,18 @@ pub struct EngineResult {
     pub order_note: String,
     /// Significant candidates the ladder did not add, and why (one line each).
     pub skipped: Vec<String>,
+    /// With creep in the model: the model with its tau free.
+    pub creep_tau_free: Option<CreepTauFree>,
+}
+
+/// The model with creep's time constant free (`engine::run`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CreepTauFree {
+    /// Creep's tau of the model (s).
+    pub tau_s: f64,
+    /// K(x), R and their block-robust standard errors with tau free (its
+    /// effect parameters are not creep's: two columns share them).
+    pub model: FittedModel,
 }
 
 impl EngineResult {
