@@ -478,37 +478,25 @@ mod tests {
 
     #[test]
     fn a_bench_beyond_the_bounds_or_with_disagreeing_units_is_out_of_calibration() {
-        let c = estimate(
-            "b",
-            "ref",
-            crate::job::ProcedureMode::Full,
-            0.05,
-            &golden(1.0, 0.02),
-        )
-        .unwrap();
+        // Bench "b" against "ref", full procedure, a 50 g moving mass.
+        let est = |g: &[_]| estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, g);
+        let c = est(&golden(1.0, 0.02)).unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(c.problems[0].contains("laser"), "{:?}", c.problems);
-        let c = estimate(
-            "b",
-            "ref",
-            crate::job::ProcedureMode::Full,
-            0.05,
-            &golden(0.97, 0.0),
-        )
-        .unwrap();
+        let c = est(&golden(0.97, 0.0)).unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(c.problems.iter().any(|p| p.contains("clamp")));
         // One unit read on the bench with a 0.5 % other laser error.
         let mut g = golden(1.0, 0.0);
         g[2].2 = unit(1.0, 1.0, 0.005, 1.03);
-        let c = estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, &g).unwrap();
+        let c = est(&g).unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(
             c.problems.iter().any(|p| p.contains("spread")),
             "{:?}",
             c.problems
         );
-        assert!(estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, &g[..2]).is_err());
+        assert!(est(&g[..2]).is_err());
     }
 
     #[test]
