@@ -8,13 +8,15 @@
 //!    part's f0; a part further than `max_f0_deviation_percent` from the
 //!    golden f0 falls back to the full procedure.
 //! 2. Per level one rising sweep through the golden large-signal resonance
-//!    (scaled by the part's f0 / golden f0) at the golden drive, over the
+//!    (scaled by the part's f0 / golden f0) at the golden drive aimed at the
+//!    target (times the target over the golden units' Xpeak), over the
 //!    full procedure's narrow band, paced by the ringing: it crosses the
 //!    half-power bandwidth f/Q in [`N_TAU`] decay times tau = Q / (pi f)
 //!    (production-notes: 3-5 tau). The level is checked inside the sweep: a
 //!    large-signal resonance outside the sweep's band (the upper branch was
 //!    not ridden from at least 1/3 octave below, or not crossed) falls
-//!    back; an Xpeak more than the full procedure's search tolerance off the
+//!    back; an Xpeak (the analysis's: the excursion in the period at the
+//!    resonance) more than the full procedure's search tolerance off the
 //!    target gives one corrected sweep, and falls back when that one misses
 //!    too.
 //!
@@ -279,8 +281,20 @@ pub fn run_production(
                 v,
             )
         };
+        // The golden drive is where the full search stopped, anywhere within
+        // its tolerance of the target (a spider_4in at 7.5 mm of 8): aimed at
+        // the target with the golden units' own Xpeak at that drive.
+        let aim = gl.xpeak_m.map_or(1.0, |x| (level / x).clamp(0.5, 2.0));
+        if aim != 1.0 {
+            cx.log.push(format!(
+                "golden drive {:.3} V reached Xpeak {:.3} mm: aimed at {:.3} mm with x{aim:.4}",
+                gl.drive_v,
+                gl.xpeak_m.unwrap_or(0.0) * 1e3,
+                level * 1e3
+            ));
+        }
         let mut v = equivalent_drive(
-            gl.drive_v,
+            gl.drive_v * aim,
             &band(cfg.narrow_duration_s, 1.0),
             &band(narrow_s[li], 1.0),
             f_r,
@@ -301,8 +315,17 @@ pub fn run_production(
                 ));
                 continue;
             }
-            let info = analyse(&spec, &played.sig)
+            let mut info = analyse(&spec, &played.sig)
                 .ok_or_else(|| ProcedureError::Failed("short narrow sweep too short".into()))?;
+            // The level is checked with the analysis's own Xpeak, so the short
+            // procedure accepts the sweeps the analysis reads as on target.
+            match springbench_core::identify::sweep_xpeak_m(&played.sig, cfg.moving_mass_kg) {
+                Ok(x) => info.xpeak_m = x,
+                Err(e) => cx.log.push(format!(
+                    "Xpeak from the raw samples ({:.3} mm): the analysis's preparation failed: {e}",
+                    info.xpeak_m * 1e3
+                )),
+            }
             cx.log.push(format!(
                 "short narrow sweep {:.2}-{:.2} Hz in {:.2} s at {v:.3} V: Xpeak {:.3} mm (target {:.3} mm), resonance {:.2} Hz",
                 spec.f_start_hz,

@@ -570,6 +570,30 @@ pub fn force_balance_data(
     Ok(force_balance_of(&p, false))
 }
 
+/// Xpeak (m) of a main sweep as the analysis reads it (`LargeSignal::xpeak_m`:
+/// the larger extreme of the band-limited displacement in the period at the
+/// resonance, where x lags the force by 90 degrees). A procedure that checks
+/// the level it reached with this measure accepts the sweeps the analysis
+/// accepts; the raw samples' largest |x| lies where the upper branch ends,
+/// past that period (a cone_6in `hardening` part: 5.62 mm against 5.37 mm).
+pub fn sweep_xpeak_m(main: &crate::recording::Signals, mass_kg: f64) -> Result<f64, AnalyzeError> {
+    let p = prep::prepare_sweep(main, mass_kg, "main")?;
+    let (i, _) = resonance_period(&p)
+        .ok_or_else(|| AnalyzeError::Invalid("main: no resonance inside the sweep".into()))?;
+    Ok(p.px[i].max.max(-p.px[i].min))
+}
+
+/// The period the large-signal values are read at: where x lags the force by
+/// 90 degrees (with fR), else the displacement peak when it lies inside the
+/// sweep (fR None).
+fn resonance_period(p: &prep::Prepared) -> Option<(usize, Option<f64>)> {
+    match large::find(p) {
+        Some(r) => Some((r.index, Some(r.fr_hz))),
+        None if p.disp_peak_inside => Some((p.res_index, None)),
+        None => None,
+    }
+}
+
 /// The force-balance data of the pre-measurement, prepared like the main
 /// sweep (its span: where the displacement's fundamental exceeds 10 % of its
 /// peak). The diagnostics fit the small-signal model with effects on it.
@@ -613,14 +637,14 @@ fn large_signal(
         states.resonance_hz.mark(validity::State::Unreliable, why);
         states.keff_n_per_m.mark(validity::State::Unreliable, why);
     };
-    let (ri, fr) = match large::find(p) {
-        Some(r) => (r.index, r.fr_hz),
-        None if p.disp_peak_inside => {
+    let (ri, fr) = match resonance_period(p) {
+        Some((i, Some(fr))) => (i, fr),
+        Some((i, None)) => {
             warnings.push(format!(
                 "the displacement never lags the driving force (microphone) by 90 degrees inside the sweep: fR = {peak_hz:.2} Hz is the displacement peak, which lies below the resonance of a damped part and is moved by the box's air spring"
             ));
             mark("the displacement never lags the force by 90 degrees inside the sweep: fR is the displacement peak");
-            (p.res_index, peak_hz)
+            (i, peak_hz)
         }
         None => {
             return Err(AnalyzeError::Invalid(

@@ -25,8 +25,16 @@ fn default_max_f0_dev() -> f64 {
 pub struct GoldenLevel {
     /// Mean large-signal resonance of the golden units' narrow sweeps (Hz).
     pub resonance_hz: f64,
-    /// Mean drive amplitude that reached the target Xpeak (V).
+    /// Mean drive amplitude that reached the target Xpeak (V): where the full
+    /// procedure's search stopped, within its 8 % of the target.
     pub drive_v: f64,
+    /// Mean Xpeak the golden units reached at that drive (m), as the analysis
+    /// reads it. The production procedure scales `drive_v` by the target over
+    /// it, so its first sweep aims at the target rather than at the search's
+    /// tolerance edge. Absent in references stored before it was recorded
+    /// (then the drive is taken as it is).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub xpeak_m: Option<f64>,
 }
 
 /// What the golden units established, stored with the approved limits.
@@ -67,6 +75,7 @@ impl GoldenReference {
         let mut q_xu: Vec<Option<f64>> = vec![];
         let mut res = vec![vec![]; levels];
         let mut drv = vec![vec![]; levels];
+        let mut xpk: Vec<Vec<f64>> = vec![vec![]; levels];
         for g in golden {
             for li in 0..levels {
                 let f = g.measurements.iter().find(|m| m.level_index == li)?;
@@ -80,6 +89,7 @@ impl GoldenReference {
                 }
                 res[li].push(rep.large_signal.resonance_hz);
                 drv[li].push(f.drive_v?);
+                xpk[li].push(rep.large_signal.xpeak_m);
             }
         }
         let g = GoldenReference {
@@ -96,6 +106,10 @@ impl GoldenReference {
                 .map(|li| GoldenLevel {
                     resonance_hz: mean(&res[li]),
                     drive_v: mean(&drv[li]),
+                    xpeak_m: xpk[li]
+                        .iter()
+                        .all(|x| x.is_finite() && *x > 0.0)
+                        .then(|| mean(&xpk[li])),
                 })
                 .collect(),
             max_f0_deviation_percent: DEFAULT_MAX_F0_DEVIATION_PERCENT,
@@ -139,7 +153,11 @@ impl GoldenReference {
             ));
         }
         for (i, l) in self.levels.iter().enumerate() {
-            for (n, v) in [("resonance_hz", l.resonance_hz), ("drive_v", l.drive_v)] {
+            let xpeak = l.xpeak_m.map(|x| ("xpeak_m", x));
+            for (n, v) in [("resonance_hz", l.resonance_hz), ("drive_v", l.drive_v)]
+                .into_iter()
+                .chain(xpeak)
+            {
                 if !pos(v) {
                     e.push((
                         format!("levels[{i}].{n}"),
@@ -174,6 +192,7 @@ mod tests {
                     }),
                     large_signal: LargeSignal {
                         resonance_hz: fr,
+                        xpeak_m: fr * 1e-4,
                         ..Default::default()
                     },
                     ..Default::default()
@@ -200,13 +219,30 @@ mod tests {
         assert!((g.f0_hz - 35.5).abs() < 1e-12 && (g.q - 6.2).abs() < 1e-12);
         assert!((g.pre_drive_v - 7.2).abs() < 1e-12);
         assert_eq!(g.pre_q_drive_to_x, Some(8.5));
+        assert!((g.levels[0].xpeak_m.unwrap() - 4.55e-3).abs() < 1e-15);
         assert_eq!(
             g.levels,
             [GoldenLevel {
                 resonance_hz: 45.5,
-                drive_v: 49.0
+                drive_v: 49.0,
+                xpeak_m: g.levels[0].xpeak_m,
             }]
         );
+        // A unit whose report has no Xpeak leaves the level without one (the
+        // drive is then taken as it is), rather than a mean of a zero.
+        let mut no_x = unit(36.0, 6.4, 46.0, 48.0, 7.4, Some(9.0));
+        no_x.measurements[0]
+            .report
+            .as_mut()
+            .unwrap()
+            .large_signal
+            .xpeak_m = 0.0;
+        let g2 = GoldenReference::from_golden(&[unit(35.0, 6.0, 45.0, 50.0, 7.0, None), no_x], 1)
+            .unwrap();
+        assert_eq!(g2.levels[0].xpeak_m, None);
+        let mut bad = g2.clone();
+        bad.levels[0].xpeak_m = Some(f64::NAN);
+        assert_eq!(bad.validate(1).unwrap_err()[0].0, "levels[0].xpeak_m");
         assert_eq!(g.max_f0_deviation_percent, DEFAULT_MAX_F0_DEVIATION_PERCENT);
         // One unit without its |X/U| quality: the part's Q stands in (None).
         let g = GoldenReference::from_golden(
