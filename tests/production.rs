@@ -1052,6 +1052,30 @@ mod explore {
                 v *= (target / x).powf(0.8);
             }
             let main = main.unwrap();
+            // `WINDOWS=n`: the sd of K(4 mm) with the noise in one of n equal
+            // windows of the record at a time (the estimator is linear in
+            // the noise, so the windows' variances add up to the whole's).
+            if let Some(nw) = std::env::var("WINDOWS").ok().and_then(|v| v.parse::<usize>().ok()) {
+                let len = main.displacement_m.len();
+                let mut line = format!("{label}: K4 sd per 1/{nw} window:");
+                for w in 0..nw {
+                    let (a, b) = (w * len / nw, (w + 1) * len / nw);
+                    let k4: Vec<f64> = seeds
+                        .iter()
+                        .filter_map(|&s| {
+                            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(s);
+                            let nd = rand_distr::Normal::new(0.0, 1e-6).unwrap();
+                            let mut m = main.clone();
+                            for x in &mut m.displacement_m[a..b] {
+                                *x += nd.sample(&mut rng);
+                            }
+                            analyse(&pre, m).map(|r| r[1])
+                        })
+                        .collect();
+                    line += &format!(" {:.4}", sd(&k4).1);
+                }
+                eprintln!("{line}");
+            }
             let rr: Vec<[f64; 7]> = seeds
                 .iter()
                 .filter_map(|&s| {
