@@ -1055,7 +1055,10 @@ mod explore {
             // `WINDOWS=n`: the sd of K(4 mm) with the noise in one of n equal
             // windows of the record at a time (the estimator is linear in
             // the noise, so the windows' variances add up to the whole's).
-            if let Some(nw) = std::env::var("WINDOWS").ok().and_then(|v| v.parse::<usize>().ok()) {
+            if let Some(nw) = std::env::var("WINDOWS")
+                .ok()
+                .and_then(|v| v.parse::<usize>().ok())
+            {
                 let len = main.displacement_m.len();
                 let mut line = format!("{label}: K4 sd per 1/{nw} window:");
                 for w in 0..nw {
