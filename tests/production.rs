@@ -455,23 +455,33 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
 /// the same part and seed and diagnosed as the runner does for such a
 /// recipe. Asserted: the same effects are found (none on a good part,
 /// friction on every friction part) and the friction force agrees within
-/// 10 %. FAILS today: the full procedure finds 0.25 N of friction on every
-/// friction part, the production procedure on none (docs/qc.md, "Effect
-/// sizes"). The runner therefore runs the full procedure for a recipe that
-/// judges an effect size (`the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses`);
-/// this test, which calls the procedures directly, stays `#[ignore]` until
-/// the short sweeps measure effects.
-/// `cargo test --test production -- --ignored --nocapture effect_sizes` (20 s)
+/// 10 %. FAILS with the 2 s sweep: friction missed on 3 of 16 parts
+/// (`FRICTION_PARTS=16 GOOD_PARTS=8`, default 5 and 3). A 2.5 s sweep
+/// finds it on 16 of 16 (within 0.97 %), but the short pre-measurement
+/// cannot hold the small-signal model with friction (`SHOW_SMALL_SIGNAL=1`:
+/// its noise floor 22-25 %, values not taken, verdict `invalid` where the
+/// full procedure's is `pass`), so the runner runs the full procedure for a
+/// recipe that judges an effect size
+/// (`the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses`). Figures
+/// in docs/qc.md, "Effect sizes".
+/// `cargo test --test production -- --ignored --nocapture effect_sizes` (10 s)
 #[test]
-#[ignore = "open defect: the production sweep does not reveal friction (0 of 5 parts); docs/qc.md, Effect sizes"]
+#[ignore = "open defect: the short sweeps do not reveal friction on every part, nor hold the small-signal model with it; docs/qc.md, Effect sizes"]
 fn effect_sizes_agree_with_the_full_procedure() {
     let l = &lines()[0];
     let rec = approved_recipe(l);
     let g = rec.procedure.golden.clone().unwrap();
     let nominal = preset(l.preset).unwrap();
-    let parts: Vec<(u64, Option<Defect>)> = (0..5u64)
+    let env = |k: &str, d: u64| -> u64 {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let (n_friction, n_good) = (env("FRICTION_PARTS", 5), env("GOOD_PARTS", 3));
+    let parts: Vec<(u64, Option<Defect>)> = (0..n_friction)
         .map(|i| (950 + i, Some(Defect::Friction)))
-        .chain((0..3u64).map(|i| (960 + i, None)))
+        .chain((0..n_good).map(|i| (1960 + i, None)))
         .collect();
     let effects = |p: &PartSpec, seed: u64, golden: Option<Option<&GoldenReference>>| {
         let m = measure(p, seed, DEFAULT_LIMITS, l.level_m, golden);
@@ -489,6 +499,26 @@ fn effect_sizes_agree_with_the_full_procedure() {
             ..Default::default()
         };
         let d = springbench::diagnose::diagnose(&recording_set(p, &m.outcome), &opts).unwrap();
+        // `SHOW_SMALL_SIGNAL=1`: the diagnosed small-signal values and why.
+        if std::env::var("SHOW_SMALL_SIGNAL").is_ok() {
+            let ss = d.report.small_signal.as_ref().unwrap();
+            eprintln!(
+                "{} {}: small-signal reliable {} k0 {:?}; {:?}",
+                p.name,
+                if golden.is_some() {
+                    "production"
+                } else {
+                    "full"
+                },
+                ss.reliable,
+                ss.k0_n_per_m,
+                d.report
+                    .warnings
+                    .iter()
+                    .filter(|w| w.contains("small-signal"))
+                    .collect::<Vec<_>>(),
+            );
+        }
         serde_json::to_value(d.report.model.effects).unwrap()
     };
     let results = par_map(&parts, |&(seed, defect)| {
