@@ -345,22 +345,29 @@ pub(crate) async fn apply_correction(
                 return Err(bad(format!("no part '{}' at the center", c.part_serial)));
             }
             let _ = r;
-            // One measurement, or the whole part.
+            // One measurement, or the whole part as the correcting station
+            // measured it: a station's correction moves its own measurements
+            // and verdicts only (another line's of the same serial are that
+            // line's to correct); one made at the center (station None)
+            // moves every station's.
             sqlx::query(
-                "UPDATE measurements SET part_serial = $2 WHERE part_serial = $1 AND ($3::text IS NULL OR id = $3)",
+                "UPDATE measurements SET part_serial = $2 WHERE part_serial = $1 AND ($3::text IS NULL OR id = $3) \
+                 AND ($4::text IS NULL OR station_id = $4)",
             )
             .bind(&c.part_serial)
             .bind(new)
             .bind(&c.measurement_id)
+            .bind(station)
             .execute(&mut **tx)
             .await?;
             sqlx::query(
                 "UPDATE qc_verdicts SET part_serial = $2 WHERE part_serial = $1 \
-                 AND ($3::text IS NULL OR measurement_id = $3)",
+                 AND ($3::text IS NULL OR measurement_id = $3) AND ($4::text IS NULL OR station_id = $4)",
             )
             .bind(&c.part_serial)
             .bind(new)
             .bind(&c.measurement_id)
+            .bind(station)
             .execute(&mut **tx)
             .await?;
         }

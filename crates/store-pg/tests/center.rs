@@ -1182,3 +1182,81 @@ async fn a_void_takes_its_job_out_of_the_parts_verdict_and_the_yield() {
     assert_eq!((passed, failed), (1, 0), "{days:?}");
     assert_eq!(center.job_verdicts("j2").await.unwrap()[0].verdict, "fail");
 }
+
+/// A station's serial correction that names no measurement moves that
+/// station's measurements and verdicts of the part, not another station's
+/// of the same serial: the station that corrects knows only what it
+/// measured (it found the serial misread on its own line). Before the fix
+/// the center moved every station's measurements of the serial.
+#[tokio::test]
+async fn a_stations_serial_correction_moves_only_its_own_measurements() {
+    let Some(s) = store("serial_per_station").await else {
+        return;
+    };
+    s.ingest(
+        "line-1",
+        &[measurement(
+            1,
+            "a-1",
+            "P-7",
+            None,
+            None,
+            1000.0,
+            "pass",
+            &time(0),
+        )],
+    )
+    .await
+    .unwrap();
+    s.ingest(
+        "line-2",
+        &[measurement(
+            1,
+            "b-1",
+            "P-7",
+            None,
+            None,
+            1010.0,
+            "pass",
+            &time(1),
+        )],
+    )
+    .await
+    .unwrap();
+    let fix = Correction {
+        id: "c-7".into(),
+        kind: "part_serial".into(),
+        part_serial: "P-7".into(),
+        measurement_id: None,
+        old_value: Some("P-7".into()),
+        new_value: Some("P-8".into()),
+        reason: "label misread on line 1".into(),
+        made_by: Some("admin".into()),
+        made_at: time(2),
+    };
+    s.ingest(
+        "line-1",
+        &[ReplicationItem {
+            seq: 2,
+            body: ItemBody::Correction(fix),
+        }],
+    )
+    .await
+    .unwrap();
+    let serial_of = |id: &'static str| {
+        let s = s.clone();
+        async move {
+            let m = s.get_measurement(id).await.unwrap().unwrap();
+            let v = s.measurement_verdict(id).await.unwrap().unwrap();
+            (m.0.part_serial, v.part_serial)
+        }
+    };
+    assert_eq!(serial_of("a-1").await, ("P-8".into(), "P-8".into()));
+    assert_eq!(serial_of("b-1").await, ("P-7".into(), "P-7".into()));
+    let count = |serial: &'static str| {
+        let s = s.clone();
+        async move { s.get_part(serial).await.unwrap().unwrap().measurement_count }
+    };
+    assert_eq!(count("P-7").await, 1, "line 2's measurement stays");
+    assert_eq!(count("P-8").await, 1, "line 1's measurement moved");
+}
