@@ -1084,6 +1084,45 @@ async fn spc_takes_one_point_per_part_and_job() {
         assert_eq!(p["repeats"], 3);
         assert!(rel(&p["value"], *m));
     }
+    assert_eq!(spc["unreadable_verdicts"], 0, "{spc}");
+    assert!(spc.get("warnings").is_none(), "{spc}");
+    // A verdict detail this version cannot read (as another software
+    // version might have written it): P-0's three measurement verdicts are
+    // left out, counted and named, not dropped without a word (they were).
+    {
+        use sqlx::ConnectOptions;
+        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(d.dir.join("data").join("springbench.db"))
+            .connect()
+            .await
+            .unwrap();
+        let r = sqlx::query(
+            "UPDATE qc_verdicts SET detail_json = '{\"verdict\": \"pass\", \"values\": {}}' \
+             WHERE part_serial = 'P-0' AND measurement_id IS NOT NULL",
+        )
+        .execute(&mut db)
+        .await
+        .unwrap();
+        assert_eq!(r.rows_affected(), 3);
+    }
+    let spc = common::get(&c, &d, "/api/v1/recipes/reps/spc?parameter=k0&last=1000").await;
+    assert_eq!(spc["n"], 4, "{spc}");
+    assert_eq!(spc["unreadable_verdicts"], 3, "{spc}");
+    let w = spc["warnings"].to_string();
+    assert!(w.contains("3 verdict(s)") && w.contains("P-0"), "{spc}");
+    let mean4 = means[1..].iter().sum::<f64>() / 4.0;
+    assert!(rel(&spc["mean"], mean4), "mean {} vs {mean4}", spc["mean"]);
+    let csv = c
+        .get(d.url("/api/v1/recipes/reps/spc?parameter=k0&last=1000&format=csv"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        csv.headers()["springbench-unreadable-verdicts"],
+        "3",
+        "{:?}",
+        csv.headers()
+    );
     println!(
         "SPC with 3 repeats of 5 parts: k0 mean {mean:.1} N/m, sigma_within {sw:.2} (per measurement it would read {:.2}), Cpk {cpk:.3}, Ppk {ppk:.3}",
         all.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / (all.len() - 1) as f64 / 1.128

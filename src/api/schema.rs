@@ -235,6 +235,12 @@ pub struct SpcDocument {
     #[serde(flatten)]
     pub spc: crate::qc::spc::Spc,
     pub recipe: RecipeVersionRef,
+    /// Verdicts of the window left out of every figure because their stored
+    /// detail does not read in this software version (0 normally).
+    pub unreadable_verdicts: usize,
+    /// Present when `unreadable_verdicts` is not 0: what was left out and why.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// The MES outbox: deliveries and totals.

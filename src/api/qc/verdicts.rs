@@ -168,10 +168,22 @@ pub async fn spc<R: Reads>(
     }
     let mut points = Vec::new();
     let mut invalid = 0;
+    // A verdict whose stored detail this version cannot read (written by
+    // another software version, or damaged) is left out of the statistics,
+    // counted and named, never dropped without a word.
+    let mut unreadable: Vec<String> = Vec::new();
     for r in &rows {
         let v: crate::qc::Verdict = match serde_json::from_value(r.detail.clone()) {
             Ok(v) => v,
-            Err(_) => continue,
+            Err(e) => {
+                tracing::warn!(
+                    "SPC of recipe '{name}': verdict of part '{}' (measurement {:?}) left out: its detail does not read: {e}",
+                    r.part_serial,
+                    r.measurement_id
+                );
+                unreadable.push(r.part_serial.clone());
+                continue;
+            }
         };
         if v.verdict == crate::qc::VerdictKind::Invalid {
             invalid += 1;
@@ -199,13 +211,30 @@ pub async fn spc<R: Reads>(
         invalid,
     );
     if csv {
+        // The CSV holds the chart points only: the count of verdicts left
+        // out travels in a header.
         return Ok((
-            [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+            [
+                (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+                (
+                    header::HeaderName::from_static("springbench-unreadable-verdicts"),
+                    unreadable.len().to_string(),
+                ),
+            ],
             crate::qc::spc::to_csv(&s),
         )
             .into_response());
     }
     let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
     doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
+    doc["unreadable_verdicts"] = json!(unreadable.len());
+    if !unreadable.is_empty() {
+        unreadable.dedup();
+        doc["warnings"] = json!([format!(
+            "{} verdict(s) of the window are left out of these figures: their stored detail does not read in this software version (parts {})",
+            doc["unreadable_verdicts"],
+            unreadable.join(", ")
+        )]);
+    }
     Ok(Json(doc).into_response())
 }

@@ -329,6 +329,11 @@ function drawSpc(el, ctx, name, params) {
       row('Pp / Ppk', `${num(s.pp, 3)} / ${num(s.ppk, 3)}`),
       row('yield', s.yield_fraction === null || s.yield_fraction === undefined ? '\u2013' : `${num(100 * s.yield_fraction, 4)} % (${s.passed} pass, ${s.failed} fail; ${s.invalid} invalid not counted)`),
     );
+    // Verdicts this version could not read are out of every figure above: say so beside them.
+    stats.dataset.unreadable = String(s.unreadable_verdicts || 0);
+    if (s.unreadable_verdicts) {
+      stats.append(h('tr', { id: 'spc-unreadable' }, h('th', { class: 'error' }, 'left out'), h('td', { class: 'error' }, (s.warnings || []).join(' ') || `${s.unreadable_verdicts} verdicts unreadable`)));
+    }
     stats.dataset.cpk = s.cpk === null || s.cpk === undefined ? '' : String(s.cpk);
     if (daemon.center) drawStations(perStation, name, sel.value, Number(last.value) || 100, u);
     stats.dataset.n = String(s.n);
