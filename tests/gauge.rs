@@ -369,6 +369,43 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     assert!(v3.to_string().contains("bench_out_of_calibration"), "{v3}");
     let list = get(c, d, "/api/v1/recipes/spider-4in/bench-calibrations").await;
     assert_eq!(list["items"].as_array().unwrap().len(), 2, "{list}");
+
+    // Golden units measured with repeats calibrate with every repeat: each
+    // unit's estimate is the mean over its (reference, bench) result pairs
+    // (before, only the first repeat's result was read, the others unseen).
+    // A job takes its repeats from the recipe: a version with 2.
+    let mut r = get(c, d, "/api/v1/recipes/spider-4in").await["recipe"].clone();
+    r["procedure"]["repeats"] = json!(2);
+    let (s, v) = send(
+        c,
+        d,
+        reqwest::Method::PUT,
+        "/api/v1/recipes/spider-4in",
+        ADMIN,
+        Some(r),
+    )
+    .await;
+    assert!(s == 200 || s == 201, "{s} {v}");
+    run_jobs(
+        c,
+        d,
+        (0..3)
+            .map(|i| job(&serials[i], 700 + i as u64, "virtual-2"))
+            .collect(),
+    )
+    .await;
+    let cal = calibrate(c, d, "virtual-2", "virtual-1", &serials, None).await;
+    assert_eq!(cal["state"], "in_calibration", "{cal}");
+    let units = cal["calibration"]["units"].as_array().unwrap();
+    assert_eq!(units.len(), 3, "{cal}");
+    for u in units {
+        assert_eq!(
+            u["pairs"], 2,
+            "one reference result, two repeats on the bench: {cal}"
+        );
+    }
+    let k = &cal["calibration"];
+    assert!(k["laser_gain_error"].as_f64().unwrap().abs() < 1e-4, "{k}");
 }
 
 /// Submits `bodies` as jobs and waits until each has succeeded.

@@ -515,13 +515,24 @@ pub async fn create_calibration(
             .store
             .newest_results_on_bench(&name, s, &req.bench, pname)
             .await?;
-        let first = |x: Option<(String, Vec<Value>)>| {
-            x.and_then(|(_, v)| v.into_iter().next())
-                .and_then(|v| serde_json::from_value::<crate::identify::Report>(v).ok())
+        // Every repeat of the newest job's first level: a golden unit
+        // measured several times calibrates with all of them (their mean).
+        // (A result this version cannot read makes the unit missing, named
+        // in the error, rather than calibrating with fewer repeats unseen.)
+        let reports = |x: Option<(String, Vec<Value>)>| -> Vec<crate::identify::Report> {
+            x.and_then(|(_, v)| {
+                v.into_iter()
+                    .map(serde_json::from_value)
+                    .collect::<Result<Vec<_>, _>>()
+                    .ok()
+            })
+            .unwrap_or_default()
         };
-        match (first(a), first(b)) {
-            (Some(a), Some(b)) => units.push((s.clone(), a, b)),
-            _ => missing.push(s.clone()),
+        let (a, b) = (reports(a), reports(b));
+        if a.is_empty() || b.is_empty() {
+            missing.push(s.clone());
+        } else {
+            units.push((s.clone(), a, b));
         }
     }
     if !missing.is_empty() {

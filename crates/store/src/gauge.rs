@@ -162,11 +162,11 @@ impl Store {
         rows.iter().map(cal_from_row).collect()
     }
 
-    /// The result documents (level 0 first) of the newest succeeded job of
-    /// `serial` under `recipe` on `bench` measured with `procedure` (a
-    /// production job that fell back does not count), whatever its verdict
-    /// (a bench out of calibration judges its golden units `invalid`; they
-    /// still calibrate it).
+    /// The result documents of the first level (every repeat, oldest first)
+    /// of the newest succeeded job of `serial` under `recipe` on `bench`
+    /// measured with `procedure` (a production job that fell back does not
+    /// count), whatever its verdict (a bench out of calibration judges its
+    /// golden units `invalid`; they still calibrate it).
     pub async fn newest_results_on_bench(
         &self,
         recipe: &str,
@@ -194,7 +194,7 @@ impl Store {
         let job_id: String = job.get(0);
         let rows = sqlx::query(
             "SELECT result_json FROM measurements WHERE job_id = ? AND result_json IS NOT NULL \
-             ORDER BY level_index, seq",
+             AND COALESCE(level_index, 0) = 0 ORDER BY seq",
         )
         .bind(&job_id)
         .fetch_all(&self.pool)

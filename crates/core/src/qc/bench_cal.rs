@@ -76,6 +76,15 @@ pub struct UnitEstimate {
     pub laser_gain_error: f64,
     /// RMS of the K(x) fit's residual over the compared range (N/m).
     pub residual_rms_n_per_m: f64,
+    /// Pairs of results (a repeat on the reference bench, a repeat on the
+    /// bench) the figures above are the mean of; 1 in calibrations stored
+    /// before repeats counted.
+    #[serde(default = "one_pair")]
+    pub pairs: usize,
+}
+
+fn one_pair() -> usize {
+    1
 }
 
 /// A bench's calibration against the reference bench, from golden units.
@@ -208,19 +217,52 @@ pub fn estimate_unit(
         kx_scale: a,
         laser_gain_error: e,
         residual_rms_n_per_m: rms,
+        pairs: 1,
     })
 }
 
-/// A bench's calibration from golden units, each as (serial, its result on
-/// the reference bench, its result on the bench). Err: fewer than
-/// [`MIN_UNITS`] units or a unit without the values; a calibration beyond
-/// the bounds comes back `out_of_calibration` with its problems.
+/// One golden unit measured with repeats: [`estimate_unit`] of every pair
+/// (a repeat on the reference bench, a repeat on the bench), averaged. The
+/// repeats measure the same unit again, so the unit's estimate is their
+/// mean, and the spread between units (the calibration's agreement check)
+/// stays a spread between units.
+pub fn estimate_unit_repeats(
+    serial: &str,
+    reference: &[Report],
+    bench: &[Report],
+) -> Result<UnitEstimate, String> {
+    if reference.is_empty() || bench.is_empty() {
+        return Err(format!("{serial}: no result on both benches"));
+    }
+    let mut all = vec![];
+    for r in reference {
+        for b in bench {
+            all.push(estimate_unit(serial, r, b)?);
+        }
+    }
+    let n = all.len() as f64;
+    let mean = |f: fn(&UnitEstimate) -> f64| all.iter().map(f).sum::<f64>() / n;
+    Ok(UnitEstimate {
+        serial: serial.to_string(),
+        k0_ratio: mean(|u| u.k0_ratio),
+        kx_scale: mean(|u| u.kx_scale),
+        laser_gain_error: mean(|u| u.laser_gain_error),
+        residual_rms_n_per_m: mean(|u| u.residual_rms_n_per_m),
+        pairs: all.len(),
+    })
+}
+
+/// A bench's calibration from golden units, each as (serial, its results
+/// on the reference bench, its results on the bench: one per repeat). Err:
+/// fewer than [`MIN_UNITS`] units or a unit without the values; a
+/// calibration beyond the bounds comes back `out_of_calibration` with its
+/// problems.
 pub fn estimate(
     bench_id: &str,
     reference_bench_id: &str,
     procedure: crate::job::ProcedureMode,
     moving_mass_kg: f64,
-    units: &[(String, Report, Report)],
+    units: &[(String, Vec<Report>, Vec<Report>)],
 ) -> Result<BenchCalibration, String> {
     if units.len() < MIN_UNITS {
         return Err(format!(
@@ -233,7 +275,7 @@ pub fn estimate(
     }
     let est = units
         .iter()
-        .map(|(s, r, b)| estimate_unit(s, r, b))
+        .map(|(s, r, b)| estimate_unit_repeats(s, r, b))
         .collect::<Result<Vec<_>, _>>()?;
     let col = |f: fn(&UnitEstimate) -> f64| est.iter().map(f).collect::<Vec<_>>();
     let (k_scale, k_scale_sd) = mean_sd(&col(|u| u.k0_ratio));
@@ -424,11 +466,17 @@ mod tests {
         }
     }
 
-    fn golden(s: f64, e: f64) -> Vec<(String, Report, Report)> {
+    fn golden(s: f64, e: f64) -> Vec<(String, Vec<Report>, Vec<Report>)> {
         [0.98, 1.0, 1.03]
             .iter()
             .enumerate()
-            .map(|(i, &gu)| (format!("G-{i}"), unit(1.0, 1.0, 0.0, gu), unit(s, s, e, gu)))
+            .map(|(i, &gu)| {
+                (
+                    format!("G-{i}"),
+                    vec![unit(1.0, 1.0, 0.0, gu)],
+                    vec![unit(s, s, e, gu)],
+                )
+            })
             .collect()
     }
 
@@ -477,6 +525,22 @@ mod tests {
     }
 
     #[test]
+    fn a_unit_measured_with_repeats_is_the_mean_of_its_pairs() {
+        // Two repeats on the bench whose lasers read 0.1 % and 0.3 % long
+        // (a noisy laser), one on the reference: the unit's error is 0.2 %.
+        let u = estimate_unit_repeats(
+            "G-0",
+            &[unit(1.0, 1.0, 0.0, 1.0)],
+            &[unit(1.0, 1.0, 0.001, 1.0), unit(1.0, 1.0, 0.003, 1.0)],
+        )
+        .unwrap();
+        assert_eq!(u.pairs, 2);
+        assert!((u.laser_gain_error - 0.002).abs() < 1e-9, "{u:?}");
+        assert!((u.kx_scale - 1.0).abs() < 1e-9, "{u:?}");
+        assert!(estimate_unit_repeats("G-0", &[], &[unit(1.0, 1.0, 0.0, 1.0)]).is_err());
+    }
+
+    #[test]
     fn a_bench_beyond_the_bounds_or_with_disagreeing_units_is_out_of_calibration() {
         // Bench "b" against "ref", full procedure, a 50 g moving mass.
         let est = |g: &[_]| estimate("b", "ref", crate::job::ProcedureMode::Full, 0.05, g);
@@ -488,7 +552,7 @@ mod tests {
         assert!(c.problems.iter().any(|p| p.contains("clamp")));
         // One unit read on the bench with a 0.5 % other laser error.
         let mut g = golden(1.0, 0.0);
-        g[2].2 = unit(1.0, 1.0, 0.005, 1.03);
+        g[2].2 = vec![unit(1.0, 1.0, 0.005, 1.03)];
         let c = est(&g).unwrap();
         assert_eq!(c.state, CalState::OutOfCalibration);
         assert!(
