@@ -257,6 +257,15 @@ fn value(v: &Verdict, name: &str) -> Option<f64> {
         .map(|p| p.value)
 }
 
+/// The environment variable `name` parsed, or `default` when it is absent
+/// or does not parse (the ignored measurements' and the lots' knobs).
+fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -395,10 +404,7 @@ fn spider_4in_lot_agrees_with_the_full_procedure_in_a_5_s_cycle() {
 /// of docs/qc.md.
 #[test]
 fn every_other_preset_agrees_with_its_own_golden_units() {
-    let n_good = std::env::var("SPRINGBENCH_LOT_GOOD")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(5);
+    let n_good = env_or("SPRINGBENCH_LOT_GOOD", 5);
     for l in &lines()[1..] {
         acceptance(l, n_good, &DEFECTS);
     }
@@ -472,13 +478,7 @@ fn effect_sizes_agree_with_the_full_procedure() {
     let rec = approved_recipe(l);
     let g = rec.procedure.golden.clone().unwrap();
     let nominal = preset(l.preset).unwrap();
-    let env = |k: &str, d: u64| -> u64 {
-        std::env::var(k)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(d)
-    };
-    let (n_friction, n_good) = (env("FRICTION_PARTS", 5), env("GOOD_PARTS", 3));
+    let (n_friction, n_good): (u64, u64) = (env_or("FRICTION_PARTS", 5), env_or("GOOD_PARTS", 3));
     let parts: Vec<(u64, Option<Defect>)> = (0..n_friction)
         .map(|i| (950 + i, Some(Defect::Friction)))
         .chain((0..n_good).map(|i| (1960 + i, None)))
@@ -576,10 +576,7 @@ fn throughput_on_the_paced_virtual_bench() {
     let rec = approved_recipe(l);
     let g = rec.procedure.golden.clone().unwrap();
     let nominal = preset(l.preset).unwrap();
-    let n: u64 = std::env::var("SPRINGBENCH_THROUGHPUT_PARTS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10);
+    let n: u64 = env_or("SPRINGBENCH_THROUGHPUT_PARTS", 10);
     for (name, golden, parts) in [("full", None, n.div_ceil(3)), ("production", Some(&g), n)] {
         let (mut bench_s, mut analysis_s) = (0.0, 0.0);
         let t0 = std::time::Instant::now();
@@ -977,19 +974,10 @@ mod explore {
         let rec = approved_recipe(l);
         let g = rec.procedure.golden.clone().unwrap();
         let nominal = preset(l.preset).unwrap();
-        let pseed: u64 = std::env::var("PART")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(800);
+        let pseed: u64 = env_or("PART", 800);
         let p = part(&nominal, &Spread::default(), pseed, None);
-        let n: u64 = std::env::var("N")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(24);
-        let target: f64 = std::env::var("XT")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(7.7e-3);
+        let n: u64 = env_or("N", 24);
+        let target: f64 = env_or("XT", 7.7e-3);
         let seeds: Vec<u64> = (0..n).map(|i| 5000 + i).collect();
         let q0 = measure(&p, 1, DEFAULT_LIMITS, 0.008, Some(Some(&g))).outcome;
         let nw = &q0.narrow[0];
@@ -1082,45 +1070,34 @@ mod explore {
                 v *= (target / x).powf(0.8);
             }
             let main = main.unwrap();
+            // The record with the laser's 1 um noise of `seed` added to its
+            // samples `a..b`, analysed.
+            let noisy = |seed: u64, a: usize, b: usize| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let nd = rand_distr::Normal::new(0.0, 1e-6).unwrap();
+                let mut m = main.clone();
+                for x in &mut m.displacement_m[a..b] {
+                    *x += nd.sample(&mut rng);
+                }
+                analyse(&pre, m)
+            };
             // `WINDOWS=n`: the sd of K(4 mm) with the noise in one of n equal
             // windows of the record at a time (the estimator is linear in
             // the noise, so the windows' variances add up to the whole's).
-            if let Some(nw) = std::env::var("WINDOWS")
-                .ok()
-                .and_then(|v| v.parse::<usize>().ok())
-            {
-                let len = main.displacement_m.len();
+            let (len, nw) = (main.displacement_m.len(), env_or::<usize>("WINDOWS", 0));
+            if nw > 0 {
                 let mut line = format!("{label}: K4 sd per 1/{nw} window:");
                 for w in 0..nw {
                     let (a, b) = (w * len / nw, (w + 1) * len / nw);
                     let k4: Vec<f64> = seeds
                         .iter()
-                        .filter_map(|&s| {
-                            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(s);
-                            let nd = rand_distr::Normal::new(0.0, 1e-6).unwrap();
-                            let mut m = main.clone();
-                            for x in &mut m.displacement_m[a..b] {
-                                *x += nd.sample(&mut rng);
-                            }
-                            analyse(&pre, m).map(|r| r[1])
-                        })
+                        .filter_map(|&s| noisy(s, a, b).map(|r| r[1]))
                         .collect();
                     line += &format!(" {:.4}", sd(&k4).1);
                 }
                 eprintln!("{line}");
             }
-            let rr: Vec<[f64; 7]> = seeds
-                .iter()
-                .filter_map(|&s| {
-                    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(s);
-                    let nd = rand_distr::Normal::new(0.0, 1e-6).unwrap();
-                    let mut m = main.clone();
-                    for x in &mut m.displacement_m {
-                        *x += nd.sample(&mut rng);
-                    }
-                    analyse(&pre, m)
-                })
-                .collect();
+            let rr: Vec<[f64; 7]> = seeds.iter().filter_map(|&s| noisy(s, 0, len)).collect();
             let c = |i: usize| sd(&rr.iter().map(|a| a[i]).collect::<Vec<_>>());
             let mad = |i: usize| {
                 let mut v: Vec<f64> = rr.iter().map(|a| a[i]).collect();
@@ -1149,10 +1126,7 @@ mod explore {
         let g = rec.procedure.golden.clone().unwrap();
         let nominal = preset(l.preset).unwrap();
         let p = part(&nominal, &Spread::default(), 800, None);
-        let n: u64 = std::env::var("N")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(12);
+        let n: u64 = env_or("N", 12);
         let seeds: Vec<u64> = (0..n).map(|i| 3000 + i).collect();
         // 1. Full and production as they are; their time split.
         let runs = par_map(&seeds, |&s| {
