@@ -284,15 +284,16 @@ pub fn run_production(
         // The golden drive is where the full search stopped, anywhere within
         // its tolerance of the target (a spider_4in at 7.5 mm of 8): aimed at
         // the target with the golden units' own Xpeak at that drive.
-        let aim = gl.xpeak_m.map_or(1.0, |x| (level / x).clamp(0.5, 2.0));
-        if aim != 1.0 {
+        let aim = gl.xpeak_m.map_or(1.0, |x| {
+            let aim = (level / x).clamp(0.5, 2.0);
             cx.log.push(format!(
                 "golden drive {:.3} V reached Xpeak {:.3} mm: aimed at {:.3} mm with x{aim:.4}",
                 gl.drive_v,
-                gl.xpeak_m.unwrap_or(0.0) * 1e3,
+                x * 1e3,
                 level * 1e3
             ));
-        }
+            aim
+        });
         let mut v = equivalent_drive(
             gl.drive_v * aim,
             &band(cfg.narrow_duration_s, 1.0),

@@ -194,7 +194,8 @@ impl Ctx<'_> {
 pub(super) struct SweepInfo {
     /// Largest fundamental amplitude of x (m).
     pub(super) x_fund_peak_m: f64,
-    /// Largest |x| (m).
+    /// Largest |x| (m); the production procedure replaces it with the
+    /// analysis's Xpeak (`identify::sweep_xpeak_m`) before its level check.
     pub(super) xpeak_m: f64,
     /// Peak of |X/Mic| (Hz).
     pub(super) resonance_hz: f64,
