@@ -210,6 +210,7 @@ pub async fn spc<R: Reads>(
         points,
         invalid,
     );
+    let left_out = unreadable.len();
     if csv {
         // The CSV holds the chart points only: the count of verdicts left
         // out travels in a header.
@@ -218,7 +219,7 @@ pub async fn spc<R: Reads>(
                 (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
                 (
                     header::HeaderName::from_static("springbench-unreadable-verdicts"),
-                    unreadable.len().to_string(),
+                    left_out.to_string(),
                 ),
             ],
             crate::qc::spc::to_csv(&s),
@@ -227,12 +228,13 @@ pub async fn spc<R: Reads>(
     }
     let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
     doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
-    doc["unreadable_verdicts"] = json!(unreadable.len());
-    if !unreadable.is_empty() {
+    doc["unreadable_verdicts"] = json!(left_out);
+    if left_out > 0 {
+        // Each part named once (a part's verdicts need not be adjacent).
+        unreadable.sort();
         unreadable.dedup();
         doc["warnings"] = json!([format!(
-            "{} verdict(s) of the window are left out of these figures: their stored detail does not read in this software version (parts {})",
-            doc["unreadable_verdicts"],
+            "{left_out} verdict(s) of the window are left out of these figures: their stored detail does not read in this software version (parts {})",
             unreadable.join(", ")
         )]);
     }
