@@ -68,6 +68,22 @@ fn random_effect(id: EffectId, rng: &mut impl Rng, e: &mut Effects) -> (&'static
             e.channel_delay = Some(ChannelDelay { delay_s: d });
             ("delay_s", d)
         }
+        EffectId::Hysteresis => {
+            let k = rng.random_range(150.0..400.0);
+            e.hysteresis = Some(Hysteresis {
+                k_n_per_m: k,
+                x_yield_m: rng.random_range(0.5e-3..2e-3),
+            });
+            ("k_n_per_m", k)
+        }
+        EffectId::ReversibleSoftening => {
+            let d = rng.random_range(1.7e4..4e4);
+            e.reversible_softening = Some(ReversibleSoftening {
+                depth_n_per_m2: d,
+                tau_s: rng.random_range(1.0..5.0),
+            });
+            ("depth_n_per_m2", d)
+        }
     }
 }
 
@@ -135,6 +151,14 @@ fn hidden_stiffness_drift() {
 fn hidden_channel_delay() {
     check_single(EffectId::ChannelDelay);
 }
+#[test]
+fn hidden_hysteresis() {
+    check_single(EffectId::Hysteresis);
+}
+#[test]
+fn hidden_reversible_softening() {
+    check_single(EffectId::ReversibleSoftening);
+}
 
 #[test]
 fn no_hidden_effect_no_false_discovery() {
@@ -195,13 +219,15 @@ fn two_hidden_effects_ladder_adds_both() {
 #[ignore = "documentation run: ~2 minutes in release"]
 fn detection_against_effect_size() {
     let part0 = part_with(Effects::default());
-    let sizes: [(EffectId, &str, f64); 6] = [
+    let sizes: [(EffectId, &str, f64); 8] = [
         (EffectId::CoulombFriction, "force_n", 0.2),
         (EffectId::QuadraticDamping, "coeff_ns2_per_m2", 1.0),
         (EffectId::DampingVsDisplacement, "r2_ns_per_m3", 3e4),
         (EffectId::Creep, "k_n_per_m", 400.0),
         (EffectId::StiffnessDrift, "dk0_dt_n_per_m_s", 16.0),
         (EffectId::ChannelDelay, "delay_s", 5e-4),
+        (EffectId::Hysteresis, "k_n_per_m", 400.0),
+        (EffectId::ReversibleSoftening, "depth_n_per_m2", 4e4),
     ];
     for (id, param, top) in sizes {
         let mut smallest = None;
@@ -242,6 +268,18 @@ fn detection_against_effect_size() {
                     }
                     EffectId::ChannelDelay => {
                         e.channel_delay = Some(ChannelDelay { delay_s: size })
+                    }
+                    EffectId::Hysteresis => {
+                        e.hysteresis = Some(Hysteresis {
+                            k_n_per_m: size,
+                            x_yield_m: 1e-3,
+                        })
+                    }
+                    EffectId::ReversibleSoftening => {
+                        e.reversible_softening = Some(ReversibleSoftening {
+                            depth_n_per_m2: size,
+                            tau_s: 2.0,
+                        })
                     }
                 }
                 let mut part = part0.clone();

@@ -60,6 +60,18 @@ fn random_effect(id: EffectId, rng: &mut impl Rng) -> Effects {
                 delay_s: rng.random_range(2e-4..1e-3),
             })
         }
+        EffectId::Hysteresis => {
+            e.hysteresis = Some(Hysteresis {
+                k_n_per_m: rng.random_range(150.0..400.0),
+                x_yield_m: rng.random_range(0.5e-3..2e-3),
+            })
+        }
+        EffectId::ReversibleSoftening => {
+            e.reversible_softening = Some(ReversibleSoftening {
+                depth_n_per_m2: rng.random_range(1.7e4..4e4),
+                tau_s: rng.random_range(1.0..5.0),
+            })
+        }
     }
     e
 }

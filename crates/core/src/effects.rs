@@ -34,16 +34,20 @@ pub enum EffectId {
     Creep,
     StiffnessDrift,
     ChannelDelay,
+    Hysteresis,
+    ReversibleSoftening,
 }
 
 impl EffectId {
-    pub const ALL: [EffectId; 6] = [
+    pub const ALL: [EffectId; 8] = [
         EffectId::CoulombFriction,
         EffectId::QuadraticDamping,
         EffectId::DampingVsDisplacement,
         EffectId::Creep,
         EffectId::StiffnessDrift,
         EffectId::ChannelDelay,
+        EffectId::Hysteresis,
+        EffectId::ReversibleSoftening,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -54,6 +58,8 @@ impl EffectId {
             EffectId::Creep => "creep",
             EffectId::StiffnessDrift => "stiffness_drift",
             EffectId::ChannelDelay => "channel_delay",
+            EffectId::Hysteresis => "hysteresis",
+            EffectId::ReversibleSoftening => "reversible_softening",
         }
     }
 
@@ -79,6 +85,8 @@ impl EffectId {
             EffectId::Creep => &["k_n_per_m", "tau_s"],
             EffectId::StiffnessDrift => &["dk0_dt_n_per_m_s"],
             EffectId::ChannelDelay => &["delay_s"],
+            EffectId::Hysteresis => &["k_n_per_m", "x_yield_m"],
+            EffectId::ReversibleSoftening => &["depth_n_per_m2", "tau_s"],
         }
     }
 
@@ -91,6 +99,12 @@ impl EffectId {
             EffectId::Creep => "F = k_n_per_m * (x - xr), xr' = (x - xr) / tau_s",
             EffectId::StiffnessDrift => "F = dk0_dt_n_per_m_s * t * x",
             EffectId::ChannelDelay => "mic(t) = g * p(t - delay_s)",
+            EffectId::Hysteresis => {
+                "F = k_n_per_m * z, z' = v (1 - |z| / x_yield_m) while v z > 0, z' = v otherwise (Bouc-Wen, n = 1)"
+            }
+            EffectId::ReversibleSoftening => {
+                "F = -depth_n_per_m2 * s * x * max(0, 1 - x^2 / s^2), s = max(|x|, s decaying with tau_s) (the recent excursion)"
+            }
         }
     }
 
@@ -124,6 +138,18 @@ impl EffectId {
                  or a laser with internal averaging), which shifts force against displacement in phase and looks \
                  like damping of the wrong size, different below and above resonance."
             }
+            EffectId::Hysteresis => {
+                "Hysteresis of rubber or impregnated fabric (plastic flow): a spring k in series with a slider \
+                 that starts to yield softly at the excursion x_yield (Bouc-Wen with n = 1, elasto-plastic in \
+                 the limit). The force-displacement loop does not depend on frequency; it gives odd harmonics \
+                 even where the elastic K(x) is linear, and a stiffness that falls with amplitude."
+            }
+            EffectId::ReversibleSoftening => {
+                "Reversible softening (paper section 6.1, Fig. 22): after a large excursion the part is softer \
+                 between the excursion maxima. K(0) drops in proportion to the recent peak excursion s while K \
+                 at the peaks stays; s decays with tau_s (seconds), so the part recovers when left alone. Keff \
+                 and the resonance fall with rising level at small amplitude."
+            }
         }
     }
 
@@ -136,6 +162,8 @@ impl EffectId {
             EffectId::Creep => "small-signal Hx deviates from 2nd order below resonance; residual in phase with a low-pass of x",
             EffectId::StiffnessDrift => "residual grows over time, in phase with x; K(0) differs between the start and end of the record",
             EffectId::ChannelDelay => "residual in phase with the derivative of the microphone signal; damping below and above resonance disagree",
+            EffectId::Hysteresis => "H3 grows like X and lies in quadrature with the fundamental (a cubic K(x) term: like X^2, in phase; friction: falls with X); the loss per cycle does not depend on frequency",
+            EffectId::ReversibleSoftening => "K(0) follows the recent excursion, not the clock: lower after the resonance's large excursion, recovering within seconds; K(0) falls with level in a level series",
         }
     }
 }
@@ -199,6 +227,24 @@ pub struct ChannelDelay {
     pub delay_s: f64,
 }
 
+/// Hysteresis (Bouc-Wen, n = 1): `F = k_n_per_m z`, `z' = v (1 - |z| / x_yield_m)`
+/// while `v z > 0`, `z' = v` otherwise (physics: `physics::memory`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Hysteresis {
+    pub k_n_per_m: f64,
+    pub x_yield_m: f64,
+}
+
+/// Reversible softening: `F = -depth_n_per_m2 s x max(0, 1 - x^2 / s^2)` with
+/// `s` the recent peak excursion, decaying with `tau_s` (physics: `physics::memory`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReversibleSoftening {
+    pub depth_n_per_m2: f64,
+    pub tau_s: f64,
+}
+
 /// A set of effects, at most one of each kind. Serialises as a JSON object
 /// keyed by effect id; absent effects are omitted.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
@@ -216,6 +262,10 @@ pub struct Effects {
     pub stiffness_drift: Option<StiffnessDrift>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_delay: Option<ChannelDelay>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hysteresis: Option<Hysteresis>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reversible_softening: Option<ReversibleSoftening>,
 }
 
 impl Effects {
@@ -235,6 +285,8 @@ impl Effects {
             EffectId::Creep => self.creep.is_some(),
             EffectId::StiffnessDrift => self.stiffness_drift.is_some(),
             EffectId::ChannelDelay => self.channel_delay.is_some(),
+            EffectId::Hysteresis => self.hysteresis.is_some(),
+            EffectId::ReversibleSoftening => self.reversible_softening.is_some(),
         }
     }
 
@@ -256,6 +308,10 @@ impl Effects {
             EffectId::Creep => self.creep.map(|e| vec![e.k_n_per_m, e.tau_s]),
             EffectId::StiffnessDrift => self.stiffness_drift.map(|e| vec![e.dk0_dt_n_per_m_s]),
             EffectId::ChannelDelay => self.channel_delay.map(|e| vec![e.delay_s]),
+            EffectId::Hysteresis => self.hysteresis.map(|e| vec![e.k_n_per_m, e.x_yield_m]),
+            EffectId::ReversibleSoftening => self
+                .reversible_softening
+                .map(|e| vec![e.depth_n_per_m2, e.tau_s]),
         }?;
         Some(id.parameter_names().iter().copied().zip(values).collect())
     }
@@ -300,6 +356,14 @@ impl Effects {
         }
         if let Some(e) = &self.stiffness_drift {
             finite("stiffness_drift.dk0_dt_n_per_m_s", e.dk0_dt_n_per_m_s)?;
+        }
+        if let Some(e) = &self.hysteresis {
+            non_negative("hysteresis.k_n_per_m", e.k_n_per_m)?;
+            positive("hysteresis.x_yield_m", e.x_yield_m)?;
+        }
+        if let Some(e) = &self.reversible_softening {
+            non_negative("reversible_softening.depth_n_per_m2", e.depth_n_per_m2)?;
+            positive("reversible_softening.tau_s", e.tau_s)?;
         }
         if let Some(e) = &self.channel_delay {
             non_negative("channel_delay.delay_s", e.delay_s)?;

@@ -166,6 +166,7 @@ pub enum ProcedureError {
     Failed(String),
 }
 
+pub mod memory;
 pub mod pace;
 pub mod production;
 mod run;

@@ -369,3 +369,58 @@ pub fn mark_creep_tau_small(s: &mut SmallSignal, pre: &EngineResult) {
         }
     }
 }
+
+/// Accuracy stated for Keff and fR of a diagnosed report (decision 0119):
+/// the relative change the part's memory may make before they are marked.
+pub const ACCURACY_KEFF_MEMORY: f64 = 0.015;
+
+/// Marks the headline values the part's memory makes uncertain (decision
+/// 0119). The headline K(x) is the elastic one, without the hysteretic
+/// element's and the softening's share; it is `unreliable` when, with them
+/// in the model, its standard error is wider than its accuracy (the memory
+/// trades against K(x) in this sweep). Keff and fR are those of the elastic
+/// K(x): `unreliable` when the memory's share at the measured excursion
+/// (the hysteretic stiffness, or the softening's drop of K(0) at the peak
+/// excursion) exceeds their accuracy, with the experiment that measures it.
+pub fn mark_memory(s: &mut Stiffness, l: &mut LargeSignal, r: &EngineResult) {
+    let fx = &r.model.effects;
+    if fx.hysteresis.is_none() && fx.reversible_softening.is_none() {
+        return;
+    }
+    let rel_k = k_of_x_relative_se(&r.model, s.valid_range_m);
+    let names: Vec<&str> = [
+        fx.hysteresis.map(|_| "hysteresis"),
+        fx.reversible_softening.map(|_| "reversible softening"),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let names = names.join(" and ");
+    if beyond(rel_k, ACCURACY_K_OF_X) {
+        s.validity.k_of_x.mark(
+            State::Unreliable,
+            &format!(
+                "the part's memory ({names}) trades against K(x) in this sweep: K(x) is uncertain by +-{:.1} % ({TAU_FREE_COVERAGE} standard errors), more than its stated accuracy of {:.1} %; a level series or a recovery measurement separates them",
+                100.0 * TAU_FREE_COVERAGE * rel_k,
+                100.0 * ACCURACY_K_OF_X
+            ),
+        );
+    }
+    let x_peak = l
+        .x_max_at_resonance_m
+        .abs()
+        .max(l.x_min_at_resonance_m.abs());
+    let share = fx.hysteresis.map_or(0.0, |h| h.k_n_per_m)
+        + fx
+            .reversible_softening
+            .map_or(0.0, |v| v.depth_n_per_m2 * x_peak);
+    let keff = l.keff_n_per_m;
+    if keff > 0.0 && share / keff > ACCURACY_KEFF_MEMORY {
+        let why = format!(
+            "Keff and fR are those of the elastic K(x): the part's memory ({names}) adds up to {:.1} % of Keff at this excursion that depends on the amplitude and the part's recent history; the recovery measurement and a level series measure it",
+            100.0 * share / keff
+        );
+        l.validity.keff_n_per_m.mark(State::Unreliable, &why);
+        l.validity.resonance_hz.mark(State::Unreliable, &why);
+    }
+}

@@ -5,6 +5,7 @@
 
 pub mod engine;
 pub mod headline;
+pub mod memory;
 pub mod regress;
 pub mod series;
 pub mod spectrum;
@@ -128,6 +129,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
             report.large_signal.resonance_hz,
         );
         report.large_signal = headline::large_signal(&report.large_signal, &claimed);
+        headline::mark_memory(&mut report.stiffness, &mut report.large_signal, &claimed);
     } else if !claimed.model.effect_ids.is_empty() {
         warnings.push(
             "the effects were fitted with the two-signal force balance; K(x) above is the one-signal fit without them"

@@ -95,6 +95,39 @@ unsafe fn dots_avx<const K: usize>(z: &[f64], others: &[&[f64]], out: &mut [f64]
     }
 }
 
+/// The hysteresis regressor at yield excursion `x_yield_m`: the Bouc-Wen
+/// state z along the measured path (`physics::memory::hysteresis_step`,
+/// the simulation's own law), starting relaxed (z = 0). Its coefficient is
+/// minus the element's stiffness.
+pub fn hysteresis_column(x: &[f64], x_yield_m: f64) -> Vec<f64> {
+    use crate::physics::memory::hysteresis_step;
+    let mut z = 0.0;
+    let mut xp = x.first().copied().unwrap_or(0.0);
+    x.iter()
+        .map(|&xi| {
+            z = hysteresis_step(z, xi - xp, x_yield_m);
+            xp = xi;
+            z
+        })
+        .collect()
+}
+
+/// The reversible-softening regressor at recovery time `tau_s`:
+/// `s x max(0, 1 - x^2/s^2)` (sign: a softening force) with `s` the peak
+/// envelope of the measured x (`physics::memory::envelope_step`), started at
+/// |x[0]|. Its coefficient is minus the depth (N/m per m of envelope).
+pub fn softening_column(x: &[f64], fs: f64, tau_s: f64) -> Vec<f64> {
+    use crate::physics::memory::{envelope_decay, envelope_step, softening_force};
+    let decay = envelope_decay(1.0 / fs, tau_s);
+    let mut s = 0.0;
+    x.iter()
+        .map(|&xi| {
+            s = envelope_step(s, xi, decay);
+            softening_force(1.0, s, xi)
+        })
+        .collect()
+}
+
 /// Cross products of one block.
 #[derive(Debug, Clone)]
 pub struct Block {

@@ -6,6 +6,7 @@
 //! reference-recording tests check the whole pipeline).
 
 use crate::effects::Effects;
+use crate::physics::memory::Memory;
 use crate::identify::ForceBalanceData;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -95,8 +96,9 @@ fn effect_force(e: &Effects, x: f64, v: f64, xr: f64, t: f64) -> f64 {
     f
 }
 
-fn deriv(spec: &SynthSpec, t: f64, s: [f64; 3]) -> [f64; 3] {
+fn deriv(spec: &SynthSpec, mem: &Option<Memory>, t: f64, s: [f64; 3]) -> [f64; 3] {
     let [x, v, xr] = s;
+    let fm = mem.as_ref().map_or(0.0, |m| m.force(x));
     let k: f64 = spec
         .k_coeffs_si
         .iter()
@@ -105,7 +107,8 @@ fn deriv(spec: &SynthSpec, t: f64, s: [f64; 3]) -> [f64; 3] {
     let f = sweep_force(spec, t)
         - k * x
         - spec.r_ns_per_m * v
-        - effect_force(&spec.effects, x, v, xr, t);
+        - effect_force(&spec.effects, x, v, xr, t)
+        - fm;
     let xr_dot = match &spec.effects.creep {
         Some(c) => (x - xr) / c.tau_s,
         None => 0.0,
@@ -129,6 +132,8 @@ pub fn force_balance(spec: &SynthSpec, seed: u64) -> ForceBalanceData {
     let delay = spec.effects.channel_delay.map_or(0.0, |d| d.delay_s);
     let mut s = [0.0f64; 3];
     let mut t = 0.0;
+    // Hysteresis and softening: advanced after every sub-step.
+    let mut mem = Memory::new(&spec.effects, fs * sub as f64);
     let mut out = ForceBalanceData {
         sample_rate_hz: fs,
         t0_s: 0.0,
@@ -143,24 +148,27 @@ pub fn force_balance(spec: &SynthSpec, seed: u64) -> ForceBalanceData {
     };
     for i in 0..n {
         let ti = i as f64 / fs;
-        let d = deriv(spec, ti, s);
+        let d = deriv(spec, &mem, ti, s);
         out.x_m.push(s[0] + nx.sample(&mut rng));
         out.v_m_per_s.push(s[1]);
         out.a_m_per_s2.push(d[1] + na.sample(&mut rng));
         out.mic_v
             .push(sweep_force(spec, ti - delay) / spec.force_per_mic_n_per_v + nm.sample(&mut rng));
         for _ in 0..sub {
-            let k1 = deriv(spec, t, s);
+            let k1 = deriv(spec, &mem, t, s);
             let s2 = add(s, k1, h / 2.0);
-            let k2 = deriv(spec, t + h / 2.0, s2);
+            let k2 = deriv(spec, &mem, t + h / 2.0, s2);
             let s3 = add(s, k2, h / 2.0);
-            let k3 = deriv(spec, t + h / 2.0, s3);
+            let k3 = deriv(spec, &mem, t + h / 2.0, s3);
             let s4 = add(s, k3, h);
-            let k4 = deriv(spec, t + h, s4);
+            let k4 = deriv(spec, &mem, t + h, s4);
             for j in 0..3 {
                 s[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
             }
             t += h;
+            if let Some(m) = &mut mem {
+                m.advance(s[0]);
+            }
         }
     }
     out

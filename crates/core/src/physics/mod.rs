@@ -7,6 +7,7 @@
 //! `Bench` device, the procedure, `simulate`, `truth.json`) is the
 //! `springbench-bench` crate's.
 
+pub mod memory;
 pub mod model;
 pub mod production;
 

@@ -254,6 +254,9 @@ pub struct Model {
     /// Any force effect present (skip their evaluation otherwise).
     any_force_effect: bool,
     inv_m2: f64,
+    /// Hysteresis and reversible softening: states that follow the path of
+    /// x, advanced once per sample (`super::memory`); None without them.
+    pub memory: Option<super::memory::Memory>,
 }
 
 /// Instantaneous powers (W) and stored energies (J) for the energy balance.
@@ -278,7 +281,9 @@ impl Model {
             || fx.quadratic_damping.is_some()
             || fx.damping_vs_displacement.is_some()
             || fx.creep.is_some()
-            || fx.stiffness_drift.is_some();
+            || fx.stiffness_drift.is_some()
+            || fx.hysteresis.is_some()
+            || fx.reversible_softening.is_some();
         let ex = bench.exciter;
         let (m2, (k2, r2)) = part
             .second_mode
@@ -313,6 +318,7 @@ impl Model {
             inv_re: 1.0 / ex.re_ohm,
             inv_le: if ex.le_h > 0.0 { 1.0 / ex.le_h } else { 0.0 },
             any_force_effect,
+            memory: super::memory::Memory::new(&fx, bench.sample_rate_hz),
         }
     }
 
@@ -356,6 +362,9 @@ impl Model {
         }
         if let Some(s) = &fx.stiffness_drift {
             f += s.dk0_dt_n_per_m_s * t * x;
+        }
+        if let Some(m) = &self.memory {
+            f += m.force(x);
         }
         f
     }
@@ -495,7 +504,10 @@ pub struct Integrator {
 }
 
 impl Integrator {
-    pub fn new(model: Model, sample_rate_hz: f64, substeps: u32) -> Integrator {
+    pub fn new(mut model: Model, sample_rate_hz: f64, substeps: u32) -> Integrator {
+        if let Some(m) = &mut model.memory {
+            m.set_sample_rate(sample_rate_hz);
+        }
         Integrator {
             model,
             state: [0.0; NSTATE],
@@ -519,6 +531,7 @@ impl Integrator {
                 u1,
             );
             self.t += self.dt_sample;
+            self.advance_memory();
             return;
         }
         let n = self.substeps;
@@ -535,6 +548,15 @@ impl Integrator {
             rk4(&self.model, t, h, &mut self.state, ua, ub, uc);
         }
         self.t = t0 + self.dt_sample;
+        self.advance_memory();
+    }
+
+    /// The path-following states move to the end of the sample.
+    #[inline]
+    fn advance_memory(&mut self) {
+        if let Some(m) = &mut self.model.memory {
+            m.advance(self.state[idx::X]);
+        }
     }
 }
 

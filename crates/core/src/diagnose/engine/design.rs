@@ -392,6 +392,10 @@ impl<'a> Prepared<'a> {
                 vec![x.iter().zip(&self.t_centered).map(|(x, t)| x * t).collect()]
             }
             EffectId::ChannelDelay => vec![],
+            EffectId::Hysteresis => vec![regress::hysteresis_column(x, h)],
+            EffectId::ReversibleSoftening => {
+                vec![regress::softening_column(x, self.fs(), h)]
+            }
         }
     }
 

@@ -8,8 +8,8 @@ use super::result::FittedModel;
 use crate::diagnose::regress::{self, BlockGram};
 use crate::diagnose::stats::{f_upper_p, t_two_sided_p};
 use crate::effects::{
-    ChannelDelay, CoulombFriction, Creep, DampingVsDisplacement, EffectId, Effects,
-    QuadraticDamping, StiffnessDrift,
+    ChannelDelay, CoulombFriction, Creep, DampingVsDisplacement, EffectId, Effects, Hysteresis,
+    QuadraticDamping, ReversibleSoftening, StiffnessDrift,
 };
 use nalgebra::DVector;
 
@@ -112,6 +112,15 @@ pub(super) fn hyper_grid(p: &Prepared, e: EffectId) -> Option<Vec<f64>> {
         EffectId::Creep => {
             let lo = (0.5 / p.omega_typ).max(2.0 / p.fs());
             Some(logspace(lo, (p.duration_s / 2.0).max(2.0 * lo), 15))
+        }
+        // Yield excursions from 1 % to twice the largest excursion: below,
+        // the element is a friction force; above, a linear spring (k0).
+        EffectId::Hysteresis => Some(logspace(p.x_scale * 0.01, p.x_scale * 2.0, 15)),
+        // Recovery times from a few periods to far beyond the record (a
+        // running maximum of the excursion).
+        EffectId::ReversibleSoftening => {
+            let lo = (20.0 / p.omega_typ).max(0.05);
+            Some(logspace(lo, (20.0 * p.duration_s).max(2.0 * lo), 15))
         }
         _ => None,
     }
@@ -237,6 +246,8 @@ pub(super) fn effect_params(e: EffectId, h: f64, coef: &[f64]) -> serde_json::Va
         EffectId::Creep => json!({"k_n_per_m": -coef[0], "tau_s": h}),
         EffectId::StiffnessDrift => json!({"dk0_dt_n_per_m_s": -coef[0]}),
         EffectId::ChannelDelay => json!({"delay_s": h}),
+        EffectId::Hysteresis => json!({"k_n_per_m": -coef[0], "x_yield_m": h}),
+        EffectId::ReversibleSoftening => json!({"depth_n_per_m2": -coef[0], "tau_s": h}),
     }
 }
 
@@ -249,6 +260,8 @@ pub(super) fn effect_se(e: EffectId, se: &[f64]) -> serde_json::Value {
         EffectId::Creep => json!({"k_n_per_m": se[0]}),
         EffectId::StiffnessDrift => json!({"dk0_dt_n_per_m_s": se[0]}),
         EffectId::ChannelDelay => json!({"delay_s": se[0]}),
+        EffectId::Hysteresis => json!({"k_n_per_m": se[0]}),
+        EffectId::ReversibleSoftening => json!({"depth_n_per_m2": se[0]}),
     }
 }
 
@@ -286,6 +299,18 @@ pub(super) fn set_effect(effects: &mut Effects, e: EffectId, params: &serde_json
         EffectId::ChannelDelay => {
             effects.channel_delay = Some(ChannelDelay {
                 delay_s: g("delay_s"),
+            })
+        }
+        EffectId::Hysteresis => {
+            effects.hysteresis = Some(Hysteresis {
+                k_n_per_m: g("k_n_per_m"),
+                x_yield_m: g("x_yield_m"),
+            })
+        }
+        EffectId::ReversibleSoftening => {
+            effects.reversible_softening = Some(ReversibleSoftening {
+                depth_n_per_m2: g("depth_n_per_m2"),
+                tau_s: g("tau_s"),
             })
         }
     }

@@ -84,6 +84,12 @@ impl Term {
             Term::Effect(EffectId::ChannelDelay) => {
                 "an added mass (moves the resonance, so delay and damping separate)"
             }
+            Term::Effect(EffectId::Hysteresis) => {
+                "a level series at small amplitude (H3 of hysteresis grows like X, in quadrature; a cubic K(x) term like X^2, in phase; friction's falls with X) and an added mass (the loop does not depend on frequency, creep does)"
+            }
+            Term::Effect(EffectId::ReversibleSoftening) => {
+                "a recovery measurement (small-signal K(0) at 0.5-30 s after a large excitation) or a level series (K(0) falls with level; drift follows the clock, not the excursion)"
+            }
             Term::StiffnessOrder => "a higher drive level (a larger displacement range)",
         }
     }

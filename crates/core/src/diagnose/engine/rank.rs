@@ -37,6 +37,8 @@ pub(super) fn rank(
             Term::Effect(EffectId::CoulombFriction)
                 | Term::Effect(EffectId::Creep)
                 | Term::Effect(EffectId::ChannelDelay)
+                | Term::Effect(EffectId::Hysteresis)
+                | Term::Effect(EffectId::ReversibleSoftening)
         );
         let alpha = opts.alpha / n_tests / if searched { 5.0 } else { 1.0 };
         let cv = ev.gram.cv_sse(opts.folds);
@@ -215,6 +217,27 @@ fn implausible(
             (!is_positive(rmin)).then(|| {
                 format!("the total damping R + r1 x + r2 x^2 falls to {rmin:.3e} N s/m <= 0 inside the range")
             })
+        }
+        EffectId::Hysteresis if !is_positive(g("k_n_per_m")) => Some(format!(
+            "hysteretic stiffness {:.3e} N/m <= 0",
+            g("k_n_per_m")
+        )),
+        EffectId::Hysteresis if !is_positive(0.5 * k_scale - g("k_n_per_m")) => Some(format!(
+            "hysteretic stiffness {:.3e} N/m above half the stiffness ({k_scale:.3e} N/m)",
+            g("k_n_per_m")
+        )),
+        EffectId::ReversibleSoftening => {
+            let drop = g("depth_n_per_m2") * p.x_scale;
+            if !is_positive(g("depth_n_per_m2")) {
+                Some(format!(
+                    "softening depth {:.3e} N/m^2 <= 0 (the part stiffens after excursions)",
+                    g("depth_n_per_m2")
+                ))
+            } else {
+                (!is_positive(0.5 * k_scale - drop)).then(|| {
+                    format!("softening drops K(0) by {drop:.3e} N/m, more than half the stiffness ({k_scale:.3e} N/m)")
+                })
+            }
         }
         EffectId::StiffnessDrift => {
             let change = (g("dk0_dt_n_per_m_s") * p.duration_s).abs();
