@@ -201,6 +201,8 @@ export const EFFECTS = {
   creep: { name: 'creep (viscoelastic)', params: { k_n_per_m: 'creep stiffness', tau_s: 'time constant' } },
   stiffness_drift: { name: 'stiffness drift (warming)', params: { dk0_dt_n_per_m_s: 'drift of k0' } },
   channel_delay: { name: 'delay between channels', params: { delay_s: 'delay' } },
+  hysteresis: { name: 'hysteresis (material memory)', params: { k_n_per_m: 'hysteretic stiffness', x_yield_m: 'yield excursion' } },
+  reversible_softening: { name: 'reversible softening (recovers in seconds)', params: { depth_n_per_m2: 'K(0) drop per m of excursion', tau_s: 'recovery time' } },
   stiffness_order: { name: 'higher K(x) order', params: {} },
 };
 
@@ -215,10 +217,12 @@ export function unitOfParam(name) {
     ['_ns_per_m3', 'N s/m^3'],
     ['_ns_per_m2', 'N s/m^2'],
     ['_n_per_m_s', 'N/(m s)'],
+    ['_n_per_m2', 'N/m^2'],
     ['_n_per_m', 'N/m'],
     ['_m_per_s', 'm/s'],
     ['_n', 'N'],
     ['_s', 's'],
+    ['_m', 'm'],
   ];
   const f = suffixes.find(([s]) => name.endsWith(s));
   return f ? f[1] : '1';

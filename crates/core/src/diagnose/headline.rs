@@ -411,8 +411,7 @@ pub fn mark_memory(s: &mut Stiffness, l: &mut LargeSignal, r: &EngineResult) {
         .abs()
         .max(l.x_min_at_resonance_m.abs());
     let share = fx.hysteresis.map_or(0.0, |h| h.k_n_per_m)
-        + fx
-            .reversible_softening
+        + fx.reversible_softening
             .map_or(0.0, |v| v.depth_n_per_m2 * x_peak);
     let keff = l.keff_n_per_m;
     if keff > 0.0 && share / keff > ACCURACY_KEFF_MEMORY {

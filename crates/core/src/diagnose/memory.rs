@@ -77,7 +77,10 @@ impl RecoveryPlan {
                 self.delays_s.len()
             ));
         }
-        let (before, after) = (PROBE_LEAD_S + 0.5 * PROBE_ANALYSIS_S, 0.5 * PROBE_ANALYSIS_S);
+        let (before, after) = (
+            PROBE_LEAD_S + 0.5 * PROBE_ANALYSIS_S,
+            0.5 * PROBE_ANALYSIS_S,
+        );
         let mut prev_end = 0.1;
         for (i, &d) in self.delays_s.iter().enumerate() {
             if !(d.is_finite() && d <= 600.0) || d - before < prev_end - 1e-9 {
@@ -133,9 +136,8 @@ impl RecoveryPlan {
             for k in 0..n {
                 let t = k as f64 / fs;
                 let w = fade(t, len + 0.02, 0.04);
-                u[start + k] = self.probe_v
-                    * w
-                    * tones.iter().map(|f| (2.0 * PI * f * t).sin()).sum::<f64>();
+                u[start + k] =
+                    self.probe_v * w * tones.iter().map(|f| (2.0 * PI * f * t).sin()).sum::<f64>();
             }
             let a0 = start + (PROBE_LEAD_S * fs).round() as usize;
             let a1 = a0 + (PROBE_ANALYSIS_S * fs).round() as usize;
@@ -318,13 +320,19 @@ pub fn analyze_recovery(
         .map(|p| (p.t_s + EXCITATION_FADE_S, p.k_n_per_m))
         .collect();
     // tau from 0.05 s to 10 times the last delay (log golden search after a grid).
-    let (lo, hi) = (0.05f64.ln(), (10.0 * plan.delays_s.last().unwrap_or(&1.0)).ln());
+    let (lo, hi) = (
+        0.05f64.ln(),
+        (10.0 * plan.delays_s.last().unwrap_or(&1.0)).ln(),
+    );
     let grid: Vec<f64> = (0..40).map(|i| lo + (hi - lo) * i as f64 / 39.0).collect();
     let sse = |l: f64| exp_fit(&pts, l.exp()).2;
     let ib = (0..grid.len())
         .min_by(|&i, &j| sse(grid[i]).total_cmp(&sse(grid[j])))
         .unwrap_or(0);
-    let (a0, b0) = (grid[ib.saturating_sub(1)], grid[(ib + 1).min(grid.len() - 1)]);
+    let (a0, b0) = (
+        grid[ib.saturating_sub(1)],
+        grid[(ib + 1).min(grid.len() - 1)],
+    );
     let lt = golden(a0, b0, 60, sse);
     let tau = lt.exp();
     let (k_inf, depth, sse_v) = exp_fit(&pts, tau);

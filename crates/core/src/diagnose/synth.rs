@@ -6,8 +6,8 @@
 //! reference-recording tests check the whole pipeline).
 
 use crate::effects::Effects;
-use crate::physics::memory::Memory;
 use crate::identify::ForceBalanceData;
+use crate::physics::memory::Memory;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 

@@ -19,6 +19,10 @@ pub struct Spread {
     pub mass_rel: f64,
     /// Of R (and so of Q).
     pub r_rel: f64,
+    /// Of the material's memory (issue 33): the hysteretic stiffness and the
+    /// softening depth of a nominal part that has them (drawn after the
+    /// others, so a lot without them is the same as before).
+    pub memory_rel: f64,
 }
 
 impl Default for Spread {
@@ -28,6 +32,7 @@ impl Default for Spread {
             k_shape_rel: 0.03,
             mass_rel: 0.005,
             r_rel: 0.03,
+            memory_rel: 0.1,
         }
     }
 }
@@ -78,6 +83,12 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
     }
     p.moving_mass_kg *= g(spread.mass_rel);
     p.r_ns_per_m *= g(spread.r_rel);
+    if let Some(h) = &mut p.effects.hysteresis {
+        h.k_n_per_m *= g(spread.memory_rel).max(0.0);
+    }
+    if let Some(s) = &mut p.effects.reversible_softening {
+        s.depth_n_per_m2 *= g(spread.memory_rel).max(0.0);
+    }
     p.name = format!("{} lot part {seed}", nominal.name);
     match defect {
         None => {}
@@ -142,6 +153,34 @@ mod tests {
         for p in (0..20).map(|i| part(&nominal, &s, i, None)) {
             p.validate().unwrap();
         }
+    }
+
+    #[test]
+    fn the_memory_spreads_only_where_the_nominal_part_has_it() {
+        let mut nominal = super::super::preset("spider_4in").unwrap();
+        let s = Spread::default();
+        let plain = part(&nominal, &s, 7, None);
+        assert!(plain.effects.is_empty());
+        nominal.effects.reversible_softening = Some(crate::effects::ReversibleSoftening {
+            depth_n_per_m2: 3e4,
+            tau_s: 2.0,
+        });
+        let with = part(&nominal, &s, 7, None);
+        // The other draws are the same part's.
+        assert_eq!(with.k_coeffs_si, plain.k_coeffs_si);
+        assert_eq!(with.r_ns_per_m, plain.r_ns_per_m);
+        let v: Vec<f64> = (0..2000)
+            .map(|i| {
+                part(&nominal, &s, i, None)
+                    .effects
+                    .reversible_softening
+                    .unwrap()
+                    .depth_n_per_m2
+            })
+            .collect();
+        let (m, sd) = crate::qc::limits::mean_sigma(&v);
+        assert!((m / 3e4 - 1.0).abs() < 0.01, "{m}");
+        assert!((sd / m / s.memory_rel - 1.0).abs() < 0.06, "{sd}");
     }
 
     #[test]
