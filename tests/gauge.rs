@@ -68,7 +68,8 @@ async fn gauge_study_on_two_virtual_benches() {
         "parameters": [
             {"name": "k0", "quantity": "k0", "lower": 0.9 * k0, "upper": 1.1 * k0},
             {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004, "lower": 0.9 * k4, "upper": 1.1 * k4},
-            {"name": "keff", "quantity": "keff"}
+            {"name": "keff", "quantity": "keff"},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     });
     let (s, v) = send(
@@ -211,7 +212,52 @@ async fn gauge_study_on_two_virtual_benches() {
         .iter()
         .map(|q| q["quantity"].as_str().unwrap())
         .collect();
-    assert_eq!(names, ["k0", "k_at_4mm", "keff"]);
+    assert_eq!(names, ["k0", "k_at_4mm", "keff", "model_error"]);
+    // Issue 35: the one-sided limit (model error <= 5 %) is judged as AIAG
+    // judges a one-sided characteristic: 3 GRR against the distance from
+    // the mean to the limit, not against the total variation (which read
+    // 100 %, ndc 0, "not acceptable" for parts of one kind).
+    let me = &study["quantities"][3];
+    assert_eq!(me["limits"], "upper", "{me}");
+    assert_eq!(me["one_sided_limit"], 5.0, "{me}");
+    let all: Vec<f64> = values["model_error"]
+        .iter()
+        .flatten()
+        .flatten()
+        .copied()
+        .collect();
+    let mean = all.iter().sum::<f64>() / all.len() as f64;
+    assert!(mean > 0.0 && mean < 5.0, "{mean}");
+    let dist = me["limit_distance"].as_f64().unwrap();
+    assert!(
+        (dist - (5.0 - mean)).abs() < 1e-9,
+        "{dist} vs {}",
+        5.0 - mean
+    );
+    let grr_me = me["grr_sd"].as_f64().unwrap();
+    let pct = me["grr_percent_of_limit_distance"].as_f64().unwrap();
+    assert!(
+        (pct - 100.0 * 3.0 * grr_me / (5.0 - mean)).abs() < 1e-9 * pct.max(1.0),
+        "{me}"
+    );
+    let class = if pct < 10.0 {
+        "acceptable"
+    } else if pct <= 30.0 {
+        "conditionally_acceptable"
+    } else {
+        "not_acceptable"
+    };
+    assert_eq!(me["acceptance"], class, "{me}");
+    assert!(me["grr_percent_of_tolerance"].is_null(), "{me}");
+    eprintln!("model_error: mean {mean:.3} %, GRR {grr_me:.4} %, {pct:.2} % of the distance to 5 %: {class}");
+    // 3 parts on 2 benches: AIAG's 10 parts are missing, said so, once per quantity.
+    for q in study["quantities"].as_array().unwrap() {
+        let w = q["warnings"].to_string();
+        assert!(w.contains("3 parts") && w.contains("at least 10"), "{q}");
+        assert!(!w.contains("bench:"), "2 benches are enough: {q}");
+    }
+    assert_eq!(study["quantities"][0]["limits"], "two_sided");
+    assert_eq!(study["quantities"][2]["limits"], "none");
     // Tolerance: USL - LSL of the recipe; keff has no limits.
     let tol = study["quantities"][0]["tolerance"].as_f64().unwrap();
     assert!((tol - 0.2 * k0).abs() < 1e-9 * k0);

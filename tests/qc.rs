@@ -572,3 +572,184 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
     );
     rx.abort();
 }
+
+/// Issue 35: `GET` of an invalid verdict (the part's, the job's with its
+/// measurements', the measurement's) carries no per-parameter result: the
+/// values as measured, with their limits, each `not_judged`, no failures.
+/// A verdict stored before this rule (its invalid parameters marked pass
+/// or fail, written here into SQLite as it stood) reads the same.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
+    let d = Daemon::start(tokens());
+    let c = client();
+    // k0 inside wide limits (it would pass), K(6 mm) with a limit it would fail.
+    let r = json!({
+        "name": "never-judged",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0", "lower": 100.0, "upper": 100000.0},
+            {"name": "k_at_6mm", "quantity": "k_at_x", "x_m": 0.006, "upper": 1.0}
+        ]
+    });
+    let (s, v) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/recipes",
+        ENGINEER,
+        Some(r),
+    )
+    .await;
+    assert_eq!(s, 201, "{v}");
+    // 20 V cannot drive a spider to 8 mm: target not reached, invalid.
+    let body = json!({"part": {"serial": "SN-INV", "kind": "spider"}, "recipe": "never-judged",
+                      "limits": {"max_drive_v": 20.0}});
+    let job = run_jobs(&c, &d, &[body]).await.remove(0);
+    assert_eq!(job["verdict"], "invalid", "{job}");
+    let id = job["id"].as_str().unwrap().to_string();
+    let check = |what: &str, v: &Value| {
+        assert_eq!(v["verdict"], "invalid", "{what}: {v}");
+        let d = &v["detail"];
+        assert_eq!(d["failures"], json!([]), "{what}: {v}");
+        let ps = d["parameters"].as_array().unwrap();
+        for p in ps {
+            assert_eq!(p["result"], "not_judged", "{what}: {p}");
+            assert!(
+                p["value"].as_f64().is_some_and(f64::is_finite),
+                "{what}: {p}"
+            );
+        }
+        ps.len()
+    };
+    let check_all = |part: Value, jobv: Value, meas: Value| {
+        let n = check("part", &part);
+        assert_eq!(n, 2, "both values shown as measured: {part}");
+        check("job", &jobv);
+        let ms = jobv["measurements"].as_array().unwrap();
+        assert!(!ms.is_empty());
+        for m in ms {
+            check("job's measurement", m);
+        }
+        check("measurement", &meas["measurement"]["verdict"]);
+    };
+    let mid = |jobv: &Value| {
+        jobv["measurements"][0]["measurement_id"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let jobv = get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    let m = mid(&jobv);
+    check_all(
+        get(&c, &d, "/api/v1/parts/SN-INV/verdict").await,
+        jobv,
+        get(&c, &d, &format!("/api/v1/measurements/{m}")).await,
+    );
+    // As an older version stored it: k0 `pass`, K(6 mm) `fail`, a failure.
+    {
+        use sqlx::ConnectOptions;
+        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(d.dir.join("data").join("springbench.db"))
+            .connect()
+            .await
+            .unwrap();
+        let r = sqlx::query(
+            "UPDATE qc_verdicts SET detail_json = json_set(detail_json, \
+               '$.parameters[0].result', 'pass', '$.parameters[1].result', 'fail', \
+               '$.failures', json_array(json_extract(detail_json, '$.parameters[1]'))) \
+             WHERE part_serial = 'SN-INV'",
+        )
+        .execute(&mut db)
+        .await
+        .unwrap();
+        assert!(r.rows_affected() >= 2);
+    }
+    let jobv = get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    check_all(
+        get(&c, &d, "/api/v1/parts/SN-INV/verdict").await,
+        jobv,
+        get(&c, &d, &format!("/api/v1/measurements/{m}")).await,
+    );
+}
+
+/// Issue 35: a faulted bench takes no part. The fault, as a hardware bench
+/// stores it when its laser fails (a `bench_faults` row; it outlives a
+/// restart), makes `POST /api/v1/jobs` on that bench a 409 problem naming
+/// the fault and the self-check that clears it; nothing is queued; the
+/// other bench still takes parts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
+    let cfg = format!("{}{}", tokens(), benches());
+    let mut d = Daemon::start(&cfg);
+    let tmp = d.take_dir().unwrap();
+    d.terminate();
+    drop(d);
+    {
+        use sqlx::ConnectOptions;
+        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(tmp.path().join("data").join("springbench.db"))
+            .connect()
+            .await
+            .unwrap();
+        sqlx::query(
+            "INSERT INTO bench_faults (bench_id, job_id, detail, created_at) \
+             VALUES ('virtual-2', NULL, 'laser signal lost: 0 valid frames in 0.5 s', '2026-11-28T08:00:00.000Z')",
+        )
+        .execute(&mut db)
+        .await
+        .unwrap();
+    }
+    let d = Daemon::start_in(tmp.path(), &cfg);
+    let c = client();
+    let benches = get(&c, &d, "/api/v1/benches").await;
+    let b2 = benches["items"]
+        .as_array()
+        .or(benches.as_array())
+        .unwrap()
+        .iter()
+        .find(|b| b["id"] == "virtual-2")
+        .cloned()
+        .unwrap();
+    assert_eq!(b2["state"], "faulted", "{benches}");
+    let body = |bench: &str, serial: &str| json!({"part": {"serial": serial, "kind": "spider"}, "target_xpeak_m": 0.004, "bench": bench});
+    let (s, p) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/jobs",
+        STATION,
+        Some(body("virtual-2", "SN-F2")),
+    )
+    .await;
+    assert_eq!(s, 409, "{p}");
+    assert_eq!(p["type"], "/problems/bench-faulted", "{p}");
+    let detail = p["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("virtual-2")
+            && detail.contains("laser signal lost")
+            && detail.contains("self-check"),
+        "{detail}"
+    );
+    assert_eq!(
+        p["fault"]["detail"], "laser signal lost: 0 valid frames in 0.5 s",
+        "{p}"
+    );
+    let jobs = get(&c, &d, "/api/v1/jobs?limit=50").await;
+    assert!(
+        !jobs.to_string().contains("SN-F2"),
+        "nothing queued: {jobs}"
+    );
+    let (s, v) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/jobs",
+        STATION,
+        Some(body("virtual-1", "SN-F1")),
+    )
+    .await;
+    assert_eq!(s, 202, "{v}");
+    drop(d);
+    drop(tmp);
+}

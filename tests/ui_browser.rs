@@ -1255,6 +1255,49 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
     let text = b.text("#verdict").await;
     assert!(!text.contains("Measure it again."), "{text}");
     b.screenshot_sizes("station-verdict-invalid").await;
+    // Issue 35: an INVALID part is never judged, not even per parameter:
+    // on its part page and its measurement page each value is shown as
+    // measured and marked, and no parameter reads pass or fail.
+    let mid = finished(&d, &id).await["measurement_ids"][0]
+        .as_str()
+        .unwrap()
+        .to_string();
+    for (page, card) in [
+        ("part/SN-DRIVE".to_string(), "part-verdict"),
+        (format!("measurement/{mid}"), "measurement-verdict"),
+    ] {
+        b.goto(&format!("{}/#/{page}", d.base)).await;
+        b.wait_js(
+            &format!("document.querySelector('#{card}-parameters tbody tr')"),
+            LONG,
+            "the INVALID verdict's parameters",
+        )
+        .await;
+        let rows = b
+            .js(
+                &format!("return [...document.querySelectorAll('#{card}-parameters tbody tr')].map(r => [r.dataset.name, r.dataset.result, r.cells[3].textContent.trim()]);"),
+                vec![],
+            )
+            .await;
+        let rows = rows.as_array().unwrap();
+        assert_eq!(rows.len(), 2, "k0 and k_at_6mm shown as measured: {rows:?}");
+        for r in rows {
+            assert_eq!(r[1], "unjudged", "{page}: {r}");
+            assert_eq!(r[2], "not judged", "{page}: {r}");
+        }
+        let all = b.text(&format!("#{card}")).await.to_lowercase();
+        assert!(
+            !all.split(|c: char| !c.is_alphanumeric())
+                .any(|w| w == "pass" || w == "fail"),
+            "{page}: no pass or fail anywhere on the INVALID card: {all}"
+        );
+        assert!(b
+            .text(&format!("#{card}-parameters-note"))
+            .await
+            .contains("as measured"));
+        b.screenshot_sizes(&format!("invalid-unjudged-{}", card))
+            .await;
+    }
     b.assert_no_console_errors("with an INVALID verdict").await;
     b.quit().await;
 }
@@ -1502,8 +1545,22 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
         )
         .await;
     let p = p.as_str().unwrap();
-    assert!(p.starts_with("parameter,api_field,value,standard_error,unit,validity"));
-    assert!(p.contains("small_signal.k0_n_per_m"), "{p}");
+    // Each row names the part, the measurement, its time and verdict (issue 35).
+    assert!(
+        p.starts_with(
+            "serial,measurement_id,measured_at,verdict,parameter,api_field,value,standard_error,unit,validity"
+        ),
+        "{p}"
+    );
+    let k0_row = p
+        .lines()
+        .find(|l| l.contains("small_signal.k0_n_per_m"))
+        .unwrap_or_else(|| panic!("{p}"));
+    let created = m["measurement"]["created_at"].as_str().unwrap();
+    assert!(
+        k0_row.starts_with(&format!("P1-CSV,{mid},{created},,")),
+        "{k0_row}"
+    );
     b.assert_no_console_errors("after the exports").await;
 
     // The symmetry of K(x), against the same coefficients: the largest
@@ -2093,9 +2150,47 @@ async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
     // Keff has no limits: no tolerance, %GRR of the total instead.
     let row = b.text("#gauge tr[data-quantity=\"keff\"]").await;
     assert!(row.contains("no limits"), "{row}");
-    // The figures in the people's unit: k0's GRR in N/mm.
+    // The figures in the people's unit (issue 35): k0's GRR in N/mm, or
+    // in N/m when it is below 0.1 N/mm, never with an exponent
+    // (`1.1464e-5 N/mm` before), 3 significant digits.
     let k0_row = b.text("#gauge tr[data-quantity=\"k0\"]").await;
-    assert!(k0_row.contains("N/mm"), "{k0_row}");
+    assert!(k0_row.contains("N/m"), "{k0_row}");
+    assert!(
+        !k0_row.contains("e-") && !k0_row.contains("e+"),
+        "no exponent: {k0_row}"
+    );
+    let grr = k["grr_sd"].as_f64().unwrap();
+    let (unit, scale) = if grr * 1e-3 < 0.1 {
+        ("N/m", 1.0)
+    } else {
+        ("N/mm", 1e-3)
+    };
+    let want = format!("{} {unit}", springbench_fmt3(grr * scale));
+    assert!(k0_row.contains(&want), "GRR {want} in {k0_row}");
+    // 2 parts: AIAG's 10 are missing, said so.
+    let warn = b.text(&format!("#gauge-warnings-{id}")).await;
+    assert!(
+        warn.contains("2 parts") && warn.contains("at least 10"),
+        "{warn}"
+    );
     b.assert_no_console_errors("in the gauge panel").await;
     b.quit().await;
 }
+
+/// `x` to 3 significant digits as the UI writes it (JavaScript's
+/// `Number(x.toPrecision(3)).toString()` for 1e-3 <= |x| < 1e6).
+fn springbench_fmt3(x: f64) -> String {
+    let digits = 2 - x.abs().log10().floor() as i32;
+    let r = if digits > 0 {
+        format!("{:.*}", digits as usize, x)
+    } else {
+        let p = 10f64.powi(-digits);
+        format!("{}", (x / p).round() * p)
+    };
+    if r.contains('.') {
+        r.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        r
+    }
+}
+

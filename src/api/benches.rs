@@ -12,6 +12,32 @@ use axum::Json;
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
+/// A faulted bench takes no part (issue 35): a job for it is refused at
+/// submission with a 409 problem (`bench-faulted`) that names the fault,
+/// since when, and the self-check that clears it, instead of being queued
+/// and failing (or, before, being chosen without a warning).
+pub fn refuse_faulted(st: &AppState, bench_id: &str) -> ApiResult<()> {
+    let Some(f) = st
+        .runner
+        .bench_statuses()
+        .into_iter()
+        .find(|b| b.id == bench_id)
+        .and_then(|b| b.fault)
+    else {
+        return Ok(());
+    };
+    Err(Problem::new(
+        StatusCode::CONFLICT,
+        "bench-faulted",
+        "Bench is faulted",
+        format!(
+            "bench '{bench_id}' is faulted since {}: {}; it takes no part until a self-check passes (POST /api/v1/benches/{bench_id}/self-check)",
+            f.since, f.detail
+        ),
+    )
+    .with_extra(json!({"bench": bench_id, "fault": f})))
+}
+
 /// `POST /api/v1/benches/{id}/self-check`: queue a self-check job (202 + Location).
 #[utoipa::path(post, path = "/api/v1/benches/{id}/self-check", tag = "operations",
     summary = "Queue a self-check of a hardware bench (latency, noise floors, laser at rest, microphone at silence); a pass stores a calibration record and clears a fault.",

@@ -369,10 +369,6 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
             .as_ref()
             .and_then(|r| serde_json::from_value(r.recipe.clone()).ok());
         for p in recipe.iter().flat_map(|r| r.parameters.iter()) {
-            let tolerance = match (p.lower, p.upper) {
-                (Some(l), Some(u)) if u > l => Some(u - l),
-                _ => None,
-            };
             // values[part][bench][repeat]
             let mut grid =
                 vec![vec![vec![f64::NAN; req.repeats as usize]; benches.len()]; req.parts.len()];
@@ -404,7 +400,7 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
                 }));
                 continue;
             }
-            match grr::anova(&p.name, &unit, &grid, tolerance) {
+            match grr::study(&p.name, &unit, &grid, p.lower, p.upper) {
                 Ok(g) => quantities.push(g),
                 Err(e) => not_computed.push(json!({"parameter": p.name, "reason": e})),
             }
@@ -426,7 +422,7 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
         "runs": run_docs,
         "quantities": quantities,
         "not_computed": not_computed,
-        "method": "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); ndc = floor(1.41 PV / GRR)",
+        "method": "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); one-sided limit: %GRR = 100 * 3 GRR / |limit - mean| (not applicable with the mean beyond the limit); no limits: %GRR of the total variation; ndc = floor(1.41 PV / GRR); warnings below 10 parts or 2 benches",
     }))
 }
 

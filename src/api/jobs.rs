@@ -39,7 +39,7 @@ fn job_response(status: StatusCode, j: &Job, replayed: bool) -> Response {
         (status = 200, description = "Replayed (same Idempotency-Key and body)", body = crate::store::Job,
             headers(("Idempotent-Replayed" = String, description = "`true`"))),
         (status = 400, description = "Unreadable body or Idempotency-Key"),
-        (status = 409, description = "Idempotency-Key used before with another body (`job_id` names its job)"),
+        (status = 409, description = "Idempotency-Key used before with another body (`job_id` names its job), or the bench is faulted (`bench-faulted`: `fault` names it; a self-check clears it)"),
         (status = 413, description = "Body too large"),
         (status = 422, description = "Invalid fields, one message each in `errors`"),
         (status = 503, description = "Storage unavailable or the disk is full: not acknowledged, retry later")))]
@@ -110,6 +110,7 @@ pub(crate) async fn enqueue(
     }
     spec.recipe = recipe.map(|r| r.reference);
     spec.submitted_by = submitted_by;
+    super::benches::refuse_faulted(st, &spec.bench)?;
     let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
     let id = new_id();
     let inserted = st

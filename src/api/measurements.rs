@@ -112,7 +112,8 @@ pub async fn get_one<R: Reads>(
     let mut doc = document(&info, result, meta);
     // The QC verdict of this measurement (with its traceability), null without a recipe.
     doc["measurement"]["verdict"] =
-        serde_json::to_value(store.measurement_verdict(&id).await?).unwrap_or(Value::Null);
+        serde_json::to_value(store.measurement_verdict(&id).await?.map(super::qc::shown))
+            .unwrap_or(Value::Null);
     // Which stored fit supplies the headline (chosen by a person), null: this result.
     doc["measurement"]["headline"] =
         serde_json::to_value(store.headline_choice(&id).await?).unwrap_or(Value::Null);

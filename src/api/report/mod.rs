@@ -61,7 +61,11 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
             doc = fit.result;
         }
     }
-    let verdict = st.store.measurement_verdict(id).await?;
+    let verdict = st
+        .store
+        .measurement_verdict(id)
+        .await?
+        .map(crate::api::qc::shown);
     let part = st.store.get_part(&info.part_serial).await?;
     let mut levels = vec![];
     if let Some(job) = &info.job_id {
@@ -158,6 +162,13 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
                     (n, _) => n.unwrap_or("").to_string(),
                 };
                 let result = p["result"].as_str().unwrap_or("");
+                // An invalid measurement is never judged: its values are
+                // shown as measured, marked so (issue 35).
+                let shown = match (v.verdict.as_str(), result) {
+                    ("invalid", _) => "as measured, not judged",
+                    (_, "not_judged") => "no limits",
+                    (_, r) => r,
+                };
                 let _ = write!(
                     s,
                     "<tr class=\"{}\"><td>{}</td><td class=\"num\">{} {}</td><td>{}</td><td>{}</td></tr>",
@@ -166,7 +177,7 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
                     f(&p["value"]).map(|x| sig(x * k, 5)).unwrap_or_default(),
                     esc(du),
                     esc(&limits(f(&p["lower"]), f(&p["upper"]), unit)),
-                    esc(result)
+                    esc(shown)
                 );
             }
             s.push_str("</table>");

@@ -113,9 +113,17 @@ export function toCsv(columns, rows, sep = ',') {
   return [columns.map(t).join(sep), ...rows.map((r) => r.map(t).join(sep))].join('\r\n') + '\r\n';
 }
 
+/**
+ * The parameter table as CSV, each row naming its part and measurement
+ * (issue 35): serial, measurement id, when it was measured (UTC, as the
+ * API), and the QC verdict of the measurement (empty without a recipe), so
+ * that files from several parts can be put together.
+ */
 export function parametersCsv(doc, sep = ',') {
+  const info = doc.measurement || {};
+  const ids = [info.part_serial, info.id, info.created_at, info.verdict ? info.verdict.verdict : ''];
   const cols = ['parameter', 'api_field', 'value', 'standard_error', 'unit', 'validity'];
-  return toCsv(cols, parameters(doc).map((p) => cols.map((c) => p[c])), sep);
+  return toCsv(['serial', 'measurement_id', 'measured_at', 'verdict', ...cols], parameters(doc).map((p) => [...ids, ...cols.map((c) => p[c])]), sep);
 }
 
 export function curvesCsv(doc, sep = ',') {

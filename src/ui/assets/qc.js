@@ -111,14 +111,33 @@ const ACCEPTANCE = {
   acceptable: ['acceptable (< 10 %)', 'verdict-pass'],
   conditionally_acceptable: ['conditionally acceptable (10\u201330 %)', 'state-interrupted'],
   not_acceptable: ['not acceptable (> 30 %)', 'verdict-fail'],
+  not_applicable: ['not applicable (mean beyond the limit)', 'state-interrupted'],
 };
+
+/**
+ * The unit a study's figures are shown in (issue 35): all of one quantity's
+ * figures in one unit, chosen so that its GRR reads without an exponent
+ * (a stiffness's EV of 0.0115 N/m, not 1.1464e-5 N/mm), 3 significant digits.
+ */
+function gaugeUnit(qd) {
+  const { unit, scale } = displayUnit(qd.unit);
+  const big = Math.max(...[qd.ev_sd, qd.av_sd, qd.grr_sd, qd.pv_sd].filter(Number.isFinite).map(Math.abs), 0);
+  if (qd.unit === 'N/m' && big * scale < 0.1) return { unit: 'N/m', scale: 1 };
+  return { unit, scale };
+}
+function gq(v, gu) {
+  if (v === null || v === undefined || !Number.isFinite(v)) return '\u2013';
+  const x = v * gu.scale;
+  const t = x === 0 ? '0' : Math.abs(x) >= 1e-3 && Math.abs(x) < 1e6 ? Number(x.toPrecision(3)).toString() : x.toExponential(2);
+  return `${t}${gu.unit ? ` ${gu.unit}` : ''}`;
+}
 
 async function drawGauge(el, ctx, name, params) {
   const head = [
     h('h2', {}, 'Gauge studies (measurement-system analysis)'),
     h('p', { class: 'muted', id: 'gauge-legend' },
       'AIAG MSA, ANOVA: EV repeatability (same bench), AV reproducibility (between benches), GRR = \u221a(EV\u00b2 + AV\u00b2), PV part variation, as standard deviations. ',
-      '%GRR = 100 \u00b7 6 GRR / tolerance (upper \u2212 lower limit; of the total variation when the parameter has no limits): ',
+      '%GRR = 100 \u00b7 6 GRR / tolerance (upper \u2212 lower limit); with one limit, as AIAG judges a one-sided characteristic, 100 \u00b7 3 GRR / distance from the mean to the limit (not applicable with the mean beyond it); of the total variation when the parameter has no limits: ',
       h('b', {}, '< 10 % acceptable, 10\u201330 % conditionally acceptable, > 30 % not acceptable'),
       '. ndc (number of distinct categories) = \u230a1.41 PV / GRR\u230b: at least 5 wanted.'),
   ];
@@ -179,15 +198,23 @@ async function drawGauge(el, ctx, name, params) {
     if (g.state !== 'done') return h('div', { class: 'gauge-study', dataset: { study: g.id, state: g.state } }, title);
     const rows = (g.quantities || []).map((q) => {
       const [text, cls] = ACCEPTANCE[q.acceptance] || [q.acceptance, ''];
-      const u = q.unit;
-      return h('tr', { dataset: { quantity: q.quantity, acceptance: q.acceptance } },
+      const gu = gaugeUnit(q);
+      const side = q.limits === 'upper' ? '\u2264' : '\u2265';
+      const one = q.limits === 'upper' || q.limits === 'lower';
+      const tol = one
+        ? `one-sided ${side} ${gq(q.one_sided_limit, gu)}${Number.isFinite(q.limit_distance) ? `; mean ${gq(q.limit_distance, gu)} inside` : ''}`
+        : q.tolerance === null || q.tolerance === undefined ? 'no limits' : gq(q.tolerance, gu);
+      const grrTol = one
+        ? (q.acceptance === 'not_applicable' ? 'not applicable' : `${pct(q.grr_percent_of_limit_distance)} of the distance to the limit`)
+        : pct(q.grr_percent_of_tolerance);
+      return h('tr', { dataset: { quantity: q.quantity, acceptance: q.acceptance, limits: q.limits || '' } },
         h('td', {}, label(q.quantity)),
-        h('td', {}, lim(q.ev_sd, u)),
-        h('td', {}, lim(q.av_sd, u)),
-        h('td', {}, lim(q.grr_sd, u)),
-        h('td', {}, lim(q.pv_sd, u)),
-        h('td', {}, q.tolerance === null || q.tolerance === undefined ? 'no limits' : lim(q.tolerance, u)),
-        h('td', { class: 'grr-tol' }, pct(q.grr_percent_of_tolerance)),
+        h('td', {}, gq(q.ev_sd, gu)),
+        h('td', {}, gq(q.av_sd, gu)),
+        h('td', {}, gq(q.grr_sd, gu)),
+        h('td', {}, gq(q.pv_sd, gu)),
+        h('td', { class: 'grr-limits' }, tol),
+        h('td', { class: 'grr-tol' }, grrTol),
         h('td', {}, pct(q.grr_percent_of_total)),
         h('td', { class: 'ndc' }, q.ndc === null || q.ndc === undefined ? '\u2013 (GRR 0)' : String(q.ndc)),
         h('td', {}, h('span', { class: `badge ${cls}` }, text)));
@@ -198,8 +225,13 @@ async function drawGauge(el, ctx, name, params) {
           h('th', {}, 'parameter'), h('th', { title: 'repeatability: same part, same bench (1 \u03c3)' }, 'EV'),
           h('th', { title: 'reproducibility: between benches (1 \u03c3)' }, 'AV'), h('th', {}, 'GRR'),
           h('th', { title: 'part-to-part variation (1 \u03c3)' }, 'PV'), h('th', {}, 'tolerance'),
-          h('th', {}, '%GRR of tolerance'), h('th', {}, '%GRR of total'), h('th', {}, 'ndc'), h('th', {}, 'AIAG'))),
+          h('th', {}, '%GRR of tolerance (or limit distance)'), h('th', {}, '%GRR of total'), h('th', {}, 'ndc'), h('th', {}, 'AIAG'))),
         h('tbody', {}, rows)),
+      (() => {
+        // Each warning once (the same part count applies to every quantity).
+        const ws = [...new Set((g.quantities || []).flatMap((q) => q.warnings || []))];
+        return ws.length ? h('ul', { class: 'gauge-warnings flag', id: `gauge-warnings-${g.id}` }, ws.map((w) => h('li', {}, w))) : null;
+      })(),
       (g.not_computed || []).length
         ? h('ul', { class: 'error' }, g.not_computed.map((n) => h('li', {}, `${label(n.parameter)}: not computed, ${n.reason}`)))
         : null);

@@ -43,17 +43,24 @@ export function failureText(f) {
   return `${paramLabel(f)}: ${siq(f.value, f.unit, 4)}, limits ${limitsText(f.lower, f.upper, f.unit)}`;
 }
 
-/** Every judged parameter: name, value, limits (one-sided as "\u2264 0.1 N"), result. */
+/** Every judged parameter: name, value, limits (one-sided as "\u2264 0.1 N"), result.
+ * An INVALID verdict is never judged: its values are shown as measured,
+ * marked so, with no pass or fail (issue 35). */
 export function parameterTable(v, id = 'verdict-parameters') {
   const ps = (v.detail && v.detail.parameters) || [];
   if (!ps.length) return h('p', { class: 'muted' }, 'No parameter was judged.');
-  return h('table', { class: 'list', id },
-    h('thead', {}, h('tr', {}, h('th', {}, 'parameter'), h('th', {}, 'value'), h('th', {}, 'limits'), h('th', {}, 'result'))),
-    h('tbody', {}, ps.map((p) => h('tr', { class: `result-${p.result}`, dataset: { name: p.name, result: p.result } },
-      h('td', {}, paramLabel(p)),
-      h('td', { class: 'num' }, siq(p.value, p.unit, 5)),
-      h('td', {}, limitsText(p.lower, p.upper, p.unit)),
-      h('td', {}, h('span', { class: `badge result-${p.result}` }, p.result))))));
+  const invalid = v.verdict === 'invalid';
+  const result = (p) => (invalid ? 'unjudged' : p.result);
+  const word = (p) => (invalid ? 'not judged' : { pass: 'pass', fail: 'fail', not_judged: 'no limits' }[p.result] || p.result);
+  return h('div', {},
+    invalid ? h('p', { class: 'unjudged-note', id: `${id}-note` }, 'INVALID: the values below are shown as measured; none of them is judged against its limits.') : null,
+    h('table', { class: `list${invalid ? ' unjudged' : ''}`, id },
+      h('thead', {}, h('tr', {}, h('th', {}, 'parameter'), h('th', {}, invalid ? 'value (as measured)' : 'value'), h('th', {}, 'limits'), h('th', {}, 'result'))),
+      h('tbody', {}, ps.map((p) => h('tr', { class: `result-${result(p)}`, dataset: { name: p.name, result: result(p) } },
+        h('td', {}, paramLabel(p)),
+        h('td', { class: 'num' }, siq(p.value, p.unit, 5)),
+        h('td', {}, limitsText(p.lower, p.upper, p.unit)),
+        h('td', {}, h('span', { class: `badge result-${result(p)}` }, word(p))))))));
 }
 
 /** Software version, recipe, bench, calibration, who submitted and when. */

@@ -87,9 +87,108 @@ pub struct GaugeRr {
     /// Number of distinct categories, ⌊1.41 · PV / GRR⌋ (None when GRR is 0).
     pub ndc: Option<u32>,
     /// `acceptable` (< 10 %), `conditionally_acceptable` (10-30 %),
-    /// `not_acceptable` (> 30 %): %GRR of the tolerance, or of the total
-    /// variation without a tolerance.
+    /// `not_acceptable` (> 30 %): %GRR of the tolerance, of the distance to
+    /// a one-sided limit ([`study`]), or of the total variation without
+    /// limits; `not_applicable` when a one-sided limit lies on the wrong
+    /// side of the parts' mean (no distance to judge against).
     pub acceptance: String,
+    /// The grand mean of every value (unit).
+    #[serde(default)]
+    pub mean: f64,
+    /// `two_sided`, `upper` or `lower` (one-sided), or `none` ([`study`]).
+    #[serde(default)]
+    pub limits: String,
+    /// The one limit of a one-sided tolerance (unit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub one_sided_limit: Option<f64>,
+    /// |limit − mean| for a one-sided limit (unit): AIAG MSA judges a
+    /// one-sided characteristic against it with 3 σ, the half spread.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_distance: Option<f64>,
+    /// 100 · 3 GRR / |limit − mean| (one-sided limit, mean inside it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grr_percent_of_limit_distance: Option<f64>,
+    /// What a reader must know before signing: too few parts or benches,
+    /// a one-sided figure not applicable.
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+/// AIAG MSA's minimum number of parts in a study.
+pub const MIN_PARTS: usize = 10;
+/// AIAG MSA's minimum number of appraisers (here: benches or operators).
+pub const MIN_APPRAISERS: usize = 2;
+
+/// The study of one recipe parameter under its limits (issue 35): both
+/// limits judge %GRR against the tolerance USL − LSL (6 σ); one limit, as
+/// AIAG MSA does for a one-sided characteristic, against the distance from
+/// the parts' mean to that limit (3 σ: 100 · 3 GRR / |limit − mean|), or
+/// `not_applicable` when the mean is not inside the limit; no limit,
+/// against the total variation. Warns below [`MIN_PARTS`] parts or
+/// [`MIN_APPRAISERS`] benches.
+pub fn study(
+    quantity: &str,
+    unit: &str,
+    values: &[Vec<Vec<f64>>],
+    lower: Option<f64>,
+    upper: Option<f64>,
+) -> Result<GaugeRr, String> {
+    let tolerance = match (lower, upper) {
+        (Some(l), Some(u)) if u > l => Some(u - l),
+        _ => None,
+    };
+    let mut g = anova(quantity, unit, values, tolerance)?;
+    let all: Vec<f64> = values.iter().flatten().flatten().copied().collect();
+    g.mean = all.iter().sum::<f64>() / all.len().max(1) as f64;
+    let one = match (lower, upper) {
+        (Some(_), Some(_)) => None,
+        (None, Some(u)) => Some(("upper", u, u - g.mean)),
+        (Some(l), None) => Some(("lower", l, g.mean - l)),
+        (None, None) => None,
+    };
+    g.limits = match (lower, upper, one) {
+        (Some(_), Some(_), _) => "two_sided".into(),
+        (_, _, Some((side, _, _))) => side.into(),
+        _ => "none".into(),
+    };
+    if let Some((side, limit, dist)) = one {
+        g.one_sided_limit = Some(limit);
+        if dist > 0.0 && dist.is_finite() {
+            let pct = 100.0 * 0.5 * SPREAD_SIGMAS * g.grr_sd / dist;
+            g.limit_distance = Some(dist);
+            g.grr_percent_of_limit_distance = Some(pct);
+            g.acceptance = acceptance(pct).into();
+        } else {
+            g.acceptance = "not_applicable".into();
+            g.warnings.push(format!(
+                "%GRR is not applicable: the parts' mean lies {} the {side} limit, so there is no distance to the limit to judge the gauge against",
+                if dist == 0.0 { "on" } else { "beyond" }
+            ));
+        }
+    }
+    if g.parts < MIN_PARTS {
+        g.warnings.push(format!(
+            "{} parts: AIAG MSA asks for at least {MIN_PARTS}; the figures are less certain than they look",
+            g.parts
+        ));
+    }
+    if g.appraisers < MIN_APPRAISERS {
+        g.warnings.push(format!(
+            "{} bench: the reproducibility (AV) cannot be estimated; AIAG MSA asks for at least {MIN_APPRAISERS} benches or operators",
+            g.appraisers
+        ));
+    }
+    Ok(g)
+}
+
+fn acceptance(pct: f64) -> &'static str {
+    if pct < 10.0 {
+        "acceptable"
+    } else if pct <= 30.0 {
+        "conditionally_acceptable"
+    } else {
+        "not_acceptable"
+    }
 }
 
 /// The ANOVA gauge study of `values[part][appraiser][repeat]` (a balanced
@@ -275,14 +374,18 @@ pub fn anova(
         grr_percent_of_total: of_total(grr),
         pv_percent_of_total: of_total(pv),
         ndc: (grr > 0.0).then(|| (1.41 * pv / grr).floor().min(u32::MAX as f64) as u32),
-        acceptance: if judged < 10.0 {
-            "acceptable"
-        } else if judged <= 30.0 {
-            "conditionally_acceptable"
+        acceptance: acceptance(judged).into(),
+        mean: 0.0,
+        limits: if tolerance.is_some() {
+            "two_sided"
         } else {
-            "not_acceptable"
+            "none"
         }
         .into(),
+        one_sided_limit: None,
+        limit_distance: None,
+        grr_percent_of_limit_distance: None,
+        warnings: vec![],
     })
 }
 
@@ -488,5 +591,68 @@ mod tests {
         assert_eq!(g.av_sd, 0.0);
         // SS_E = 2 parts x 2 x 0.05^2 = 0.01 over 2 df.
         assert!(close(g.ev_sd, 0.005f64.sqrt(), 1e-9), "{}", g.ev_sd);
+    }
+
+    /// Issue 35: a one-sided limit (model error <= 5 %) is judged as AIAG
+    /// judges a one-sided characteristic, 3 GRR against the distance from
+    /// the mean to the limit, not against the total variation (which gave
+    /// 100 % and "not acceptable" for parts alike); beyond the limit it is
+    /// not applicable; 5 parts on 1 bench warn twice.
+    #[test]
+    fn a_one_sided_limit_is_judged_against_the_distance_to_it() {
+        // 5 parts, all alike (PV = 0), 2 benches, 3 repeats; values about 1 %.
+        let d = [0.0, 0.02, -0.02];
+        let values: Vec<Vec<Vec<f64>>> = (0..5)
+            .map(|_| {
+                (0..2)
+                    .map(|_| d.iter().map(|e| 1.0 + e).collect())
+                    .collect()
+            })
+            .collect();
+        let plain = anova("model_error", "%", &values, None).unwrap();
+        assert!(close(plain.grr_percent_of_total, 100.0, 1e-9));
+        assert_eq!(plain.acceptance, "not_acceptable");
+        let g = study("model_error", "%", &values, None, Some(5.0)).unwrap();
+        assert_eq!(g.limits, "upper");
+        assert!(close(g.mean, 1.0, 1e-12));
+        assert!(close(g.limit_distance.unwrap(), 4.0, 1e-12));
+        // EV: SS_E = 10 cells x 2 x 0.02^2 = 0.008 over 20 df (pooled with
+        // SS_PA = 0 over 4 df): sigma^2 = 0.008 / 24; AV = 0.
+        let grr = (0.008f64 / 24.0).sqrt();
+        assert!(close(g.grr_sd, grr, 1e-9), "{}", g.grr_sd);
+        let pct = 100.0 * 3.0 * grr / 4.0;
+        assert!(close(g.grr_percent_of_limit_distance.unwrap(), pct, 1e-9));
+        assert_eq!(g.acceptance, "acceptable", "{pct} %");
+        assert!(g.grr_percent_of_tolerance.is_none());
+        assert_eq!(g.warnings.len(), 1, "{:?}", g.warnings);
+        assert!(g.warnings[0].contains("5 parts") && g.warnings[0].contains("10"));
+        // A lower limit: distance mean - limit.
+        let g = study("q", "1", &values, Some(0.5), None).unwrap();
+        assert_eq!(g.limits, "lower");
+        assert!(close(g.limit_distance.unwrap(), 0.5, 1e-12));
+        // The mean beyond the limit: not applicable, said so.
+        let g = study("model_error", "%", &values, None, Some(0.9)).unwrap();
+        assert_eq!(g.acceptance, "not_applicable");
+        assert!(g.grr_percent_of_limit_distance.is_none());
+        assert!(g.warnings.iter().any(|w| w.contains("not applicable")));
+        // Both limits: the tolerance as before; no limits: the total variation.
+        let g = study("k", "N/m", &values, Some(0.0), Some(2.0)).unwrap();
+        assert_eq!(g.limits, "two_sided");
+        assert!(close(
+            g.grr_percent_of_tolerance.unwrap(),
+            100.0 * 6.0 * grr / 2.0,
+            1e-9
+        ));
+        assert_eq!(
+            study("k", "N/m", &values, None, None).unwrap().limits,
+            "none"
+        );
+        // One bench, 12 parts: the reproducibility warning only.
+        let one: Vec<Vec<Vec<f64>>> = (0..12)
+            .map(|i| vec![d.iter().map(|e| 1.0 + 0.1 * i as f64 + e).collect()])
+            .collect();
+        let g = study("k", "N/m", &one, None, Some(5.0)).unwrap();
+        assert_eq!(g.warnings.len(), 1, "{:?}", g.warnings);
+        assert!(g.warnings[0].contains("1 bench") && g.warnings[0].contains("AV"));
     }
 }

@@ -30,9 +30,9 @@ pub use recipe::{
     MIN_LEVEL_M, MIN_MOVING_MASS_KG,
 };
 pub use verdict::{
-    combine, finite_verdict, invalid_job, judge, k_of_x, keff_at_target, set_keff_at_target,
-    stiffness_coefficients, validity_problems, InvalidReason, ParamOutcome, ParamResult, RunFacts,
-    Verdict, VerdictKind,
+    combine, finite_verdict, invalid_job, judge, k_of_x, keff_at_target, never_judge_invalid,
+    set_keff_at_target, stiffness_coefficients, validity_problems, InvalidReason, ParamOutcome,
+    ParamResult, RunFacts, Verdict, VerdictKind,
 };
 
 #[cfg(test)]

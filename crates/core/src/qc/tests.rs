@@ -207,6 +207,43 @@ fn an_untrusted_measurement_is_invalid_never_pass() {
     assert!(v.invalid_reasons[0].detail.contains("too short"));
 }
 
+/// Issue 35: an invalid measurement is never judged, not even per
+/// parameter: its values stay as measured with their limits, each
+/// `not_judged`, and no failures, whatever the values (a value inside its
+/// limits and one outside), in the measurement's and the job's verdict.
+#[test]
+fn an_invalid_verdict_carries_no_pass_or_fail_per_parameter() {
+    let r = recipe();
+    // k0 2700 N/m is above its limit (fail), the rest inside; the target is not reached.
+    let mut f = facts(report(2700.0, 0.0, 3.0e7, 6.0));
+    f.report.as_mut().unwrap().large_signal.xpeak_m = 0.005;
+    let v = judge(&r, &f);
+    assert_eq!(v.verdict, VerdictKind::Invalid);
+    assert!(v.parameters.len() >= 3, "{:?}", v.parameters);
+    assert!(v.failures.is_empty());
+    for p in &v.parameters {
+        assert_eq!(p.result, ParamResult::NotJudged, "{}", p.name);
+        assert!(p.value.is_finite() && (p.lower.is_some() || p.upper.is_some()));
+    }
+    let k0 = v.parameters.iter().find(|p| p.name == "k0").unwrap();
+    assert_eq!(k0.value, 2700.0, "the value as measured");
+    let pass = judge(&r, &facts(report(2400.0, 0.0, 3.0e7, 6.0)));
+    assert_eq!(pass.verdict, VerdictKind::Pass);
+    let job = combine(&[pass.clone(), v]);
+    assert_eq!(job.verdict, VerdictKind::Invalid);
+    assert!(job
+        .parameters
+        .iter()
+        .all(|p| p.result == ParamResult::NotJudged));
+    // A verdict stored before the rule, read back.
+    let mut old = pass;
+    old.verdict = VerdictKind::Invalid;
+    assert!(never_judge_invalid(old)
+        .parameters
+        .iter()
+        .all(|p| p.result == ParamResult::NotJudged));
+}
+
 #[test]
 fn a_recipe_without_limits_gives_no_limits_and_the_hash_follows_the_content() {
     let mut r = recipe();

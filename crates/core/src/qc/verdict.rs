@@ -37,7 +37,8 @@ impl VerdictKind {
 pub enum ParamResult {
     Pass,
     Fail,
-    /// No limits set for it.
+    /// Not judged: no limits set for it, or the measurement is `invalid`
+    /// (its value is shown as measured, never as pass or fail; issue 35).
     NotJudged,
 }
 
@@ -325,12 +326,28 @@ pub fn judge(recipe: &Recipe, facts: &RunFacts) -> Verdict {
 /// `store::finite` refuses a result document.
 pub fn finite_verdict(v: Verdict) -> Verdict {
     match crate::finite::check(&v) {
-        Ok(()) => v,
+        Ok(()) => never_judge_invalid(v),
         Err(e) => invalid_job(
             "non_finite_value",
             format!("the measurement cannot be judged: the verdict held a {e}"),
         ),
     }
+}
+
+/// An invalid measurement is never judged (ARCHITECTURE.md, issue 35): its
+/// parameters keep their values and limits, as measured, but no result
+/// (`not_judged`), and it lists no failures. Applied to every verdict the
+/// judge, [`combine`] and [`finite_verdict`] return, and by the API to a
+/// verdict stored before this rule (whose invalid parameters carried pass
+/// or fail).
+pub fn never_judge_invalid(mut v: Verdict) -> Verdict {
+    if v.verdict == VerdictKind::Invalid {
+        v.failures.clear();
+        for p in &mut v.parameters {
+            p.result = ParamResult::NotJudged;
+        }
+    }
+    v
 }
 
 pub(super) fn judge_values(recipe: &Recipe, facts: &RunFacts) -> Verdict {
@@ -526,7 +543,7 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
             .extend(v.invalid_reasons.iter().cloned());
         out.parameters.extend(v.parameters.iter().cloned());
     }
-    out
+    never_judge_invalid(out)
 }
 
 /// The verdict of a job that did not produce a trustworthy measurement
