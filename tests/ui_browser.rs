@@ -2193,4 +2193,3 @@ fn springbench_fmt3(x: f64) -> String {
         r
     }
 }
-
