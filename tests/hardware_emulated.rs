@@ -4,8 +4,9 @@
 //! the physics behind the emulated audio device.
 #![cfg(feature = "hardware")]
 
+#[path = "it/common/mod.rs"]
 mod common;
-#[path = "common/hardware.rs"]
+#[path = "it/common/hardware.rs"]
 mod hw;
 
 use common::{client, get, submit, terminal, wait_job, Daemon};

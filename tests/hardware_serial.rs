@@ -12,8 +12,9 @@
 //! prints the figures quoted in docs/hardware.md.
 #![cfg(feature = "hardware")]
 
+#[path = "it/common/mod.rs"]
 mod common;
-#[path = "common/hardware.rs"]
+#[path = "it/common/hardware.rs"]
 mod hw;
 
 use common::{client, get, submit, terminal, wait_job, Daemon};

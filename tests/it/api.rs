@@ -2,7 +2,7 @@
 //! idempotency, auth, events, import, job failure. (The measurement itself,
 //! cancel while running and kill -9 are in tests/daemon.rs.)
 
-mod common;
+use crate::common;
 
 use common::{client, get_bytes, get_text, problem, terminal, wait_job, Daemon};
 use futures_util::StreamExt;

@@ -2,7 +2,7 @@
 //! issue's "Why" happen against the real daemon over real sockets.
 //! Figures measured here are printed and kept in docs/http-hardening.md.
 
-mod common;
+use crate::common;
 
 use common::{client, problem, raw, read_response, rss_kb, Daemon};
 use serde_json::{json, Value};

@@ -10,8 +10,8 @@
 //! Without chromedriver these tests print why and pass; `.ci/run` installs
 //! Chromium and sets `SPRINGBENCH_BROWSER_TESTS=require`, so in CI they run.
 
-mod browser;
-mod common;
+use crate::browser;
+use crate::common;
 
 use browser::Browser;
 use common::Daemon;

@@ -7,8 +7,8 @@
 //! route of the router was not exercised with a validated response.
 //! The served document must also equal `api/openapi.yaml`.
 
-mod common;
-mod contract_check;
+use crate::common;
+use crate::contract_check;
 
 use common::{client, Daemon};
 use contract_check::{short, Contract};

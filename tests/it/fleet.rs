@@ -18,9 +18,9 @@
 //! Without PostgreSQL binaries the test prints why it skips;
 //! `SPRINGBENCH_PG_TESTS=require` (set by `.ci/run`) makes that a failure.
 
-mod browser;
-mod common;
-mod contract_check;
+use crate::browser;
+use crate::common;
+use crate::contract_check;
 
 use browser::Browser;
 use common::{client, Daemon};

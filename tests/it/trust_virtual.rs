@@ -76,8 +76,10 @@ fn random_effect(id: EffectId, rng: &mut impl Rng) -> Effects {
     e
 }
 
-/// Errors of a report against the part's truth.
+/// Errors of a report against the part's truth. The base model's figures
+/// are read only through `Debug`, in the assertions' messages.
 #[derive(Debug)]
+#[allow(dead_code)]
 pub struct Errors {
     /// RMS of K_fit(x) - K_true(x) over the measured range, relative to RMS K_true (%).
     pub k_rms_percent: f64,

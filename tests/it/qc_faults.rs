@@ -5,7 +5,7 @@
 //! The full-disk tests mount a tmpfs (root needed); where mounting is
 //! refused they print why and pass without running.
 
-mod common;
+use crate::common;
 
 use common::{client, Daemon};
 use serde_json::{json, Value};

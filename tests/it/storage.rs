@@ -2,7 +2,7 @@
 //! the resolution they were captured with, read back sample for sample, and
 //! the data directory growth of the default job.
 
-mod common;
+use crate::common;
 
 use common::*;
 use serde_json::json;

@@ -2,7 +2,7 @@
 //! would overflow on storage are refused at the door per field, large
 //! imports and downloads stay within a memory bound (daemon VmRSS/VmHWM).
 
-mod common;
+use crate::common;
 
 use common::{client, problem, Daemon};
 use serde_json::{json, Value};

@@ -16,7 +16,7 @@
 //! is the duration of the stimulus the procedure played and captured
 //! (sweeps and their silences), the time a real bench is busy with the part.
 
-mod common;
+use crate::common;
 
 use springbench::bench::procedure::{self, Observer, Outcome, ProcedureConfig};
 use springbench::bench::virtual_bench::{VirtualBench, DEFAULT_LIMITS};

@@ -6,7 +6,7 @@
 //! SPRINGBENCH_LOAD_SECS (default 5), SPRINGBENCH_LOAD_CLIENTS (default 200),
 //! SPRINGBENCH_LOAD_DIAG_CLIENTS (default 10).
 
-mod common;
+use crate::common;
 
 use common::{terminal, wait_job, Daemon};
 use serde_json::{json, Value};

@@ -2,7 +2,7 @@
 //! levels of a series (`diagnose::series`), against the part's truth on the
 //! virtual bench, beside each level's own fit. Three levels (3, 6, 9 mm
 //! targets) of the 4" spider with an effect that changes with amplitude.
-mod common;
+use crate::common;
 
 use common::{client, get, submit, terminal, wait_job, Daemon};
 use serde_json::{json, Value};

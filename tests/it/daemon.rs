@@ -2,7 +2,7 @@
 //! events and the stored result, cancel (queued and running), kill -9 and
 //! SIGTERM mid-job with a restart on the same data directory.
 
-mod common;
+use crate::common;
 
 use common::{client, get, get_bytes, problem, submit, terminal, wait_job, Daemon};
 use futures_util::StreamExt;

@@ -7,7 +7,7 @@
 //! The gauge study of the acceptance (10 parts x 3 repeats x 2
 //! benches, both procedures) is in docs/qc.md, with the command that ran it.
 
-mod common;
+use crate::common;
 
 use common::{client, send, Daemon};
 use serde_json::{json, Value};

@@ -9,7 +9,7 @@
 //! acceptance lot of the issue: 8 golden units and 30 production parts (23
 //! good, 5 defects, 2 unmeasurable). Two virtual benches run in parallel.
 
-mod common;
+use crate::common;
 
 use common::{client, send, Daemon};
 use hmac::{Hmac, Mac};

@@ -39,7 +39,7 @@ async fn stored_documents_get_the_unit_field_names_with_values_unchanged() {
         .await
         .unwrap();
     sqlx::raw_sql(include_str!(
-        "../crates/store/migrations/0150_unit_field_names.sql"
+        "../../crates/store/migrations/0150_unit_field_names.sql"
     ))
     .execute(&mut c)
     .await
