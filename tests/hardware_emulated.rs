@@ -182,7 +182,7 @@ async fn cancel_during_a_sweep_ramps_the_drive_down_within_50_ms() {
 /// 100-104, full procedure) give the recipe's limits (+-10 % of their mean)
 /// and golden reference; then 3 lot parts (seeds 800-802) are measured with
 /// each procedure on the same emulated bench. Asserted as on the virtual
-/// bench (tests/production.rs): the same verdict, no fall-back, k0, Keff at
+/// bench (tests/it/production.rs): the same verdict, no fall-back, k0, Keff at
 /// target and K(4 mm) (`k_at_half`) within 1 % of the full procedure's. 11 jobs, 14 s of
 /// wall time (the emulator is not paced), `#[ignore]` to keep CI's time
 /// (issue 19):

@@ -1,6 +1,6 @@
 //! The daemon over real HTTP and websocket: validation, problem documents,
 //! idempotency, auth, events, import, job failure. (The measurement itself,
-//! cancel while running and kill -9 are in tests/daemon.rs.)
+//! cancel while running and kill -9 are in tests/it/daemon.rs.)
 
 use crate::common;
 

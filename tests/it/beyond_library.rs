@@ -3,8 +3,8 @@
 //! unexplained structure reported with a signature, and no library effect is
 //! claimed with a parameter: whatever the ladder added to stand in for the
 //! mode is listed as "not claimed as measured". A plain part raises no
-//! alarm (the library parts are checked in tests/trust_virtual.rs). Pairs
-//! of library effects one level cannot separate: tests/series.rs.
+//! alarm (the library parts are checked in tests/it/trust_virtual.rs). Pairs
+//! of library effects one level cannot separate: tests/it/series.rs.
 //!
 //! `SPRINGBENCH_TRUST_SEEDS=N` runs N seeds per case (default 1).
 use springbench::bench::simulate::simulate_recording_set;

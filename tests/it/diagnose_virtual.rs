@@ -214,7 +214,7 @@ fn two_hidden_effects_ladder_adds_both() {
 /// Detection against effect size at the default noise: for each effect, a
 /// ladder of sizes (factors of 2 down from a clearly visible one), three
 /// seeds each; prints the smallest size found in all seeds. For the docs
-/// (docs/diagnostics.md): `cargo test --release --test diagnose_virtual -- --ignored --nocapture detection`.
+/// (docs/diagnostics.md): `cargo test --release --test it -- --ignored --nocapture diagnose_virtual::detection`.
 #[test]
 #[ignore = "documentation run: ~2 minutes in release"]
 fn detection_against_effect_size() {

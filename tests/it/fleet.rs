@@ -1208,7 +1208,7 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
 
 /// Every route of the fleet role (its `/api/v1/fleet/...` and the station's
 /// reads it serves) against the OpenAPI document, strictly as
-/// `tests/contract.rs` checks a station's: each answers a validated success
+/// `tests/it/contract.rs` checks a station's: each answers a validated success
 /// and, where it takes parameters, a 422 naming the bad one.
 async fn fleet_role_contract(o: &OneStation) {
     let c = client();

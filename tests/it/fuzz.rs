@@ -8,7 +8,7 @@
 //! inputs per target). The long run (figures in `docs/fuzzing.md`):
 //!
 //! ```sh
-//! SPRINGBENCH_FUZZ_ITERS=1000000 cargo test --release --test fuzz -- --nocapture --test-threads=1
+//! SPRINGBENCH_FUZZ_ITERS=1000000 cargo test --release --test it fuzz:: -- --nocapture --test-threads=1
 //! ```
 //!
 //! `SPRINGBENCH_FUZZ_SEED=N` picks another random stream; `SPRINGBENCH_FUZZ_WRITE_CORPUS=1`

@@ -264,7 +264,7 @@ async fn gauge_study_on_two_virtual_benches() {
     assert!(study["quantities"][2]["tolerance"].is_null());
 
     // Each part's mean over benches and repeats lies at the truth, within
-    // the bounds tests/trust_virtual.rs holds the virtual bench's results
+    // the bounds tests/it/trust_virtual.rs holds the virtual bench's results
     // to (k0 3 %, K(x) 1 %).
     for (i, _) in parts.iter().enumerate() {
         let truth = part(&nominal, &Spread::default(), 700 + i as u64, None);
@@ -518,7 +518,7 @@ async fn calibrate(
 /// benches that differ only in their noise (reproducibility about 0), and on
 /// two that differ as two real benches do (laser sensitivity +-0.2 %, inner
 /// clamp +-0.05 g; decision 0038). Minutes of CPU: `#[ignore]`.
-/// `cargo test --test gauge -- --ignored --nocapture acceptance`
+/// `cargo test --test it -- --ignored --nocapture gauge::acceptance`
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "acceptance study: 240 runs, minutes; docs/qc.md gives the command and figures"]
 async fn acceptance_study_full_against_production() {

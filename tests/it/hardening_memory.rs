@@ -2,7 +2,7 @@
 //! allocator (bytes live on this thread and their peak), not sampled from
 //! the process: a few seconds, in the default suite. The daemon's whole
 //! 16-level x 10-repeat series is `a_16_by_10_series_stays_below_150_mb_and_keeps_its_levels`
-//! in `tests/qc_faults.rs` (`#[ignore]`, minutes).
+//! in `tests/it/qc_faults.rs` (`#[ignore]`, minutes).
 
 use springbench::bench::virtual_bench::VirtualBench;
 use springbench::bench::{Bench, BenchError, Block, Control, Limits};

@@ -6,7 +6,8 @@
 //! Shared harness: `common` (the daemon on an ephemeral port, HTTP helpers),
 //! `browser` (headless Chromium over WebDriver), `contract_check` (responses
 //! against the OpenAPI document). The hardware feature's tests are the
-//! `hardware` and `hardware_alsa` binaries beside this one.
+//! `tests/hardware_*.rs` binaries beside this one (process-wide ALSA
+//! configuration, wall-clock-paced laser emulators).
 
 mod browser;
 mod common;

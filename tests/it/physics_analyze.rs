@@ -2,7 +2,7 @@
 //! recovers K(x) within 0.5 % RMS over the measured range (no effects,
 //! default noise), with the identification core of issue 2.
 //!
-//! More seeds for the docs: `SPRINGBENCH_SEEDS=5 cargo test --release --test physics_analyze -- --include-ignored --nocapture`.
+//! More seeds for the docs: `SPRINGBENCH_SEEDS=5 cargo test --release --test it physics_analyze:: -- --include-ignored --nocapture`.
 
 use springbench::bench::simulate::simulate_recording_set;
 use springbench::identify::{analyze, AnalyzeOptions, Report};

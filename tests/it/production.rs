@@ -470,7 +470,7 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
 /// recipe that judges an effect size
 /// (`the_daemon_runs_the_procedure_the_recipe_or_the_job_chooses`). Figures
 /// in docs/qc.md, "Effect sizes".
-/// `cargo test --test production -- --ignored --nocapture effect_sizes` (10 s)
+/// `cargo test --test it -- --ignored --nocapture production::effect_sizes` (10 s)
 #[test]
 #[ignore = "open defect: the short sweeps do not reveal friction on every part, nor hold the small-signal model with it; docs/qc.md, Effect sizes"]
 fn effect_sizes_agree_with_the_full_procedure() {
@@ -565,7 +565,7 @@ fn effect_sizes_agree_with_the_full_procedure() {
 /// converter at 48 kHz would deliver it), each part measured, analysed and
 /// judged in turn as the runner does. Prints bench time, analysis time, wall
 /// time per part and parts per hour for both procedures side by side.
-/// `cargo test --test production -- --ignored --nocapture throughput`
+/// `cargo test --test it -- --ignored --nocapture production::throughput`
 /// (`SPRINGBENCH_THROUGHPUT_PARTS=N`: production parts, default 10; the full
 /// procedure measures a third as many).
 #[test]
@@ -957,7 +957,7 @@ mod explore {
         s.displacement_m.iter().fold(0.0f64, |a, x| a.max(x.abs()))
     }
 
-    /// `N=96 cargo test --test production -- --ignored --nocapture explore_designs`
+    /// `N=96 cargo test --test it -- --ignored --nocapture production::explore_designs`
     /// (about 30 s): sweep designs in the production band of one spider_4in
     /// part, each recorded once without sensor noise at the drive that
     /// reaches `XT` (default 7.7 mm), then analysed with N draws of the
@@ -1115,7 +1115,7 @@ mod explore {
         }
     }
 
-    /// `N=8 cargo test --test production -- --ignored --nocapture explore_grr`
+    /// `N=8 cargo test --test it -- --ignored --nocapture production::explore_grr`
     /// (about 1 min): prints the sd of k0, Keff at 8 mm and K(4 mm) over N
     /// noise seeds of one part; figures in decision 0059.
     #[test]

@@ -1253,7 +1253,7 @@ async fn a_cancelled_series_keeps_its_finished_levels() {
 /// samples until the repeat's end at first: 456-485 MB, then 230 MB with
 /// each level stored as it finished, the joint fit's memory), and the
 /// cancel keeps the finished levels. About 70 s; run with
-/// `cargo test --test qc_faults -- --ignored a_16_by_10_series --nocapture`.
+/// `cargo test --test it -- --ignored qc_faults::a_16_by_10_series --nocapture`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "about 70 s: run on purpose (docs/qc.md, docs/performance.md)"]
 async fn a_16_by_10_series_stays_below_150_mb_and_keeps_its_levels() {

@@ -503,7 +503,7 @@ fn creep_at_the_ends_of_the_tau_range_on_the_passive_radiator_diagnosed() {
 
 /// The figures of the creep check below the resonance (decision 0052) on
 /// good parts and on every bad-part class, for every preset:
-/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test trust_bad_parts -- --ignored
+/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test it trust_bad_parts:: -- --ignored
 /// --nocapture below_resonance_creep_figures`.
 #[test]
 #[ignore]
@@ -568,7 +568,7 @@ fn small_fits_of_every_part(
 
 /// The figures of the whole band's creep check (decisions 0062, 0073) on good parts and on every
 /// bad-part class, for every preset, plain analysis:
-/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test trust_bad_parts -- --ignored
+/// `SPRINGBENCH_BAD_SEEDS=3 cargo test --test it trust_bad_parts:: -- --ignored
 /// --nocapture whole_band_creep_figures`.
 #[test]
 #[ignore]

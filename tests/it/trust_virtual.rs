@@ -22,7 +22,7 @@ fn env_usize(name: &str, default: usize) -> usize {
 }
 
 /// A realistic size of `id` for the 4" spider (the ranges of
-/// tests/diagnose_virtual.rs).
+/// tests/it/diagnose_virtual.rs).
 fn random_effect(id: EffectId, rng: &mut impl Rng) -> Effects {
     let mut e = Effects::default();
     match id {
@@ -199,7 +199,7 @@ fn check_seed(id: EffectId, seed: u64) {
             d.report.small_signal.as_ref().map(|s| &s.effects)
         );
         // A part with library effects only: nothing unexplained (no false
-        // alarm of tests/beyond_library.rs's report).
+        // alarm of tests/it/beyond_library.rs's report).
         let u = serde_json::to_value(&d.report.diagnostics).unwrap()["unexplained"].clone();
         eprintln!("{id} seed {seed}: {}", u["signature"]);
         assert_eq!(u["present"], false, "{id} seed {seed}: {u}");

@@ -371,7 +371,7 @@ pub fn read_response(r: &mut impl BufRead) -> Option<(u16, String, Vec<u8>)> {
 
 /// The parameters of issue 21's equivalence recipes: every quantity a recipe
 /// can judge (k0, f0, Q, R, Keff at target, K at `x_m`, the asymmetry there,
-/// model error below 5 %). Shared by `tests/production.rs` (virtual bench)
+/// model error below 5 %). Shared by `tests/it/production.rs` (virtual bench)
 /// and `tests/hardware_emulated.rs` (emulated hardware bench).
 pub fn production_equivalence_parameters(x_m: f64) -> Value {
     serde_json::json!([

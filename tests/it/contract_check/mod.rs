@@ -1,6 +1,6 @@
 //! Validation of responses against the served OpenAPI document, strict
-//! (members the schema does not name are refused): `tests/contract.rs`
-//! checks a station's routes with it, `tests/fleet.rs` the fleet role's.
+//! (members the schema does not name are refused): `tests/it/contract.rs`
+//! checks a station's routes with it, `tests/it/fleet.rs` the fleet role's.
 #![allow(dead_code)]
 
 use serde_json::{json, Map, Value};
