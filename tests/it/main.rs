@@ -31,6 +31,7 @@ mod identify_cli;
 mod identify_reference;
 mod identify_synthetic;
 mod layers;
+mod memory;
 mod migration_0150;
 mod physics_analyze;
 mod physics_cli;
