@@ -15,7 +15,7 @@
 
 pub use springbench_bench as bench;
 pub use springbench_bench::procedure;
-pub use springbench_core::{diagnose, dsp, effects, finite, identify, job, physics, qc};
+pub use springbench_core::{ageing, diagnose, dsp, effects, finite, identify, job, physics, qc};
 pub use springbench_recording as recording;
 pub use springbench_store as store;
 

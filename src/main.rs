@@ -21,6 +21,8 @@ enum Command {
     Analyze(cli::analyze::AnalyzeArgs),
     /// Run the standard procedure on the virtual bench and write a recording set.
     Simulate(cli::simulate::SimulateArgs),
+    /// Fit the ageing law to a long-term test's series (one recording set per subdirectory).
+    Ageing(cli::ageing::AgeingArgs),
     /// List audio devices (channels, rates) and serial ports (feature `hardware`).
     Devices(cli::devices::DevicesArgs),
     /// Print the API's OpenAPI document (YAML, or JSON with --json).
@@ -34,6 +36,7 @@ fn main() -> std::process::ExitCode {
         Some(Command::Serve(a)) => cli::serve::run(a),
         Some(Command::Analyze(a)) => cli::analyze::run(a),
         Some(Command::Simulate(a)) => cli::simulate::run(a),
+        Some(Command::Ageing(a)) => cli::ageing::run(a),
         Some(Command::Devices(a)) => cli::devices::run(a),
         Some(Command::Openapi(a)) => cli::openapi::run(a),
     };

@@ -44,6 +44,7 @@ fn load(case: &str) -> Case {
         effects: serde_json::from_value(truth["effects"].clone()).unwrap(),
         laser_noise_m: None,
         second_mode: None,
+        ageing: None,
     };
     let mut bench = BenchParams::default();
     let b = &truth["bench"];

@@ -24,6 +24,7 @@ pub mod emulator;
 #[cfg(feature = "hardware")]
 pub mod hardware;
 pub mod laser;
+pub mod long_term;
 pub mod procedure;
 pub mod settings;
 pub mod simulate;

@@ -31,6 +31,10 @@ pub struct VirtualBench {
     pub laser_gain_error: f64,
     /// Sweeps played so far (each gets its own noise).
     runs: u64,
+    /// The load the mounted part has taken (J, `physics::ageing`) when this
+    /// bench ages it; None: the part stays as it is (the default: one
+    /// measurement of a new part).
+    ageing_load_j: Option<f64>,
 }
 
 /// Default limits of the virtual bench: the exciter's +-20 mm are the part's too.
@@ -49,7 +53,44 @@ impl VirtualBench {
             id: "virtual-0".into(),
             laser_gain_error: 0.0,
             runs: 0,
+            ageing_load_j: None,
         }
+    }
+
+    /// Ages the mounted part (its `ageing` parameters) from the load
+    /// `load_j` it has taken before (0: a new part): every sweep adds its
+    /// load, K(x) near rest falls with it, and the state carries over from
+    /// one sweep and one measurement to the next.
+    pub fn with_ageing(mut self, load_j: f64) -> VirtualBench {
+        self.ageing_load_j = Some(load_j.max(0.0));
+        self
+    }
+
+    /// The load the part has taken (J); None when this bench does not age it.
+    pub fn ageing_load_j(&self) -> Option<f64> {
+        self.ageing_load_j
+    }
+
+    /// The part's stiffness at rest now (N/m): k0 less what ageing removed.
+    pub fn k0_now_n_per_m(&self) -> f64 {
+        let k0 = self.part.k_coeffs_si[0];
+        match (&self.part.ageing, self.ageing_load_j) {
+            (Some(a), Some(e)) => a.k0_n_per_m(k0, e),
+            _ => k0,
+        }
+    }
+
+    /// Accelerated load: `duration_s` of a sine held at the part's current
+    /// resonance at `xpeak_m`, applied analytically (`physics::ageing::apply_sine`)
+    /// instead of simulated sample by sample. Returns the load added (J);
+    /// 0 when this bench does not age the part.
+    pub fn apply_sine_load(&mut self, xpeak_m: f64, duration_s: f64) -> f64 {
+        let Some(e0) = self.ageing_load_j else {
+            return 0.0;
+        };
+        let e1 = springbench_core::physics::ageing::apply_sine(&self.part, e0, xpeak_m, duration_s);
+        self.ageing_load_j = Some(e1);
+        e1 - e0
     }
 
     /// This bench's differences from its neighbours (`[benches.virtual]`):
@@ -182,6 +223,13 @@ impl Bench for VirtualBench {
         );
         self.runs += 1;
         let mut sim = Integrator::new(Model::new(&self.part, &b), fs, b.substeps);
+        // Ageing: the loss at the load so far, updated every block (the part
+        // changes over thousands of cycles, not within one block).
+        let ageing = self.part.ageing.zip(self.ageing_load_j);
+        let mut load_j = self.ageing_load_j.unwrap_or(0.0);
+        if let Some((a, _)) = ageing {
+            sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
+        }
         let mic_delay = b.microphone.delay_s
             + self
                 .part
@@ -242,6 +290,11 @@ impl Bench for VirtualBench {
                 0.0
             };
             sim.step(u, u1);
+            if ageing.is_some() {
+                // E += |F_el v| dt (the load measure, `physics::ageing`).
+                let (x, v) = (sim.state[idx::X], sim.state[idx::V]);
+                load_j += (sim.model.elastic_force(x) * v).abs() / fs;
+            }
             let end = k + 1;
             if end - block_start == BLOCK_LEN || end == n {
                 let ctl = observer(Block {
@@ -254,12 +307,18 @@ impl Bench for VirtualBench {
                     abort = Some((end, BenchError::Aborted));
                 }
                 block_start = end;
+                if let Some((a, _)) = ageing {
+                    sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
+                }
             }
             if let Some((k0, _)) = &abort {
                 if end >= k0 + ramp_len {
                     break;
                 }
             }
+        }
+        if ageing.is_some() {
+            self.ageing_load_j = Some(load_j);
         }
         if let Some((_, e)) = abort {
             return Err(e);

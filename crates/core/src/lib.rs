@@ -16,6 +16,7 @@
 //! - [`job`]: the job specification's bounds
 //! - [`finite`]: the check that no document holds a non-finite number
 
+pub mod ageing;
 pub mod diagnose;
 pub mod dsp;
 pub mod effects;

@@ -166,11 +166,13 @@ pub enum ProcedureError {
     Failed(String),
 }
 
+pub mod break_in;
 pub mod memory;
 pub mod pace;
 pub mod production;
 mod run;
 pub mod sweep;
+pub use break_in::{break_in, BreakIn, BreakInDone};
 pub use production::run_production;
 pub use run::run;
 pub use sweep::SweepSpec;

@@ -7,6 +7,7 @@
 //! `Bench` device, the procedure, `simulate`, `truth.json`) is the
 //! `springbench-bench` crate's.
 
+pub mod ageing;
 pub mod memory;
 pub mod model;
 pub mod production;
@@ -40,6 +41,10 @@ pub struct PartSpec {
     /// structure outside the library. None: the part moves as one body.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub second_mode: Option<SecondMode>,
+    /// Load-induced ageing (break-in and fatigue, `ageing.rs`); None: the
+    /// part does not age. A bench ages it only when asked to carry its load.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ageing: Option<ageing::AgeingParams>,
 }
 
 /// A second mechanical mode: `mass_kg` of the moving mass (included in
@@ -112,6 +117,9 @@ impl PartSpec {
             pos("second_mode.f_hz", m.f_hz)?;
             pos("second_mode.q", m.q)?;
         }
+        if let Some(a) = &self.ageing {
+            a.validate(self.k_coeffs_si[0])?;
+        }
         self.effects.validate()?;
         Ok(())
     }
@@ -151,6 +159,8 @@ struct PartToml {
     effects: crate::effects::Effects,
     #[serde(default)]
     second_mode: Option<SecondMode>,
+    #[serde(default)]
+    ageing: Option<ageing::AgeingParams>,
 }
 
 const PRESETS: [(&str, &str); 5] = [
@@ -202,6 +212,7 @@ pub fn parse_part_toml(text: &str) -> Result<PartSpec, String> {
         effects: t.effects,
         laser_noise_m: None,
         second_mode: t.second_mode,
+        ageing: t.ageing,
     };
     p.validate().map_err(|e| format!("part TOML: {e}"))?;
     Ok(p)

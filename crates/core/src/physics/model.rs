@@ -257,6 +257,10 @@ pub struct Model {
     /// Hysteresis and reversible softening: states that follow the path of
     /// x, advanced once per sample (`super::memory`); None without them.
     pub memory: Option<super::memory::Memory>,
+    /// Ageing (`ageing.rs`): the stiffness at rest lost so far (N/m) and
+    /// 1/x_w^4 of its shape; the elastic force is K(x) x - loss w(x) x.
+    ageing_loss_n_per_m: f64,
+    ageing_inv_width4: f64,
 }
 
 /// Instantaneous powers (W) and stored energies (J) for the energy balance.
@@ -319,7 +323,29 @@ impl Model {
             inv_le: if ex.le_h > 0.0 { 1.0 / ex.le_h } else { 0.0 },
             any_force_effect,
             memory: super::memory::Memory::new(&fx, bench.sample_rate_hz),
+            ageing_loss_n_per_m: 0.0,
+            ageing_inv_width4: part.ageing.map_or(0.0, |a| a.width_m.powi(-4)),
         }
+    }
+
+    /// Sets the stiffness at rest the part's ageing has removed so far
+    /// (N/m, `AgeingParams::lost_k_n_per_m`); no effect on a part without
+    /// ageing parameters.
+    pub fn set_ageing_loss(&mut self, loss_n_per_m: f64) {
+        if self.ageing_inv_width4 > 0.0 && loss_n_per_m > 0.0 {
+            self.ageing_loss_n_per_m = loss_n_per_m;
+            self.any_force_effect = true;
+        }
+    }
+
+    /// The elastic restoring force of the part (N): K(x) x less ageing's loss.
+    #[inline]
+    pub fn elastic_force(&self, x: f64) -> f64 {
+        let mut k = self.stiffness(x);
+        if self.ageing_loss_n_per_m > 0.0 {
+            k -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4);
+        }
+        k * x
     }
 
     /// K(x) (N/m).
@@ -365,6 +391,9 @@ impl Model {
         }
         if let Some(m) = &self.memory {
             f += m.force(x);
+        }
+        if self.ageing_loss_n_per_m > 0.0 {
+            f -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4) * x;
         }
         f
     }
@@ -428,7 +457,8 @@ impl Model {
         [v, a, vd, ad, dp, di, dxr, v2, f2 * self.inv_m2]
     }
 
-    /// Powers and stored energy at a state (for the energy-balance test).
+    /// Powers and stored energy at a state (for the energy-balance test;
+    /// an aged part's lost spring energy is not in it).
     pub fn energy(&self, t: f64, s: &[f64; NSTATE], u: f64) -> Energy {
         let (x, v, xd, vd, p, xr) = (
             s[idx::X],

@@ -23,6 +23,9 @@ pub struct Spread {
     /// softening depth of a nominal part that has them (drawn after the
     /// others, so a lot without them is the same as before).
     pub memory_rel: f64,
+    /// Of each ageing parameter on its own (break-in and fatigue amounts and
+    /// loads; `ageing.rs`), for parts that have them.
+    pub ageing_rel: f64,
 }
 
 impl Default for Spread {
@@ -33,6 +36,7 @@ impl Default for Spread {
             mass_rel: 0.005,
             r_rel: 0.03,
             memory_rel: 0.1,
+            ageing_rel: 0.1,
         }
     }
 }
@@ -88,6 +92,13 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
     }
     if let Some(s) = &mut p.effects.reversible_softening {
         s.depth_n_per_m2 *= g(spread.memory_rel).max(0.0);
+    }
+    // Drawn after the others: a lot's parts keep their K(x), mass and R.
+    if let Some(a) = p.ageing.as_mut() {
+        a.break_in_k_n_per_m *= g(spread.ageing_rel).max(0.0);
+        a.break_in_load_j *= g(spread.ageing_rel).max(0.1);
+        a.fatigue_k_n_per_m *= g(spread.ageing_rel).max(0.0);
+        a.fatigue_load_j *= g(spread.ageing_rel).max(0.1);
     }
     p.name = format!("{} lot part {seed}", nominal.name);
     match defect {
@@ -153,6 +164,11 @@ mod tests {
         for p in (0..20).map(|i| part(&nominal, &s, i, None)) {
             p.validate().unwrap();
         }
+        // The ageing parameters spread as configured.
+        let (mb, sb) = rel(&|p| p.ageing.unwrap().break_in_load_j);
+        let eb = nominal.ageing.unwrap().break_in_load_j;
+        assert!((mb / eb - 1.0).abs() < 0.01, "{mb}");
+        assert!((sb / s.ageing_rel - 1.0).abs() < 0.06, "{sb}");
     }
 
     #[test]
