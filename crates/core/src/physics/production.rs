@@ -103,8 +103,8 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
     p.name = format!("{} lot part {seed}", nominal.name);
     match defect {
         None => {}
-        Some(Defect::Stiff) => p.k_coeffs_si.iter_mut().for_each(|k| *k *= 1.3),
-        Some(Defect::Soft) => p.k_coeffs_si.iter_mut().for_each(|k| *k *= 0.7),
+        Some(Defect::Stiff) => scale_stiffness(&mut p, 1.3),
+        Some(Defect::Soft) => scale_stiffness(&mut p, 0.7),
         Some(Defect::Asymmetric) => {
             if let Some(k1) = p.k_coeffs_si.get_mut(1) {
                 *k1 *= 3.0;
@@ -137,6 +137,15 @@ pub fn part(nominal: &PartSpec, spread: &Spread, seed: u64, defect: Option<Defec
         );
     }
     p
+}
+
+/// K(x) scaled throughout; the stiffness ageing removes near rest with it.
+fn scale_stiffness(p: &mut PartSpec, f: f64) {
+    p.k_coeffs_si.iter_mut().for_each(|k| *k *= f);
+    if let Some(a) = p.ageing.as_mut() {
+        a.break_in_k_n_per_m *= f;
+        a.fatigue_k_n_per_m *= f;
+    }
 }
 
 #[cfg(test)]
