@@ -13,6 +13,7 @@ mod browser;
 mod common;
 mod contract_check;
 
+mod ageing;
 mod api;
 mod beyond_library;
 mod contract;

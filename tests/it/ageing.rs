@@ -8,7 +8,7 @@
 //! the `springbench ageing` binary, as a user would.
 //!
 //! The full acceptance (10 h at 15-min intervals, then on to 20 h) is
-//! `#[ignore]`d for CPU time (`cargo test --release --test ageing -- --ignored`);
+//! `#[ignore]`d for CPU time (`cargo test --test it ageing:: -- --ignored`);
 //! the always-on version runs 5 h at 15-min intervals.
 
 use springbench::bench::long_term::{run_accelerated, LongTermPlan};
