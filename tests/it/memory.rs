@@ -239,3 +239,23 @@ fn matrix_full() {
         3,
     );
 }
+
+/// Softening against drift (decision 0118): on the 3" spider a strong
+/// softening's envelope grows with the clock over the sweep, and the ladder
+/// adds `stiffness_drift` before the softening; once the softening is in,
+/// the drift is idle and leaves the model again (before the backward check
+/// the final model held both: drift 0.16 +- 0.10 N/m/s).
+#[test]
+fn softening_not_left_beside_a_drift_that_mimicked_it() {
+    use springbench::bench::simulate::simulate_recording_set;
+    use springbench::diagnose::{diagnose, DiagnoseOptions};
+    let mut part = preset("spider_3in").unwrap();
+    part.effects = softening(0.15 * 1500.0 / 5e-3, 2.0);
+    let set = simulate_recording_set(&part, 900).unwrap();
+    let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
+    let ids = d.report.model.effects.ids();
+    eprintln!("{ids:?} {:?}", d.report.model.effects);
+    assert_eq!(ids, vec![EffectId::ReversibleSoftening]);
+    let got = d.report.model.effects.reversible_softening.unwrap();
+    assert!((got.depth_n_per_m2 / 4.5e4 - 1.0).abs() <= 0.2, "{got:?}");
+}

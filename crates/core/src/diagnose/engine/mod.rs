@@ -129,6 +129,37 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
             p_value: Some(pv),
         });
     }
+    // Backward check (issue 33, decision 0118): an effect the ladder added
+    // that is no longer significant (block-robust Wald test at alpha, no
+    // Bonferroni: only a clearly idle term goes) once the effects added
+    // after it are in stood in for them; it leaves the model, the least
+    // significant first (a strong reversible softening of a 3" spider
+    // entered after a drift that only mimicked it).
+    while opts.ladder && !built.spec.effects.is_empty() {
+        let mut worst: Option<(usize, f64)> = None;
+        for (i, &(e, h)) in built.spec.effects.iter().enumerate() {
+            let cols = design::effect_ids(e, h);
+            if opts.forced.contains(&e) || cols.is_empty() {
+                continue;
+            }
+            let mut spec = built.spec.clone();
+            spec.effects.remove(i);
+            let gram = Built::new(&p, spec).with(&p, false, &cols, true);
+            let fit = gram.fit();
+            let (pv, _) = fit::wald_last(&gram, &fit.beta, cols.len());
+            if pv >= opts.alpha && worst.is_none_or(|w| pv > w.1) {
+                worst = Some((i, pv));
+            }
+        }
+        let Some((i, pv)) = worst else { break };
+        let mut spec = built.spec.clone();
+        let (e, _) = spec.effects.remove(i);
+        skipped.push(format!(
+            "the ladder removed {e} again: not significant once the effects added after it were in (p {pv:.2})"
+        ));
+        built = Built::new(&p, spec);
+        current = None;
+    }
     let (model, beta) = describe(&p, &built, opts.folds);
     let creep_tau_free = creep_tau_free(&p, &built, opts.folds);
     // The fit of the same Gram gives the same coefficients: the step's
