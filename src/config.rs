@@ -197,6 +197,13 @@ impl Config {
             b.validate_devices()?;
         }
         self.mes.validate()?;
+        self.mes.validate_handles(
+            &self
+                .benches
+                .iter()
+                .map(|b| b.id.as_str())
+                .collect::<Vec<_>>(),
+        )?;
         let mut secrets = std::collections::HashSet::new();
         for t in &self.auth.tokens {
             if is_published_example_token(&t.token) {

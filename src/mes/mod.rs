@@ -11,6 +11,7 @@ use crate::store::Store;
 use hmac::{Hmac, Mac};
 use serde::{Deserialize, Serialize};
 use sha2::Sha256;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{watch, Notify};
@@ -45,8 +46,15 @@ pub struct Webhook {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MesConfig {
-    /// `Source` of the CFX envelopes (the station's name).
-    pub source: String,
+    /// The station's CFX handle (a dotted, globally unique name such as
+    /// `Acme.Line3.Springbench`; `source` before issue 34). Each bench's
+    /// handle, the `Source` of its messages, is this plus `.` and the bench
+    /// id, unless `bench_handles` names it.
+    #[serde(alias = "source")]
+    pub handle: String,
+    /// A bench's own CFX handle (bench id -> handle).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub bench_handles: BTreeMap<String, String>,
     pub webhooks: Vec<Webhook>,
     /// First retry after this (s); doubles per failed attempt up to `max_backoff_s`.
     pub initial_backoff_s: f64,
@@ -60,7 +68,8 @@ pub struct MesConfig {
 impl Default for MesConfig {
     fn default() -> Self {
         MesConfig {
-            source: "springbench".into(),
+            handle: "Springbench".into(),
+            bench_handles: BTreeMap::new(),
             webhooks: vec![],
             initial_backoff_s: 1.0,
             max_backoff_s: 300.0,
@@ -70,7 +79,68 @@ impl Default for MesConfig {
     }
 }
 
+/// Whether `h` is a CFX handle: dotted (two names at least), each name of
+/// letters, digits, `_` and `-`.
+pub fn check_handle(h: &str) -> Result<(), String> {
+    let names: Vec<&str> = h.split('.').collect();
+    if names.len() < 2
+        || names.iter().any(|n| {
+            n.is_empty()
+                || !n
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        })
+    {
+        return Err(format!(
+            "'{h}' is not a CFX handle: dotted names of letters, digits, '_' and '-', such as Acme.Line3.Springbench"
+        ));
+    }
+    Ok(())
+}
+
 impl MesConfig {
+    /// The outbox's targets: every webhook's name and the broker's.
+    pub fn targets(&self) -> Vec<String> {
+        self.webhooks.iter().map(|w| w.name.clone()).collect()
+    }
+
+    /// The CFX handle of bench `bench_id` (the `Source` of its messages).
+    pub fn handle_of(&self, bench_id: &str) -> String {
+        match self.bench_handles.get(bench_id) {
+            Some(h) => h.clone(),
+            None => format!("{}.{bench_id}", self.handle),
+        }
+    }
+
+    /// Checks the handles of `benches` (ids): each a CFX handle, no two
+    /// alike, and `bench_handles` naming configured benches only.
+    pub fn validate_handles(&self, benches: &[&str]) -> Result<(), String> {
+        if self.handle.is_empty() || self.handle.split('.').any(|n| n.is_empty()) {
+            return Err(format!(
+                "mes.handle '{}' is not a dotted CFX handle",
+                self.handle
+            ));
+        }
+        for b in self.bench_handles.keys() {
+            if !benches.contains(&b.as_str()) {
+                return Err(format!(
+                    "mes.bench_handles names bench '{b}', which is not configured"
+                ));
+            }
+        }
+        let mut seen = std::collections::HashMap::new();
+        for b in benches {
+            let h = self.handle_of(b);
+            check_handle(&h).map_err(|e| format!("mes: the handle of bench '{b}': {e}"))?;
+            if let Some(other) = seen.insert(h.clone(), *b) {
+                return Err(format!(
+                    "mes: benches '{other}' and '{b}' have the same CFX handle '{h}': a handle is unique"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         let mut names = std::collections::HashSet::new();
         for w in &self.webhooks {
@@ -143,7 +213,7 @@ pub fn backoff_s(cfg: &MesConfig, attempts: i64) -> f64 {
     (cfg.initial_backoff_s * 2f64.powi(exp)).min(cfg.max_backoff_s)
 }
 
-fn rfc3339_in(s: f64) -> String {
+pub(crate) fn rfc3339_in(s: f64) -> String {
     let t = chrono::Utc::now() + chrono::Duration::milliseconds((s * 1000.0) as i64);
     t.to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
 }
@@ -216,7 +286,7 @@ async fn worker(
     wake: Arc<Notify>,
     mut shutdown: watch::Receiver<bool>,
 ) {
-    let configured: Vec<String> = cfg.webhooks.iter().map(|w| w.name.clone()).collect();
+    let configured: Vec<String> = cfg.targets();
     loop {
         if *shutdown.borrow() {
             break;
@@ -277,13 +347,19 @@ pub type Sender = hyper_util::client::legacy::Client<
 /// rustls's safe defaults, its certificate checked against the webhook's
 /// `ca_file`, or the system's trust store.
 pub fn tls_config(w: &Webhook) -> Result<rustls::ClientConfig, String> {
+    tls_config_from(w.ca_file.as_deref())
+}
+
+/// TLS 1.2 and 1.3 by rustls's safe defaults, the peer's certificate
+/// checked against `ca_file`, or the system's trust store.
+pub fn tls_config_from(ca_file: Option<&str>) -> Result<rustls::ClientConfig, String> {
     use rustls::pki_types::{pem::PemObject, CertificateDer};
     let provider = Arc::new(rustls::crypto::ring::default_provider());
     let builder = rustls::ClientConfig::builder_with_provider(provider)
         .with_safe_default_protocol_versions()
         .map_err(|e| e.to_string())?;
     let mut roots = rustls::RootCertStore::empty();
-    match &w.ca_file {
+    match ca_file {
         Some(path) => {
             let certs =
                 CertificateDer::pem_file_iter(path).map_err(|e| format!("ca_file {path}: {e}"))?;
@@ -343,7 +419,7 @@ pub fn sender(w: &Webhook) -> Result<Sender, String> {
 }
 
 /// An error with its causes, one line (a TLS refusal names its reason).
-fn chain(e: &dyn std::error::Error) -> String {
+pub(crate) fn chain(e: &dyn std::error::Error) -> String {
     let mut out = e.to_string();
     let mut cur = e.source();
     while let Some(c) = cur {

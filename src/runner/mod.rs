@@ -376,8 +376,22 @@ impl Runner {
         job: &Job,
         cancel: Arc<AtomicU8>,
     ) -> StoreResult<()> {
-        if !self.store.start_job(&job.id).await? {
+        // A measuring job announces its start to the MES (WorkStarted) in
+        // the transaction that starts it.
+        let started_at = crate::store::now();
+        let announce = match hardware::is_self_check(job) {
+            true => Default::default(),
+            false => self.start_records(&slot.cfg, job, &started_at),
+        };
+        if !self
+            .store
+            .start_job_announced(&job.id, &started_at, &announce)
+            .await?
+        {
             return Ok(()); // cancelled meanwhile
+        }
+        if !announce.messages.is_empty() && !announce.webhooks.is_empty() {
+            self.outbox.notify_one();
         }
         {
             let mut st = slot.status.lock().unwrap();

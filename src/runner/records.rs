@@ -59,7 +59,7 @@ impl Runner {
         use crate::qc::{combine, invalid_job, Verdict};
         let finished_at = crate::store::now();
         let mut rec = crate::store::qc::JobRecords {
-            webhooks: self.mes.webhooks.iter().map(|w| w.name.clone()).collect(),
+            webhooks: self.mes.targets(),
             ..Default::default()
         };
         let rref = spec.and_then(|s| s.recipe.clone());
@@ -166,6 +166,15 @@ impl Runner {
                     target_xpeak_m: m.target_xpeak_m,
                     level_index: m.level_index,
                     repeat_index: m.repeat_index,
+                    procedure: m.config["procedure_run"]["mode"].as_str().map(|mode| {
+                        match &m.config["procedure_run"]["fallback"] {
+                            Value::Null => mode.to_string(),
+                            f => format!(
+                                "{mode} (fell back to the full procedure: {})",
+                                f.as_str().unwrap_or_default()
+                            ),
+                        }
+                    }),
                     verdict: verdicts.iter().find(|v| v.0 == m.id).map(|v| v.1.clone()),
                     values,
                 }
@@ -174,20 +183,16 @@ impl Runner {
         let facts = crate::qc::cfx::JobFacts {
             job_id: job.id.clone(),
             part_serial: job.part_serial.clone(),
-            source: format!("{}/{}", self.mes.source, bench.id),
+            source: self.mes.handle_of(&bench.id),
             started_at: started_at.to_string(),
             finished_at: finished_at.clone(),
             state: state.as_str().to_string(),
-            recipe: rref
-                .as_ref()
-                .map(|r| (format!("{}@{}", r.name, r.version), r.sha256.clone())),
+            recipe: rref.clone(),
             job_verdict,
             operator: spec.and_then(|s| s.submitted_by.clone()),
             measurements: tested,
         };
-        for (uid, name, body) in
-            crate::qc::cfx::job_messages(&facts, [new_id(), new_id(), new_id()])
-        {
+        for (uid, name, body) in crate::qc::cfx::job_messages(&facts) {
             rec.messages.push(crate::store::qc::NewMessage {
                 unique_id: uid,
                 message_name: name,
@@ -201,6 +206,41 @@ impl Runner {
 }
 
 impl Runner {
+    /// The job's `WorkStarted`, written with its start (decision 0096); the
+    /// same message (UniqueID) its end writes again is kept once.
+    pub(super) fn start_records(
+        &self,
+        bench: &BenchConfig,
+        job: &Job,
+        started_at: &str,
+    ) -> crate::store::qc::JobRecords {
+        let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let facts = crate::qc::cfx::JobFacts {
+            job_id: job.id.clone(),
+            part_serial: job.part_serial.clone(),
+            source: self.mes.handle_of(&bench.id),
+            started_at: started_at.to_string(),
+            finished_at: started_at.to_string(),
+            state: "running".into(),
+            recipe: spec.as_ref().and_then(|s| s.recipe.clone()),
+            job_verdict: None,
+            operator: spec.and_then(|s| s.submitted_by),
+            measurements: vec![],
+        };
+        let (unique_id, message_name, body) = crate::qc::cfx::work_started(&facts);
+        crate::store::qc::JobRecords {
+            webhooks: self.mes.targets(),
+            messages: vec![crate::store::qc::NewMessage {
+                unique_id,
+                message_name,
+                part_serial: job.part_serial.clone(),
+                job_id: Some(job.id.clone()),
+                body,
+            }],
+            ..Default::default()
+        }
+    }
+
     pub(super) async fn finish_failed(&self, slot: &Slot, job: &Job, p: Value) -> StoreResult<()> {
         self.finish_failed_after(slot, job, &p, None, &[], &[])
             .await

@@ -10,6 +10,9 @@
 //! configuration, wall-clock-paced laser emulators).
 
 mod browser;
+// The CFX SDK's shapes and the checker's fixtures (tests/cfx_sdk, decision 0095).
+#[path = "../cfx_sdk/mod.rs"]
+mod cfx_sdk;
 mod common;
 mod contract_check;
 

@@ -9,6 +9,7 @@
 //! acceptance lot of the issue: 8 golden units and 30 production parts (23
 //! good, 5 defects, 2 unmeasurable). Two virtual benches run in parallel.
 
+use crate::cfx_sdk;
 use crate::common;
 
 use common::{client, send, Daemon};
@@ -101,7 +102,14 @@ fn job(serial: &str, seed: u64, defect: Option<&str>) -> Value {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn golden_units_limits_and_production_verdicts() {
     let full = std::env::var("SPRINGBENCH_QC_FULL").is_ok_and(|v| v == "1");
-    let d = Daemon::start(&format!("{}{}", tokens(), benches()));
+    // A webhook nobody answers: the lot's MES messages stay in the outbox,
+    // read at the end as the CFX SDK reads them.
+    let d = Daemon::start(&format!(
+        "{}{}[mes]\nhandle = \"Acme.Line3.Springbench\"\nmax_backoff_s = 60.0\n\
+         [[mes.webhooks]]\nname = \"mes\"\nurl = \"http://127.0.0.1:9/cfx\"\nsecret = \"{HOOK_SECRET}\"\n",
+        tokens(),
+        benches()
+    ));
     let c = client();
 
     // Recipe: only an admin creates it; the station (operator) may not.
@@ -379,6 +387,59 @@ async fn golden_units_limits_and_production_verdicts() {
         n_golden,
         lot.len()
     );
+
+    // Every MES message of the lot, strictly against the CFX SDK's shapes
+    // (decision 0095): golden, pass, fail and invalid parts.
+    let store = springbench::store::Store::open(&d.dir.join("data"))
+        .await
+        .unwrap();
+    let items = store.list_outbox(None, 100_000).await.unwrap();
+    let shapes = cfx_sdk::Shapes::load();
+    let mut results: HashMap<String, usize> = HashMap::new();
+    for m in &items {
+        let errs = shapes.check(&m.body);
+        assert!(errs.is_empty(), "{}: {errs:?}\n{}", m.message_name, m.body);
+        assert!(m.body["Source"]
+            .as_str()
+            .unwrap()
+            .starts_with("Acme.Line3.Springbench.virtual-"));
+        if let Some(r) = m.body["MessageBody"]["TestedUnits"][0]["OverallResult"].as_str() {
+            *results.entry(r.to_string()).or_default() += 1;
+        }
+    }
+    let jobs = n_golden + lot.len();
+    assert_eq!(items.len(), 3 * jobs, "three messages a job");
+    // golden and good parts pass, defects fail, unmeasurable parts are errors
+    assert_eq!(results.get("Error"), Some(&2), "{results:?}");
+    assert!(
+        results.get("Failed").is_some_and(|&n| n >= fails),
+        "{results:?}"
+    );
+    if std::env::var_os("CFX_SDK_DIR").is_some() {
+        let dir = tempfile::tempdir().unwrap();
+        let msgs: std::collections::BTreeMap<String, Value> = items
+            .iter()
+            .enumerate()
+            .map(|(i, m)| (format!("{i:04}.json"), m.body.clone()))
+            .collect();
+        cfx_sdk::write_messages(&dir.path().join("lot"), &msgs);
+        let r = cfx_sdk::sdk_check(&dir.path().join("lot"), &dir.path().join("out.json")).unwrap();
+        for (n, m) in &msgs {
+            let x = &r["messages"][n];
+            assert_eq!(
+                (&x["from_json"], &x["strict"]),
+                (&json!("ok"), &json!("ok")),
+                "{n}: {x}"
+            );
+            let mut lost = vec![];
+            cfx_sdk::lost_in_round_trip(m, &x["round_trip"], n, &mut lost);
+            assert!(lost.is_empty(), "{lost:?}");
+        }
+    }
+    println!(
+        "CFX: {} messages of the lot read strictly ({results:?})",
+        items.len()
+    );
 }
 
 fn mean_sd(v: &[f64]) -> (f64, f64) {
@@ -482,18 +543,25 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
             )
         })
         .collect();
-    let names: Vec<&str> = ob["items"].as_array().unwrap()[..3]
-        .iter()
-        .map(|x| x["message_name"].as_str().unwrap())
-        .collect();
-    assert_eq!(
-        names,
-        [
-            "CFX.Production.WorkStarted",
-            "CFX.Production.TestAndInspection.UnitsTested",
-            "CFX.Production.WorkCompleted"
-        ]
-    );
+    // Each job's three messages, in this order (WorkStarted written when it started).
+    let mut per_job: HashMap<String, Vec<String>> = HashMap::new();
+    for x in ob["items"].as_array().unwrap() {
+        per_job
+            .entry(x["job_id"].as_str().unwrap().to_string())
+            .or_default()
+            .push(x["message_name"].as_str().unwrap().to_string());
+    }
+    assert_eq!(per_job.len(), 10);
+    for names in per_job.values() {
+        assert_eq!(
+            names,
+            &[
+                "CFX.Production.WorkStarted",
+                "CFX.Production.TestAndInspection.UnitsTested",
+                "CFX.Production.WorkCompleted"
+            ]
+        );
+    }
     let metrics = c
         .get(d.url("/metrics"))
         .bearer_auth(STATION)
@@ -752,4 +820,115 @@ async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
     assert_eq!(s, 202, "{v}");
     drop(d);
     drop(tmp);
+}
+
+/// The messages the reference CFX SDK reads (issue 34, decision 0095): every
+/// example job's messages (golden, pass, fail, invalid, production with a
+/// fall-back, level series, cancelled, failed, interrupted, no recipe) and
+/// the endpoint's own are read strictly against the SDK's shapes; they are
+/// the messages the SDK itself read (tests/cfx_sdk/examples, sdk_check.json),
+/// with every value, limit, unit and result back in its round trip. With
+/// `CFX_SDK_DIR` set (a checkout of the SDK; mono installed), the SDK reads
+/// them here and now; `CFX_FIXTURES=write` writes the examples anew.
+#[test]
+fn cfx_messages_are_read_by_the_reference_sdk() {
+    let shapes = cfx_sdk::Shapes::load();
+    let msgs = cfx_sdk::examples();
+    let dir = cfx_sdk::dir().join("examples");
+    if std::env::var("CFX_FIXTURES").as_deref() == Ok("write") {
+        let _ = std::fs::remove_dir_all(&dir);
+        cfx_sdk::write_messages(&dir, &msgs);
+    }
+    let mut bad = vec![];
+    for (n, m) in &msgs {
+        bad.extend(shapes.check(m).into_iter().map(|e| format!("{n}: {e}")));
+    }
+    assert!(
+        bad.is_empty(),
+        "{} problems the SDK's strict reading refuses:\n{}",
+        bad.len(),
+        bad.join("\n")
+    );
+    // The examples the SDK read are these messages.
+    let stored: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        stored.len(),
+        msgs.len(),
+        "tests/cfx_sdk/examples: {stored:?}"
+    );
+    for (n, m) in &msgs {
+        let s: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join(n)).unwrap()).unwrap();
+        assert_eq!(
+            &s, m,
+            "{n} is not what the SDK read: write the examples (CFX_FIXTURES=write) and let the SDK read them (tests/cfx_sdk/run.sh check)"
+        );
+    }
+    // The strict check refuses whatever the SDK refused of the messages as
+    // they were before issue 34 (tests/cfx_sdk/before, sdk_check_before.json).
+    let before: Value = serde_json::from_str(
+        &std::fs::read_to_string(cfx_sdk::dir().join("sdk_check_before.json")).unwrap(),
+    )
+    .unwrap();
+    let mut refused = (0, 0);
+    for (n, r) in before["messages"].as_object().unwrap() {
+        let m: Value = serde_json::from_str(
+            &std::fs::read_to_string(cfx_sdk::dir().join("before").join(n)).unwrap(),
+        )
+        .unwrap();
+        let sdk_ok = r["from_json"] == "ok" && r["strict"] == "ok";
+        let ours = shapes.check(&m);
+        assert!(
+            sdk_ok || !ours.is_empty(),
+            "{n}: the SDK refused it ({r}), Shapes::check did not"
+        );
+        refused.0 += usize::from(!sdk_ok);
+        refused.1 += usize::from(!ours.is_empty());
+    }
+    println!(
+        "before issue 34: the SDK refused {} of {} messages, Shapes::check {}",
+        refused.0,
+        before["messages"].as_object().unwrap().len(),
+        refused.1
+    );
+    let live = tempfile::tempdir().unwrap();
+    let sdk = cfx_sdk::sdk_check(&dir, &live.path().join("sdk_check.json")).unwrap_or_else(|| {
+        println!(
+            "CFX_SDK_DIR not set: the SDK's reading as pinned in tests/cfx_sdk/sdk_check.json"
+        );
+        serde_json::from_str(
+            &std::fs::read_to_string(cfx_sdk::dir().join("sdk_check.json")).unwrap(),
+        )
+        .unwrap()
+    });
+    let mut lost = vec![];
+    for (n, m) in &msgs {
+        let r = &sdk["messages"][n];
+        assert_eq!(r["from_json"], "ok", "{n}: CFXEnvelope.FromJson: {r}");
+        assert_eq!(r["strict"], "ok", "{n}: strict reading: {r}");
+        cfx_sdk::lost_in_round_trip(m, &r["round_trip"], n, &mut lost);
+    }
+    assert!(
+        lost.is_empty(),
+        "lost in the SDK's round trip:\n{}",
+        lost.join("\n")
+    );
+    let values = msgs
+        .values()
+        .flat_map(|m| {
+            m["MessageBody"]["TestedUnits"][0]["Tests"]
+                .as_array()
+                .cloned()
+                .unwrap_or_default()
+        })
+        .map(|t| t["Measurements"].as_array().map_or(0, Vec::len))
+        .sum::<usize>();
+    println!(
+        "CFX: {} messages ({values} measured values) read by the SDK {}: FromJson, strict, round trip",
+        msgs.len(),
+        sdk["sdk_version"]
+    );
 }

@@ -182,19 +182,31 @@ pub(super) async fn insert_job_records(
 ) -> StoreResult<()> {
     let t = now();
     insert_verdicts(tx, &rec.verdicts, &t).await?;
+    insert_messages(tx, rec, &t).await
+}
+
+/// Writes MES messages and their deliveries. A message whose UniqueID is
+/// stored already (a job's `WorkStarted`, written when the job started and
+/// again with its end) is kept once, with its deliveries.
+async fn insert_messages(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    rec: &JobRecords,
+    t: &str,
+) -> StoreResult<()> {
     for m in &rec.messages {
         let row = sqlx::query(
             "INSERT INTO mes_messages (unique_id, message_name, part_serial, job_id, body_json, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?) RETURNING seq",
+             VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (unique_id) DO NOTHING RETURNING seq",
         )
         .bind(m.unique_id.clone())
         .bind(m.message_name.clone())
         .bind(m.part_serial.clone())
         .bind(m.job_id.clone())
         .bind(m.body.to_string())
-        .bind(t.clone())
-        .fetch_one(&mut **tx)
+        .bind(t.to_string())
+        .fetch_optional(&mut **tx)
         .await?;
+        let Some(row) = row else { continue };
         let seq: i64 = row.get(0);
         for w in &rec.webhooks {
             sqlx::query(
@@ -204,8 +216,8 @@ pub(super) async fn insert_job_records(
             .bind(seq)
             .bind(w.clone())
             .bind(m.part_serial.clone())
-            .bind(t.clone())
-            .bind(t.clone())
+            .bind(t.to_string())
+            .bind(t.to_string())
             .execute(&mut **tx)
             .await?;
         }
@@ -420,6 +432,31 @@ impl Store {
     }
 
     // ---- MES outbox ----
+
+    /// queued -> running at `started_at`, with the messages that announce
+    /// the start (a job's `WorkStarted`) in the same transaction; false when
+    /// the job is no longer queued (cancelled meanwhile: nothing written).
+    pub async fn start_job_announced(
+        &self,
+        id: &str,
+        started_at: &str,
+        rec: &JobRecords,
+    ) -> StoreResult<bool> {
+        let mut tx = self.pool.begin().await?;
+        let r = sqlx::query(
+            "UPDATE jobs SET state = 'running', started_at = ?, progress = 0 WHERE id = ? AND state = 'queued'",
+        )
+        .bind(started_at.to_string())
+        .bind(id.to_string())
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() != 1 {
+            return Ok(false);
+        }
+        insert_messages(&mut tx, rec, started_at).await?;
+        tx.commit().await?;
+        Ok(true)
+    }
 
     /// Deliveries that may go now: per (webhook, part) only the oldest one not
     /// yet delivered or dropped, if it is pending and due.
