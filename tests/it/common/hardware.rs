@@ -168,17 +168,23 @@ pub async fn fault_scenario(cfg: &str, trace_dir: &Path, expect_in_detail: &str)
     assert_eq!(h["status"], "ok");
     let r = get(&c, &d, "/readyz").await;
     assert!(r["benches"].to_string().contains("faulted"), "{r}");
-    // A job on the faulted bench fails at once, naming the fault.
-    let id = submit(&c, &d, json!({"part": {"serial": "SP-F"}})).await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(60), terminal).await;
-    assert_eq!(j["state"], "failed", "{j}");
+    // A job on the faulted bench is refused at submission (issue 35): a 409
+    // problem that names the fault and the self-check that clears it.
+    let r = c
+        .post(d.url("/api/v1/jobs"))
+        .json(&json!({"part": {"serial": "SP-F"}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 409);
+    let p: Value = r.json().await.unwrap();
     assert!(
-        j["problem"]["detail"]
-            .as_str()
-            .unwrap()
-            .contains("self-check"),
-        "{j}"
+        p["type"].as_str().unwrap().ends_with("bench-faulted"),
+        "{p}"
     );
+    let detail = p["detail"].as_str().unwrap();
+    assert!(detail.contains(expect_in_detail), "{p}");
+    assert!(detail.contains("self-check"), "{p}");
     // A passing self-check clears it; the next job succeeds.
     let sc = self_check(&c, &d).await;
     assert_eq!(sc["state"], "succeeded", "{sc}");
