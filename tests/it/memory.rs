@@ -88,25 +88,8 @@ fn recovery_finds_no_softening_on_a_part_without_it() {
 /// elastic part within 1 % RMS.
 #[test]
 fn level_series_names_the_softening() {
-    use springbench::bench::simulate::{simulate, SimulateOptions};
-    use springbench::diagnose::engine::EngineOptions;
-    use springbench::diagnose::series::fit_series_sets;
-    use springbench::recording::RecordingSet;
-    let part = spider_with(softening(3.0e4, 2.0));
-    let mut opts = SimulateOptions::default();
-    opts.procedure.levels_m = vec![0.003, 0.006, 0.009];
-    let sim = simulate(&part, 5, &opts).unwrap();
-    let sets: Vec<RecordingSet> = sim
-        .outcome
-        .narrow
-        .iter()
-        .map(|n| RecordingSet {
-            meta: sim.set.meta.clone(),
-            pre: sim.set.pre.clone(),
-            main: n.signals.clone(),
-        })
-        .collect();
-    let s = fit_series_sets(&sets, &EngineOptions::default()).unwrap();
+    // The same level series as tests/it/series.rs (spider_4in, 3/6/9 mm, seed 5).
+    let (part, _sets, s) = crate::series::series(softening(3.0e4, 2.0));
     let k0: Vec<f64> = s
         .levels
         .iter()

@@ -31,7 +31,7 @@ fn k_rms(part: &PartSpec, coef: &[f64], range: [f64; 2]) -> f64 {
     100.0 * (se / st).sqrt()
 }
 
-fn series(effects: Effects) -> (PartSpec, Vec<RecordingSet>, SeriesFit) {
+pub(crate) fn series(effects: Effects) -> (PartSpec, Vec<RecordingSet>, SeriesFit) {
     let mut part = preset("spider_4in").unwrap();
     part.effects = effects;
     let mut opts = SimulateOptions::default();
