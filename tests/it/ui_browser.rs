@@ -2193,3 +2193,250 @@ fn springbench_fmt3(x: f64) -> String {
         r
     }
 }
+
+// ---- issue 35: a station with several benches ----
+
+/// A faulted bench (the fault as a hardware bench stores it; it outlives a
+/// restart) reads as faulted with its reason and the self-check action on
+/// the station screen, cannot be chosen in the form, and a part forced
+/// onto it is refused by the daemon with the fault named; the other bench
+/// still takes parts. Before: the card read "[object Object]" and the
+/// bench could be chosen without a warning.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let cfg = format!(
+        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
+        tokens()
+    );
+    let mut d = Daemon::start(&cfg);
+    let tmp = d.take_dir().unwrap();
+    d.terminate();
+    drop(d);
+    {
+        use sqlx::ConnectOptions;
+        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(tmp.path().join("data").join("springbench.db"))
+            .connect()
+            .await
+            .unwrap();
+        sqlx::query(
+            "INSERT INTO bench_faults (bench_id, job_id, detail, created_at) \
+             VALUES ('virtual-2', NULL, 'laser signal lost: 0 valid frames in 0.5 s', '2026-11-28T08:00:00.000Z')",
+        )
+        .execute(&mut db)
+        .await
+        .unwrap();
+    }
+    let d = Daemon::start_in(tmp.path(), &cfg);
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#bench-virtual-2') && document.querySelector('#bench-virtual-2').dataset.state === 'faulted' && document.querySelector('#fault-virtual-2')",
+        SHORT,
+        "the faulted bench's card",
+    )
+    .await;
+    let card = b.text("#bench-virtual-2").await;
+    assert!(
+        card.contains("laser signal lost: 0 valid frames in 0.5 s") && !card.contains("[object"),
+        "the reason in words: {card}"
+    );
+    assert!(
+        b.exists("#self-check-virtual-2").await,
+        "the self-check action: {card}"
+    );
+    assert!(card.to_lowercase().contains("self-check"), "{card}");
+    // The form: the faulted bench cannot be chosen, the other is.
+    let opts = b
+        .js(
+            "return [...document.querySelectorAll('#bench option')].map(o => [o.value, o.disabled]);",
+            vec![],
+        )
+        .await;
+    assert_eq!(
+        opts,
+        json!([["virtual-1", false], ["virtual-2", true]]),
+        "{opts}"
+    );
+    assert_eq!(
+        b.js("return document.querySelector('#bench').value;", vec![])
+            .await,
+        json!("virtual-1")
+    );
+    b.screenshot_sizes("station-bench-faulted").await;
+    // Forced onto it (as a stale page or a script would): the daemon refuses, naming the fault.
+    b.js(
+        "const s = document.querySelector('#bench'); s.options[1].disabled = false; s.value = 'virtual-2'; \
+         document.querySelector('#serial').value = 'SN-ON-FAULTED'; \
+         document.querySelector('#submit-form').requestSubmit(); return true;",
+        vec![],
+    )
+    .await;
+    let msg = b
+        .wait_js(
+            "(() => { const m = document.querySelector('#submit-msg'); return m && m.className === 'error' && m.textContent; })()",
+            SHORT,
+            "the refusal",
+        )
+        .await;
+    let msg = msg.as_str().unwrap_or_default().to_string();
+    assert!(
+        msg.contains("faulted") && msg.contains("laser signal lost"),
+        "{msg}"
+    );
+    let jobs = get(&d, "/api/v1/jobs?limit=50").await;
+    assert!(!jobs.to_string().contains("SN-ON-FAULTED"), "{jobs}");
+    b.screenshot_sizes("station-bench-faulted-refused").await;
+    b.assert_no_console_errors("with a faulted bench").await;
+    b.quit().await;
+    drop(d);
+    drop(tmp);
+}
+
+/// Full screen keeps the scanner working: after "full screen" is clicked,
+/// the next scan (the serial typed where the focus is, then Enter) starts
+/// the part, and the verdict panel stays full screen. Before: the click
+/// took the focus, the scan's Enter pressed the button (leaving full
+/// screen) and the serial was dropped without a word.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn full_screen_then_a_scan_starts_the_part() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&tokens());
+    let first = post_job(
+        &d,
+        json!({"part": {"serial": "SN-FS0", "kind": "spider"}, "target_xpeak_m": 0.004}),
+    )
+    .await;
+    finished(&d, &first).await;
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.serial === 'SN-FS0' && document.querySelector('#verdict-full')",
+        LONG,
+        "the verdict panel with its full-screen button",
+    )
+    .await;
+    b.click("#verdict-full").await;
+    b.wait_js(
+        "document.fullscreenElement && document.fullscreenElement.id === 'verdict'",
+        SHORT,
+        "full screen",
+    )
+    .await;
+    b.screenshot("station-full-screen").await;
+    // The scanner types into whatever has the focus, then Enter.
+    let el = b.c.active_element().await.expect("an active element");
+    el.send_keys("SN-FS1\u{E007}").await.expect("scan");
+    let t = std::time::Instant::now();
+    loop {
+        let jobs = get(&d, "/api/v1/jobs?limit=50").await;
+        if jobs.to_string().contains("SN-FS1") {
+            break;
+        }
+        assert!(
+            t.elapsed() < SHORT,
+            "the scanned part was not started: {}",
+            b.text("#submit-msg").await
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let still = b.js("return !!document.fullscreenElement;", vec![]).await;
+    assert_eq!(still, json!(true), "the scan did not leave full screen");
+    b.wait_js(
+        "document.querySelector('#verdict').dataset.serial === 'SN-FS1'",
+        LONG,
+        "the scanned part on the panel",
+    )
+    .await;
+    b.assert_no_console_errors("full screen and a scan").await;
+    b.quit().await;
+}
+
+/// One verdict panel per bench (issue 35): SN-A on bench 1 (two repeats)
+/// starts first and finishes after SN-B on bench 2; both verdicts stay
+/// visible, each on its bench's panel (before: one panel, and the part that
+/// finished out of order was never shown). Recent jobs name the bench and
+/// list the newest finished first; the shift counters count both parts.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    let d = Daemon::start(&format!(
+        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
+        tokens()
+    ));
+    create_recipe(&d, strict_recipe()).await;
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.wait_js(
+        "document.querySelector('#verdict-virtual-1') && document.querySelector('#verdict-virtual-2')",
+        SHORT,
+        "a verdict panel per bench",
+    )
+    .await;
+    let a = post_job(
+        &d,
+        json!({"part": {"serial": "SN-A"}, "recipe": "spider-strict", "bench": "virtual-1", "repeats": 2}),
+    )
+    .await;
+    let bj = post_job(
+        &d,
+        json!({"part": {"serial": "SN-B"}, "recipe": "spider-strict", "bench": "virtual-2"}),
+    )
+    .await;
+    let (ja, jb) = (finished(&d, &a).await, finished(&d, &bj).await);
+    assert!(
+        ja["finished_at"].as_str().unwrap() > jb["finished_at"].as_str().unwrap(),
+        "SN-A (started first) finished after SN-B: {ja} {jb}"
+    );
+    let both = b
+        .wait_js(
+            "(() => { const p1 = document.querySelector('#verdict-virtual-1'), p2 = document.querySelector('#verdict-virtual-2');
+               return p1.dataset.serial === 'SN-A' && p1.dataset.verdict === 'fail' && p2.dataset.serial === 'SN-B' && p2.dataset.verdict === 'fail'
+                 && [p1, p2].map(p => p.textContent.includes('FAIL')); })()",
+            LONG,
+            "both verdicts, each on its bench's panel",
+        )
+        .await;
+    assert_eq!(both, json!([true, true]));
+    // Both are on screen at once (neither hidden behind the other).
+    let vis = b
+        .js(
+            "return ['#verdict-virtual-1', '#verdict-virtual-2'].map(s => { const r = document.querySelector(s).getBoundingClientRect(); return r.width > 100 && r.height > 50 && r.bottom <= window.innerHeight + 400; });",
+            vec![],
+        )
+        .await;
+    assert_eq!(vis, json!([true, true]));
+    b.screenshot_sizes("station-two-benches").await;
+    // Recent jobs: the bench named, newest finished first.
+    let rows = b
+        .wait_js(
+            "(() => { const r = [...document.querySelectorAll('#recent tr[data-job]')].map(r => [r.cells[1].textContent, r.cells[2].textContent]); return r.length >= 2 && r; })()",
+            SHORT,
+            "the recent jobs",
+        )
+        .await;
+    assert_eq!(rows, json!([["SN-A", "virtual-1"], ["SN-B", "virtual-2"]]));
+    // Shift counters: 2 tested, 2 fail, yield 0 %.
+    let counts = b
+        .wait_js(
+            "(() => { const n = (id) => document.querySelector('#shift-' + id) && document.querySelector('#shift-' + id).dataset.n; return n('tested') === '2' && [n('tested'), n('pass'), n('fail'), n('invalid'), document.querySelector('#shift-yield').textContent]; })()",
+            SHORT,
+            "the shift counters",
+        )
+        .await;
+    assert_eq!(counts[0], "2");
+    assert_eq!(
+        (counts[1].clone(), counts[2].clone(), counts[3].clone()),
+        (json!("0"), json!("2"), json!("0"))
+    );
+    assert!(counts[4].as_str().unwrap().starts_with("0.0 %"), "{counts}");
+    b.assert_no_console_errors("with two benches").await;
+    b.quit().await;
+}

@@ -52,7 +52,68 @@ export async function render(main, ctx) {
   const benchesEl = h('div', { id: 'benches', class: 'benches' });
   const liveEl = h('div', { id: 'live-plot' });
   const liveNote = h('p', { class: 'muted', id: 'live-note' }, 'Live signals appear here during a sweep.');
-  const verdictEl = h('section', { id: 'verdict', class: 'verdict none' }, h('p', {}, 'No part measured yet.'));
+  // One verdict panel per bench, each tied to the part on its bench (issue
+  // 35): two benches finishing out of order both keep their verdict. With
+  // one bench the panel's ids are the plain ones (#verdict, #verdict-big...);
+  // with several, each id ends in the bench's (#verdict-virtual-2...).
+  const verdictsEl = h('div', { id: 'verdicts', class: 'verdicts' });
+  // Shift counters (issue 35): the parts judged since the shift began
+  // (shifts start at 06:00, 14:00 and 22:00 local time).
+  const shiftEl = h('section', { id: 'shift', class: 'card shift' }, h('span', { class: 'muted' }, 'shift: counting\u2026'));
+  function shiftStart(now = new Date()) {
+    const t = new Date(now);
+    const hr = now.getHours();
+    const start = hr >= 22 ? 22 : hr >= 14 ? 14 : hr >= 6 ? 6 : -2;
+    t.setHours(start, 0, 0, 0); // -2: 22:00 of the day before
+    return t;
+  }
+  async function drawShift() {
+    const since = shiftStart();
+    let l;
+    try {
+      l = await api(`/api/v1/jobs?since=${encodeURIComponent(since.toISOString())}&limit=500`);
+    } catch {
+      return;
+    }
+    const judged = (l.items || []).filter((j) => FINISHED.includes(j.state) && j.verdict && j.verdict !== 'no_limits');
+    const n = (v) => judged.filter((j) => j.verdict === v).length;
+    const [pass, fail, invalid] = [n('pass'), n('fail'), n('invalid')];
+    const tested = judged.length;
+    const more = l.next_cursor ? '+' : '';
+    const c = (id, label, v, cls = '') => h('span', { class: `count ${cls}`, id: `shift-${id}`, dataset: { n: String(v) } }, h('b', {}, `${v}${more}`), ` ${label}`);
+    put(shiftEl,
+      h('span', { class: 'muted' }, `shift since ${String(since.getHours()).padStart(2, '0')}:00 `),
+      c('tested', 'tested', tested), c('pass', 'pass', pass, 'ok'), c('fail', 'fail', fail, 'error'), c('invalid', 'invalid', invalid, 'flag'),
+      h('span', { class: 'count', id: 'shift-yield' }, h('b', {}, tested ? `${(100 * pass / tested).toFixed(1)} %` : '\u2013'), ' yield (pass of tested)'));
+  }
+  const panels = new Map(); // bench id -> { el, id(name), verdictFor }
+  function panelOf(benchId) {
+    let p = panels.get(benchId);
+    if (p) return p;
+    const single = () => benches.length <= 1;
+    const tag = single() ? '' : `-${benchId}`;
+    p = {
+      bench: benchId,
+      id: (name) => `${name}${tag}`,
+      verdictFor: null,
+      el: h('section', { id: `verdict${tag}`, class: 'verdict none', dataset: { bench: benchId } },
+        h('div', { class: 'verdict-bench' }, `bench ${benchId}`),
+        h('p', {}, 'No part measured on this bench yet.')),
+    };
+    panels.set(benchId, p);
+    return p;
+  }
+  function drawPanels() {
+    const want = benches.map((b) => b.id);
+    const have = [...panels.keys()];
+    if (want.join(',') !== have.join(',')) {
+      // The ids depend on the number of benches: made afresh when it changes.
+      panels.clear();
+      for (const b of want) panelOf(b);
+      verdictsEl.className = `verdicts n${Math.min(want.length, 4)}`;
+      put(verdictsEl, [...panels.values()].map((p) => p.el));
+    }
+  }
   const queueEl = h('tbody', { id: 'queue' });
   const recentEl = h('tbody', { id: 'recent' });
   const formMsg = h('p', { id: 'submit-msg', role: 'status' });
@@ -173,9 +234,10 @@ export async function render(main, ctx) {
       ),
       h('div', { class: 'col-right' },
         form || h('section', { class: 'card', id: 'no-submit' }, h('p', { class: 'muted' }, `Your role (${ctx.role}) can watch the benches but not start or cancel jobs.`)),
-        verdictEl,
+        shiftEl,
+        verdictsEl,
         h('section', { class: 'card' }, h('h2', {}, 'Recent jobs'),
-          h('table', { class: 'list' }, h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'part'), h('th', {}, 'outcome'), h('th', {}, 'finished'))), recentEl)),
+          h('table', { class: 'list' }, h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'part'), h('th', {}, 'bench'), h('th', {}, 'outcome'), h('th', {}, 'finished'))), recentEl)),
       ),
     ),
   );
@@ -230,7 +292,34 @@ export async function render(main, ctx) {
     } else if (stateName === 'idle') {
       card.append(h('div', { class: 'muted' }, `ready; mounted preset ${b.preset || '\u2013'}`));
     } else if (stateName === 'faulted' || stateName === 'stopped') {
-      card.append(h('div', { class: 'error' }, pick(b, 'fault', 'problem.detail', 'detail') || 'The bench is not available: see the daemon log.'));
+      // The fault is an object (detail, since, job): its words, not "[object Object]".
+      const f = b.fault || {};
+      card.append(
+        h('div', { class: 'error bench-fault', id: `fault-${b.id}` },
+          h('strong', {}, 'Faulted: '), f.detail || 'the bench is not available: see the daemon log.',
+          f.since ? h('span', { class: 'muted' }, ` (since ${when(f.since)})`) : null),
+        h('p', { class: 'muted' }, 'It takes no part until a self-check passes.'),
+        ctx.can('operator') && b.kind !== 'virtual'
+          ? h('button', {
+            id: `self-check-${b.id}`,
+            onclick: async () => {
+              try {
+                await api(`/api/v1/benches/${b.id}/self-check`, { method: 'POST', body: {} });
+                if (formMsg) {
+                  formMsg.className = 'ok';
+                  formMsg.textContent = `Self-check of ${b.id} queued.`;
+                }
+              } catch (e) {
+                if (formMsg) {
+                  formMsg.className = 'error';
+                  formMsg.textContent = `Self-check not started: ${e.message}`;
+                }
+              }
+              refresh();
+            },
+          }, 'Run the self-check')
+          : h('p', { class: 'muted', id: `self-check-${b.id}` }, b.kind === 'virtual' ? 'Self-check: a virtual bench has no devices; the engineer clears the fault.' : 'Self-check: an operator runs it.'),
+      );
     }
     return card;
   }
@@ -238,8 +327,16 @@ export async function render(main, ctx) {
   function drawBenches() {
     put(benchesEl, benches.length ? benches.map(benchCard) : h('p', { class: 'muted' }, 'No bench configured.'));
     const sel = form && form.querySelector('#bench');
-    if (sel && sel.options.length !== benches.length) {
-      put(sel, benches.map((b) => h('option', { value: b.id }, b.id)));
+    // A faulted bench cannot be chosen (the daemon refuses it too).
+    const sig = benches.map((b) => `${b.id}:${b.state === 'faulted'}`).join(',');
+    if (sel && sel.dataset.sig !== sig) {
+      const keep = sel.value;
+      sel.dataset.sig = sig;
+      put(sel, benches.map((b) => h('option', { value: b.id, disabled: b.state === 'faulted' }, b.state === 'faulted' ? `${b.id} (faulted)` : b.id)));
+      const usable = benches.filter((b) => b.state !== 'faulted');
+      sel.value = usable.some((b) => b.id === keep) ? keep : usable.length ? usable[0].id : '';
+      const btn = form.querySelector('#submit');
+      if (btn) btn.disabled = !usable.length;
     }
   }
 
@@ -251,9 +348,10 @@ export async function render(main, ctx) {
       j.eta_s = data.eta_s;
     }
     progressSeen.set(jobId, (progressSeen.get(jobId) || 0) + 1);
-    if (verdictEl.dataset.verdict === 'running' && verdictEl.dataset.job === jobId) {
-      const st = document.getElementById('verdict-step');
-      const pc = document.getElementById('verdict-pct');
+    const vp = [...panels.values()].find((p) => p.el.dataset.verdict === 'running' && p.el.dataset.job === jobId);
+    if (vp) {
+      const st = document.getElementById(vp.id('verdict-step'));
+      const pc = document.getElementById(vp.id('verdict-pct'));
       if (st) st.textContent = STEPS[data.step] || data.step;
       if (pc) pc.textContent = `${Math.round(100 * data.progress)} %`;
     }
@@ -280,30 +378,73 @@ export async function render(main, ctx) {
     return h('tr', { dataset: { job: j.id, state: j.state, verdict: j.verdict || '' } },
       h('td', {}, link),
       h('td', {}, j.part_serial),
+      finished ? h('td', {}, j.bench_id) : null,
       finished ? h('td', {}, outcomeBadge(j)) : h('td', {}, j.bench_id),
       h('td', {}, when(finished ? j.finished_at || j.created_at : j.created_at)),
       finished ? null : h('td', {}, cancelButton(j)),
     );
   }
 
-  const fullBtn = () =>
+  // Full screen never takes the scanner's keys (issue 35): the button takes
+  // no focus (a scan's Enter would press it and leave full screen), the
+  // serial field gets the focus back, and a key typed anywhere else on the
+  // page goes to the serial field, Enter submitting it.
+  const serialField = () => form && form.querySelector('#serial');
+  const refocus = () => {
+    const f = serialField();
+    if (f) f.focus();
+  };
+  const fullBtn = (vp) =>
     document.fullscreenEnabled
-      ? h('button', { class: 'link verdict-full', title: 'Full screen (Esc leaves)', onclick: () => (document.fullscreenElement ? document.exitFullscreen() : verdictEl.requestFullscreen()).catch(() => {}) }, 'full screen')
+      ? h('button', {
+        class: 'link verdict-full',
+        id: vp.id('verdict-full'),
+        type: 'button',
+        tabindex: '-1',
+        title: 'Full screen (Esc leaves; the scanner keeps working)',
+        onmousedown: (e) => e.preventDefault(),
+        onclick: () => (document.fullscreenElement ? document.exitFullscreen() : vp.el.requestFullscreen()).catch(() => {}).finally(refocus),
+      }, 'full screen')
       : null;
+  if (form) {
+    const onKey = (e) => {
+      if (!document.body.contains(form)) {
+        document.removeEventListener('keydown', onKey, true);
+        return;
+      }
+      const t = e.target;
+      const f = serialField();
+      if (!f || t === f || (t && t.closest && t.closest('input, select, textarea, dialog'))) return;
+      if (e.ctrlKey || e.metaKey || e.altKey) return;
+      if (e.key === 'Enter') {
+        // A scan ends with Enter: submit what was scanned, press nothing else.
+        e.preventDefault();
+        e.stopPropagation();
+        if (f.value.trim()) form.requestSubmit();
+      } else if (e.key.length === 1) {
+        e.preventDefault();
+        f.value += e.key;
+        f.dispatchEvent(new Event('input'));
+        f.focus();
+      }
+    };
+    document.addEventListener('keydown', onKey, true);
+    document.addEventListener('fullscreenchange', refocus);
+  }
 
-  let verdictFor = null;
   /** The verdict panel shows the part on the bench: a running job, else the last finished. */
-  async function drawVerdict(j) {
-    if (!j || verdictFor === `${j.id}:${j.state}`) return;
-    verdictFor = `${j.id}:${j.state}`;
+  async function drawVerdict(vp, j) {
+    const verdictEl = vp.el;
+    if (!j || vp.verdictFor === `${j.id}:${j.state}`) return;
+    vp.verdictFor = `${j.id}:${j.state}`;
     const head = (cls, big, ...sub) => {
       verdictEl.className = `verdict ${cls}`;
       verdictEl.dataset.verdict = cls;
       verdictEl.dataset.job = j.id;
       verdictEl.dataset.serial = j.part_serial;
       return [
-        h('div', { class: 'verdict-top' }, h('div', { class: 'verdict-big', id: 'verdict-big' }, big), fullBtn()),
-        h('div', { class: 'verdict-part' }, h('span', { class: 'verdict-serial', id: 'verdict-serial' }, j.part_serial)),
+        h('div', { class: 'verdict-top' }, h('div', { class: 'verdict-big', id: vp.id('verdict-big') }, big), h('span', { class: 'verdict-bench' }, benches.length > 1 ? `bench ${vp.bench}` : ''), fullBtn(vp)),
+        h('div', { class: 'verdict-part' }, h('span', { class: 'verdict-serial', id: vp.id('verdict-serial') }, j.part_serial)),
         h('div', { class: 'verdict-when' }, `job ${shortId(j.id)}${j.finished_at ? `, ${when(j.finished_at)}` : ''}`),
         sub,
       ];
@@ -311,7 +452,7 @@ export async function render(main, ctx) {
     if (!FINISHED.includes(j.state)) {
       const pct = Math.round(100 * (j.progress || 0));
       put(verdictEl, head('running', 'MEASURING\u2026',
-        h('p', { class: 'verdict-step' }, h('span', { id: 'verdict-step' }, STEPS[j.step] || j.step || 'starting'), ' ', h('span', { id: 'verdict-pct' }, `${pct} %`)),
+        h('p', { class: 'verdict-step' }, h('span', { id: vp.id('verdict-step') }, STEPS[j.step] || j.step || 'starting'), ' ', h('span', { id: vp.id('verdict-pct') }, `${pct} %`)),
         h('p', { class: 'verdict-why' }, 'The verdict appears here when this part is done.')));
       return;
     }
@@ -325,30 +466,30 @@ export async function render(main, ctx) {
         v = null;
       }
     }
-    if (verdictFor !== `${j.id}:${j.state}`) return;
+    if (vp.verdictFor !== `${j.id}:${j.state}`) return;
     const mid = j.measurement_ids && j.measurement_ids[0];
-    const openLink = mid ? h('a', { href: `#/measurement/${mid}`, id: 'open-result' }, 'open the result') : null;
+    const openLink = mid ? h('a', { href: `#/measurement/${mid}`, id: vp.id('open-result') }, 'open the result') : null;
     if (v && v.verdict) {
       const d = v.detail || {};
-      const recipe = h('p', { class: 'verdict-recipe', id: 'verdict-recipe' }, `recipe ${v.recipe_name} version ${v.recipe_version} (${String(v.recipe_sha256 || '').slice(0, 12)})`);
+      const recipe = h('p', { class: 'verdict-recipe', id: vp.id('verdict-recipe') }, `recipe ${v.recipe_name} version ${v.recipe_version} (${String(v.recipe_sha256 || '').slice(0, 12)})`);
       if (v.verdict === 'pass') {
         put(verdictEl, head('pass', 'PASS', recipe, openLink));
       } else if (v.verdict === 'fail') {
         put(verdictEl, head('fail', 'FAIL',
-          h('ul', { class: 'failing', id: 'failing' }, (d.failures || []).map((f) => h('li', { dataset: { name: f.name } }, failureText(f)))),
+          h('ul', { class: 'failing', id: vp.id('failing') }, (d.failures || []).map((f) => h('li', { dataset: { name: f.name } }, failureText(f)))),
           recipe, openLink));
       } else if (v.verdict === 'invalid') {
         const [first, ...rest] = rankReasons(d.invalid_reasons);
         const t = first ? reasonText(first.code) : { title: 'The measurement cannot be trusted', action: 'Call the engineer.' };
         put(verdictEl, head('invalid', 'INVALID',
-          h('div', { class: 'invalid-primary', id: 'invalid-primary', dataset: { code: first ? first.code : '' } },
+          h('div', { class: 'invalid-primary', id: vp.id('invalid-primary'), dataset: { code: first ? first.code : '' } },
             h('p', { class: 'invalid-title' }, t.title),
             first ? h('p', { class: 'invalid-detail' }, first.detail) : null,
-            h('p', { class: 'invalid-action', id: 'invalid-action' }, t.action)),
+            h('p', { class: 'invalid-action', id: vp.id('invalid-action') }, t.action)),
           rest.length
-            ? h('details', { class: 'invalid-more', id: 'invalid-more' },
+            ? h('details', { class: 'invalid-more', id: vp.id('invalid-more') },
               h('summary', {}, `${rest.length} consequence${rest.length === 1 ? '' : 's'} of this (not judged)`),
-              h('ul', { id: 'invalid-reasons' }, rest.map((r) => h('li', { dataset: { code: r.code } }, `${reasonText(r.code).title}: ${r.detail}`))))
+              h('ul', { id: vp.id('invalid-reasons') }, rest.map((r) => h('li', { dataset: { code: r.code } }, `${reasonText(r.code).title}: ${r.detail}`))))
             : null,
           recipe, openLink));
       } else {
@@ -367,7 +508,7 @@ export async function render(main, ctx) {
     } catch {
       m = null;
     }
-    if (verdictFor !== `${j.id}:${j.state}`) return;
+    if (vp.verdictFor !== `${j.id}:${j.state}`) return;
     const ls = (m && m.large_signal) || {};
     const figures = h('table', { class: 'kv' },
       h('tr', {}, h('th', {}, 'Keff at Xpeak'), h('td', {}, stated(q(ls.keff_n_per_m, 'N/mm', 1e-3), validityOf(m, 'large_signal.keff_n_per_m'), { unit: 'N/mm', scale: 1e-3, raw: ls.keff_n_per_m }))),
@@ -421,22 +562,30 @@ export async function render(main, ctx) {
       }
       drawBenches();
       put(queueEl, queued.items.length ? queued.items.slice().reverse().map((j) => jobRow(j, false)) : h('tr', {}, h('td', { colspan: '5', class: 'muted' }, 'empty')));
-      const fin = recent.items.filter((j) => FINISHED.includes(j.state));
-      put(recentEl, fin.length ? fin.map((j) => jobRow(j, true)) : h('tr', {}, h('td', { colspan: '4', class: 'muted' }, 'none yet')));
-      const last = fin.slice().sort((a, b) => String(b.finished_at || '').localeCompare(String(a.finished_at || '')))[0];
-      // The part on the bench: a job started after the last one finished is
-      // shown as running (never the previous part's verdict while it runs).
-      const onBench = benches
-        .map((b) => b.job_id && jobs.get(b.job_id))
-        .filter((j) => j && !FINISHED.includes(j.state))
-        .sort((a, b) => String(b.started_at || b.created_at || '').localeCompare(String(a.started_at || a.created_at || '')))[0];
-      const runningIsNewer = onBench && (!last || String(onBench.started_at || onBench.created_at || '') >= String(last.finished_at || ''));
-      let show = runningIsNewer ? onBench : last;
-      // Never back to an older part: a list read before the shown part
-      // finished would otherwise bring the previous verdict back for a moment.
-      const shown = verdictEl.dataset.job && jobs.get(verdictEl.dataset.job);
-      if (shown && show && shown.id !== show.id && String(shown.created_at) > String(show.created_at)) show = shown;
-      drawVerdict(show);
+      // Newest finished first (two benches finish out of the order they started in).
+      const fin = recent.items.filter((j) => FINISHED.includes(j.state))
+        .sort((a, b) => String(b.finished_at || '').localeCompare(String(a.finished_at || '')));
+      put(recentEl, fin.length ? fin.map((j) => jobRow(j, true)) : h('tr', {}, h('td', { colspan: '5', class: 'muted' }, 'none yet')));
+      drawPanels();
+      drawShift();
+      // Each bench's panel shows the part on that bench: its running job, or
+      // else its newest finished one (by the time it finished). Never back to
+      // an older part: a list read before the shown part finished would
+      // otherwise bring the previous verdict back for a moment.
+      const finishedAt = (j) => String(j.finished_at || '');
+      const startedAt = (j) => String(j.started_at || j.created_at || '');
+      for (const b of benches) {
+        const vp = panelOf(b.id);
+        const mine = [...jobs.values()].filter((j) => j.bench_id === b.id);
+        const last = mine.filter((j) => FINISHED.includes(j.state)).sort((a, c) => finishedAt(c).localeCompare(finishedAt(a)))[0];
+        const cur = b.job_id && jobs.get(b.job_id);
+        const onBench = cur && !FINISHED.includes(cur.state) ? cur : null;
+        const runningIsNewer = onBench && (!last || startedAt(onBench) >= finishedAt(last));
+        let show = runningIsNewer ? onBench : last;
+        const shown = vp.el.dataset.job && jobs.get(vp.el.dataset.job);
+        if (shown && show && shown.id !== show.id && String(shown.created_at) > String(show.created_at)) show = shown;
+        drawVerdict(vp, show);
+      }
     } catch (e) {
       // Unreachable: keep what is shown (the banner says it may be out of date).
       if (!ctx.stale() && !(e instanceof Unreachable)) put(benchesEl, h('p', { class: 'error' }, `Cannot read the benches: ${e.message}`));
