@@ -4,9 +4,11 @@
 //! - [`tf`]: transfer function from a sweep with coherence (full-record H1, band-averaged).
 //! - [`harmonics`]: per-period harmonic analysis along a sweep, resonance peak.
 //! - [`lstsq`](mod@lstsq): least squares with standard errors (shared with the diagnostics).
+//! - [`quantile`]: order statistics without sorting the record.
 
 pub mod harmonics;
 pub mod lstsq;
+pub mod quantile;
 pub mod spectrum;
 pub mod tf;
 
@@ -14,6 +16,7 @@ pub use harmonics::{
     harmonics_per_period, harmonics_per_period_of, period_marks, resonance_peak, PeriodHarmonics,
 };
 pub use lstsq::{lstsq, Lstsq, LstsqError};
+pub use quantile::quantile_pair;
 pub use realfft::num_complex::Complex64;
 pub use spectrum::{LowPass, Spectrum};
 pub use tf::{transfer_function, TransferFunction};

@@ -535,13 +535,9 @@ pub const PRE_LEVEL_BEND_LIMIT: f64 = 0.03;
 fn mark_pre_level_bend(ss: &mut SmallSignal, pre_x_m: &[f64], k: &[f64]) {
     // The excursion from the 0.1 % and 99.9 % quantiles: a laser's noise
     // spikes do not widen it (the resonance holds the peak for many periods).
-    let mut xs: Vec<f64> = pre_x_m.iter().copied().filter(|x| x.is_finite()).collect();
-    if xs.len() < 1000 {
+    let Some((lo, hi)) = crate::dsp::quantile_pair(pre_x_m, 0.001, 0.999, 1000) else {
         return;
-    }
-    xs.sort_by(f64::total_cmp);
-    let q = |p: f64| xs[((xs.len() - 1) as f64 * p).round() as usize];
-    let (lo, hi) = (q(0.001), q(0.999));
+    };
     let k0 = k.first().copied().unwrap_or(f64::NAN);
     let keff = large::describing_function_keff(k, lo, hi);
     let bend = keff / k0 - 1.0;
