@@ -38,6 +38,7 @@ pub const ASSETS: &[Asset] = &[
     asset!("app.js", JS),
     asset!("api.js", JS),
     asset!("plots.js", JS),
+    asset!("svgplot.js", JS),
     asset!("util.js", JS),
     asset!("operator.js", JS),
     asset!("parts.js", JS),

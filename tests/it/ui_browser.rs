@@ -968,6 +968,20 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     std::fs::write(browser::artifacts_dir().join("report-judged-a4.pdf"), &pdf).unwrap();
     eprintln!("report of a judged part (verdict, mask, golden band) on A4: {pages} pages");
     assert!((1..=2).contains(&pages), "{pages} A4 pages");
+    // The mask and the band are drawn in the report's vector K(x), and named.
+    let kx = b
+        .js(
+            "const p = document.querySelector('#report-kx');
+             return { areas: p.querySelectorAll('svg.svg-plot path.svg-area').length,
+                      named: [...p.querySelectorAll('.svg-legend li[data-area] .svg-legend-name')].map(n => n.textContent) };",
+            vec![],
+        )
+        .await;
+    assert_eq!(
+        kx,
+        json!({"areas": 2, "named": ["inside the mask", "golden units\u{2019} band"]}),
+        "{kx}"
+    );
     b.assert_no_console_errors("on K(x) with the golden band")
         .await;
 
@@ -1659,9 +1673,12 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
             name,
         )
         .await;
+        // The plots are vector (SVG), with a legend naming every curve
+        // (issue 35: they were canvas pixels, printed blurred, with legends of
+        // empty swatches).
         let plots = b
             .js(
-                "return [...document.querySelectorAll('#report .report-grid .plot')].filter(p => p.querySelector('canvas')).map(p => p.dataset.kind);",
+                "return [...document.querySelectorAll('#report .report-grid .plot')].filter(p => p.querySelector('svg.svg-plot [data-series]')).map(p => p.dataset.kind);",
                 vec![],
             )
             .await;
@@ -1670,6 +1687,28 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
             json!(["K(x)", "C(x)", "F(x)", "Keff(Xpeak)"]),
             "{name}"
         );
+        let legends = b
+            .js(
+                "return { canvases: document.querySelectorAll('#report canvas').length,
+                          names: [...document.querySelectorAll('#report .report-grid .plot')].map(p => [...p.querySelectorAll('.svg-legend li[data-series] .svg-legend-name')].map(n => n.textContent)),
+                          series: [...document.querySelectorAll('#report .report-grid .plot')].map(p => Number(p.dataset.series)) };",
+                vec![],
+            )
+            .await;
+        assert_eq!(legends["canvases"], 0, "{name}: {legends}");
+        for (names, n) in legends["names"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(legends["series"].as_array().unwrap())
+        {
+            let names = names.as_array().unwrap();
+            assert_eq!(names.len() as u64, n.as_u64().unwrap(), "{name}: {legends}");
+            assert!(
+                names.iter().all(|t| !t.as_str().unwrap().trim().is_empty()),
+                "{name}: a legend entry without a name: {legends}"
+            );
+        }
         let rows = b
             .js(
                 "return document.querySelectorAll('#report-parameters tbody tr').length;",
@@ -1734,6 +1773,8 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
             assert_eq!(p1["row"]["model error"], "0 % (\u{2264} noise)", "{p1}");
         }
         b.screenshot_sizes(name).await;
+        b.screenshot_element("#report .report-grid", &format!("{name}-plots"))
+            .await;
         for letter in [false, true] {
             let pdf = b.print_pdf(letter).await;
             assert!(pdf.starts_with(b"%PDF"), "a PDF");
@@ -1746,6 +1787,10 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
             .unwrap();
             eprintln!("{name} on {paper}: {pages} pages, {} bytes", pdf.len());
             assert!((1..=2).contains(&pages), "{name} on {paper}: {pages} pages");
+            // Vector all through: Chromium prints a canvas as an image
+            // XObject, an SVG as paths.
+            let images = pdf.windows(14).filter(|w| w == b"/Subtype /Image").count();
+            assert_eq!(images, 0, "{name} on {paper}: {images} images in the PDF");
         }
     }
     // The report a station fetches over the API (for a traveller document):

@@ -182,7 +182,7 @@ export function coefficientTable(doc) {
 }
 
 /** K(x), C(x), F(x) over the valid range and 25 % beyond; the recipe's mask and the golden units' band on K(x). */
-export function drawCurves(els, doc, { mask, golden, jointSeries, height } = {}) {
+export function drawCurves(els, doc, { mask, golden, jointSeries, height, vector } = {}) {
   const { c, lo, hi } = stiffnessMm(doc);
   const xs = xGrid(lo, hi);
   const k = xs.map((x) => poly(c, x));
@@ -199,31 +199,31 @@ export function drawCurves(els, doc, { mask, golden, jointSeries, height } = {})
     kSeries.push({ label: `K(x) mask of ${mask.recipe} (the limits): lower`, unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
     kSeries.push({ label: 'mask: upper', unit: 'N/mm', color: '#2ca02c', dash: true, width: 1 });
     kData.push(inter(mask.lo), inter(mask.hi));
-    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(44,160,44,0.13)' });
+    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(44,160,44,0.13)', label: 'inside the mask' });
   }
   if (golden) {
     const inter = (arr) => xs.map((x) => interp(golden.x, arr, x));
     kSeries.push({ label: `golden units (${golden.n}, approved in v${golden.version}): lowest K`, unit: 'N/mm', color: '#b8860b', width: 1 });
     kSeries.push({ label: 'golden units: highest K', unit: 'N/mm', color: '#b8860b', width: 1 });
     kData.push(inter(golden.lo), inter(golden.hi));
-    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(184,134,11,0.28)' });
+    areas.push({ lower: kSeries.length - 1, upper: kSeries.length, fill: 'rgba(184,134,11,0.28)', label: 'golden units\u2019 band' });
   }
   chart(els.kx, {
     title: 'Stiffness K(x)', kind: 'K(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'K' : 'stiffness K', unit: 'N/mm' },
-    series: kSeries, data: kData, validRange: [lo, hi], areas, height,
+    series: kSeries, data: kData, validRange: [lo, hi], areas, height, vector,
   });
   if (els.kx && mask) els.kx.dataset.mask = String(mask.x.length);
   if (els.kx && golden) els.kx.dataset.golden = `${golden.n},${golden.version},${golden.proposal}`;
   chart(els.cx, {
     title: 'Compliance C(x) = 1/K(x)', kind: 'C(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'C' : 'compliance C', unit: 'mm/N' },
-    series: [{ label: 'C(x)', unit: 'mm/N', color: '#2ca02c' }], data: [xs, k.map((v) => (v > 0 ? 1 / v : null))], validRange: [lo, hi], height,
+    series: [{ label: 'C(x)', unit: 'mm/N', color: '#2ca02c' }], data: [xs, k.map((v) => (v > 0 ? 1 / v : null))], validRange: [lo, hi], height, vector,
   });
   chart(els.fx, {
     title: 'Restoring force F(x) = \u222b K dx', kind: 'F(x)',
     x: { label: 'displacement x', unit: 'mm' }, y: { label: height ? 'F' : 'force F', unit: 'N' },
-    series: [{ label: 'F(x)', unit: 'N', color: '#9467bd' }], data: [xs, xs.map((x) => polyIntegral(c, x))], validRange: [lo, hi], height,
+    series: [{ label: 'F(x)', unit: 'N', color: '#9467bd' }], data: [xs, xs.map((x) => polyIntegral(c, x))], validRange: [lo, hi], height, vector,
   });
 }
 
@@ -240,7 +240,7 @@ function interp(xs, ys, x) {
 }
 
 /** Keff(Xpeak) of the measurement's job (one point per level). */
-export async function drawLevels(el, doc, id, { height } = {}) {
+export async function drawLevels(el, doc, id, { height, vector } = {}) {
   const info = doc.measurement || {};
   const ls = doc.large_signal || {};
   let levels = [];
@@ -272,6 +272,7 @@ export async function drawLevels(el, doc, id, { height } = {}) {
     data: [lx, ly, here],
     xRange: lx.length === 1 ? [0, lx[0] * 1.5] : undefined,
     height,
+    vector,
   });
 }
 

@@ -6,6 +6,7 @@
 
 import uPlot from './vendor/uplot/uPlot.esm.js';
 import { num } from './util.js';
+import { svgChart } from './svgplot.js';
 
 export const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#17becf', '#8c564b', '#e377c2'];
 
@@ -46,9 +47,10 @@ function clean(arr) {
  * spec: {title, x: {label, unit, log}, y: {label, unit, log}, y2: {label, unit} (optional right axis),
  *        series: [{label, unit, color, dash, y2, points, width}], data: [xs, ys1, ys2, ...],
  *        xBands: [{from, to, label, fill}], validRange: [lo, hi], hBands: [{from, to, label}],
- *        height, sync: key, kind: 'K(x)' (for tests)}
+ *        height, sync: key, kind: 'K(x)' (for tests), vector: true (an SVG for print, svgplot.js)}
  */
 export function chart(el, spec) {
+  if (spec.vector) return svgChart(el, spec);
   const xUnit = spec.x.unit || '';
   const series = [
     {

@@ -87,8 +87,8 @@ async function measurementReport(main, ctx, id) {
           h('tr', {}, h('th', {}, 'recipe'), h('td', {}, 'none')),
           h('tr', {}, h('th', {}, 'calibration record'), h('td', {}, 'none (virtual bench or import)'))))));
   if (!stiffnessMm(shown).c.length) return;
-  drawCurves({ kx, cx, fx }, shown, { mask, golden, height: PLOT_H });
-  await drawLevels(lev, shown, id, { height: PLOT_H });
+  drawCurves({ kx, cx, fx }, shown, { mask, golden, height: PLOT_H, vector: true });
+  await drawLevels(lev, shown, id, { height: PLOT_H, vector: true });
   main.querySelector('#report').dataset.ready = 'true';
 }
 
@@ -142,11 +142,11 @@ async function comparisonReport(main, ctx, ids) {
   reasonsAsNotes(main.querySelector('#report-parameters'));
   if (!ok.length) return;
   const [kx, cx, fx, lev] = els;
-  const base = { x: { label: 'displacement x', unit: 'mm' }, height: PLOT_H };
+  const base = { x: { label: 'displacement x', unit: 'mm' }, height: PLOT_H, vector: true };
   chart(kx, { ...base, title: 'Stiffness K(x)', kind: 'K(x)', y: { label: 'K', unit: 'N/mm' }, series: series('N/mm'), data: [xs, ...all.map((s) => inside(s, (x) => poly(s.c, x)))] });
   chart(cx, { ...base, title: 'Compliance C(x)', kind: 'C(x)', y: { label: 'C', unit: 'mm/N' }, series: series('mm/N'), data: [xs, ...all.map((s) => inside(s, (x) => 1 / poly(s.c, x)))] });
   chart(fx, { ...base, title: 'Restoring force F(x)', kind: 'F(x)', y: { label: 'F', unit: 'N' }, series: series('N'), data: [xs, ...all.map((s) => inside(s, (x) => polyIntegral(s.c, x)))] });
-  keffChart(lev, ok, PLOT_H);
+  keffChart(lev, ok, PLOT_H, true);
   main.querySelector('#report').dataset.ready = 'true';
 }
 
@@ -173,7 +173,7 @@ function reasonsAsNotes(table) {
 }
 
 /** Keff against Xpeak of several measurements (one point each; a level series joined). */
-export function keffChart(el, docs, height) {
+export function keffChart(el, docs, height, vector = false) {
   const pts = docs.map((d) => [(d.large_signal || {}).xpeak_m * 1e3, (d.large_signal || {}).keff_n_per_m * 1e-3]);
   const xs = [...new Set(pts.map((p) => p[0]).filter(Number.isFinite))].sort((a, b) => a - b);
   const data = [xs, ...pts.map((p) => xs.map((x) => (x === p[0] ? p[1] : null)))];
@@ -184,6 +184,7 @@ export function keffChart(el, docs, height) {
     data,
     xRange: xs.length ? [Math.min(0, xs[0]), xs[xs.length - 1] * 1.2] : undefined,
     height,
+    vector,
   });
 }
 
