@@ -147,6 +147,10 @@ pub async fn serve(cfg: Config, stop: impl std::future::Future<Output = ()>) -> 
     let mes_worker = crate::mes::start(
         store.clone(),
         cfg.mes.clone(),
+        cfg.benches
+            .iter()
+            .map(|b| cfg.mes.handle_of(&b.id))
+            .collect(),
         runner.outbox_wake(),
         stop_rx.clone(),
     );

@@ -6,6 +6,8 @@
 
 pub use crate::qc::cfx;
 
+pub mod amqp;
+
 use crate::store::qc::DeliveryRow;
 use crate::store::Store;
 use hmac::{Hmac, Mac};
@@ -56,6 +58,10 @@ pub struct MesConfig {
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub bench_handles: BTreeMap<String, String>,
     pub webhooks: Vec<Webhook>,
+    /// An AMQP 1.0 broker (CFX's transport): a target of the outbox beside
+    /// the webhooks, with the same bodies (decision 0097).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub broker: Option<amqp::Broker>,
     /// First retry after this (s); doubles per failed attempt up to `max_backoff_s`.
     pub initial_backoff_s: f64,
     pub max_backoff_s: f64,
@@ -71,6 +77,7 @@ impl Default for MesConfig {
             handle: "Springbench".into(),
             bench_handles: BTreeMap::new(),
             webhooks: vec![],
+            broker: None,
             initial_backoff_s: 1.0,
             max_backoff_s: 300.0,
             max_attempts: 0,
@@ -101,7 +108,11 @@ pub fn check_handle(h: &str) -> Result<(), String> {
 impl MesConfig {
     /// The outbox's targets: every webhook's name and the broker's.
     pub fn targets(&self) -> Vec<String> {
-        self.webhooks.iter().map(|w| w.name.clone()).collect()
+        self.webhooks
+            .iter()
+            .map(|w| w.name.clone())
+            .chain(self.broker.iter().map(|b| b.name.clone()))
+            .collect()
     }
 
     /// The CFX handle of bench `bench_id` (the `Source` of its messages).
@@ -179,6 +190,15 @@ impl MesConfig {
                 ));
             }
         }
+        if let Some(b) = &self.broker {
+            b.validate()?;
+            if names.contains(b.name.as_str()) {
+                return Err(format!(
+                    "mes.broker.name '{}' is also a webhook's name: the outbox tells its targets apart by name",
+                    b.name
+                ));
+            }
+        }
         for (n, v) in [
             ("initial_backoff_s", self.initial_backoff_s),
             ("max_backoff_s", self.max_backoff_s),
@@ -221,9 +241,11 @@ pub(crate) fn rfc3339_in(s: f64) -> String {
 /// Starts the delivery workers: one per webhook, so a slow or hanging
 /// receiver delays only its own messages; `wake` makes every worker look at
 /// the outbox at once. The handle ends when every worker has stopped.
+/// `handles`: the benches' CFX handles (the broker's endpoints).
 pub fn start(
     store: Store,
     cfg: MesConfig,
+    handles: Vec<String>,
     wake: Arc<Notify>,
     shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
@@ -231,6 +253,17 @@ pub fn start(
         let cfg = Arc::new(cfg);
         let mut wakes = vec![];
         let mut workers = vec![];
+        if cfg.broker.is_some() {
+            let w = Arc::new(Notify::new());
+            wakes.push(w.clone());
+            workers.push(tokio::spawn(amqp::run(
+                store.clone(),
+                cfg.clone(),
+                handles,
+                w,
+                shutdown.clone(),
+            )));
+        }
         for hook in cfg
             .webhooks
             .iter()

@@ -36,6 +36,7 @@ mod identify_reference;
 mod identify_synthetic;
 mod layers;
 mod memory;
+mod mes;
 mod migration_0150;
 mod physics_analyze;
 mod physics_cli;

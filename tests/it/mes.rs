@@ -1,0 +1,649 @@
+//! CFX over AMQP 1.0 against a real broker (issue 34, decision 0097):
+//! RabbitMQ from Debian with its AMQP 1.0 plugin, private to the tests
+//! (`.ci/amqp`; `.ci/run` starts it and sets `SPRINGBENCH_AMQP_DIR` and
+//! `SPRINGBENCH_AMQP_TESTS=require`). Without it the tests print why they
+//! skip (and fail where it is required).
+//!
+//! The tests share the broker and one of them stops it: they run one at a
+//! time (`BROKER`). Each uses queues of its own.
+
+use crate::common::{self, client, Daemon};
+use fe2o3_amqp::sasl_profile::SaslProfile;
+use fe2o3_amqp::types::messaging::{Body, Message, Properties, Source, TerminusDurability};
+use fe2o3_amqp::types::primitives::{SimpleValue, Value as AmqpValue};
+use fe2o3_amqp::{Connection, Receiver, Sender, Session};
+use serde_json::{json, Value};
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+static BROKER: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
+/// The private broker: its directory and what `.ci/amqp env` says.
+struct Broker {
+    dir: PathBuf,
+    env: HashMap<String, String>,
+}
+
+impl Broker {
+    /// None (why printed) without a broker; a panic where one is required.
+    fn find() -> Option<Broker> {
+        let required = std::env::var("SPRINGBENCH_AMQP_TESTS").as_deref() == Ok("require");
+        let Some(dir) = std::env::var_os("SPRINGBENCH_AMQP_DIR").map(PathBuf::from) else {
+            assert!(
+                !required,
+                "SPRINGBENCH_AMQP_TESTS=require but SPRINGBENCH_AMQP_DIR is not set"
+            );
+            eprintln!(
+                "SKIPPED: no AMQP broker (start one: .ci/amqp start DIR; then SPRINGBENCH_AMQP_DIR=DIR)"
+            );
+            return None;
+        };
+        let env = match std::fs::read_to_string(dir.join("env")) {
+            Ok(s) => s
+                .lines()
+                .filter_map(|l| l.split_once('='))
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            Err(e) => {
+                assert!(!required, "{}: {e}", dir.display());
+                eprintln!("SKIPPED: {} holds no broker: {e}", dir.display());
+                return None;
+            }
+        };
+        Some(Broker { dir, env })
+    }
+
+    fn get(&self, k: &str) -> &str {
+        &self.env[k]
+    }
+
+    fn script(&self, cmd: &str) {
+        let st = std::process::Command::new("bash")
+            .arg(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/amqp"))
+            .arg(cmd)
+            .arg(&self.dir)
+            .status()
+            .unwrap();
+        assert!(st.success(), ".ci/amqp {cmd}: {st}");
+    }
+
+    /// The `[mes.broker]` table publishing to node `address` (e.g.
+    /// `/queue/NAME`).
+    fn config(&self, address: &str, requests: Option<&str>, heartbeat_s: u64) -> String {
+        format!(
+            "[mes]\nhandle = \"Acme.Line3.Springbench\"\ninitial_backoff_s = 0.2\nmax_backoff_s = 1.0\ntimeout_s = 5.0\n\
+             [mes.broker]\nurl = \"{}\"\naddress = \"{address}\"\nuser = \"{}\"\npassword = \"{}\"\nheartbeat_s = {heartbeat_s}\n{}",
+            self.get("SPRINGBENCH_AMQP_URL"),
+            self.get("SPRINGBENCH_AMQP_USER"),
+            self.get("SPRINGBENCH_AMQP_PASSWORD"),
+            requests
+                .map(|r| format!("request_address = \"/queue/{r}\"\n"))
+                .unwrap_or_default()
+        )
+    }
+
+    async fn connect(
+        &self,
+    ) -> (
+        fe2o3_amqp::connection::ConnectionHandle<()>,
+        fe2o3_amqp::session::SessionHandle<()>,
+    ) {
+        let url = self
+            .get("SPRINGBENCH_AMQP_URL")
+            .trim_start_matches("amqp://");
+        let t = Instant::now();
+        loop {
+            let tcp = tokio::net::TcpStream::connect(url).await;
+            if let Ok(tcp) = tcp {
+                let c = Connection::builder()
+                    .container_id(format!("test-{}", uuid::Uuid::new_v4()))
+                    .hostname("localhost")
+                    .scheme("amqp")
+                    .sasl_profile(SaslProfile::Plain {
+                        username: self.get("SPRINGBENCH_AMQP_USER").into(),
+                        password: self.get("SPRINGBENCH_AMQP_PASSWORD").into(),
+                    })
+                    .open_with_stream(tcp)
+                    .await;
+                if let Ok(mut c) = c {
+                    let s = Session::begin(&mut c).await.unwrap();
+                    return (c, s);
+                }
+            }
+            assert!(
+                t.elapsed() < Duration::from_secs(60),
+                "no connection to the broker"
+            );
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+    }
+}
+
+/// One received message: the envelope and its AMQP properties.
+#[derive(Debug, Clone)]
+struct Got {
+    env: Value,
+    message_id: Option<String>,
+    subject: Option<String>,
+    content_type: Option<String>,
+    app: BTreeMap<String, Option<String>>,
+}
+
+async fn recv(r: &mut Receiver, within: Duration) -> Option<Got> {
+    let d = tokio::time::timeout(within, r.recv::<Body<AmqpValue>>())
+        .await
+        .ok()?
+        .unwrap();
+    r.accept(&d).await.unwrap();
+    let m = d.message();
+    let p = m.properties.clone().unwrap_or_default();
+    let bytes = springbench::mes::amqp::body_bytes(&m.body).expect("a data body");
+    let app = m
+        .application_properties
+        .as_ref()
+        .map(|a| {
+            a.0.iter()
+                .map(|(k, v)| {
+                    (
+                        k.clone(),
+                        match v {
+                            SimpleValue::String(s) => Some(s.clone()),
+                            _ => None,
+                        },
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    Some(Got {
+        env: serde_json::from_slice(&bytes).unwrap(),
+        message_id: p.message_id.map(|m| match m {
+            fe2o3_amqp::types::messaging::MessageId::String(s) => s,
+            o => format!("{o:?}"),
+        }),
+        subject: p.subject,
+        content_type: p.content_type.map(|c| c.0),
+        app,
+    })
+}
+
+/// Every message of queue `q` until none came for `quiet`.
+async fn drain(r: &mut Receiver, quiet: Duration) -> Vec<Got> {
+    let mut out = vec![];
+    while let Some(g) = recv(r, quiet).await {
+        out.push(g);
+    }
+    out
+}
+
+/// The SDK's AMQP properties on `g` (CFX/Transport/AmqpUtilities.cs).
+fn assert_sdk_properties(g: &Got) {
+    let e = &g.env;
+    let name = e["MessageName"].as_str().unwrap();
+    let source = e["Source"].as_str().unwrap();
+    assert_eq!(g.message_id.as_deref(), e["UniqueID"].as_str(), "{e}");
+    assert_eq!(
+        g.subject.as_deref(),
+        Some(format!("{source}.{name}").as_str())
+    );
+    assert_eq!(
+        g.content_type.as_deref(),
+        Some("application/json; charset=\"utf-8\"")
+    );
+    assert_eq!(g.app["cfx-message"].as_deref(), Some(name));
+    assert_eq!(g.app["cfx-handle"].as_deref(), Some(source));
+    assert_eq!(
+        g.app["cfx-topic"].as_deref(),
+        Some(name.rsplit_once('.').unwrap().0)
+    );
+    assert_eq!(g.app["cfx-target"].as_deref(), e["Target"].as_str());
+}
+
+fn jobs(parts: usize, per_part: usize) -> Vec<Value> {
+    (0..parts * per_part)
+        .map(|i| json!({"part": {"serial": format!("A-{}", i % parts)}, "preset": "spider_4in", "target_xpeak_m": 0.006}))
+        .collect()
+}
+
+async fn submit_all(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<String> {
+    let mut ids = vec![];
+    for b in bodies {
+        ids.push(common::submit(c, d, b.clone()).await);
+    }
+    ids
+}
+
+async fn wait_all(c: &reqwest::Client, d: &Daemon, ids: &[String]) {
+    for id in ids {
+        let j = common::wait_job(c, d, id, Duration::from_secs(600), common::terminal).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+    }
+}
+
+/// The outbox's messages of the broker target: (UniqueID, part), in outbox order.
+async fn outbox(d: &Daemon) -> Vec<(String, String)> {
+    let store = springbench::store::Store::open(&d.dir.join("data"))
+        .await
+        .unwrap();
+    let mut all = vec![];
+    for state in ["pending", "delivered", "failed"] {
+        all.extend(store.list_outbox(Some(state), 100_000).await.unwrap());
+    }
+    all.sort_by_key(|x| x.id);
+    all.into_iter()
+        .filter(|x| x.webhook == "broker")
+        .map(|x| (x.unique_id, x.part_serial))
+        .collect()
+}
+
+/// Per part, the order of first arrival is the outbox's, each message once.
+fn assert_once_in_order(expected: &[(String, String)], got: &[Got]) {
+    let mut count: HashMap<String, usize> = HashMap::new();
+    let mut per_part: HashMap<String, Vec<String>> = HashMap::new();
+    for g in got {
+        let uid = g.env["UniqueID"].as_str().unwrap().to_string();
+        if let Some(e) = expected.iter().find(|e| e.0 == uid) {
+            *count.entry(uid.clone()).or_default() += 1;
+            per_part.entry(e.1.clone()).or_default().push(uid);
+        }
+    }
+    let twice: Vec<_> = count.iter().filter(|c| *c.1 > 1).collect();
+    assert!(twice.is_empty(), "arrived more than once: {twice:?}");
+    let missing: Vec<_> = expected
+        .iter()
+        .filter(|e| !count.contains_key(&e.0))
+        .collect();
+    assert!(missing.is_empty(), "lost: {missing:?}");
+    for (part, uids) in &per_part {
+        let want: Vec<String> = expected
+            .iter()
+            .filter(|e| &e.1 == part)
+            .map(|e| e.0.clone())
+            .collect();
+        assert_eq!(uids, &want, "order of {part}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn amqp_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats() {
+    let Some(b) = Broker::find() else { return };
+    let _one = BROKER.lock().await;
+    let q = format!("cfx-{}", uuid::Uuid::new_v4());
+    let (_conn, mut session) = b.connect().await;
+    let mut rx = Receiver::attach(&mut session, "test-lot", format!("/queue/{q}"))
+        .await
+        .unwrap();
+    let log = tempfile::NamedTempFile::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = format!(
+        "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n{}",
+        b.config(&format!("/queue/{q}"), None, 2)
+    );
+    let mut d = Daemon::start_logged(dir.path(), &cfg, Some(log.path()));
+    let c = client();
+    let ids = submit_all(&c, &d, &jobs(3, 2)).await;
+    wait_all(&c, &d, &ids).await;
+    let expected = outbox(&d).await;
+    assert_eq!(expected.len(), 18, "three messages a job");
+    // Heartbeats: at least three (2 s apart) besides the lot.
+    let t = Instant::now();
+    let mut got = vec![];
+    loop {
+        got.extend(drain(&mut rx, Duration::from_millis(500)).await);
+        let beats = got
+            .iter()
+            .filter(|g| g.env["MessageName"] == "CFX.Heartbeat")
+            .count();
+        let uids: HashSet<&str> = got
+            .iter()
+            .filter_map(|g| g.env["UniqueID"].as_str())
+            .collect();
+        if beats >= 6 && expected.iter().all(|e| uids.contains(e.0.as_str())) {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(120),
+            "{beats} heartbeats, {} messages",
+            got.len()
+        );
+    }
+    // The configuration's password is neither shown nor logged.
+    let shown = common::get(&c, &d, "/api/v1/config").await;
+    assert_eq!(shown["mes"]["broker"]["password"], "<redacted>", "{shown}");
+    d.terminate();
+    got.extend(drain(&mut rx, Duration::from_secs(2)).await);
+    let logged = std::fs::read_to_string(log.path()).unwrap();
+    assert!(
+        !logged.contains(b.get("SPRINGBENCH_AMQP_PASSWORD")),
+        "password in the log"
+    );
+    assert!(!shown
+        .to_string()
+        .contains(b.get("SPRINGBENCH_AMQP_PASSWORD")));
+
+    let shapes = crate::cfx_sdk::Shapes::load();
+    for g in &got {
+        assert_sdk_properties(g);
+        assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
+    }
+    assert_once_in_order(&expected, &got);
+    let names: Vec<&str> = got
+        .iter()
+        .map(|g| g.env["MessageName"].as_str().unwrap())
+        .collect();
+    // Each bench's endpoint: connected first, shutting down last.
+    for h in [
+        "Acme.Line3.Springbench.virtual-1",
+        "Acme.Line3.Springbench.virtual-2",
+    ] {
+        let mine: Vec<&Got> = got.iter().filter(|g| g.env["Source"] == h).collect();
+        assert_eq!(
+            mine.first().unwrap().env["MessageName"],
+            "CFX.EndpointConnected",
+            "{names:?}"
+        );
+        assert_eq!(
+            mine.last().unwrap().env["MessageName"],
+            "CFX.EndpointShuttingDown",
+            "{names:?}"
+        );
+        let beats: Vec<chrono::DateTime<chrono::FixedOffset>> = mine
+            .iter()
+            .filter(|g| g.env["MessageName"] == "CFX.Heartbeat")
+            .map(|g| {
+                chrono::DateTime::parse_from_rfc3339(g.env["TimeStamp"].as_str().unwrap()).unwrap()
+            })
+            .collect();
+        assert!(beats.len() >= 3, "{h}: {} heartbeats", beats.len());
+        for w in beats.windows(2) {
+            let dt = (w[1] - w[0]).num_milliseconds();
+            // every 2 s (a beat may wait while a delivery is under way)
+            assert!((1900..4000).contains(&dt), "{h}: heartbeats {dt} ms apart");
+        }
+        let hb = mine
+            .iter()
+            .find(|g| g.env["MessageName"] == "CFX.Heartbeat")
+            .unwrap();
+        assert_eq!(hb.env["MessageBody"]["HeartbeatFrequency"], "00:00:02");
+    }
+    println!(
+        "AMQP: {} messages of {} jobs arrived once each, in order per part, with the SDK's properties; {} in all",
+        expected.len(),
+        ids.len(),
+        got.len()
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn amqp_requests_are_answered_with_their_request_id() {
+    let Some(b) = Broker::find() else { return };
+    let _one = BROKER.lock().await;
+    let q = format!("cfx-{}", uuid::Uuid::new_v4());
+    let req_q = format!("req-{}", uuid::Uuid::new_v4());
+    let reply_q = format!("reply-{}", uuid::Uuid::new_v4());
+    let (_conn, mut session) = b.connect().await;
+    let mut replies = Receiver::attach(&mut session, "test-replies", format!("/queue/{reply_q}"))
+        .await
+        .unwrap();
+    let mut published = Receiver::attach(&mut session, "test-pub", format!("/queue/{q}"))
+        .await
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = format!(
+        "[[benches]]\nid = \"virtual-1\"\nseed = 1\n{}",
+        b.config(&format!("/queue/{q}"), Some(&req_q), 60)
+    );
+    let mut d = Daemon::start_in(dir.path(), &cfg);
+    // connected: the endpoint has announced itself
+    let first = recv(&mut published, Duration::from_secs(60))
+        .await
+        .expect("EndpointConnected");
+    assert_eq!(first.env["MessageName"], "CFX.EndpointConnected");
+    assert_eq!(
+        first.env["MessageBody"]["RequestTargetAddress"],
+        format!("/queue/{req_q}")
+    );
+    let mut tx = Sender::attach(&mut session, "test-requests", format!("/queue/{req_q}"))
+        .await
+        .unwrap();
+    let handle = "Acme.Line3.Springbench.virtual-1";
+    let asks = [
+        (
+            "CFX.AreYouThereRequest",
+            json!({"CFXHandle": handle}),
+            "CFX.AreYouThereResponse",
+        ),
+        (
+            "CFX.GetEndpointInformationRequest",
+            json!({"CFXHandle": handle}),
+            "CFX.GetEndpointInformationResponse",
+        ),
+        (
+            "CFX.WhoIsThereRequest",
+            json!({"SupportedTopicQueryType": "Any", "SupportedTopics": []}),
+            "CFX.WhoIsThereResponse",
+        ),
+        (
+            "CFX.ResourcePerformance.GetActiveFaultsRequest",
+            json!({}),
+            "CFX.NotSupportedResponse",
+        ),
+    ];
+    let shapes = crate::cfx_sdk::Shapes::load();
+    for (i, (name, body, answer)) in asks.iter().enumerate() {
+        let rid = format!("REQUEST-{i}-{}", uuid::Uuid::new_v4());
+        let env = json!({"MessageName": name, "Version": "2.1", "TimeStamp": springbench::store::now(),
+            "UniqueID": uuid::Uuid::new_v4().to_string(), "Source": "Acme.Mes", "Target": handle,
+            "RequestID": rid, "MessageBody": body});
+        let msg = Message::builder()
+            .properties(
+                Properties::builder()
+                    .reply_to(format!("/queue/{reply_q}"))
+                    .build(),
+            )
+            .data(fe2o3_amqp::types::primitives::Binary::from(
+                env.to_string().into_bytes(),
+            ))
+            .build();
+        tx.send(msg).await.unwrap();
+        let g = recv(&mut replies, Duration::from_secs(30))
+            .await
+            .expect("an answer");
+        assert_eq!(g.env["MessageName"], *answer, "{}", g.env);
+        assert_eq!(g.env["RequestID"], rid.as_str());
+        assert_eq!(g.env["Target"], "Acme.Mes");
+        assert_eq!(g.env["Source"], handle);
+        assert_sdk_properties(&g);
+        assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
+        if *answer == "CFX.GetEndpointInformationResponse" {
+            assert_eq!(
+                g.env["MessageBody"]["EndpointInformation"]["CFXHandle"],
+                handle
+            );
+        }
+    }
+    d.terminate();
+    println!("AMQP: 4 requests answered (3 supported, 1 NotSupportedResponse), RequestID kept");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twice() {
+    let Some(b) = Broker::find() else { return };
+    let _one = BROKER.lock().await;
+    let q = format!("cfx-{}", uuid::Uuid::new_v4());
+    {
+        // The MES's durable queue (a receiver with a durable source declares
+        // it so on RabbitMQ), which the station publishes to as an existing
+        // queue (`/amq/queue/NAME`: not declared again). A queue the
+        // station's `/queue/NAME` declares is not durable, as with the SDK:
+        // the broker's restart would lose what it had accepted.
+        let (mut conn, mut session) = b.connect().await;
+        let rx = Receiver::builder()
+            .name("test-declare")
+            .source(
+                Source::builder()
+                    .address(format!("/queue/{q}"))
+                    .durable(TerminusDurability::Configuration)
+                    .build(),
+            )
+            .attach(&mut session)
+            .await
+            .unwrap();
+        // RabbitMQ 3.10 answers the detach of a fresh link in a way fe2o3
+        // calls IllegalState; the queue exists by then, which is all we need
+        let _ = rx.close().await;
+        let _ = session.end().await;
+        let _ = conn.close().await;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = format!(
+        "[[benches]]\nid = \"virtual-1\"\nseed = 1\n{}",
+        b.config(&format!("/amq/queue/{q}"), None, 60)
+    );
+    let mut d = Daemon::start_in(dir.path(), &cfg);
+    let c = client();
+    let ids = submit_all(&c, &d, &jobs(3, 3)).await;
+    // the first job's messages went through; then the broker goes away
+    common::wait_job(&c, &d, &ids[0], Duration::from_secs(300), common::terminal).await;
+    let t = Instant::now();
+    loop {
+        let store = springbench::store::Store::open(&d.dir.join("data"))
+            .await
+            .unwrap();
+        if !store
+            .list_outbox(Some("delivered"), 10)
+            .await
+            .unwrap()
+            .is_empty()
+        {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "nothing delivered");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let count = |state: &'static str| {
+        let data = d.dir.join("data");
+        async move {
+            let store = springbench::store::Store::open(&data).await.unwrap();
+            store.list_outbox(Some(state), 100_000).await.unwrap().len()
+        }
+    };
+    let before = count("delivered").await;
+    b.script("stop");
+    let down = Instant::now();
+    // really away: nothing listens on its port
+    let addr = b.get("SPRINGBENCH_AMQP_URL").trim_start_matches("amqp://");
+    assert!(
+        tokio::net::TcpStream::connect(addr).await.is_err(),
+        "the broker still listens on {addr}"
+    );
+    tokio::time::sleep(Duration::from_secs(30)).await;
+    let waiting = count("pending").await;
+    b.script("start");
+    let away_s = down.elapsed().as_secs_f64();
+    assert!(
+        waiting > 0,
+        "nothing waited for the broker: the outage tested nothing"
+    );
+    wait_all(&c, &d, &ids).await;
+    let expected = outbox(&d).await;
+    assert_eq!(expected.len(), 27);
+    // delivered in full once the broker is back
+    let t = Instant::now();
+    loop {
+        let store = springbench::store::Store::open(&d.dir.join("data"))
+            .await
+            .unwrap();
+        if store.list_outbox(None, 10).await.unwrap().is_empty() {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(120),
+            "the outbox did not empty"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    d.terminate();
+    let (_conn, mut session) = b.connect().await;
+    let mut rx = Receiver::builder()
+        .name("test-drain")
+        .source(
+            Source::builder()
+                .address(format!("/queue/{q}"))
+                .durable(TerminusDurability::Configuration)
+                .build(),
+        )
+        .attach(&mut session)
+        .await
+        .unwrap();
+    let got = drain(&mut rx, Duration::from_secs(3)).await;
+    assert_once_in_order(&expected, &got);
+    println!(
+        "AMQP outage: {} messages written, {before} delivered before the broker stopped, {waiting} waiting when it returned after {away_s:.1} s; each arrived once, in order per part",
+        expected.len()
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn amqp_over_tls_with_a_local_certificate() {
+    let Some(b) = Broker::find() else { return };
+    let _one = BROKER.lock().await;
+    let q = format!("cfx-{}", uuid::Uuid::new_v4());
+    let (_conn, mut session) = b.connect().await;
+    let mut rx = Receiver::attach(&mut session, "test-tls", format!("/queue/{q}"))
+        .await
+        .unwrap();
+    let tls_cfg = |ca: &str| {
+        format!(
+            "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[mes]\nhandle = \"Acme.Line3.Springbench\"\n\
+             [mes.broker]\nurl = \"{}\"\naddress = \"/queue/{q}\"\nuser = \"{}\"\npassword = \"{}\"\nca_file = \"{ca}\"\n",
+            b.get("SPRINGBENCH_AMQPS_URL"),
+            b.get("SPRINGBENCH_AMQP_USER"),
+            b.get("SPRINGBENCH_AMQP_PASSWORD"),
+        )
+    };
+    // A certificate authority the broker's certificate does not chain to: refused.
+    let other = tempfile::tempdir().unwrap();
+    let ca = rcgen::generate_simple_self_signed(vec!["localhost".into()]).unwrap();
+    let other_ca = other.path().join("other-ca.pem");
+    std::fs::write(&other_ca, ca.cert.pem()).unwrap();
+    let log = other.path().join("daemon.log");
+    std::fs::create_dir_all(other.path().join("d")).unwrap();
+    let mut d = Daemon::start_logged(
+        &other.path().join("d"),
+        &tls_cfg(other_ca.to_str().unwrap()),
+        Some(&log),
+    );
+    let t = Instant::now();
+    let refused = loop {
+        let l = std::fs::read_to_string(&log).unwrap_or_default();
+        if l.contains("MES broker unreachable") {
+            break l;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "no TLS refusal logged: {l}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    assert!(refused.to_lowercase().contains("certificate"), "{refused}");
+    d.terminate();
+    assert!(
+        recv(&mut rx, Duration::from_secs(1)).await.is_none(),
+        "nothing went through"
+    );
+    // The broker's own CA: connected over TLS.
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = Daemon::start_in(dir.path(), &tls_cfg(b.get("SPRINGBENCH_AMQP_CA")));
+    let g = recv(&mut rx, Duration::from_secs(60))
+        .await
+        .expect("EndpointConnected over TLS");
+    assert_eq!(g.env["MessageName"], "CFX.EndpointConnected");
+    assert_eq!(
+        g.env["MessageBody"]["RequestNetworkUri"],
+        b.get("SPRINGBENCH_AMQPS_URL")
+    );
+    d.terminate();
+    println!("AMQP over TLS: refused with a foreign CA, connected with the broker's");
+}
