@@ -124,10 +124,22 @@ impl Broker {
 #[derive(Debug, Clone)]
 struct Got {
     env: Value,
+    durable: Option<bool>,
     message_id: Option<String>,
+    to: Option<String>,
+    reply_to: Option<String>,
+    correlation_id: Option<String>,
+    creation_ms: Option<i64>,
     subject: Option<String>,
     content_type: Option<String>,
     app: BTreeMap<String, Option<String>>,
+}
+
+fn id_text(m: fe2o3_amqp::types::messaging::MessageId) -> String {
+    match m {
+        fe2o3_amqp::types::messaging::MessageId::String(s) => s,
+        o => format!("{o:?}"),
+    }
 }
 
 async fn recv(r: &mut Receiver, within: Duration) -> Option<Got> {
@@ -158,10 +170,12 @@ async fn recv(r: &mut Receiver, within: Duration) -> Option<Got> {
         .unwrap_or_default();
     Some(Got {
         env: serde_json::from_slice(&bytes).unwrap(),
-        message_id: p.message_id.map(|m| match m {
-            fe2o3_amqp::types::messaging::MessageId::String(s) => s,
-            o => format!("{o:?}"),
-        }),
+        durable: m.header.as_ref().map(|h| h.durable),
+        message_id: p.message_id.map(id_text),
+        to: p.to,
+        reply_to: p.reply_to,
+        correlation_id: p.correlation_id.map(id_text),
+        creation_ms: p.creation_time.map(|t| t.milliseconds()),
         subject: p.subject,
         content_type: p.content_type.map(|c| c.0),
         app,
@@ -177,12 +191,23 @@ async fn drain(r: &mut Receiver, quiet: Duration) -> Vec<Got> {
     out
 }
 
-/// The SDK's AMQP properties on `g` (CFX/Transport/AmqpUtilities.cs).
+/// The SDK's AMQP properties on `g`, as `AmqpUtilities.SetHeaders` of the
+/// reference SDK (CFX/Transport/AmqpUtilities.cs) sets them: durable,
+/// message-id = UniqueID, to = Target, reply-to = Source, correlation-id =
+/// RequestID, content type, creation time = TimeStamp, subject
+/// `{Source}.{MessageName}`, and `cfx-topic` (the body class's namespace),
+/// `cfx-message`, `cfx-handle`, `cfx-target`.
 fn assert_sdk_properties(g: &Got) {
     let e = &g.env;
     let name = e["MessageName"].as_str().unwrap();
     let source = e["Source"].as_str().unwrap();
+    assert_eq!(g.durable, Some(true), "{e}");
     assert_eq!(g.message_id.as_deref(), e["UniqueID"].as_str(), "{e}");
+    assert_eq!(g.to.as_deref(), e["Target"].as_str(), "{e}");
+    assert_eq!(g.reply_to.as_deref(), Some(source), "{e}");
+    assert_eq!(g.correlation_id.as_deref(), e["RequestID"].as_str(), "{e}");
+    let t = chrono::DateTime::parse_from_rfc3339(e["TimeStamp"].as_str().unwrap()).unwrap();
+    assert_eq!(g.creation_ms, Some(t.timestamp_millis()), "{e}");
     assert_eq!(
         g.subject.as_deref(),
         Some(format!("{source}.{name}").as_str())
@@ -193,11 +218,74 @@ fn assert_sdk_properties(g: &Got) {
     );
     assert_eq!(g.app["cfx-message"].as_deref(), Some(name));
     assert_eq!(g.app["cfx-handle"].as_deref(), Some(source));
-    assert_eq!(
-        g.app["cfx-topic"].as_deref(),
-        Some(name.rsplit_once('.').unwrap().0)
-    );
+    // the namespace of the body's class: CFX.Production.TestAndInspection
+    // for UnitsTested, CFX for Heartbeat
+    let topic = match name {
+        "CFX.Production.TestAndInspection.UnitsTested" => "CFX.Production.TestAndInspection",
+        "CFX.Production.WorkStarted" | "CFX.Production.WorkCompleted" => "CFX.Production",
+        _ => "CFX",
+    };
+    assert_eq!(g.app["cfx-topic"].as_deref(), Some(topic), "{e}");
+    assert!(g.app.contains_key("cfx-target"), "{e}");
     assert_eq!(g.app["cfx-target"].as_deref(), e["Target"].as_str());
+}
+
+/// A QC lot judged by a recipe with limits on k0 (the virtual spider_4in
+/// has 2400 N/m, the `stiff` defect 1.3 times that) and the model error:
+/// a part measured twice (passed both times), a stiff part (failed), a
+/// part the amplifier cannot drive to the recipe's 8 mm (invalid: Error),
+/// another good one. Returns (serial, the job's verdict, the UnitsTested
+/// OverallResult that goes with it) in submission order.
+async fn qc_lot(c: &reqwest::Client, d: &Daemon) -> Vec<(String, String, &'static str)> {
+    let recipe = json!({
+        "name": "spider-4in",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0", "lower": 2000.0, "upper": 2800.0},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    });
+    let (s, r) = common::send(
+        c,
+        d,
+        reqwest::Method::POST,
+        "/api/v1/recipes",
+        "",
+        Some(recipe),
+    )
+    .await;
+    assert_eq!(s, 201, "{r}");
+    let job = |serial: &str, seed: u64, defect: Option<&str>| {
+        let mut production = json!({"preset": "spider_4in", "seed": seed});
+        if let Some(x) = defect {
+            production["defect"] = json!(x);
+        }
+        json!({"part": {"serial": serial, "kind": "spider"}, "recipe": "spider-4in", "production": production})
+    };
+    let mut weak = job("U-drive", 801, None);
+    weak["limits"] = json!({"max_drive_v": 0.3});
+    let lot = [
+        (job("P-01", 501, None), "pass", "Passed"),
+        (job("D-stiff", 701, Some("stiff")), "fail", "Failed"),
+        (job("P-01", 501, None), "pass", "Passed"),
+        (weak, "invalid", "Error"),
+        (job("P-02", 502, None), "pass", "Passed"),
+    ];
+    let bodies: Vec<Value> = lot.iter().map(|l| l.0.clone()).collect();
+    let ids = submit_all(c, d, &bodies).await;
+    let mut out = vec![];
+    for (id, (body, want, result)) in ids.iter().zip(&lot) {
+        let j = common::wait_job(c, d, id, Duration::from_secs(600), common::terminal).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        assert_eq!(j["verdict"], *want, "{}: {j}", body["part"]["serial"]);
+        out.push((
+            body["part"]["serial"].as_str().unwrap().to_string(),
+            want.to_string(),
+            *result,
+        ));
+    }
+    out
 }
 
 fn jobs(parts: usize, per_part: usize) -> Vec<Value> {
@@ -266,7 +354,7 @@ fn assert_once_in_order(expected: &[(String, String)], got: &[Got]) {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn amqp_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats() {
+async fn amqp_qc_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats() {
     let Some(b) = Broker::find() else { return };
     let _one = BROKER.lock().await;
     let q = format!("cfx-{}", uuid::Uuid::new_v4());
@@ -282,10 +370,9 @@ async fn amqp_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats(
     );
     let mut d = Daemon::start_logged(dir.path(), &cfg, Some(log.path()));
     let c = client();
-    let ids = submit_all(&c, &d, &jobs(3, 2)).await;
-    wait_all(&c, &d, &ids).await;
+    let lot = qc_lot(&c, &d).await;
     let expected = outbox(&d).await;
-    assert_eq!(expected.len(), 18, "three messages a job");
+    assert_eq!(expected.len(), 3 * lot.len(), "three messages a job");
     // Heartbeats: at least three (2 s apart) besides the lot.
     let t = Instant::now();
     let mut got = vec![];
@@ -328,6 +415,30 @@ async fn amqp_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats(
         assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
     }
     assert_once_in_order(&expected, &got);
+    // The lot's results as the MES reads them, per part in arrival order.
+    let mut results: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for g in got
+        .iter()
+        .filter(|g| g.env["MessageName"] == "CFX.Production.TestAndInspection.UnitsTested")
+    {
+        let unit = &g.env["MessageBody"]["TestedUnits"][0];
+        assert_eq!(
+            g.env["MessageBody"]["RecipeName"], "spider-4in",
+            "{}",
+            g.env
+        );
+        results
+            .entry(unit["UnitIdentifier"].as_str().unwrap().to_string())
+            .or_default()
+            .push(unit["OverallResult"].as_str().unwrap().to_string());
+    }
+    let mut want: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for (serial, _, result) in &lot {
+        want.entry(serial.clone())
+            .or_default()
+            .push(result.to_string());
+    }
+    assert_eq!(results, want);
     let names: Vec<&str> = got
         .iter()
         .map(|g| g.env["MessageName"].as_str().unwrap())
@@ -368,9 +479,9 @@ async fn amqp_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbeats(
         assert_eq!(hb.env["MessageBody"]["HeartbeatFrequency"], "00:00:02");
     }
     println!(
-        "AMQP: {} messages of {} jobs arrived once each, in order per part, with the SDK's properties; {} in all",
+        "AMQP: {} messages of a QC lot of {} jobs ({results:?}) arrived once each, in order per part, with the SDK's properties; {} in all",
         expected.len(),
-        ids.len(),
+        lot.len(),
         got.len()
     );
 }
@@ -646,4 +757,86 @@ async fn amqp_over_tls_with_a_local_certificate() {
     );
     d.terminate();
     println!("AMQP over TLS: refused with a foreign CA, connected with the broker's");
+}
+
+/// Waits until the daemon's log holds `what`; returns the log.
+async fn log_with(log: &std::path::Path, what: &str) -> String {
+    let t = Instant::now();
+    loop {
+        let l = std::fs::read_to_string(log).unwrap_or_default();
+        if l.contains(what) {
+            return l;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "no '{what}' in the log: {l}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+/// The broker's password is never in the log, at any level (RUST_LOG=trace),
+/// neither when the broker refuses it nor when it takes it, and
+/// `GET /api/v1/config` shows `<redacted>` in its place.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn amqp_credentials_are_never_logged_nor_shown() {
+    let Some(b) = Broker::find() else { return };
+    let _one = BROKER.lock().await;
+    let q = format!("cfx-{}", uuid::Uuid::new_v4());
+    let (_conn, mut session) = b.connect().await;
+    let mut rx = Receiver::attach(&mut session, "test-secret", format!("/queue/{q}"))
+        .await
+        .unwrap();
+    let right = b.get("SPRINGBENCH_AMQP_PASSWORD").to_string();
+    let wrong = format!("wrong-{}", uuid::Uuid::new_v4().simple());
+    let c = client();
+    let tmp = tempfile::tempdir().unwrap();
+    for (i, password) in [&wrong, &right].into_iter().enumerate() {
+        let dir = tmp.path().join(format!("d{i}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let log = tmp.path().join(format!("daemon-{i}.log"));
+        let cfg = format!(
+            "[[benches]]\nid = \"virtual-1\"\nseed = 1\n{}",
+            b.config(&format!("/queue/{q}"), None, 1).replace(
+                &format!("password = \"{right}\""),
+                &format!("password = \"{password}\"")
+            )
+        );
+        assert!(cfg.contains(password.as_str()));
+        let mut d = Daemon::start_logged_at(&dir, &cfg, Some(&log), "trace");
+        let shown = common::get(&c, &d, "/api/v1/config").await;
+        assert_eq!(shown["mes"]["broker"]["password"], "<redacted>", "{shown}");
+        assert_eq!(
+            shown["mes"]["broker"]["user"],
+            b.get("SPRINGBENCH_AMQP_USER")
+        );
+        assert!(!shown.to_string().contains(password.as_str()), "{shown}");
+        if password == &wrong {
+            // refused by the broker: said in the log, without the password
+            log_with(&log, "MES broker unreachable").await;
+        } else {
+            log_with(&log, "MES broker connected").await;
+            let g = recv(&mut rx, Duration::from_secs(30))
+                .await
+                .expect("EndpointConnected");
+            assert_eq!(g.env["MessageName"], "CFX.EndpointConnected");
+            // a heartbeat: the connection has lived a while at trace level
+            let g = recv(&mut rx, Duration::from_secs(30))
+                .await
+                .expect("Heartbeat");
+            assert_eq!(g.env["MessageName"], "CFX.Heartbeat");
+        }
+        d.terminate();
+        let logged = std::fs::read_to_string(&log).unwrap();
+        assert!(logged.lines().count() > 10, "a trace-level log: {logged}");
+        assert!(
+            !logged.contains(password.as_str()),
+            "the password is in the log (daemon {i})"
+        );
+        println!(
+            "daemon {i} ({}): {} log lines at trace level, the password in none; /api/v1/config shows <redacted>",
+            if password == &wrong { "refused" } else { "connected" },
+            logged.lines().count()
+        );
+    }
 }

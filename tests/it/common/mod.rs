@@ -33,6 +33,12 @@ impl Daemon {
 
     /// [`Daemon::start_in`] with the daemon's log (stderr) appended to `log`.
     pub fn start_logged(dir: &Path, extra: &str, log: Option<&Path>) -> Daemon {
+        Daemon::start_logged_at(dir, extra, log, "warn")
+    }
+
+    /// [`Daemon::start_logged`] with `RUST_LOG` = `rust_log` (e.g. `trace`:
+    /// what no log line may hold, at every level).
+    pub fn start_logged_at(dir: &Path, extra: &str, log: Option<&Path>, rust_log: &str) -> Daemon {
         let stderr = match log {
             Some(p) => Stdio::from(
                 std::fs::OpenOptions::new()
@@ -53,7 +59,7 @@ impl Daemon {
             .arg("serve")
             .arg("--config")
             .arg(&cfg)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", rust_log)
             .stdout(Stdio::piped())
             .stderr(stderr)
             .spawn()
