@@ -467,11 +467,19 @@ async fn amqp_qc_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbea
             })
             .collect();
         assert!(beats.len() >= 3, "{h}: {} heartbeats", beats.len());
-        for w in beats.windows(2) {
-            let dt = (w[1] - w[0]).num_milliseconds();
-            // every 2 s (a beat may wait while a delivery is under way)
-            assert!((1900..4000).contains(&dt), "{h}: heartbeats {dt} ms apart");
-        }
+        // every 2 s: never sooner; a beat may wait while a delivery is
+        // under way, so the typical gap (the median) is the period
+        let mut gaps: Vec<i64> = beats
+            .windows(2)
+            .map(|w| (w[1] - w[0]).num_milliseconds())
+            .collect();
+        assert!(gaps.iter().all(|&g| g >= 1900), "{h}: gaps {gaps:?} ms");
+        gaps.sort_unstable();
+        let median = gaps[gaps.len() / 2];
+        assert!(
+            (1900..2600).contains(&median),
+            "{h}: heartbeats {gaps:?} ms apart"
+        );
         let hb = mine
             .iter()
             .find(|g| g.env["MessageName"] == "CFX.Heartbeat")
