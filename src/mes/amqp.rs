@@ -476,6 +476,13 @@ async fn serve(
             r?;
         }
         if !due.is_empty() {
+            // a backlog (after an outage) goes out in batches; the heartbeat
+            // keeps its period between them
+            tokio::select! {
+                biased;
+                _ = beat.tick() => heartbeats(link, eps, b.heartbeat_s, timeout).await?,
+                _ = std::future::ready(()) => {}
+            }
             continue;
         }
         let wait = match store.next_delivery_due(Some(&b.name)).await {
@@ -496,13 +503,7 @@ async fn serve(
             _ = tokio::time::sleep(Duration::from_millis(wait as u64)) => {}
             _ = wake.notified() => {}
             _ = shutdown.changed() => {}
-            _ = beat.tick() => {
-                let t = crate::store::now();
-                for e in eps {
-                    let env = cfx::heartbeat(e, &new_uid(), &t, b.heartbeat_s).2;
-                    link.send(&env, None, timeout).await?;
-                }
-            }
+            _ = beat.tick() => heartbeats(link, eps, b.heartbeat_s, timeout).await?,
             got = request => match got {
                 Some(Ok(delivery)) => {
                     let reply_to = delivery
@@ -525,6 +526,21 @@ async fn serve(
             }
         }
     }
+}
+
+/// A `Heartbeat` of every endpoint.
+async fn heartbeats(
+    link: &mut Link,
+    eps: &[EndpointFacts],
+    period_s: u64,
+    timeout: Duration,
+) -> Result<(), String> {
+    let t = crate::store::now();
+    for e in eps {
+        let env = cfx::heartbeat(e, &new_uid(), &t, period_s).2;
+        link.send(&env, None, timeout).await?;
+    }
+    Ok(())
 }
 
 /// Answers request `req` as the endpoint it targets (`WhoIsThereRequest`:

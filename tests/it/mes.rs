@@ -510,7 +510,7 @@ async fn amqp_requests_are_answered_with_their_request_id() {
         .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let cfg = format!(
-        "[[benches]]\nid = \"virtual-1\"\nseed = 1\n{}",
+        "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n{}",
         b.config(&format!("/queue/{q}"), Some(&req_q), 60)
     );
     let mut d = Daemon::start_in(dir.path(), &cfg);
@@ -526,7 +526,8 @@ async fn amqp_requests_are_answered_with_their_request_id() {
     let mut tx = Sender::attach(&mut session, "test-requests", format!("/queue/{req_q}"))
         .await
         .unwrap();
-    let handle = "Acme.Line3.Springbench.virtual-1";
+    // the second bench's endpoint: the one a request targets answers
+    let handle = "Acme.Line3.Springbench.virtual-2";
     let asks = [
         (
             "CFX.AreYouThereRequest",
@@ -552,8 +553,15 @@ async fn amqp_requests_are_answered_with_their_request_id() {
     let shapes = crate::cfx_sdk::Shapes::load();
     for (i, (name, body, answer)) in asks.iter().enumerate() {
         let rid = format!("REQUEST-{i}-{}", uuid::Uuid::new_v4());
+        // WhoIsThereRequest is a broadcast: no Target, every endpoint answers
+        let broadcast = *name == "CFX.WhoIsThereRequest";
+        let target = if broadcast {
+            Value::Null
+        } else {
+            json!(handle)
+        };
         let env = json!({"MessageName": name, "Version": "2.1", "TimeStamp": springbench::store::now(),
-            "UniqueID": uuid::Uuid::new_v4().to_string(), "Source": "Acme.Mes", "Target": handle,
+            "UniqueID": uuid::Uuid::new_v4().to_string(), "Source": "Acme.Mes", "Target": target,
             "RequestID": rid, "MessageBody": body});
         let msg = Message::builder()
             .properties(
@@ -566,24 +574,43 @@ async fn amqp_requests_are_answered_with_their_request_id() {
             ))
             .build();
         tx.send(msg).await.unwrap();
-        let g = recv(&mut replies, Duration::from_secs(30))
-            .await
-            .expect("an answer");
-        assert_eq!(g.env["MessageName"], *answer, "{}", g.env);
-        assert_eq!(g.env["RequestID"], rid.as_str());
-        assert_eq!(g.env["Target"], "Acme.Mes");
-        assert_eq!(g.env["Source"], handle);
-        assert_sdk_properties(&g);
-        assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
-        if *answer == "CFX.GetEndpointInformationResponse" {
+        let mut sources = vec![];
+        for _ in 0..if broadcast { 2 } else { 1 } {
+            let g = recv(&mut replies, Duration::from_secs(30))
+                .await
+                .expect("an answer");
+            assert_eq!(g.env["MessageName"], *answer, "{}", g.env);
+            assert_eq!(g.env["RequestID"], rid.as_str());
+            assert_eq!(g.env["Target"], "Acme.Mes");
+            assert_sdk_properties(&g);
+            assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
+            if *answer == "CFX.GetEndpointInformationResponse" {
+                assert_eq!(
+                    g.env["MessageBody"]["EndpointInformation"]["CFXHandle"],
+                    handle
+                );
+            }
+            sources.push(g.env["Source"].as_str().unwrap().to_string());
+        }
+        sources.sort();
+        if broadcast {
             assert_eq!(
-                g.env["MessageBody"]["EndpointInformation"]["CFXHandle"],
-                handle
+                sources,
+                [
+                    "Acme.Line3.Springbench.virtual-1",
+                    "Acme.Line3.Springbench.virtual-2"
+                ]
             );
+        } else {
+            assert_eq!(sources, [handle]);
         }
     }
+    // nothing more: one answer a request, one a bench for the broadcast
+    assert!(recv(&mut replies, Duration::from_secs(1)).await.is_none());
     d.terminate();
-    println!("AMQP: 4 requests answered (3 supported, 1 NotSupportedResponse), RequestID kept");
+    println!(
+        "AMQP: 4 requests answered (3 supported, WhoIsThere by both benches, 1 NotSupportedResponse), RequestID kept"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
