@@ -1455,7 +1455,8 @@ async fn the_ui_on_the_center_shows_the_stations_data() {
     b.assert_no_console_errors("on the center's compare view")
         .await;
     // The measurement's printable report: the same parameters.
-    let ready = "document.querySelector('#report-parameters') && document.querySelector('#report-kx canvas')";
+    let ready =
+        "document.querySelector('#report-parameters') && document.querySelector('#report-kx svg')";
     let params = "#report-parameters";
     let at_station = shown(&b, format!("{station}/#/report/{m1}"), ready, params).await;
     let at_center = shown(&b, format!("{center}/#/report/{m1}"), ready, params).await;
