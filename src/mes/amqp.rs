@@ -593,6 +593,28 @@ mod tests {
     }
 
     #[test]
+    fn the_shipped_example_of_a_broker_is_valid() {
+        // deploy/springbench.toml's commented [mes.broker], uncommented
+        // (without its ca_file, a path of the factory's)
+        let text = include_str!("../../deploy/springbench.toml");
+        let from = text.find("# [mes]").expect("the example's [mes]");
+        let example: String = text[from..]
+            .lines()
+            .map(|l| l.trim_start_matches("# "))
+            .filter(|l| !l.starts_with("ca_file"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let cfg = crate::config::Config::parse(&format!("{}\n{example}", &text[..from]))
+            .expect("the example is valid");
+        let b = cfg.mes.broker.as_ref().expect("a broker");
+        assert_eq!(b.url, "amqps://mes-broker.acme.example:5671");
+        assert_eq!(b.address, "/exchange/amq.topic");
+        assert_eq!(b.heartbeat_s, 60);
+        assert_eq!(cfg.mes.handle, "Acme.Line3.Springbench");
+        assert_eq!(cfg.mes.targets(), ["broker"]);
+    }
+
+    #[test]
     fn broker_configuration_is_checked() {
         let ok = Broker {
             name: "broker".into(),
