@@ -60,7 +60,7 @@ pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> A
         ));
     }
     let request = hardware::self_check_request(&id);
-    let sha: String = Sha256::digest(request.to_string().as_bytes())
+    let sha: String = Sha256::digest(request.to_json().as_bytes())
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect();

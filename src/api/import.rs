@@ -424,7 +424,10 @@ pub async fn import(
                 job_id: None,
                 source: "import",
                 bench_id: None,
-                config: json!({"analysis": opts}),
+                config: crate::job::MeasurementConfig {
+                    analysis: Some(opts),
+                    ..Default::default()
+                },
                 meta: crate::finite::to_value(&p.meta)
                     .map_err(|e| Problem::field("meta", e.to_string()))?,
                 result,

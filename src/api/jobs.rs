@@ -111,7 +111,7 @@ pub(crate) async fn enqueue(
     spec.recipe = recipe.map(|r| r.reference);
     spec.submitted_by = submitted_by;
     super::benches::refuse_faulted(st, &spec.bench)?;
-    let request = serde_json::to_value(&spec).map_err(Problem::internal)?;
+    let request = crate::job::StoredRequest::Measure(spec.clone());
     let id = new_id();
     let inserted = st
         .store

@@ -118,7 +118,15 @@ fn rec(kind: &'static str) -> NewRecording {
 /// A job of `serial` run to its end with `n` measurements, each judged, and the job's verdict.
 async fn job(s: &Store, id: &str, serial: &str, n: usize) {
     let r = s
-        .insert_job(id, "b1", (serial, None, None), 0, &json!({}), id, None)
+        .insert_job(
+            id,
+            "b1",
+            (serial, None, None),
+            0,
+            &crate::job::StoredRequest::SelfCheck(crate::job::SelfCheck { bench: "b1".into() }),
+            id,
+            None,
+        )
         .await
         .unwrap();
     assert!(matches!(r, Inserted::New(_)));
@@ -136,7 +144,7 @@ async fn job(s: &Store, id: &str, serial: &str, n: usize) {
             job_id: Some(id.into()),
             source: "bench",
             bench_id: Some("b1".into()),
-            config: json!({}),
+            config: Default::default(),
             meta: json!({}),
             result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0 + i as f64}})),
             analysis_error: None,

@@ -3,6 +3,9 @@
 //! finished repeat, the fit of every level and the level series.
 
 use super::*;
+use crate::job::{
+    HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureRun, RepeatEnded, SweepSettings,
+};
 
 pub(super) struct Done {
     pub(super) bench_time_s: f64,
@@ -46,7 +49,7 @@ pub(super) struct Batch {
     pub(super) known: Vec<i64>,
     pub(super) recordings: Vec<NewRecording>,
     pub(super) measurements: Vec<NewMeasurement>,
-    pub(super) updates: Vec<(String, Value, Option<Value>)>,
+    pub(super) updates: Vec<(String, MeasurementConfig, Option<Value>)>,
 }
 
 /// Live samples: about this many per second of signal, in chunks of `CHUNK`.
@@ -286,9 +289,22 @@ pub(super) fn execute(
     // on 0; docs/qc.md): a recipe that judges an effect size gets the full
     // procedure, said as a fall-back in the result and the traceability.
     let effect_judged = recipe.is_some_and(|r| r.needs_diagnostics());
-    let config = json!({"procedure": pcfg, "procedure_mode": spec.procedure.as_str(),
-                        "analysis": opts, "limits": spec.limits,
-                        "bench": bench_cfg.id, "seed": seed, "bench_description": bench.describe()});
+    // What every measurement of the job was made with; each level adds its
+    // sweeps (and a hardware bench's record), each repeat what ran.
+    let config = MeasurementConfig {
+        analysis: Some(opts.clone()),
+        procedure: Some(pcfg.clone()),
+        procedure_mode: Some(spec.procedure),
+        procedure_run: None,
+        limits: Some(spec.limits),
+        bench: Some(bench_cfg.id.clone()),
+        bench_description: Some(bench.describe()),
+        seed: Some(seed),
+        narrow_sweep: None,
+        pre_sweep: None,
+        hardware: None,
+        other: Default::default(),
+    };
     let mut done = Done {
         bench_time_s: 0.0,
         analysis_s: 0.0,
@@ -409,18 +425,20 @@ pub(super) fn execute(
         ));
         // What ran, for the result and the verdict's traceability; the
         // levels were stored as they finished, their documents are completed now.
-        let procedure_run = json!({
-            "mode": spec.procedure.as_str(),
-            "fallback": production.as_ref().and_then(|p| p.fallback.clone()),
-            "bench_time_s": bench_time_s,
-            "analysis_s": analysis_s,
-        });
+        let procedure_run = ProcedureRun {
+            mode: spec.procedure,
+            ended: Some(RepeatEnded {
+                fallback: production.as_ref().and_then(|p| p.fallback.clone()),
+                bench_time_s,
+                analysis_s,
+            }),
+        };
         let mut updates = vec![];
         for (m, rep) in done.measurements[first_measurement..]
             .iter_mut()
             .zip(&done.reports[first_measurement..])
         {
-            m.config["procedure_run"] = procedure_run.clone();
+            m.config.procedure_run = Some(procedure_run.clone());
             // checked finite when fitted (and the series before it was attached)
             let result = rep.as_ref().and_then(|r| serde_json::to_value(r).ok());
             updates.push((m.id.clone(), m.config.clone(), result));
@@ -451,7 +469,7 @@ struct Repeat<'a> {
     /// corrected values (decision 0049); the stored result stays as measured.
     bench_cal: Option<&'a crate::qc::BenchCalibration>,
     opts: &'a AnalyzeOptions,
-    config: &'a Value,
+    config: &'a MeasurementConfig,
     repeat: u32,
     /// The bench's run records before this repeat (hardware traceability).
     runs_before: usize,
@@ -547,15 +565,19 @@ impl Repeat<'_> {
             self.done.warnings.push(w);
         }
         let hw_record = self.calibration.map(|c| {
-            hardware::measurement_record(
-                c,
+            HardwareRecord::of_level(
+                &c.id,
+                &c.calibration,
+                &c.sensors,
                 &bench.run_records()[self.runs_before..],
                 pre.signals.len(),
                 signals.len(),
                 li,
             )
         });
-        let not_aligned = hw_record.as_ref().and_then(hardware::alignment_invalid);
+        let not_aligned = hw_record
+            .as_ref()
+            .and_then(HardwareRecord::alignment_invalid);
         let mut fb = None;
         let analysed = if let Some(why) = &not_aligned {
             // Never a fit of a displacement not on the audio clock.
@@ -665,20 +687,30 @@ impl Repeat<'_> {
             recordings.push(recording("pre", pre.signals, res.as_ref())?);
         }
         recordings.push(recording("main", &signals, res.as_ref())?);
-        let mut cfg_m = self.config.clone();
-        // completed with the bench and analysis time when the repeat ends
-        cfg_m["procedure_run"] = json!({"mode": spec.procedure.as_str()});
-        cfg_m["narrow_sweep"] = json!({"drive_v": drive_v, "f_start_hz": f_start_hz,
-                                       "f_end_hz": f_end_hz,
-                                       "duration_s": narrow_spec.duration_s});
-        cfg_m["pre_sweep"] = json!({"drive_v": pre.sweep.amplitude_v,
-                                    "f_start_hz": pre.sweep.f_start_hz,
-                                    "f_end_hz": pre.sweep.f_end_hz,
-                                    "duration_s": pre.sweep.duration_s,
-                                    "q_drive_to_x": pre.q_drive_to_x});
-        if let Some(h) = hw_record {
-            cfg_m["hardware"] = h;
-        }
+        let cfg_m = MeasurementConfig {
+            // completed with the bench and analysis time when the repeat ends
+            procedure_run: Some(ProcedureRun {
+                mode: spec.procedure,
+                ended: None,
+            }),
+            narrow_sweep: Some(SweepSettings {
+                drive_v,
+                f_start_hz,
+                f_end_hz,
+                duration_s: Some(narrow_spec.duration_s),
+            }),
+            pre_sweep: Some(PreSweepSettings {
+                sweep: SweepSettings {
+                    drive_v: pre.sweep.amplitude_v,
+                    f_start_hz: pre.sweep.f_start_hz,
+                    f_end_hz: pre.sweep.f_end_hz,
+                    duration_s: Some(pre.sweep.duration_s),
+                },
+                q_drive_to_x: pre.q_drive_to_x,
+            }),
+            hardware: hw_record,
+            ..self.config.clone()
+        };
         let mut m = NewMeasurement {
             id: mid,
             part_serial: spec.part.serial.clone(),

@@ -24,17 +24,15 @@ pub struct FaultInfo {
     pub since: String,
 }
 
-pub fn is_self_check(job: &Job) -> bool {
-    job.request.get("type").and_then(Value::as_str) == Some("self_check")
-}
-
 pub fn is_bench_fault(p: &Value) -> bool {
     p.get("type").and_then(Value::as_str) == Some(&format!("/problems/{BENCH_FAULT}"))
 }
 
 /// The job request of a self-check.
-pub fn self_check_request(bench_id: &str) -> Value {
-    json!({"type": "self_check", "bench": bench_id})
+pub fn self_check_request(bench_id: &str) -> crate::job::StoredRequest {
+    crate::job::StoredRequest::SelfCheck(crate::job::SelfCheck {
+        bench: bench_id.to_string(),
+    })
 }
 
 /// Part serial under which a bench's self-check jobs are stored.
@@ -107,68 +105,6 @@ fn self_check_blocking(cfg: &BenchConfig, _seq: i64) -> Result<(Value, bool), St
         "bench '{}' needs the `hardware` feature, which this build lacks",
         cfg.id
     ))
-}
-
-/// What a measurement stores about the hardware it was made with. `runs` are
-/// the sweeps of this repetition; the pre-measurement is the last sweep of
-/// its length, the narrow sweep of level `li` the `li`-th of its length.
-pub fn measurement_record(
-    cal: &CalibrationRecord,
-    runs: &[Value],
-    pre_frames: usize,
-    main_frames: usize,
-    li: usize,
-) -> Value {
-    let frames = |r: &&Value| r.get("frames").and_then(Value::as_u64).map(|f| f as usize);
-    let pre = runs
-        .iter()
-        .rev()
-        .find(|r| frames(r) == Some(pre_frames))
-        .cloned();
-    let main = runs
-        .iter()
-        .filter(|r| frames(r) == Some(main_frames))
-        .nth(li)
-        .or_else(|| runs.iter().rev().find(|r| frames(r) == Some(main_frames)))
-        .cloned();
-    let latency_s = main.as_ref().and_then(|m| m.get("latency_s")).cloned();
-    let alignment = main
-        .as_ref()
-        .and_then(|m| m.get("alignment"))
-        .cloned()
-        .unwrap_or_else(|| {
-            // Analog laser: displacement, microphone and loopback on one converter clock.
-            json!({"method": "same converter", "offset_s": 0.0, "clock_ppm": 0.0, "residual_s": 0.0})
-        });
-    let pre_alignment = pre.as_ref().and_then(|m| m.get("alignment")).cloned();
-    json!({
-        "calibration_id": cal.id,
-        "calibration": cal.calibration,
-        "sensors": cal.sensors,
-        "latency_s": latency_s,
-        "alignment": alignment,
-        "pre_alignment": pre_alignment,
-        "main_sweep": main,
-        "pre_sweep": pre,
-    })
-}
-
-/// Why a measurement must not be fitted: the serial laser's samples of its
-/// narrow sweep or of its pre-measurement could not be put on the audio clock.
-pub fn alignment_invalid(record: &Value) -> Option<String> {
-    for (key, what) in [
-        ("alignment", "narrow sweep"),
-        ("pre_alignment", "pre-measurement"),
-    ] {
-        let a = &record[key];
-        if a.get("valid").and_then(Value::as_bool) == Some(false) {
-            let why = a["invalid_reason"].as_str().unwrap_or("no reason given");
-            return Some(format!(
-                "the laser alignment of the {what} is invalid: {why}"
-            ));
-        }
-    }
-    None
 }
 
 impl Runner {

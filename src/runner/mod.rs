@@ -404,10 +404,13 @@ impl Runner {
         tracing::info!(job = %job.id, bench = %slot.cfg.id, part = %job.part_serial, "job started");
 
         let started = Instant::now();
-        if hardware::is_self_check(job) {
-            return self.run_self_check(slot, job, started).await;
-        }
-        let spec: Result<JobSpec, _> = serde_json::from_value(job.request.clone());
+        let spec: Result<JobSpec, String> = match job.request.read() {
+            Ok(crate::job::StoredRequest::SelfCheck(_)) => {
+                return self.run_self_check(slot, job, started).await
+            }
+            Ok(crate::job::StoredRequest::Measure(s)) => Ok(s.clone()),
+            Err(e) => Err(e.to_string()),
+        };
         // A hardware bench: faulted benches refuse, every measurement needs a calibration record.
         let calibration = match self.hardware_preflight(slot, job, &spec).await? {
             Ok(c) => c,

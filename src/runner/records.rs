@@ -101,9 +101,9 @@ impl Runner {
                     "recipe": {"name": r.name, "version": r.version, "sha256": r.sha256},
                     "bench_id": bench.id,
                     "bench_kind": bench.kind,
-                    "bench_description": m.and_then(|m| m.config.get("bench_description").cloned()),
+                    "bench_description": m.and_then(|m| m.config.bench_description.clone()),
                     // full or production, and a production run's fall-back with its reason
-                    "procedure": m.and_then(|m| m.config.get("procedure_run").cloned()),
+                    "procedure": m.and_then(|m| m.config.procedure_run.clone()),
                     // The virtual bench has no calibration record and no sensor identities;
                     // hardware benches put theirs here.
                     "calibration": Value::Null,
@@ -292,7 +292,7 @@ impl Runner {
         log: &[String],
         warnings: &[String],
     ) -> StoreResult<bool> {
-        let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let spec = job.request.measure();
         let bench = &slot.cfg;
         let mut wait = Duration::from_millis(250);
         loop {
@@ -300,7 +300,7 @@ impl Runner {
             let records = self.job_records(
                 bench,
                 job,
-                spec.as_ref(),
+                spec,
                 None,
                 &started_at,
                 state,
@@ -348,13 +348,13 @@ impl Runner {
                 .cloned()
                 .or_else(|| serde_json::from_value(json!({"id": job.bench_id})).ok());
             let Some(bench) = bench else { continue };
-            let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+            let spec = job.request.measure();
             let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
             let state = JobState::Interrupted;
             let records = self.job_records(
                 &bench,
                 &job,
-                spec.as_ref(),
+                spec,
                 None,
                 &started_at,
                 state,

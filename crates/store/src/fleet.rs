@@ -392,7 +392,7 @@ impl MeasurementItem {
             job_id: m.job_id.clone(),
             source: m.source.to_string(),
             bench_id: m.bench_id.clone(),
-            config: m.config.clone(),
+            config: serde_json::to_value(&m.config).map_err(|e| e.to_string())?,
             meta: m.meta.clone(),
             result: m.result.clone(),
             analysis_error: m.analysis_error.clone(),
@@ -474,7 +474,8 @@ impl MeasurementItem {
                 job_id: self.job_id.clone(),
                 source,
                 bench_id: self.bench_id.clone(),
-                config: self.config.clone(),
+                config: serde_json::from_value(self.config.clone())
+                    .map_err(|e| format!("measurement {}: config: {e}", self.id))?,
                 meta: self.meta.clone(),
                 result: self.result.clone(),
                 analysis_error: self.analysis_error.clone(),

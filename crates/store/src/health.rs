@@ -396,7 +396,10 @@ mod tests {
         let notes = "n".repeat(3000);
         for i in 0..120 {
             let serial = format!("SN-{i}");
-            let req = json!({"part": {"serial": serial}, "i": i});
+            let req =
+                springbench_core::job::StoredRequest::SelfCheck(springbench_core::job::SelfCheck {
+                    bench: format!("b1-{i}"),
+                });
             let r = s
                 .insert_job(
                     &format!("j{i}"),
@@ -449,7 +452,9 @@ mod tests {
                 "b1",
                 ("SN-A", None, None),
                 0,
-                &json!({}),
+                &springbench_core::job::StoredRequest::SelfCheck(
+                    springbench_core::job::SelfCheck { bench: "b1".into() },
+                ),
                 "ha",
                 None,
             )

@@ -7,6 +7,7 @@ use crate::results::{NewMeasurement, NewRecording};
 use crate::{now, parse_json, qc, Store, StoreError, StoreResult};
 use serde::Serialize;
 use serde_json::Value;
+use springbench_core::job::{JobSpec, MeasurementConfig, StoredRequest};
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
@@ -73,7 +74,8 @@ pub struct Job {
     /// Estimated bench time left (s), while running.
     pub eta_s: Option<f64>,
     /// The request as accepted (after defaults were filled in).
-    pub request: Value,
+    #[schema(value_type = Value)]
+    pub request: JobRequestRow,
     /// RFC 9457 problem document when the job failed or was interrupted.
     pub problem: Option<Value>,
     /// Stimulus time the procedure needed (s), once finished.
@@ -95,6 +97,53 @@ pub struct Job {
     pub seq: i64,
     #[serde(skip)]
     pub request_sha256: String,
+}
+
+/// A job's request as read back from the queue: typed, or the stored
+/// document of a request this version cannot read, with why (the runner
+/// fails such a job; the API still shows what was stored).
+#[derive(Debug, Clone, PartialEq)]
+pub enum JobRequestRow {
+    Read(StoredRequest),
+    Unreadable { document: Value, error: String },
+}
+
+impl JobRequestRow {
+    /// The typed request, or why the stored one cannot be read.
+    pub fn read(&self) -> Result<&StoredRequest, &str> {
+        match self {
+            JobRequestRow::Read(r) => Ok(r),
+            JobRequestRow::Unreadable { error, .. } => Err(error),
+        }
+    }
+
+    /// The measurement the job asks for (None: another kind, or unreadable).
+    pub fn measure(&self) -> Option<&JobSpec> {
+        self.read().ok().and_then(StoredRequest::measure)
+    }
+
+    fn parse(text: &str) -> StoreResult<JobRequestRow> {
+        let document = parse_json(text)?;
+        Ok(match serde_json::from_value(document.clone()) {
+            Ok(r) => JobRequestRow::Read(r),
+            Err(e) => JobRequestRow::Unreadable {
+                document,
+                error: e.to_string(),
+            },
+        })
+    }
+}
+
+/// As stored (serde_json's sorted members: the document the API always showed).
+impl Serialize for JobRequestRow {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            JobRequestRow::Read(r) => serde_json::to_value(r)
+                .map_err(serde::ser::Error::custom)?
+                .serialize(s),
+            JobRequestRow::Unreadable { document, .. } => document.serialize(s),
+        }
+    }
 }
 
 /// Result of an insert that honours an idempotency key.
@@ -174,7 +223,7 @@ impl Store {
         bench_id: &str,
         part: (&str, Option<&str>, Option<&str>),
         priority: i64,
-        request: &Value,
+        request: &StoredRequest,
         request_sha256: &str,
         idempotency_key: Option<&str>,
     ) -> StoreResult<Inserted> {
@@ -205,7 +254,7 @@ impl Store {
         .bind(bench_id.to_string())
         .bind(part.0.to_string())
         .bind(priority)
-        .bind(request.to_string())
+        .bind(request.to_json())
         .bind(idempotency_key.map(str::to_string))
         .bind(request_sha256.to_string())
         .bind(t)
@@ -478,7 +527,7 @@ impl Store {
     pub async fn update_job_measurements(
         &self,
         job_id: &str,
-        updates: Vec<(String, Value, Option<Value>)>,
+        updates: Vec<(String, MeasurementConfig, Option<Value>)>,
     ) -> StoreResult<()> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         running_job(&mut tx, job_id).await?;
@@ -486,7 +535,7 @@ impl Store {
             let r = sqlx::query(
                 "UPDATE measurements SET config_json = ?, result_json = ? WHERE id = ? AND job_id = ?",
             )
-            .bind(config.to_string())
+            .bind(config.to_json())
             .bind(result.map(|v| v.to_string()))
             .bind(&id)
             .bind(job_id.to_string())
@@ -560,7 +609,7 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
         step: r.get("step"),
         progress: r.get("progress"),
         eta_s: r.get("eta_s"),
-        request: parse_json(&r.get::<String, _>("request_json"))?,
+        request: JobRequestRow::parse(&r.get::<String, _>("request_json"))?,
         request_sha256: r.get("request_sha256"),
         problem: r
             .get::<Option<String>, _>("problem_json")
@@ -583,6 +632,12 @@ mod tests {
     use crate::results::{MeasurementReads, PartReads};
     use serde_json::json;
 
+    fn self_check(bench: &str) -> StoredRequest {
+        StoredRequest::SelfCheck(springbench_core::job::SelfCheck {
+            bench: bench.into(),
+        })
+    }
+
     fn rec(kind: &'static str) -> NewRecording {
         NewRecording {
             kind,
@@ -598,7 +653,7 @@ mod tests {
     #[tokio::test]
     async fn job_lifecycle_and_results_round_trip() {
         let s = Store::memory().await.unwrap();
-        let req = json!({"part": {"serial": "SN-1"}});
+        let req = self_check("b1");
         let Inserted::New(j) = s
             .insert_job(
                 "j1",
@@ -644,7 +699,7 @@ mod tests {
             job_id: Some("j1".into()),
             source: "bench",
             bench_id: Some("b1".into()),
-            config: json!({"method": "two-signal"}),
+            config: serde_json::from_value(json!({"method": "two-signal"})).unwrap(),
             meta: json!({"moving_mass_kg": 0.05}),
             result: Some(json!({"large_signal": {"keff_n_per_m": 1234.5,
                 "validity": {"keff_n_per_m": {"state": "unreliable", "reason": "noise"}}},
@@ -715,7 +770,7 @@ mod tests {
     #[tokio::test]
     async fn queue_is_priority_then_fifo_and_running_jobs_become_interrupted() {
         let s = Store::memory().await.unwrap();
-        let req = json!({});
+        let req = self_check("b1");
         for (id, prio) in [("a", 0), ("b", 5), ("c", 0), ("d", 5)] {
             s.insert_job(id, "b1", ("P", None, None), prio, &req, id, None)
                 .await
@@ -768,7 +823,7 @@ mod tests {
     #[tokio::test]
     async fn queued_jobs_of_removed_benches_fail() {
         let s = Store::memory().await.unwrap();
-        let req = json!({});
+        let req = self_check("b1");
         for (id, bench) in [("a", "b1"), ("b", "gone"), ("c", "gone")] {
             s.insert_job(id, bench, ("P", None, None), 0, &req, id, None)
                 .await

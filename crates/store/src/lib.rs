@@ -35,7 +35,7 @@ pub use fleet::{
 };
 pub use gauge::{BenchCalibrationRow, GaugeStudyRow};
 pub use imports::{ImportInserted, RecordingFile};
-pub use jobs::{Inserted, Job, JobState};
+pub use jobs::{Inserted, Job, JobRequestRow, JobState};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};
 pub use results::{
     FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads,
@@ -167,6 +167,13 @@ impl Store {
             .await;
         self.pool.close().await;
     }
+}
+
+/// A measurement's stored configuration (its members lenient: a row of an
+/// earlier version reads).
+fn parse_config(s: &str) -> StoreResult<springbench_core::job::MeasurementConfig> {
+    serde_json::from_str(s)
+        .map_err(|e| StoreError::Corrupt(format!("stored configuration unreadable: {e}")))
 }
 
 fn parse_json(s: &str) -> StoreResult<Value> {

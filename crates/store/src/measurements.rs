@@ -136,7 +136,7 @@ async fn insert_measurement_rows_at(
         .bind(m.source)
         .bind(m.bench_id)
         .bind(software_version.to_string())
-        .bind(m.config.to_string())
+        .bind(m.config.to_json())
         .bind(m.meta.to_string())
         .bind(m.result.map(|v| v.to_string()))
         .bind(m.analysis_error)

@@ -312,7 +312,7 @@ impl Store {
             job_id: r.get("job_id"),
             source: measurement_source(&r.get::<String, _>("source"))?,
             bench_id: r.get("bench_id"),
-            config: parse_json(&r.get::<String, _>("config_json"))?,
+            config: crate::parse_config(&r.get::<String, _>("config_json"))?,
             meta: parse_json(&r.get::<String, _>("meta_json"))?,
             result: r
                 .get::<Option<String>, _>("result_json")
@@ -488,7 +488,7 @@ mod tests {
             job_id: Some(job.into()),
             source: "bench",
             bench_id: Some("b1".into()),
-            config: json!({}),
+            config: Default::default(),
             meta: json!({"moving_mass_kg": 0.01}),
             result: Some(json!({"large_signal": {"keff_n_per_m": 1500.0}})),
             analysis_error: None,

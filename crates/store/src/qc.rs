@@ -425,7 +425,7 @@ impl Store {
                 analysis_error: r.get(2),
                 target_xpeak_m: r.get(3),
                 level_index: r.get(4),
-                config: parse_json(&r.get::<String, _>(5))?,
+                config: crate::parse_config(&r.get::<String, _>(5))?,
             });
         }
         Ok(Some(out))
@@ -641,7 +641,7 @@ pub struct GoldenRow {
     pub analysis_error: Option<String>,
     pub target_xpeak_m: Option<f64>,
     pub level_index: Option<i64>,
-    pub config: Value,
+    pub config: springbench_core::job::MeasurementConfig,
 }
 
 async fn insert_recipe_tx(

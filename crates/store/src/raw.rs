@@ -328,7 +328,7 @@ mod tests {
             job_id: None,
             source: "import",
             bench_id: None,
-            config: json!({"analysis": {"method": "two-signal"}}),
+            config: serde_json::from_value(json!({"analysis": {"method": "two-signal"}})).unwrap(),
             meta: json!({"moving_mass_kg": 0.05}),
             result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
             analysis_error: None,

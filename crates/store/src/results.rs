@@ -148,7 +148,8 @@ pub struct NewMeasurement {
     pub job_id: Option<String>,
     pub source: &'static str,
     pub bench_id: Option<String>,
-    pub config: Value,
+    /// What the measurement was made with (stored as `config_json`).
+    pub config: springbench_core::job::MeasurementConfig,
     pub meta: Value,
     pub result: Option<Value>,
     pub analysis_error: Option<String>,

@@ -83,7 +83,7 @@ fn finished(
             job_id: None,
             source: "bench",
             bench_id: Some("line-1".into()),
-            config: json!({"target_xpeak_m": 0.002}),
+            config: serde_json::from_value(json!({"target_xpeak_m": 0.002})).unwrap(),
             meta: json!({"sample_rate_hz": 48000, "id": id}),
             analysis_error: result.is_none().then(|| "laser signal lost".to_string()),
             result,

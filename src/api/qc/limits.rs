@@ -41,22 +41,10 @@ fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
         analysis_error: g.analysis_error.clone(),
         target_xpeak_m: g.target_xpeak_m,
         level_index: g.level_index.unwrap_or(0).max(0) as usize,
-        drive_v: g
-            .config
-            .pointer("/narrow_sweep/drive_v")
-            .and_then(|v| v.as_f64()),
-        max_drive_v: g
-            .config
-            .pointer("/limits/max_drive_v")
-            .and_then(|v| v.as_f64()),
-        pre_drive_v: g
-            .config
-            .pointer("/pre_sweep/drive_v")
-            .and_then(|v| v.as_f64()),
-        pre_q_drive_to_x: g
-            .config
-            .pointer("/pre_sweep/q_drive_to_x")
-            .and_then(|v| v.as_f64()),
+        drive_v: g.config.narrow_sweep.as_ref().map(|n| n.drive_v),
+        max_drive_v: g.config.limits.map(|l| l.max_drive_v),
+        pre_drive_v: g.config.pre_sweep.as_ref().map(|p| p.sweep.drive_v),
+        pre_q_drive_to_x: g.config.pre_sweep.as_ref().and_then(|p| p.q_drive_to_x),
     }
 }
 

@@ -16,37 +16,9 @@
 use serde::{Deserialize, Serialize};
 use springbench_core::recording::Signals;
 
-/// Parameters of the whole procedure. All SI.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ProcedureConfig {
-    /// Moving mass of part + inner clamp (kg), as the user weighed it.
-    pub moving_mass_kg: f64,
-    /// Target peak displacements of the narrow sweeps (m), one sweep each (level series).
-    pub levels_m: Vec<f64>,
-    /// Displacement the pre-measurement aims for at resonance (m); about 1 mm.
-    pub pre_target_x_m: f64,
-    /// Start and end of the pre-measurement log sweep (Hz).
-    pub pre_f_start_hz: f64,
-    pub pre_f_end_hz: f64,
-    /// Length of the pre-measurement sweep (s).
-    pub pre_duration_s: f64,
-    /// Length of each narrow sweep (s).
-    pub narrow_duration_s: f64,
-}
-
-impl Default for ProcedureConfig {
-    fn default() -> Self {
-        ProcedureConfig {
-            moving_mass_kg: 0.05,
-            levels_m: vec![0.008],
-            pre_target_x_m: 1e-3,
-            pre_f_start_hz: 5.0,
-            pre_f_end_hz: 100.0,
-            pre_duration_s: 16.0,
-            narrow_duration_s: 10.0,
-        }
-    }
-}
+/// Parameters of the whole procedure (stored with each measurement: its
+/// type lives in the core, `springbench_core::job::ProcedureConfig`).
+pub use springbench_core::job::ProcedureConfig;
 
 /// Which step is running.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -29,13 +29,20 @@ pub const SERIAL_RULE: &str =
 /// noise; 1e-300 m was accepted and fitted before.
 pub const MIN_TARGET_XPEAK_M: f64 = 1e-5;
 
+mod measurement;
 mod parse;
 mod request;
 mod spec;
+mod stored;
 
+pub use measurement::{
+    HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,
+    RepeatEnded, SweepSettings,
+};
 pub use parse::{check_chars, parse_lenient, FieldError};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
     RecipeRef,
 };
+pub use stored::{SelfCheck, StoredRequest};

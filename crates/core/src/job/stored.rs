@@ -1,0 +1,133 @@
+//! What a job asks for, as the queue stores it and the runner reads it back:
+//! a measurement (the accepted [`JobSpec`]) or a bench's self-check. One
+//! type from the submission to the runner, so that a new kind of job is a
+//! new variant here, not another shape of the same JSON column.
+//!
+//! The stored text is the one earlier versions wrote: a measurement is the
+//! [`JobSpec`] document itself (no tag), every other kind names itself in
+//! `type` (`{"type": "self_check", "bench": "b1"}`).
+
+use super::spec::JobSpec;
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+/// A job's request as stored with the job.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StoredRequest {
+    /// Measure a part: the procedure, the fit per level, a verdict under a recipe.
+    Measure(JobSpec),
+    /// Check a hardware bench (latency, noise floors) and store a calibration record.
+    SelfCheck(SelfCheck),
+}
+
+/// A self-check of a hardware bench.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SelfCheck {
+    /// The bench checked.
+    pub bench: String,
+}
+
+/// The kinds that name themselves in `type` (every kind but a measurement).
+#[derive(Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+enum Tagged {
+    SelfCheck(SelfCheck),
+}
+
+impl StoredRequest {
+    /// The measurement this job asks for, if it is one.
+    pub fn measure(&self) -> Option<&JobSpec> {
+        match self {
+            StoredRequest::Measure(s) => Some(s),
+            _ => None,
+        }
+    }
+
+    /// The document as stored: serde_json's sorted members, so the text is
+    /// the same for equal requests (and the one earlier versions wrote).
+    pub fn to_json(&self) -> String {
+        serde_json::to_value(self)
+            .map(|v| v.to_string())
+            .unwrap_or_default()
+    }
+}
+
+impl Serialize for StoredRequest {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            StoredRequest::Measure(spec) => spec.serialize(s),
+            StoredRequest::SelfCheck(c) => Tagged::SelfCheck(c.clone()).serialize(s),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for StoredRequest {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = serde_json::Value::deserialize(d)?;
+        if v.get("type").is_none() {
+            return JobSpec::deserialize(v)
+                .map(StoredRequest::Measure)
+                .map_err(D::Error::custom);
+        }
+        match Tagged::deserialize(v).map_err(D::Error::custom)? {
+            Tagged::SelfCheck(c) => Ok(StoredRequest::SelfCheck(c)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::job::{JobPart, Limits, ProcedureMode};
+
+    fn spec() -> JobSpec {
+        JobSpec {
+            part: JobPart {
+                serial: "SN-1".into(),
+                kind: Some("spider".into()),
+                notes: None,
+            },
+            bench: "b1".into(),
+            moving_mass_kg: 0.05,
+            levels_m: vec![0.004, 0.008],
+            method: crate::identify::Method::TwoSignal,
+            order: None,
+            repeats: 1,
+            procedure: ProcedureMode::Full,
+            priority: 0,
+            preset: Some("spider-4in".into()),
+            part_spec: None,
+            limits: Limits {
+                max_displacement_m: 0.012,
+                max_drive_v: 4.0,
+            },
+            recipe: None,
+            production: None,
+            submitted_by: None,
+        }
+    }
+
+    #[test]
+    fn the_stored_text_is_the_one_earlier_versions_wrote() {
+        // a measurement: the JobSpec document itself, members sorted
+        let m = StoredRequest::Measure(spec());
+        let old = serde_json::to_value(spec()).unwrap().to_string();
+        assert_eq!(m.to_json(), old);
+        assert_eq!(serde_json::from_str::<StoredRequest>(&old).unwrap(), m);
+        // a self-check: what `self_check_request` stored before
+        let c = StoredRequest::SelfCheck(SelfCheck {
+            bench: "hw1".into(),
+        });
+        let old = r#"{"bench":"hw1","type":"self_check"}"#;
+        assert_eq!(c.to_json(), old);
+        assert_eq!(serde_json::from_str::<StoredRequest>(old).unwrap(), c);
+    }
+
+    #[test]
+    fn an_unreadable_request_says_why() {
+        let e = serde_json::from_str::<StoredRequest>(r#"{"bench":"b1"}"#).unwrap_err();
+        assert!(e.to_string().contains("missing field `part`"), "{e}");
+        let e = serde_json::from_str::<StoredRequest>(r#"{"type":"calibrate"}"#).unwrap_err();
+        assert!(e.to_string().contains("unknown variant `calibrate`"), "{e}");
+    }
+}
