@@ -101,7 +101,7 @@ impl Link {
     /// The recipe provenance a verdict records: whether the station could
     /// confirm its recipe versions with the center lately (`offline` when
     /// its last recipe sync is older than `max_age`, or never happened).
-    pub fn recipe_trace(&self, max_age: Duration) -> serde_json::Value {
+    pub fn recipe_trace(&self, max_age: Duration) -> crate::qc::FleetTrace {
         let s = self.status.lock().unwrap();
         let fresh = s.recipes_synced_at.as_deref().is_some_and(|t| {
             chrono::DateTime::parse_from_rfc3339(t).is_ok_and(|t| {
@@ -110,11 +110,11 @@ impl Link {
                     .is_ok_and(|age| age <= max_age)
             })
         });
-        serde_json::json!({
-            "station_id": s.station_id,
-            "recipes_synced_at": s.recipes_synced_at,
-            "offline": !fresh,
-        })
+        crate::qc::FleetTrace {
+            station_id: s.station_id.clone(),
+            recipes_synced_at: s.recipes_synced_at.clone(),
+            offline: !fresh,
+        }
     }
 }
 

@@ -129,10 +129,10 @@ impl JobObserver {
     fn store(&self, batch: Batch) -> Result<Vec<i64>, Stop> {
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
         let failed = |e: String| {
-            Stop::Failed(problem(
-                "storage",
+            Stop::Failed(JobProblem::new(
+                ProblemKind::Storage,
                 "Results not stored",
-                &format!("storing the measurements of a finished level failed: {e}"),
+                format!("storing the measurements of a finished level failed: {e}"),
             ))
         };
         self.tx
@@ -237,18 +237,26 @@ pub(super) fn procedure_stop(e: ProcedureError) -> Stop {
         ProcedureError::Cancelled | ProcedureError::Bench(crate::bench::BenchError::Aborted) => {
             Stop::Aborted
         }
-        ProcedureError::Invalid(m) => Stop::Failed(problem(
-            "procedure-invalid",
+        ProcedureError::Invalid(m) => Stop::Failed(JobProblem::new(
+            ProblemKind::ProcedureInvalid,
             "Procedure configuration refused",
             &m,
         )),
-        ProcedureError::Bench(crate::bench::BenchError::Fault(m)) => Stop::Failed(problem(
-            hardware::BENCH_FAULT,
+        ProcedureError::Bench(crate::bench::BenchError::Fault(m)) => Stop::Failed(JobProblem::new(
+            ProblemKind::BenchFault,
             "Bench fault: the drive was ramped to zero",
             &m,
         )),
-        ProcedureError::Bench(e) => Stop::Failed(problem("bench", "Bench failed", &e.to_string())),
-        ProcedureError::Failed(m) => Stop::Failed(problem("procedure", "Procedure failed", &m)),
+        ProcedureError::Bench(e) => Stop::Failed(JobProblem::new(
+            ProblemKind::Bench,
+            "Bench failed",
+            e.to_string(),
+        )),
+        ProcedureError::Failed(m) => Stop::Failed(JobProblem::new(
+            ProblemKind::Procedure,
+            "Procedure failed",
+            &m,
+        )),
     }
 }
 
@@ -269,9 +277,14 @@ pub(super) fn execute(
     obs: &mut JobObserver,
 ) -> Result<Done, Stop> {
     let part = job::mounted_part(spec, bench_cfg)
-        .map_err(|e| Stop::Failed(problem("part", "Part not available", &e)))?;
-    let mut bench = make_bench(bench_cfg, part, seed, job_seq, spec.limits)
-        .map_err(|e| Stop::Failed(problem("bench", "Bench not available", &e)))?;
+        .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
+    let mut bench = make_bench(bench_cfg, part, seed, job_seq, spec.limits).map_err(|e| {
+        Stop::Failed(JobProblem::new(
+            ProblemKind::Bench,
+            "Bench not available",
+            &e,
+        ))
+    })?;
     obs.set_sample_rate(bench.sample_rate_hz());
     let pcfg = ProcedureConfig {
         moving_mass_kg: spec.moving_mass_kg,
@@ -383,8 +396,8 @@ pub(super) fn execute(
             return Err(Stop::Aborted);
         }
         if !narrow.is_empty() {
-            return Err(Stop::Failed(problem(
-                "procedure",
+            return Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Procedure,
                 "Procedure failed",
                 "the procedure kept narrow sweeps it did not hand out",
             )));
@@ -512,7 +525,7 @@ impl Observer for Repeat<'_> {
             Ok(()) => Ok(None),
             Err(stop) => {
                 let why = match &stop {
-                    Stop::Failed(p) => p["detail"].as_str().unwrap_or("").to_string(),
+                    Stop::Failed(p) => p.detail.clone(),
                     Stop::Aborted => "aborted".into(),
                 };
                 self.stop = Some(stop);
@@ -784,10 +797,10 @@ pub(super) fn recording(
     res: Option<&crate::recording::codec::Resolution>,
 ) -> Result<NewRecording, Stop> {
     let stored = crate::recording::codec::encode_capture(s, res).map_err(|e| {
-        Stop::Failed(problem(
-            "recording",
+        Stop::Failed(JobProblem::new(
+            ProblemKind::Recording,
             "Recording could not be stored losslessly",
-            &e.to_string(),
+            e.to_string(),
         ))
     })?;
     Ok(NewRecording {

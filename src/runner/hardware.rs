@@ -3,9 +3,10 @@
 //! about the bench it was made on (calibration record, sensors, latency,
 //! alignment).
 
-use super::{problem, Runner, Slot};
+use super::{Runner, Slot};
 use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind};
+use crate::job::{JobProblem, ProblemKind};
 use crate::physics::PartSpec;
 use crate::store::hardware::CalibrationRecord;
 use crate::store::{Job, JobState, StoreResult};
@@ -13,19 +14,12 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use std::time::Instant;
 
-/// Problem type of a job stopped by a bench fault.
-pub const BENCH_FAULT: &str = "bench-fault";
-
 /// Why a bench is faulted.
 #[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
 pub struct FaultInfo {
     pub detail: String,
     pub job_id: Option<String>,
     pub since: String,
-}
-
-pub fn is_bench_fault(p: &Value) -> bool {
-    p.get("type").and_then(Value::as_str) == Some(&format!("/problems/{BENCH_FAULT}"))
 }
 
 /// The job request of a self-check.
@@ -113,13 +107,9 @@ impl Runner {
         &self,
         slot: &Slot,
         job_id: &str,
-        p: &Value,
+        p: &JobProblem,
     ) -> StoreResult<()> {
-        let detail = p
-            .get("detail")
-            .and_then(Value::as_str)
-            .unwrap_or("bench fault")
-            .to_string();
+        let detail = p.detail.clone();
         self.store
             .insert_bench_fault(&slot.cfg.id, Some(job_id), &detail)
             .await?;
@@ -149,7 +139,7 @@ impl Runner {
         &self,
         slot: &Slot,
         job: &Job,
-    ) -> StoreResult<Result<CalibrationRecord, Value>> {
+    ) -> StoreResult<Result<CalibrationRecord, JobProblem>> {
         let cfg = slot.cfg.clone();
         let seq = job.seq;
         let res = tokio::task::spawn_blocking(move || self_check_blocking(&cfg, seq)).await;
@@ -188,10 +178,10 @@ impl Runner {
                     .collect()
             })
             .unwrap_or_default();
-        let p = problem(
-            BENCH_FAULT,
+        let p = JobProblem::new(
+            ProblemKind::BenchFault,
             "Bench self-check failed",
-            &format!(
+            format!(
                 "self-check of bench '{}' failed (calibration record {}): {}",
                 slot.cfg.id,
                 rec.id,
@@ -210,10 +200,10 @@ impl Runner {
         started: Instant,
     ) -> StoreResult<()> {
         if slot.cfg.kind == BenchKind::Virtual {
-            let p = problem(
-                "self-check-unsupported",
+            let p = JobProblem::new(
+                ProblemKind::SelfCheckUnsupported,
                 "Self-check needs a hardware bench",
-                &format!("bench '{}' is virtual", slot.cfg.id),
+                format!("bench '{}' is virtual", slot.cfg.id),
             );
             return self.finish_failed(slot, job, p).await;
         }
@@ -256,16 +246,15 @@ impl Runner {
         slot: &Slot,
         job: &Job,
         _spec: &T,
-    ) -> StoreResult<Result<Option<CalibrationRecord>, Value>> {
+    ) -> StoreResult<Result<Option<CalibrationRecord>, JobProblem>> {
         if slot.cfg.kind == BenchKind::Virtual {
             return Ok(Ok(None));
         }
         let fault = slot.status.lock().unwrap().fault.clone();
         if let Some(f) = fault {
-            return Ok(Err(problem(
-                BENCH_FAULT,
+            return Ok(Err(JobProblem::new(ProblemKind::BenchFault,
                 "Bench is faulted",
-                &format!(
+                format!(
                     "bench '{}' is faulted since {} ({}); run a self-check: POST /api/v1/benches/{}/self-check",
                     slot.cfg.id, f.since, f.detail, slot.cfg.id
                 ),

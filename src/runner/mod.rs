@@ -13,6 +13,8 @@
 
 pub mod events;
 mod execute;
+#[cfg(test)]
+mod guard;
 pub mod hardware;
 pub mod job;
 mod records;
@@ -21,6 +23,7 @@ mod series;
 use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind, Config};
 use crate::identify::{self, AnalyzeOptions};
+use crate::job::{JobProblem, ProblemKind};
 use crate::physics::PartSpec;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError, Step};
 use crate::recording::{Meta, RecordingSet};
@@ -113,11 +116,11 @@ pub struct Runner {
 }
 
 /// See [`Runner::set_recipe_trace`].
-pub type RecipeTrace = Arc<dyn Fn() -> Value + Send + Sync>;
+pub type RecipeTrace = Arc<dyn Fn() -> crate::qc::FleetTrace + Send + Sync>;
 
 impl Runner {
     /// Makes every verdict's trace carry what `f` gives (the fleet's recipe
-    /// provenance, merged into the trace's top level). Set once.
+    /// provenance, at the trace's top level). Set once.
     pub fn set_recipe_trace(&self, f: RecipeTrace) {
         let _ = self.recipe_trace.set(f);
     }
@@ -309,10 +312,10 @@ impl Runner {
             // that never started stays queued and is taken again.
             Err(e) => {
                 tracing::error!(job = %job.id, "the store failed during the job: {e}");
-                let p = problem(
-                    "storage",
+                let p = JobProblem::new(
+                    ProblemKind::Storage,
                     "Results not stored",
-                    &format!(
+                    format!(
                         "the store could not write during the job ({e}); measure the part again"
                     ),
                 );
@@ -447,22 +450,28 @@ impl Runner {
                     .map_err(|e| format!("bench calibration {} unreadable: {e}", c.id))
             })
             .transpose();
-        let cal_trace = recipe
-            .as_ref()
-            .is_some_and(|r| r.is_ok())
-            .then(|| records::calibration_trace(cal_row.as_ref()));
+        let cal_trace = recipe.as_ref().is_some_and(|r| r.is_ok()).then(|| {
+            records::calibration_trace(
+                cal_row.as_ref(),
+                bench_cal.as_ref().ok().and_then(|c| c.as_ref()),
+            )
+        });
         let recipe_ok = match bench_cal.clone() {
             Ok(_) => recipe.clone().transpose(),
             Err(e) => Err(e),
         };
         let bench_cal = bench_cal.ok().flatten();
         let outcome = match (spec.as_ref(), recipe_ok) {
-            (Err(e), _) => Err(Stop::Failed(problem(
-                "job-unreadable",
+            (Err(e), _) => Err(Stop::Failed(JobProblem::new(
+                ProblemKind::JobUnreadable,
                 "Job request unreadable",
-                &format!("the stored request no longer parses: {e}"),
+                format!("the stored request no longer parses: {e}"),
             ))),
-            (Ok(_), Err(e)) => Err(Stop::Failed(problem("recipe", "Recipe not available", &e))),
+            (Ok(_), Err(e)) => Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Recipe,
+                "Recipe not available",
+                &e,
+            ))),
             (Ok(spec), Ok(recipe)) => {
                 let spec = spec.clone();
                 let (tx, mut rx) = mpsc::unbounded_channel();
@@ -500,10 +509,10 @@ impl Runner {
                 }
                 match res {
                     Ok(r) => r,
-                    Err(e) => Err(Stop::Failed(problem(
-                        "internal",
+                    Err(e) => Err(Stop::Failed(JobProblem::new(
+                        ProblemKind::Internal,
                         "Job crashed",
-                        &format!("the measurement task ended abnormally: {e}"),
+                        format!("the measurement task ended abnormally: {e}"),
                     ))),
                 }
             }
@@ -517,8 +526,7 @@ impl Runner {
             Ok(done) => (JobState::Succeeded, None, Some(done)),
             Err(Stop::Aborted) if self.shutdown.load(Ordering::SeqCst) => (
                 JobState::Interrupted,
-                Some(problem(
-                    "interrupted",
+                Some(JobProblem::new(ProblemKind::Interrupted,
                     "Job interrupted",
                     "the daemon was stopped while this job was running; the bench was ramped down and the job was not re-run (submit it again)",
                 )),
@@ -527,7 +535,7 @@ impl Runner {
             Err(Stop::Aborted) => (JobState::Cancelled, None, None),
             Err(Stop::Failed(p)) => (JobState::Failed, Some(p), None),
         };
-        if let Some(p) = prob.as_ref().filter(|p| hardware::is_bench_fault(p)) {
+        if let Some(p) = prob.as_ref().filter(|p| p.kind == ProblemKind::BenchFault) {
             self.fault_bench(slot, &job.id, p).await?;
         }
         if let (Some(d), Ok(sp)) = (&done, &spec) {
@@ -583,10 +591,10 @@ impl Runner {
         if let Err(e) = self.commit_settled(slot, &job.id, commit).await {
             // The results could not be written: do not leave the job running.
             tracing::error!(job = %job.id, "storing the results failed: {e}");
-            let p = problem(
-                "storage",
+            let p = JobProblem::new(
+                ProblemKind::Storage,
                 "Results not stored",
-                &format!("writing the results failed: {e}"),
+                format!("writing the results failed: {e}"),
             );
             return self
                 .finish_failed_after(slot, job, &p, bench_time, &log, &warnings)
@@ -694,15 +702,10 @@ pub fn step_name(s: Step) -> &'static str {
     }
 }
 
-/// An RFC 9457 problem document (as stored with a job).
-pub fn problem(kind: &str, title: &str, detail: &str) -> Value {
-    json!({"type": format!("/problems/{kind}"), "title": title, "status": 500, "detail": detail})
-}
-
 pub(super) enum Stop {
     /// Cancel or shutdown: the bench was ramped down.
     Aborted,
-    Failed(Value),
+    Failed(JobProblem),
 }
 
 /// A fresh id (UUID v4, text).

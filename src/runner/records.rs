@@ -48,10 +48,10 @@ impl Runner {
         bench: &BenchConfig,
         job: &Job,
         spec: Option<&JobSpec>,
-        bench_cal: Option<&Value>,
+        bench_cal: Option<&crate::qc::BenchCalibrationTrace>,
         started_at: &str,
         state: JobState,
-        prob: Option<&Value>,
+        prob: Option<&JobProblem>,
         meas: &[NewMeasurement],
         reports: &[Option<identify::Report>],
         verdicts: Vec<(String, crate::qc::Verdict)>,
@@ -70,87 +70,55 @@ impl Runner {
             )),
             (Some(_), JobState::Interrupted) => Some(invalid_job(
                 "interrupted",
-                prob.and_then(|p| p["detail"].as_str())
-                    .unwrap_or("the job was interrupted")
+                prob.map_or("the job was interrupted", |p| &p.detail)
                     .to_string(),
             )),
-            (Some(_), JobState::Failed) => {
-                let kind = prob
-                    .and_then(|p| p["type"].as_str())
-                    .unwrap_or("")
-                    .to_string();
-                let detail = prob
-                    .and_then(|p| p["detail"].as_str())
-                    .unwrap_or("the job failed")
-                    .to_string();
-                Some(invalid_job(
-                    if kind.ends_with("/bench") {
-                        "hardware_fault"
-                    } else {
-                        "job_failed"
-                    },
-                    detail,
-                ))
-            }
+            (Some(_), JobState::Failed) => Some(match prob {
+                Some(p) => invalid_job(p.invalid_reason(), p.detail.clone()),
+                None => invalid_job("job_failed", "the job failed".to_string()),
+            }),
             (Some(_), _) => None,
         };
         if let (Some(r), Some(jv)) = (&rref, &job_verdict) {
-            let trace = |m: Option<&NewMeasurement>| {
-                let mut t = json!({
-                    "software_version": crate::VERSION,
-                    "recipe": {"name": r.name, "version": r.version, "sha256": r.sha256},
-                    "bench_id": bench.id,
-                    "bench_kind": bench.kind,
-                    "bench_description": m.and_then(|m| m.config.bench_description.clone()),
-                    // full or production, and a production run's fall-back with its reason
-                    "procedure": m.and_then(|m| m.config.procedure_run.clone()),
-                    // The virtual bench has no calibration record and no sensor identities;
-                    // hardware benches put theirs here.
-                    "calibration": Value::Null,
-                    "sensors": [],
-                    // The bench calibration from golden units the values were
-                    // judged with (decision 0049), or that there is none.
-                    "bench_calibration": bench_cal.cloned().unwrap_or(Value::Null),
-                    "submitted_by": spec.and_then(|s| s.submitted_by.clone()),
-                    "job_created_at": job.created_at,
-                    "job_started_at": started_at,
-                    "judged_at": finished_at,
-                    "measurement_id": m.map(|m| m.id.clone()),
-                });
-                if let (Some(t), Some(f)) = (t.as_object_mut(), self.recipe_trace.get()) {
-                    if let Value::Object(fleet) = f() {
-                        t.extend(fleet);
-                    }
-                }
-                t
+            let fleet = self.recipe_trace.get().map(|f| f());
+            let trace = |m: Option<&NewMeasurement>| crate::qc::VerdictTrace {
+                software_version: crate::VERSION.to_string(),
+                recipe: r.clone(),
+                bench_id: bench.id.clone(),
+                bench_kind: bench.kind.as_str().to_string(),
+                bench_description: m.and_then(|m| m.config.bench_description.clone()),
+                // full or production, and a production run's fall-back with its reason
+                procedure: m.and_then(|m| m.config.procedure_run.clone()),
+                // The virtual bench has no calibration record and no sensor identities;
+                // hardware benches put theirs in the measurement's configuration.
+                calibration: None,
+                sensors: vec![],
+                // The bench calibration from golden units the values were
+                // judged with (decision 0049), or that there is none.
+                bench_calibration: bench_cal.cloned(),
+                submitted_by: spec.and_then(|s| s.submitted_by.clone()),
+                job_created_at: job.created_at.clone(),
+                job_started_at: started_at.to_string(),
+                judged_at: finished_at.clone(),
+                measurement_id: m.map(|m| m.id.clone()),
+                fleet: fleet.clone(),
+            };
+            let verdict = |mid: Option<&String>, v: &Verdict, m: Option<&NewMeasurement>| {
+                crate::store::qc::NewVerdict::judged(
+                    new_id(),
+                    Some(job.id.clone()),
+                    mid.cloned(),
+                    job.part_serial.clone(),
+                    r,
+                    v,
+                    &trace(m),
+                )
             };
             for (mid, v) in &verdicts {
                 let m = meas.iter().find(|m| &m.id == mid);
-                rec.verdicts.push(crate::store::qc::NewVerdict {
-                    id: new_id(),
-                    job_id: Some(job.id.clone()),
-                    measurement_id: Some(mid.clone()),
-                    part_serial: job.part_serial.clone(),
-                    recipe_name: r.name.clone(),
-                    recipe_version: r.version,
-                    recipe_sha256: r.sha256.clone(),
-                    verdict: v.verdict.as_str(),
-                    detail: verdict_json(v),
-                    trace: trace(m),
-                });
+                rec.verdicts.push(verdict(Some(mid), v, m));
             }
-            rec.verdicts.push(crate::store::qc::NewVerdict {
-                id: new_id(),
-                job_id: Some(job.id.clone()),
-                measurement_id: None,
-                part_serial: job.part_serial.clone(),
-                recipe_name: r.name.clone(),
-                recipe_version: r.version,
-                recipe_sha256: r.sha256.clone(),
-                verdict: jv.verdict.as_str(),
-                detail: verdict_json(jv),
-                trace: trace(meas.first()),
-            });
+            rec.verdicts.push(verdict(None, jv, meas.first()));
         }
         // MES messages of every job that ran (WorkStarted, UnitsTested, WorkCompleted).
         let tested = meas
@@ -214,7 +182,7 @@ impl Runner {
         job: &Job,
         started_at: &str,
     ) -> crate::store::qc::JobRecords {
-        let spec: Option<JobSpec> = serde_json::from_value(job.request.clone()).ok();
+        let spec = job.request.measure();
         let facts = crate::qc::cfx::JobFacts {
             job_id: job.id.clone(),
             part_serial: job.part_serial.clone(),
@@ -222,9 +190,9 @@ impl Runner {
             started_at: started_at.to_string(),
             finished_at: started_at.to_string(),
             state: "running".into(),
-            recipe: spec.as_ref().and_then(|s| s.recipe.clone()),
+            recipe: spec.and_then(|s| s.recipe.clone()),
             job_verdict: None,
-            operator: spec.and_then(|s| s.submitted_by),
+            operator: spec.and_then(|s| s.submitted_by.clone()),
             measurements: vec![],
         };
         let (unique_id, message_name, body) = crate::qc::cfx::work_started(&facts);
@@ -241,7 +209,12 @@ impl Runner {
         }
     }
 
-    pub(super) async fn finish_failed(&self, slot: &Slot, job: &Job, p: Value) -> StoreResult<()> {
+    pub(super) async fn finish_failed(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        p: JobProblem,
+    ) -> StoreResult<()> {
         self.finish_failed_after(slot, job, &p, None, &[], &[])
             .await
     }
@@ -256,7 +229,7 @@ impl Runner {
         &self,
         slot: &Slot,
         job: &Job,
-        p: &Value,
+        p: &JobProblem,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
@@ -287,7 +260,7 @@ impl Runner {
         slot: &Slot,
         job: &Job,
         state: JobState,
-        p: &Value,
+        p: &JobProblem,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
@@ -391,35 +364,21 @@ impl Runner {
     }
 }
 
-/// A verdict as stored: through the store's finite check (issue 11; `judge`
-/// already turns a non-finite verdict into an invalid one, this is the last
-/// guard before the database).
-pub(super) fn verdict_json(v: &crate::qc::Verdict) -> Value {
-    let v = crate::qc::finite_verdict(v.clone());
-    crate::finite::to_value(&v).unwrap_or(Value::Null)
-}
-
 /// What a verdict's traceability says about the bench calibration it was
-/// judged with (`None`: the bench has none for the recipe).
-pub fn calibration_trace(row: Option<&crate::store::BenchCalibrationRow>) -> Value {
+/// judged with (`None`: the bench has none for the recipe; `cal`: its
+/// figures, None when its document did not read).
+pub fn calibration_trace(
+    row: Option<&crate::store::BenchCalibrationRow>,
+    cal: Option<&crate::qc::BenchCalibration>,
+) -> crate::qc::BenchCalibrationTrace {
     match row {
-        None => json!({
-            "state": "none",
-            "detail": "no bench calibration for this recipe on this bench: judged as measured",
-        }),
-        Some(r) => {
-            let c = &r.calibration;
-            json!({
-                "id": r.id,
-                "state": r.state,
-                "procedure": r.procedure,
-                "reference_bench_id": c["reference_bench_id"],
-                "laser_gain_error": c["laser_gain_error"],
-                "k_scale": c["k_scale"],
-                "kx_scale": c["kx_scale"],
-                "clamp_mass_kg": c["clamp_mass_kg"],
-                "created_at": r.created_at,
-            })
-        }
+        None => crate::qc::BenchCalibrationTrace::none(),
+        Some(r) => crate::qc::BenchCalibrationTrace::applied(
+            &r.id,
+            &r.state,
+            &r.procedure,
+            &r.created_at,
+            cal,
+        ),
     }
 }

@@ -58,7 +58,7 @@ async fn a_capture_reads_back_from_the_store_sample_for_sample() {
                 job_id: None,
                 source: "import",
                 bench_id: None,
-                config: json!({}),
+                config: Default::default(),
                 meta: json!({"moving_mass_kg": 0.05}),
                 result: None,
                 analysis_error: Some("not analysed".into()),

@@ -436,6 +436,17 @@ pub enum BenchKind {
     Emulated,
 }
 
+impl BenchKind {
+    /// Its name, as in the configuration and the API.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            BenchKind::Virtual => "virtual",
+            BenchKind::Hardware => "hardware",
+            BenchKind::Emulated => "emulated",
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BenchConfig {

@@ -223,7 +223,7 @@ async fn upsert_measurement_tx(
     .bind(&m.source)
     .bind(&m.bench_id)
     .bind(&m.software_version)
-    .bind(m.config.to_json())
+    .bind(m.config.to_string())
     .bind(m.meta.to_string())
     .bind(m.result.as_ref().map(|v| v.to_string()))
     .bind(&m.analysis_error)

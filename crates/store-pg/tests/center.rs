@@ -1056,7 +1056,15 @@ async fn a_void_takes_its_job_out_of_the_parts_verdict_and_the_yield() {
     ];
     for (job, serial, ms, jv) in jobs {
         let r = station
-            .insert_job(job, "b1", (serial, None, None), 0, &json!({}), job, None)
+            .insert_job(
+                job,
+                "b1",
+                (serial, None, None),
+                0,
+                &springbench_core::job::StoredRequest::self_check("b1"),
+                job,
+                None,
+            )
             .await
             .unwrap();
         assert!(matches!(r, Inserted::New(_)));

@@ -547,7 +547,7 @@ mod tests {
                 job_id: Some("j-1".into()),
                 source: "bench",
                 bench_id: Some("b1".into()),
-                config: json!({}),
+                config: Default::default(),
                 meta: json!({"id": "m-1"}),
                 result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
                 analysis_error: None,

@@ -365,7 +365,6 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::super::{Inserted, Store};
-    use serde_json::json;
     use sqlx::Row;
     use std::time::{Duration, Instant};
 

@@ -7,7 +7,7 @@ use crate::results::{NewMeasurement, NewRecording};
 use crate::{now, parse_json, qc, Store, StoreError, StoreResult};
 use serde::Serialize;
 use serde_json::Value;
-use springbench_core::job::{JobSpec, MeasurementConfig, StoredRequest};
+use springbench_core::job::{JobProblem, JobSpec, MeasurementConfig, ProblemKind, StoredRequest};
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
@@ -77,7 +77,8 @@ pub struct Job {
     #[schema(value_type = Value)]
     pub request: JobRequestRow,
     /// RFC 9457 problem document when the job failed or was interrupted.
-    pub problem: Option<Value>,
+    #[schema(value_type = Option<Value>)]
+    pub problem: Option<JobProblem>,
     /// Stimulus time the procedure needed (s), once finished.
     pub bench_time_s: Option<f64>,
     /// Decisions the procedure took (levels, resonances found).
@@ -102,6 +103,8 @@ pub struct Job {
 /// A job's request as read back from the queue: typed, or the stored
 /// document of a request this version cannot read, with why (the runner
 /// fails such a job; the API still shows what was stored).
+// One per job read: a box would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum JobRequestRow {
     Read(StoredRequest),
@@ -157,13 +160,12 @@ pub enum Inserted {
 
 impl Store {
     /// The problem document of a job cut off by a crash, a kill or a stop.
-    pub fn interrupted_problem() -> Value {
-        serde_json::json!({
-            "type": "/problems/interrupted",
-            "title": "Job interrupted",
-            "status": 500,
-            "detail": "the daemon stopped while this job was running; it was not re-run (submit it again)",
-        })
+    pub fn interrupted_problem() -> JobProblem {
+        JobProblem::new(
+            ProblemKind::Interrupted,
+            "Job interrupted",
+            "the daemon stopped while this job was running; it was not re-run (submit it again)",
+        )
     }
 
     /// At start: the jobs still `running` were cut off by a crash or a kill
@@ -194,13 +196,13 @@ impl Store {
             if known.contains(&bench) {
                 continue;
             }
-            let problem = serde_json::json!({
-                "type": "/problems/unknown-bench",
-                "title": "Bench no longer configured",
-                "status": 500,
-                "detail": format!("bench '{bench}' is not in the configuration any more; submit the job again"),
-            })
-            .to_string();
+            let problem = problem_json(&JobProblem::new(
+                ProblemKind::UnknownBench,
+                "Bench no longer configured",
+                format!(
+                    "bench '{bench}' is not in the configuration any more; submit the job again"
+                ),
+            ));
             let done = sqlx::query(
                 "UPDATE jobs SET state = 'failed', finished_at = ?, problem_json = ? \
                  WHERE state = 'queued' AND bench_id = ? RETURNING id",
@@ -399,7 +401,7 @@ impl Store {
         &self,
         id: &str,
         state: JobState,
-        problem: Option<&Value>,
+        problem: Option<&JobProblem>,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
@@ -427,7 +429,7 @@ impl Store {
         &self,
         id: &str,
         state: JobState,
-        problem: Option<&Value>,
+        problem: Option<&JobProblem>,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
@@ -450,7 +452,7 @@ impl Store {
         )
         .bind(state.as_str())
         .bind(now())
-        .bind(problem.map(|p| p.to_string()))
+        .bind(problem.map(problem_json))
         .bind(bench_time_s)
         .bind(serde_json::to_string(log).unwrap_or_else(|_| "[]".into()))
         .bind(serde_json::to_string(warnings).unwrap_or_else(|_| "[]".into()))
@@ -472,7 +474,7 @@ impl Store {
         &self,
         id: &str,
         state: JobState,
-        problem: Option<&Value>,
+        problem: Option<&JobProblem>,
         bench_time_s: Option<f64>,
         log: &[String],
         warnings: &[String],
@@ -485,7 +487,7 @@ impl Store {
         )
         .bind(state.as_str())
         .bind(now())
-        .bind(problem.map(|p| p.to_string()))
+        .bind(problem.map(problem_json))
         .bind(bench_time_s)
         .bind(serde_json::to_string(log).unwrap_or_else(|_| "[]".into()))
         .bind(serde_json::to_string(warnings).unwrap_or_else(|_| "[]".into()))
@@ -578,6 +580,11 @@ async fn running_job(
     }
 }
 
+/// A problem as stored (the RFC 9457 document).
+fn problem_json(p: &JobProblem) -> String {
+    serde_json::to_string(p).unwrap_or_default()
+}
+
 fn replay_or_conflict(j: Job, sha: &str) -> Inserted {
     if j.request_sha256 == sha {
         Inserted::Replayed(j)
@@ -613,7 +620,10 @@ fn job_from_row(r: &SqliteRow) -> StoreResult<Job> {
         request_sha256: r.get("request_sha256"),
         problem: r
             .get::<Option<String>, _>("problem_json")
-            .map(|s| parse_json(&s))
+            .map(|s| {
+                serde_json::from_str(&s)
+                    .map_err(|e| StoreError::Corrupt(format!("stored problem unreadable: {e}")))
+            })
             .transpose()?,
         bench_time_s: r.get("bench_time_s"),
         log,
@@ -798,7 +808,7 @@ mod tests {
         assert!(!again.await.unwrap());
         let j = s.get_job("a").await.unwrap().unwrap();
         assert_eq!(j.state, JobState::Interrupted);
-        assert_eq!(j.problem.unwrap()["title"], json!("Job interrupted"));
+        assert_eq!(j.problem.unwrap().title, "Job interrupted");
         // pagination newest first
         let page = s.list_jobs(None, None, None, 2).await.unwrap();
         assert_eq!(
@@ -837,10 +847,9 @@ mod tests {
         assert_eq!(ids, ["b", "c"]);
         let b = s.get_job("b").await.unwrap().unwrap();
         assert_eq!(b.state, JobState::Failed);
-        assert!(b.problem.unwrap()["detail"]
-            .as_str()
-            .unwrap()
-            .contains("gone"));
+        let p = b.problem.unwrap();
+        assert_eq!(p.kind, ProblemKind::UnknownBench);
+        assert!(p.detail.contains("gone"));
         assert_eq!(
             s.get_job("a").await.unwrap().unwrap().state,
             JobState::Queued

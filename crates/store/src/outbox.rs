@@ -517,7 +517,15 @@ mod tests {
 
     async fn queued(s: &Store, id: &str, serial: &str) {
         let r = s
-            .insert_job(id, "b1", (serial, None, None), 0, &json!({}), id, None)
+            .insert_job(
+                id,
+                "b1",
+                (serial, None, None),
+                0,
+                &springbench_core::job::StoredRequest::self_check("b1"),
+                id,
+                None,
+            )
             .await
             .unwrap();
         assert!(matches!(r, Inserted::New(_)));

@@ -60,6 +60,36 @@ pub struct DeliveryRow {
     pub body: Value,
 }
 
+impl NewVerdict {
+    /// A verdict judged under `recipe` with its traceability, as stored:
+    /// the verdict through the finite check (issue 11; `judge` already turns
+    /// a non-finite verdict into an invalid one, this is the last guard
+    /// before the database).
+    pub fn judged(
+        id: String,
+        job_id: Option<String>,
+        measurement_id: Option<String>,
+        part_serial: String,
+        recipe: &springbench_core::job::RecipeRef,
+        verdict: &springbench_core::qc::Verdict,
+        trace: &springbench_core::qc::VerdictTrace,
+    ) -> NewVerdict {
+        let v = springbench_core::qc::finite_verdict(verdict.clone());
+        NewVerdict {
+            id,
+            job_id,
+            measurement_id,
+            part_serial,
+            recipe_name: recipe.name.clone(),
+            recipe_version: recipe.version,
+            recipe_sha256: recipe.sha256.clone(),
+            verdict: v.verdict.as_str(),
+            detail: springbench_core::finite::to_value(&v).unwrap_or(Value::Null),
+            trace: serde_json::to_value(trace).unwrap_or(Value::Null),
+        }
+    }
+}
+
 /// What a job adds to its result transaction: verdicts and MES messages.
 #[derive(Debug, Clone, Default)]
 pub struct JobRecords {

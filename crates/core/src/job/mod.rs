@@ -31,6 +31,7 @@ pub const MIN_TARGET_XPEAK_M: f64 = 1e-5;
 
 mod measurement;
 mod parse;
+mod problem;
 mod request;
 mod spec;
 mod stored;
@@ -40,6 +41,7 @@ pub use measurement::{
     RepeatEnded, SweepSettings,
 };
 pub use parse::{check_chars, parse_lenient, FieldError};
+pub use problem::{JobProblem, ProblemKind};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,

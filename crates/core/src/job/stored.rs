@@ -12,6 +12,8 @@ use serde::de::Error as _;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 /// A job's request as stored with the job.
+// One per job, read from the queue: a box would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum StoredRequest {
     /// Measure a part: the procedure, the fit per level, a verdict under a recipe.
@@ -35,6 +37,13 @@ enum Tagged {
 }
 
 impl StoredRequest {
+    /// A self-check of bench `bench`.
+    pub fn self_check(bench: &str) -> StoredRequest {
+        StoredRequest::SelfCheck(SelfCheck {
+            bench: bench.to_string(),
+        })
+    }
+
     /// The measurement this job asks for, if it is one.
     pub fn measure(&self) -> Option<&JobSpec> {
         match self {

@@ -20,6 +20,7 @@ pub mod limits;
 pub mod production;
 mod recipe;
 pub mod spc;
+pub mod trace;
 mod verdict;
 
 pub use bench_cal::{judge_calibrated, BenchCalibration, CalState};
@@ -29,6 +30,7 @@ pub use recipe::{
     MAX_DESCRIPTION_CHARS, MAX_LIMIT, MAX_MASK_POINTS, MAX_PARAMETERS, MAX_PART_KIND_CHARS,
     MIN_LEVEL_M, MIN_MOVING_MASS_KG,
 };
+pub use trace::{AppliedCalibration, BenchCalibrationTrace, FleetTrace, VerdictTrace};
 pub use verdict::{
     combine, finite_verdict, invalid_job, judge, k_of_x, keff_at_target, never_judge_invalid,
     set_keff_at_target, stiffness_coefficients, validity_problems, InvalidReason, ParamOutcome,

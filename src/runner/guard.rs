@@ -1,0 +1,59 @@
+//! The runner and the QC API read what the project stores through its types
+//! (decision 0080): never a stored document by a JSON key, so that renaming
+//! a member of `MeasurementConfig`, `JobProblem` or `StoredRequest` is a
+//! compile error in every reader, not a silent `null`.
+
+/// The files that read stored documents back.
+const READERS: [(&str, &str); 11] = [
+    ("src/runner/mod.rs", include_str!("mod.rs")),
+    ("src/runner/execute.rs", include_str!("execute.rs")),
+    ("src/runner/records.rs", include_str!("records.rs")),
+    ("src/runner/hardware.rs", include_str!("hardware.rs")),
+    ("src/runner/series.rs", include_str!("series.rs")),
+    ("src/runner/job.rs", include_str!("job.rs")),
+    ("src/api/qc/limits.rs", include_str!("../api/qc/limits.rs")),
+    (
+        "src/api/qc/recipes.rs",
+        include_str!("../api/qc/recipes.rs"),
+    ),
+    (
+        "src/api/qc/verdicts.rs",
+        include_str!("../api/qc/verdicts.rs"),
+    ),
+    ("src/api/qc/outbox.rs", include_str!("../api/qc/outbox.rs")),
+    ("src/api/qc/mod.rs", include_str!("../api/qc/mod.rs")),
+];
+
+/// Ways of reading a stored document by key.
+const BY_KEY: [&str; 8] = [
+    "pointer(",
+    "[\"detail\"]",
+    "[\"type\"]",
+    ".config.get(",
+    ".config[",
+    "config[\"",
+    "from_value(job.request",
+    "request.get(\"type\")",
+];
+
+#[test]
+fn stored_documents_are_read_through_their_types() {
+    let mut found = vec![];
+    for (path, text) in READERS {
+        for (i, line) in text.lines().enumerate() {
+            if line.trim_start().starts_with("//") {
+                continue;
+            }
+            for p in BY_KEY {
+                if line.contains(p) {
+                    found.push(format!("{path}:{}: `{p}`: {}", i + 1, line.trim()));
+                }
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "a stored document read by key (use its type's members):\n{}",
+        found.join("\n")
+    );
+}
