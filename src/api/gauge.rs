@@ -277,46 +277,29 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
     Ok(Json(json!({ "items": items })))
 }
 
-/// Each judged parameter's value (mean) and unit in one run.
-type RunValues = std::collections::BTreeMap<String, (f64, String)>;
+use crate::qc::grr::RunValues;
 
-/// A run's value of each judged parameter: the mean over the run's
-/// measurement verdicts that judged it (a recipe with several levels or
-/// repeats judges a parameter on each of its measurements). None when the
-/// run has no value (invalid, failed, not finished).
+/// A run's value of each judged parameter (`core::qc::grr::run_values`:
+/// the mean over its measurements' valid verdicts). None when the run has
+/// no value (invalid, failed, not finished).
 async fn run_values(
     st: &AppState,
     job_id: &str,
 ) -> ApiResult<(Option<JobState>, RunValues, Option<i64>)> {
     let job = st.store.get_job(job_id).await?;
     let state = job.as_ref().map(|j| j.state);
-    let mut sums: std::collections::BTreeMap<String, (f64, usize, String)> = Default::default();
     let mut version = None;
+    let mut verdicts = vec![];
     for v in st.store.job_verdicts(job_id).await? {
         if v.measurement_id.is_none() {
             continue;
         }
         version = Some(v.recipe_version);
-        let Ok(verdict) = serde_json::from_value::<crate::qc::Verdict>(v.detail.clone()) else {
-            continue;
-        };
-        if verdict.verdict == crate::qc::VerdictKind::Invalid {
-            continue;
-        }
-        for p in &verdict.parameters {
-            if p.value.is_finite() {
-                let e = sums.entry(p.name.clone()).or_default();
-                e.0 += p.value;
-                e.1 += 1;
-                e.2.clone_from(&p.unit);
-            }
+        if let Ok(verdict) = serde_json::from_value::<crate::qc::Verdict>(v.detail.clone()) {
+            verdicts.push(verdict);
         }
     }
-    let means = sums
-        .into_iter()
-        .map(|(k, (s, n, unit))| (k, (s / n as f64, unit)))
-        .collect();
-    Ok((state, means, version))
+    Ok((state, crate::qc::grr::run_values(&verdicts), version))
 }
 
 /// The study with its runs' states and, when every run has ended, the

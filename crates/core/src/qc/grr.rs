@@ -415,8 +415,74 @@ fn ratio(m: f64, e: f64) -> f64 {
     }
 }
 
+/// Each judged parameter's value in one run of a study, with its unit.
+pub type RunValues = std::collections::BTreeMap<String, (f64, String)>;
+
+/// A run's value of each judged parameter: the mean over the run's
+/// measurement verdicts that judged it (a recipe with several levels or
+/// repeats judges a parameter on each of its measurements). Invalid
+/// verdicts and non-finite values are left out; an empty map when the run
+/// has no value.
+pub fn run_values<'a>(verdicts: impl IntoIterator<Item = &'a super::Verdict>) -> RunValues {
+    let mut sums: std::collections::BTreeMap<String, (f64, usize, String)> = Default::default();
+    for verdict in verdicts {
+        if verdict.verdict == super::VerdictKind::Invalid {
+            continue;
+        }
+        for p in &verdict.parameters {
+            if p.value.is_finite() {
+                let e = sums.entry(p.name.clone()).or_default();
+                e.0 += p.value;
+                e.1 += 1;
+                e.2.clone_from(&p.unit);
+            }
+        }
+    }
+    sums.into_iter()
+        .map(|(k, (s, n, unit))| (k, (s / n as f64, unit)))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_runs_value_is_the_mean_of_its_valid_finite_values() {
+        use crate::qc::{ParamOutcome, ParamResult, Verdict, VerdictKind};
+        let param = |name: &str, value: f64| ParamOutcome {
+            name: name.into(),
+            quantity: None,
+            unit: "N/m".into(),
+            value,
+            lower: None,
+            upper: None,
+            result: ParamResult::Pass,
+            x_m: None,
+        };
+        let verdict = |kind, parameters| Verdict {
+            verdict: kind,
+            failures: vec![],
+            invalid_reasons: vec![],
+            parameters,
+        };
+        let vs = [
+            verdict(
+                VerdictKind::Pass,
+                vec![param("k0", 1000.0), param("keff", 900.0)],
+            ),
+            verdict(
+                VerdictKind::Fail,
+                vec![param("k0", 1100.0), param("keff", f64::NAN)],
+            ),
+            // never averaged in: the measurement cannot be trusted
+            verdict(VerdictKind::Invalid, vec![param("k0", 5000.0)]),
+        ];
+        let v = super::run_values(&vs);
+        assert_eq!(v["k0"], (1050.0, "N/m".to_string()));
+        assert_eq!(v["keff"], (900.0, "N/m".to_string()));
+        assert_eq!(v.len(), 2);
+        assert!(super::run_values(&vs[2..]).is_empty());
+    }
+
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
