@@ -382,9 +382,9 @@ impl Runner {
         // A measuring job announces its start to the MES (WorkStarted) in
         // the transaction that starts it.
         let started_at = crate::store::now();
-        let announce = match hardware::is_self_check(job) {
-            true => Default::default(),
-            false => self.start_records(&slot.cfg, job, &started_at),
+        let announce = match job.request.read() {
+            Ok(crate::job::StoredRequest::SelfCheck(_)) => Default::default(),
+            _ => self.start_records(&slot.cfg, job, &started_at),
         };
         if !self
             .store

@@ -134,13 +134,11 @@ impl Runner {
                     target_xpeak_m: m.target_xpeak_m,
                     level_index: m.level_index,
                     repeat_index: m.repeat_index,
-                    procedure: m.config["procedure_run"]["mode"].as_str().map(|mode| {
-                        match &m.config["procedure_run"]["fallback"] {
-                            Value::Null => mode.to_string(),
-                            f => format!(
-                                "{mode} (fell back to the full procedure: {})",
-                                f.as_str().unwrap_or_default()
-                            ),
+                    procedure: m.config.procedure_run.as_ref().map(|run| {
+                        let mode = run.mode.as_str();
+                        match run.ended.as_ref().and_then(|e| e.fallback.as_deref()) {
+                            None => mode.to_string(),
+                            Some(f) => format!("{mode} (fell back to the full procedure: {f})"),
                         }
                     }),
                     verdict: verdicts.iter().find(|v| v.0 == m.id).map(|v| v.1.clone()),
