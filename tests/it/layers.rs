@@ -11,6 +11,9 @@
 //!   [`no_import_circle_between_modules`] reads every crate's sources and
 //!   fails on a circle between top-level modules (such as `identify` <->
 //!   `diagnose` before the workspace).
+//!   [`no_import_circle_between_files_of_a_module`] does the same one level
+//!   down, for the files and folders of every folder module (such as
+//!   `identify/diagnostics.rs` <-> `identify/documents.rs` before issue 37).
 //! - The pure core does no I/O in its own code either:
 //!   [`core_code_does_no_io`] fails on `std::fs`, `std::net`, a process, a
 //!   thread, an environment variable or a print outside unit tests.
@@ -460,6 +463,238 @@ fn core_code_does_no_io() {
     assert!(
         found.is_empty(),
         "the pure core does I/O (move it to recording, bench, store or the daemon):\n{}",
+        found.join("\n")
+    );
+}
+
+/// A file's module path below its crate's `src` (`identify/report/mod.rs`
+/// -> `["identify", "report"]`; the crate root -> `[]`).
+fn module_path(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap();
+    let mut v: Vec<String> = rel
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().to_string())
+        .collect();
+    let last = v.pop().unwrap_or_default();
+    let stem = last.trim_end_matches(".rs");
+    if !(stem == "mod" || (v.is_empty() && (stem == "lib" || stem == "main"))) {
+        v.push(stem.to_string());
+    }
+    v
+}
+
+/// The leading identifiers of a path (`a::b::{c, d}` -> `[a, b]`, then
+/// `rest` starts at the `{`).
+fn path_segments(mut rest: &str) -> (Vec<String>, &str) {
+    let mut segs = Vec::new();
+    loop {
+        let name: String = rest
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+            .collect();
+        if name.is_empty() {
+            return (segs, rest);
+        }
+        rest = &rest[name.len()..];
+        segs.push(name);
+        match rest.strip_prefix("::") {
+            Some(r) => rest = r,
+            None => return (segs, rest),
+        }
+    }
+}
+
+/// The absolute paths (`crate::...`, `super::...`, and each member of a
+/// `{...}` group) that `code`, the code of the module at `base`, names.
+fn absolute_refs(code: &str, base: &[String]) -> Vec<Vec<String>> {
+    let mut out = Vec::new();
+    let b = code.as_bytes();
+    let mut i = 0;
+    while i < code.len() {
+        let starts = code[i..].starts_with("crate::") || code[i..].starts_with("super::");
+        let boundary = i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_' || b[i - 1] == b'$');
+        if !(starts && boundary) {
+            i += 1;
+            continue;
+        }
+        let (segs, rest) = path_segments(&code[i..]);
+        let mut abs: Vec<String> = Vec::new();
+        let mut k = 0;
+        if segs[0] == "crate" {
+            k = 1;
+        } else {
+            abs = base.to_vec();
+            while k < segs.len() && segs[k] == "super" {
+                abs.pop();
+                k += 1;
+            }
+        }
+        abs.extend(segs[k..].iter().cloned());
+        if let Some(group) = rest.strip_prefix('{') {
+            // The members of a group, split at its top-level commas.
+            let mut depth = 0;
+            let mut start = 0;
+            for (j, c) in group.char_indices() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => {
+                        let (s, _) = path_segments(group[start..j].trim_start());
+                        out.push([abs.clone(), s].concat());
+                        break;
+                    }
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => {
+                        let (s, _) = path_segments(group[start..j].trim_start());
+                        out.push([abs.clone(), s].concat());
+                        start = j + 1;
+                    }
+                    _ => {}
+                }
+            }
+        } else {
+            out.push(abs);
+        }
+        i += code.len() - rest.len() - i;
+        i = i.max(1);
+    }
+    out
+}
+
+/// For every folder module of a crate (below its root: the root's modules
+/// are [`module_graph`]'s): its files and subfolders, and which import
+/// which. A name the folder's `mod.rs` re-exports (`pub use small::X`)
+/// counts as the file it comes from; the `mod.rs` itself is the module,
+/// not one of its files.
+fn file_graphs(src: &Path) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let paths: Vec<(PathBuf, Vec<String>)> = files
+        .iter()
+        .map(|f| (f.clone(), module_path(src, f)))
+        .collect();
+    let mut out = BTreeMap::new();
+    for (dir_file, dir) in &paths {
+        if dir.is_empty() || dir_file.file_name().is_none_or(|n| n != "mod.rs") {
+            continue;
+        }
+        let children: BTreeSet<String> = paths
+            .iter()
+            .filter(|(_, m)| m.len() > dir.len() && m.starts_with(dir))
+            .map(|(_, m)| m[dir.len()].clone())
+            .collect();
+        // Names the folder's own file takes in from its files.
+        let mut reexports: BTreeMap<String, String> = BTreeMap::new();
+        let own = code_of(dir_file);
+        for stmt in own.split(';') {
+            let s = stmt.trim();
+            let Some(u) = s
+                .strip_prefix("pub use ")
+                .or_else(|| s.strip_prefix("pub(crate) use "))
+                .or_else(|| s.strip_prefix("use "))
+            else {
+                continue;
+            };
+            let u = u.strip_prefix("self::").unwrap_or(u);
+            let (segs, rest) = path_segments(u);
+            let Some(child) = segs.first().filter(|c| children.contains(*c)) else {
+                continue;
+            };
+            let names: Vec<String> = match rest.strip_prefix('{') {
+                Some(g) => g.trim_end_matches('}').split(',').map(str::to_string).collect(),
+                None => vec![segs.last().unwrap().clone() + rest],
+            };
+            for n in names {
+                let n = n.trim();
+                let name = n.rsplit(" as ").next().unwrap().trim();
+                let name = name.rsplit("::").next().unwrap();
+                if !name.is_empty() && name != "self" && name != "*" {
+                    reexports.insert(name.to_string(), child.clone());
+                }
+            }
+        }
+        let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for (f, m) in &paths {
+            if m.len() <= dir.len() || !m.starts_with(dir) {
+                continue;
+            }
+            let from = m[dir.len()].clone();
+            let e = g.entry(from.clone()).or_default();
+            for r in absolute_refs(&code_of(f), m) {
+                if r.len() <= dir.len() || !r.starts_with(dir) {
+                    continue;
+                }
+                let t = &r[dir.len()];
+                let to = if children.contains(t) {
+                    t.clone()
+                } else if let Some(c) = reexports.get(t) {
+                    c.clone()
+                } else {
+                    continue;
+                };
+                if to != from {
+                    e.insert(to);
+                }
+            }
+        }
+        out.insert(dir.join("::"), g);
+    }
+    out
+}
+
+#[test]
+fn file_circle_finder_resolves_paths() {
+    let base: Vec<String> = ["identify", "diagnostics"].map(String::from).to_vec();
+    let refs = absolute_refs(
+        "use super::documents::{A, B};\nuse super::{small::X, Y};\nuse crate::effects::E;\nuse super::super::dsp;\nlet x = $crate::z;",
+        &base,
+    );
+    let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    assert_eq!(
+        refs,
+        vec![
+            s(&["identify", "documents", "A"]),
+            s(&["identify", "documents", "B"]),
+            s(&["identify", "small", "X"]),
+            s(&["identify", "Y"]),
+            s(&["effects", "E"]),
+            s(&["dsp"]),
+        ]
+    );
+    assert_eq!(
+        module_path(Path::new("/s"), Path::new("/s/identify/report/mod.rs")),
+        s(&["identify", "report"])
+    );
+    assert_eq!(module_path(Path::new("/s"), Path::new("/s/lib.rs")), s(&[]));
+}
+
+#[test]
+fn no_import_circle_between_files_of_a_module() {
+    let mut found = Vec::new();
+    let mut read = 0;
+    for (name, src) in crate_sources() {
+        for (module, g) in file_graphs(&src) {
+            read += 1;
+            for c in circles(&g) {
+                let ties: Vec<String> = c
+                    .iter()
+                    .flat_map(|a| {
+                        g[a].iter()
+                            .filter(|b| c.contains(b))
+                            .map(move |b| format!("{a} -> {b}"))
+                    })
+                    .collect();
+                found.push(format!(
+                    "{name} {module}: {{{}}} ({})",
+                    c.join(", "),
+                    ties.join(", ")
+                ));
+            }
+        }
+    }
+    assert!(read > 10, "only {read} folder modules read");
+    assert!(
+        found.is_empty(),
+        "import circles between the files of a module (move what both need into a file of its own):\n{}",
         found.join("\n")
     );
 }
