@@ -512,9 +512,10 @@ fn absolute_refs(code: &str, base: &[String]) -> Vec<Vec<String>> {
     let mut i = 0;
     while i < code.len() {
         let starts = code[i..].starts_with("crate::") || code[i..].starts_with("super::");
-        let boundary = i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_' || b[i - 1] == b'$');
+        let boundary =
+            i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_' || b[i - 1] == b'$');
         if !(starts && boundary) {
-            i += 1;
+            i += code[i..].chars().next().map_or(1, char::len_utf8);
             continue;
         }
         let (segs, rest) = path_segments(&code[i..]);
@@ -554,8 +555,7 @@ fn absolute_refs(code: &str, base: &[String]) -> Vec<Vec<String>> {
         } else {
             out.push(abs);
         }
-        i += code.len() - rest.len() - i;
-        i = i.max(1);
+        i = code.len() - rest.len();
     }
     out
 }
@@ -600,7 +600,11 @@ fn file_graphs(src: &Path) -> BTreeMap<String, BTreeMap<String, BTreeSet<String>
                 continue;
             };
             let names: Vec<String> = match rest.strip_prefix('{') {
-                Some(g) => g.trim_end_matches('}').split(',').map(str::to_string).collect(),
+                Some(g) => g
+                    .trim_end_matches('}')
+                    .split(',')
+                    .map(str::to_string)
+                    .collect(),
                 None => vec![segs.last().unwrap().clone() + rest],
             };
             for n in names {
@@ -667,6 +671,11 @@ fn file_circle_finder_resolves_paths() {
     assert_eq!(module_path(Path::new("/s"), Path::new("/s/lib.rs")), s(&[]));
 }
 
+/// Circles between files known when the check came (issue 37), each to be
+/// broken by its room's owner; a new one fails. The entry is the message's
+/// line, so a circle that grows or shrinks fails too.
+const KNOWN_FILE_CIRCLES: &[&str] = &["springbench-core qc: {limits, production, recipe, verdict} (limits -> production, limits -> recipe, limits -> verdict, production -> limits, production -> recipe, recipe -> production, verdict -> recipe)"];
+
 #[test]
 fn no_import_circle_between_files_of_a_module() {
     let mut found = Vec::new();
@@ -692,6 +701,7 @@ fn no_import_circle_between_files_of_a_module() {
         }
     }
     assert!(read > 10, "only {read} folder modules read");
+    found.retain(|f| !KNOWN_FILE_CIRCLES.contains(&f.as_str()));
     assert!(
         found.is_empty(),
         "import circles between the files of a module (move what both need into a file of its own):\n{}",
