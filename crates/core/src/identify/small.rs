@@ -4,7 +4,7 @@
 //! the output error (the displacement spectrum) in a few passes.
 
 use super::prep::{check_signals, lowpass_for, noise_band};
-use super::{AnalyzeError, SmallSignal};
+use super::{AnalyzeError, SmallSignal, WideBandResonance};
 use crate::dsp::{self, Complex64, Spectrum};
 use crate::recording::Signals;
 use std::f64::consts::PI;
@@ -330,26 +330,6 @@ fn excited_bins(pre: &Signals, sx: &Spectrum, tf: &dsp::TransferFunction) -> Vec
             smooth.iter().map(|&p| p > 1e-2 * pmax).collect()
         }
     }
-}
-
-/// A resonance of the pre-measurement's transfer function X/Mic at a fixed
-/// frequency of its own (a second mechanical mode: part of the moving mass
-/// on its own spring), fitted over the whole excited band.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct WideBandResonance {
-    pub frequency_hz: f64,
-    pub q: f64,
-    /// The mass that moves on the mode's own spring (kg).
-    pub mass_kg: f64,
-    /// The band fitted (Hz).
-    pub band_hz: [f64; 2],
-    /// Relative misfit (%) of X over that band of the linear resonator,
-    /// with creep added (best tau), and with the resonance added.
-    pub misfit_linear_percent: f64,
-    pub misfit_with_creep_percent: f64,
-    pub misfit_with_resonance_percent: f64,
-    /// The misfit the sensors' white noise alone would give (%).
-    pub noise_misfit_percent: f64,
 }
 
 /// The pre-measurement's transfer function over its whole excited band

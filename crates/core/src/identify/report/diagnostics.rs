@@ -12,8 +12,8 @@
 //!
 //! [`Report`]: super::Report
 
-use super::documents::{CandidateResult, LadderStep, SeriesFit};
-use super::WideBandResonance;
+pub use super::documents::Ambiguity;
+use super::documents::{CandidateResult, LadderStep, SeriesFit, WideBandResonance};
 use crate::effects::{EffectId, Effects};
 use serde::{Deserialize, Serialize, Serializer};
 
@@ -95,19 +95,6 @@ impl Default for MethodNotes {
             model_error: "sqrt(residual^2 - noise_floor^2), residual on held-out blocks for candidates and ladder".into(),
         }
     }
-}
-
-/// Two effects the data cannot separate, and the experiment that would.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct Ambiguity {
-    /// The effect the ladder added, then the one left out.
-    pub effects: [String; 2],
-    /// Share of the base model's held-out error each removes (%).
-    pub error_reduction_percent: [f64; 2],
-    /// p-value of the first once the second is in the model.
-    pub p_value_of_first_after_second: Option<f64>,
-    pub separating_experiment: String,
-    pub note: String,
 }
 
 /// The small-signal model: the engine on the pre-measurement (no plot data).

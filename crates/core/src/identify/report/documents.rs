@@ -1,8 +1,10 @@
 //! Sub-documents of the result document that the diagnostics fill: the
-//! ladder, the ranked candidates and a level series' joint fit. They live
-//! here, beside [`super::Report`], so that the document does not depend on
-//! the engine that computes them (`diagnose` depends on `identify`, never the
-//! other way).
+//! ladder, the ranked candidates, a level series' joint fit, the effect
+//! pairs the data cannot separate and a second mode of the pre-measurement.
+//! They live here, beside [`super::Report`], so that the document does not
+//! depend on the engine that computes them (`diagnose` depends on
+//! `identify`, never the other way), and they import nothing of the
+//! document above them (`diagnostics` uses them, not the reverse).
 
 use crate::effects::Effects;
 use serde::{Deserialize, Serialize};
@@ -98,7 +100,7 @@ pub struct JointFit {
     pub candidates: Vec<CandidateResult>,
     /// Effect pairs the joint data still cannot separate (as
     /// `diagnostics.ambiguities`).
-    pub ambiguities: Vec<super::diagnostics::Ambiguity>,
+    pub ambiguities: Vec<Ambiguity>,
 }
 
 /// What a series fit returns.
@@ -106,4 +108,37 @@ pub struct JointFit {
 pub struct SeriesFit {
     pub levels: Vec<LevelFit>,
     pub joint: JointFit,
+}
+
+/// Two effects the data cannot separate, and the experiment that would.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Ambiguity {
+    /// The effect the ladder added, then the one left out.
+    pub effects: [String; 2],
+    /// Share of the base model's held-out error each removes (%).
+    pub error_reduction_percent: [f64; 2],
+    /// p-value of the first once the second is in the model.
+    pub p_value_of_first_after_second: Option<f64>,
+    pub separating_experiment: String,
+    pub note: String,
+}
+
+/// A resonance of the pre-measurement's transfer function X/Mic at a fixed
+/// frequency of its own (a second mechanical mode: part of the moving mass
+/// on its own spring), fitted over the whole excited band.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct WideBandResonance {
+    pub frequency_hz: f64,
+    pub q: f64,
+    /// The mass that moves on the mode's own spring (kg).
+    pub mass_kg: f64,
+    /// The band fitted (Hz).
+    pub band_hz: [f64; 2],
+    /// Relative misfit (%) of X over that band of the linear resonator,
+    /// with creep added (best tau), and with the resonance added.
+    pub misfit_linear_percent: f64,
+    pub misfit_with_creep_percent: f64,
+    pub misfit_with_resonance_percent: f64,
+    /// The misfit the sensors' white noise alone would give (%).
+    pub noise_misfit_percent: f64,
 }
