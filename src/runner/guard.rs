@@ -25,7 +25,7 @@ const READERS: [(&str, &str); 11] = [
 ];
 
 /// Ways of reading a stored document by key.
-const BY_KEY: [&str; 8] = [
+const BY_KEY: [&str; 9] = [
     "pointer(",
     "[\"detail\"]",
     "[\"type\"]",
@@ -34,6 +34,8 @@ const BY_KEY: [&str; 8] = [
     "config[\"",
     "from_value(job.request",
     "request.get(\"type\")",
+    // a limit proposal's recipe (the approval read `p.proposal["recipe"]`)
+    ".proposal[",
 ];
 
 #[test]

@@ -8,6 +8,7 @@ pub use crate::results::{NewVerdict, RecipeRow, VerdictRow};
 use crate::results::{RecipeReads, VerdictReads};
 use serde::Serialize;
 use serde_json::Value;
+use springbench_core::qc::limits::Proposal;
 use sqlx::sqlite::SqliteRow;
 use sqlx::Row;
 
@@ -18,8 +19,7 @@ pub struct ProposalRow {
     pub recipe_name: String,
     pub recipe_version: i64,
     /// [`crate::qc::limits::Proposal`].
-    #[schema(value_type = springbench_core::qc::limits::Proposal)]
-    pub proposal: Value,
+    pub proposal: Proposal,
     /// `proposed`, `approved` or `rejected`.
     pub state: String,
     pub created_by: Option<String>,
@@ -118,7 +118,12 @@ fn proposal_from_row(r: &SqliteRow) -> StoreResult<ProposalRow> {
         id: r.get("id"),
         recipe_name: r.get("recipe_name"),
         recipe_version: r.get("recipe_version"),
-        proposal: parse_json(&r.get::<String, _>("body_json"))?,
+        proposal: serde_json::from_str(&r.get::<String, _>("body_json")).map_err(|e| {
+            StoreError::Corrupt(format!(
+                "limit proposal {} unreadable: {e}",
+                r.get::<String, _>("id")
+            ))
+        })?,
         state: r.get("state"),
         created_by: r.get("created_by"),
         created_at: r.get("created_at"),
@@ -302,9 +307,14 @@ impl Store {
         id: &str,
         recipe_name: &str,
         recipe_version: i64,
-        proposal: &Value,
+        proposal: &Proposal,
         created_by: Option<&str>,
     ) -> StoreResult<ProposalRow> {
+        // Through a Value: its members sorted, the text earlier versions
+        // stored (decision 0080).
+        let text = serde_json::to_value(proposal)
+            .map_err(|e| StoreError::Invalid(format!("limit proposal not storable: {e}")))?
+            .to_string();
         sqlx::query(
             "INSERT INTO qc_limit_proposals (id, recipe_name, recipe_version, body_json, state, created_by, created_at) \
              VALUES (?, ?, ?, ?, 'proposed', ?, ?)",
@@ -312,7 +322,7 @@ impl Store {
         .bind(id.to_string())
         .bind(recipe_name.to_string())
         .bind(recipe_version)
-        .bind(proposal.to_string())
+        .bind(text)
         .bind(created_by.map(str::to_string))
         .bind(now())
         .execute(&self.pool)

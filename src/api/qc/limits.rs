@@ -123,10 +123,9 @@ pub async fn propose(
     p.left_out = left_out;
     p.kept_failed = kept_failed;
     let id = crate::runner::new_id();
-    let body = serde_json::to_value(&p).map_err(Problem::internal)?;
     let row = st
         .store
-        .insert_proposal(&id, &name, row.version, &body, caller.0.as_deref())
+        .insert_proposal(&id, &name, row.version, &p, caller.0.as_deref())
         .await?;
     Ok(located(
         StatusCode::CREATED,
@@ -204,9 +203,8 @@ pub async fn approve(
     if p.state != "proposed" {
         return Err(decided(&p));
     }
-    let recipe: Recipe =
-        serde_json::from_value(p.proposal["recipe"].clone()).map_err(Problem::internal)?;
-    let body = serde_json::to_value(&recipe).map_err(Problem::internal)?;
+    let recipe: &Recipe = &p.proposal.recipe;
+    let body = serde_json::to_value(recipe).map_err(Problem::internal)?;
     match st
         .store
         .approve_proposal(&id, &recipe.sha256(), &body, caller.0.as_deref())
