@@ -16,7 +16,7 @@ pub use harmonics::{
     harmonics_per_period, harmonics_per_period_of, period_marks, resonance_peak, PeriodHarmonics,
 };
 pub use lstsq::{lstsq, Lstsq, LstsqError};
-pub use quantile::quantile_pair;
+pub use quantile::{max_abs, quantile_pair};
 pub use realfft::num_complex::Complex64;
 pub use spectrum::{LowPass, Spectrum};
 pub use tf::{transfer_function, TransferFunction};

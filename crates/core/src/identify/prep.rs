@@ -102,14 +102,26 @@ fn clipped_run(x: &[f64], min_run: usize) -> Option<usize> {
     clipped_run_within(x, mn, mx, min_run)
 }
 
-/// [`clipped_run`] with the extremes known: one pass for both.
+/// [`clipped_run`] with the extremes known: one pass for both. A block of
+/// 64 samples none of which is at an extreme (nearly all of a record) only
+/// ends the runs, so it is tested as a whole (a pass that vectorises) and
+/// walked sample by sample only when one is.
 fn clipped_run_within(x: &[f64], mn: f64, mx: f64, min_run: usize) -> Option<usize> {
     let tol = 1e-9 * (mx - mn).abs().max(f64::MIN_POSITIVE);
     let (mut lo, mut hi, mut best) = (0usize, 0usize, 0usize);
-    for &v in x {
-        lo = if (v - mn).abs() <= tol { lo + 1 } else { 0 };
-        hi = if (v - mx).abs() <= tol { hi + 1 } else { 0 };
-        best = best.max(lo).max(hi);
+    for block in x.chunks(64) {
+        let any = block.iter().fold(false, |a, &v| {
+            a | ((v - mn).abs() <= tol) | ((v - mx).abs() <= tol)
+        });
+        if !any {
+            (lo, hi) = (0, 0);
+            continue;
+        }
+        for &v in block {
+            lo = if (v - mn).abs() <= tol { lo + 1 } else { 0 };
+            hi = if (v - mx).abs() <= tol { hi + 1 } else { 0 };
+            best = best.max(lo).max(hi);
+        }
     }
     (best >= min_run).then_some(best)
 }
@@ -127,7 +139,7 @@ pub fn lowpass_for(fs: f64) -> LowPass {
 /// recorded, else from the band-limited displacement.
 fn marks(main: &Signals, x: &[f64], decim: usize) -> Vec<f64> {
     if let Some(d) = &main.drive_v {
-        let peak = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let peak = dsp::max_abs(d);
         if peak > 0.0 {
             let m = dsp::period_marks(d, 0.05 * peak);
             if m.len() > 10 {
@@ -137,7 +149,7 @@ fn marks(main: &Signals, x: &[f64], decim: usize) -> Vec<f64> {
     }
     let mean = x.iter().sum::<f64>() / x.len().max(1) as f64;
     let centred: Vec<f64> = x.iter().map(|v| v - mean).collect();
-    let peak = centred.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let peak = dsp::max_abs(&centred);
     dsp::period_marks(&centred, 0.05 * peak)
 }
 
@@ -303,5 +315,18 @@ mod tests {
             *v = v.clamp(-0.9, 0.9);
         }
         assert!(clipped_run(&x, 8).unwrap() >= 8);
+    }
+
+    /// The run's length is counted across the 64-sample blocks, and a
+    /// block without an extreme ends it.
+    #[test]
+    fn clipped_runs_are_counted_across_blocks() {
+        let mut x: Vec<f64> = (0..1000).map(|i| 0.5 * (i as f64 * 0.05).sin()).collect();
+        x[60..75].fill(1.0); // 15 samples over a block boundary (64)
+        x[300..310].fill(-1.0);
+        assert_eq!(clipped_run(&x, 8), Some(15));
+        x[200..203].fill(1.0);
+        x[260..262].fill(1.0); // another block between: no longer run
+        assert_eq!(clipped_run(&x, 16), None);
     }
 }

@@ -64,7 +64,10 @@ pub fn fit_spectra(
     let fs = pre.sample_rate_hz;
     let fmax = max_hz(fs);
     let tf = dsp::transfer_function(sm, sx, sx.df_hz(), fmax);
-    let excited = excited_bins(pre, sx, &tf);
+    // The drive's band, found once for this fit and both wide-band checks
+    // (a pass over the drive's 800 000 samples each).
+    let drive = drive_band(pre);
+    let excited = excited_bins(drive, sx, &tf);
     // Coarse resonance: peak of |H| (1 Hz smoothed) over the excited band.
     let hs: Vec<f64> = tf.h.iter().map(|h| h.norm()).collect();
     let hs = smooth_mean(&hs, (1.0 / sx.df_hz()).round() as usize);
@@ -204,7 +207,7 @@ pub fn fit_spectra(
     // is partly "explained" by creep too.)
     let mut creep = None;
     let whole = reliable
-        .then(|| wide_band(pre, mass_kg, sx, sm, false, None))
+        .then(|| wide_band_in(pre, drive, mass_kg, sx, sm, false, None))
         .flatten();
     if let Some(wb) = &whole {
         let share = wb.creep_share_percent();
@@ -237,7 +240,10 @@ pub fn fit_spectra(
     // that rises with frequency. Over the whole band the spider's own
     // harmonics above the resonance hide it (issue 22, decision 0052).
     let below = reliable
-        .then(|| wide_band(pre, mass_kg, sx, sm, false, Some(BELOW_RESONANCE * fpk)))
+        .then(|| {
+            let below_hz = Some(BELOW_RESONANCE * fpk);
+            wide_band_in(pre, drive, mass_kg, sx, sm, false, below_hz)
+        })
         .flatten();
     if let (None, Some(b)) = (&creep, &below) {
         if let Some(why) = b.creep_below_resonance(k0) {
@@ -311,7 +317,7 @@ fn smooth_mean(v: &[f64], w: usize) -> Vec<f64> {
 fn drive_band(pre: &Signals) -> Option<(f64, f64)> {
     let fs = pre.sample_rate_hz;
     pre.drive_v.as_ref().and_then(|d| {
-        let peak = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let peak = dsp::max_abs(d);
         let marks = dsp::period_marks(d, 0.05 * peak);
         let f = marks.windows(2).map(|w| fs / (w[1] - w[0]));
         let (lo, hi) = f.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
@@ -321,8 +327,13 @@ fn drive_band(pre: &Signals) -> Option<(f64, f64)> {
 
 /// Where the stimulus has energy: the frequency range of the drive's
 /// periods when the drive is recorded, else where the microphone has power.
-fn excited_bins(pre: &Signals, sx: &Spectrum, tf: &dsp::TransferFunction) -> Vec<bool> {
-    match drive_band(pre) {
+/// (`drive_band`: [`drive_band`] of the pre-measurement.)
+fn excited_bins(
+    drive_band: Option<(f64, f64)>,
+    sx: &Spectrum,
+    tf: &dsp::TransferFunction,
+) -> Vec<bool> {
+    match drive_band {
         Some((lo, hi)) => tf.freq_hz.iter().map(|f| *f >= lo && *f <= hi).collect(),
         None => {
             let smooth = smooth_mean(&tf.input_power, (1.0 / sx.df_hz()).round() as usize);
@@ -566,10 +577,24 @@ pub fn wide_band(
     with_resonance: bool,
     below_hz: Option<f64>,
 ) -> Option<WideBand> {
+    let band = drive_band(pre);
+    wide_band_in(pre, band, mass_kg, sx, sm, with_resonance, below_hz)
+}
+
+/// [`wide_band`] with the drive's band found already ([`drive_band`]).
+fn wide_band_in(
+    pre: &Signals,
+    drive_band: Option<(f64, f64)>,
+    mass_kg: f64,
+    sx: &Spectrum,
+    sm: &Spectrum,
+    with_resonance: bool,
+    below_hz: Option<f64>,
+) -> Option<WideBand> {
     let fs = pre.sample_rate_hz;
     let fmax = max_hz(fs);
     let tf = dsp::transfer_function(sm, sx, sx.df_hz(), fmax);
-    let excited = excited_bins(pre, sx, &tf);
+    let excited = excited_bins(drive_band, sx, &tf);
     let f_in: Vec<f64> = (0..tf.freq_hz.len())
         .filter(|&k| excited[k] && tf.freq_hz[k] > 1.0)
         .map(|k| tf.freq_hz[k])
