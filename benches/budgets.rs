@@ -12,6 +12,7 @@
 //! Run: `cargo bench --profile dev --bench budgets` (needs `valgrind` and
 //! `gungraun-runner` of the same version as the `gungraun` library).
 use gungraun::{library_benchmark, library_benchmark_group, main, LibraryBenchmarkConfig};
+use springbench::bench::long_term::{run_accelerated, LongTermPlan};
 use springbench::bench::simulate::{simulate, SimulateOptions};
 use springbench::bench::virtual_bench::VirtualBench;
 use springbench::diagnose::{diagnose, DiagnoseOptions};
@@ -23,6 +24,9 @@ use springbench::qc::production::{GoldenLevel, GoldenReference, DEFAULT_MAX_F0_D
 use springbench::qc::spc::{self, SpcPoint};
 use springbench::qc::{ParamOutcome, ParamResult, Verdict, VerdictKind};
 use springbench::recording::{Meta, RecordingSet, RecordingSetFiles};
+use springbench::store::fleet::{
+    ItemBody, JobVerdictsItem, MeasurementItem, RecordingItem, ReplicationItem, VerdictItem,
+};
 use std::hint::black_box;
 
 /// A reference recording set (16.5 s pre-measurement + 10.5 s main sweep,
@@ -238,17 +242,153 @@ fn cfx_lot_messages(lot: Vec<JobFacts>) -> usize {
     black_box(bytes)
 }
 
-// An ingest batch at the center's store layer: not budgeted yet. The
-// center's PgStore runs its SQL in the PostgreSQL server (another process,
-// which callgrind does not count), and the station's SQLite Store runs it on
-// sqlx's worker thread, which the counted call never enters (a first version
-// counted 0.6 M instructions of futures polling for 20 measurements and none
-// of SQLite's work). docs/performance.md says what it needs.
+/// A long-term test's first hour on the virtual bench (issue 32's
+/// accelerated test, `bench::long_term::run_accelerated`): spider_3in aging
+/// from new, measured at the start and the end of the hour with the short
+/// full procedure at 6 mm, the hour's sine stimulus at 5.3 mm applied
+/// between them. The ageing tests measure every 15 minutes with 16 s + 10 s
+/// sweeps; under Valgrind that hour would take minutes, and its cost is the
+/// measurements', which this counts (two, at a quarter of their length).
+fn long_term_hour() -> (VirtualBench, LongTermPlan) {
+    let part = preset("spider_3in").expect("preset spider_3in");
+    assert!(part.ageing.is_some(), "spider_3in ages");
+    let plan = LongTermPlan {
+        duration_s: 3600.0,
+        interval_s: 3600.0,
+        stimulus_xpeak_m: 0.0053,
+        procedure: ProcedureConfig {
+            levels_m: vec![0.006],
+            ..short_full_procedure().procedure
+        },
+    };
+    (VirtualBench::new(part, 3).with_ageing(0.0), plan)
+}
 
-// A long-term test's hour on the virtual bench: the slot for issue 32's
-// long-term procedure (being built in parallel, not on main yet). Add it
-// here as `long_term_hour` in the `procedures` group, with a baseline line
-// in benches/budgets.baseline (docs/performance.md, "Instruction budgets").
+#[library_benchmark]
+#[bench::spider_3in(setup = long_term_hour)]
+fn long_term_test((mut vb, plan): (VirtualBench, LongTermPlan)) -> usize {
+    let mut frames = 0;
+    run_accelerated(&mut vb, black_box(&plan), &mut |m| {
+        frames += m.set.pre.len() + m.set.main.len();
+        Ok(())
+    })
+    .expect("long-term test");
+    black_box(frames)
+}
+
+/// A batch of the station's default size (`[fleet] batch_items` = 50): 40
+/// finished measurements and the verdicts of 10 jobs of 4 measurements,
+/// each measurement with its result document, one verdict and its two
+/// recordings as references (`[fleet] recordings = "reference"`; with the
+/// bytes the center also hashes them: SHA-256, linear in their size).
+fn ingest_batch(items: usize) -> Vec<ReplicationItem> {
+    let report = serde_json::to_value(Report::default()).expect("report json");
+    let detail = serde_json::to_value(&lot_facts(1)[0].job_verdict).expect("verdict json");
+    let verdict = |i: usize, measurement: Option<String>| VerdictItem {
+        id: format!("v-{i:04}"),
+        job_id: Some(format!("job-{:04}", i / 4)),
+        measurement_id: measurement,
+        part_serial: format!("LOT7-{:04}", i / 4),
+        recipe_name: "spider-4in".into(),
+        recipe_version: 3,
+        recipe_sha256: "ab".repeat(32),
+        verdict: "pass".into(),
+        detail: detail.clone(),
+        trace: serde_json::json!({
+            "software_version": "0.1.0", "bench_id": "virtual-1",
+            "recipe": {"name": "spider-4in", "version": 3}, "offline": false
+        }),
+        created_at: "2026-11-28T08:00:05.000Z".into(),
+    };
+    let recording = |kind: &str, frames: i64| RecordingItem {
+        kind: kind.into(),
+        sample_rate_hz: 48_000.0,
+        frames,
+        channel_scale: None,
+        sha256: "cd".repeat(32),
+        byte_len: 4 * frames,
+        bytes: None,
+    };
+    let measurements = items * 4 / 5;
+    (0..items)
+        .map(|i| {
+            let body = if i < measurements {
+                let id = format!("m-{i:04}");
+                ItemBody::Measurement(Box::new(MeasurementItem {
+                    id: id.clone(),
+                    part_serial: format!("LOT7-{:04}", i / 4),
+                    part_kind: Some("spider_4in".into()),
+                    part_notes: None,
+                    job_id: Some(format!("job-{:04}", i / 4)),
+                    source: "bench".into(),
+                    bench_id: Some("virtual-1".into()),
+                    config: serde_json::json!({
+                        "analysis": {"method": "two-signal", "order": null},
+                        "bench": "virtual-1", "seed": i,
+                        "procedure": {"levels_m": [0.008], "pre_duration_s": 16.0, "narrow_duration_s": 10.0}
+                    }),
+                    meta: serde_json::json!({"moving_mass_kg": 0.0121, "sample_rate_hz": 48000.0}),
+                    result: Some(report.clone()),
+                    analysis_error: None,
+                    target_xpeak_m: Some(0.008),
+                    repeat_index: Some((i % 4) as i64),
+                    level_index: Some(0),
+                    pre: recording("pre", 792_000),
+                    main: recording("main", 504_000),
+                    calibration: None,
+                    verdicts: vec![verdict(i, Some(id))],
+                    software_version: "0.1.0".into(),
+                    created_at: "2026-11-28T08:00:05.000Z".into(),
+                }))
+            } else {
+                let job = i - measurements;
+                let v = verdict(4 * job, None);
+                ItemBody::JobVerdicts(JobVerdictsItem {
+                    job_id: v.job_id.clone().unwrap_or_default(),
+                    part_serial: v.part_serial.clone(),
+                    verdicts: vec![v],
+                })
+            };
+            ReplicationItem {
+                seq: i as i64 + 1,
+                body,
+            }
+        })
+        .collect()
+}
+
+// The center's work on an ingest batch outside PostgreSQL
+// (`PgStore::ingest` in crates/store-pg): per item its id and content
+// hash, the checks that refuse a contradictory item (`to_finished`, each
+// verdict's `to_new`), and the JSON texts bound to the SQL. The SQL runs
+// in the PostgreSQL server, another process that callgrind does not count
+// (docs/performance.md).
+#[library_benchmark]
+#[bench::items_50(args = (50), setup = ingest_batch)]
+fn center_ingest_batch(items: Vec<ReplicationItem>) -> usize {
+    let mut bytes = 0;
+    for item in black_box(&items) {
+        bytes += item.item_id().len() + item.content_sha256().len();
+        match &item.body {
+            ItemBody::Measurement(m) => {
+                let f = m.to_finished().expect("a consistent measurement");
+                bytes += m.config.to_string().len() + m.meta.to_string().len();
+                bytes += m.result.as_ref().map_or(0, |r| r.to_string().len());
+                for v in &f.verdicts {
+                    bytes += v.detail.to_string().len() + v.trace.to_string().len();
+                }
+            }
+            ItemBody::JobVerdicts(j) => {
+                for v in &j.verdicts {
+                    let v = v.to_new().expect("a known verdict");
+                    bytes += v.detail.to_string().len() + v.trace.to_string().len();
+                }
+            }
+            ItemBody::Correction(_) => {}
+        }
+    }
+    black_box(bytes)
+}
 
 library_benchmark_group!(
     name = analysis;
@@ -257,7 +397,7 @@ library_benchmark_group!(
 
 library_benchmark_group!(
     name = procedures;
-    benchmarks = simulate_full_procedure
+    benchmarks = simulate_full_procedure, long_term_test
 );
 
 library_benchmark_group!(
@@ -265,7 +405,12 @@ library_benchmark_group!(
     benchmarks = spc_compute, cfx_lot_messages
 );
 
+library_benchmark_group!(
+    name = fleet;
+    benchmarks = center_ingest_batch
+);
+
 main!(
     config = LibraryBenchmarkConfig::default();
-    library_benchmark_groups = analysis, procedures, quality
+    library_benchmark_groups = analysis, procedures, quality, fleet
 );
