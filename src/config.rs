@@ -94,6 +94,37 @@ pub struct Config {
     pub database: Option<String>,
     /// A station of a fleet (`[fleet]`): where and how it replicates.
     pub fleet: Option<FleetConfig>,
+    /// The fleet role's stations (`[[stations]]`): each one's id and the
+    /// token it posts its items with (decision 0105). A station not listed
+    /// here cannot deliver to the center.
+    pub stations: Vec<StationCredential>,
+    /// The fleet role: heavy SPC queries (`/api/v1/fleet/recipes/{name}/spc`)
+    /// running at once per client; one more is answered 429 with
+    /// `Retry-After` (default 2).
+    pub spc_per_client: usize,
+    /// The fleet role: largest body of a station's batch (bytes, default
+    /// 256 MiB; a larger one is 413 and the station sends its items one by one).
+    pub max_ingest_bytes: usize,
+}
+
+/// `[[stations]]` of the fleet role: one station's credential.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationCredential {
+    /// The station's id (its `[fleet] station_id`).
+    pub station_id: String,
+    /// The bearer secret the station posts with (its `[fleet] token`), at
+    /// least 16 characters, no placeholder.
+    pub token: String,
+    /// The station's former ids (a rename on purpose): the center moves its
+    /// record of the station's stream to this id and lets the station
+    /// correct and void what it made under them; the rows keep their id.
+    #[serde(default)]
+    pub former_ids: Vec<String>,
+    /// A station taken out of the fleet: its token is refused (and each
+    /// attempt recorded), its history stays.
+    #[serde(default)]
+    pub retired: bool,
 }
 
 impl Default for Config {
@@ -122,6 +153,9 @@ impl Default for Config {
             retention: Retention::default(),
             database: None,
             fleet: None,
+            stations: vec![],
+            spc_per_client: 2,
+            max_ingest_bytes: 256 * 1024 * 1024,
         }
     }
 }
@@ -156,6 +190,26 @@ impl Config {
                     "[fleet] is a station's table; the fleet role (database = ...) has none".into(),
                 );
             }
+            let mut seen = std::collections::HashSet::new();
+            for s in &self.stations {
+                check_station_id("stations.station_id", &s.station_id)?;
+                check_secret(&format!("stations[{}].token", s.station_id), &s.token)?;
+                for f in &s.former_ids {
+                    check_station_id(&format!("stations[{}].former_ids", s.station_id), f)?;
+                }
+                for id in std::iter::once(&s.station_id).chain(&s.former_ids) {
+                    if !seen.insert(id.as_str()) {
+                        return Err(format!(
+                            "stations: station id '{id}' is given twice (an id, once used, names one station for good)"
+                        ));
+                    }
+                }
+            }
+            if self.spc_per_client == 0 {
+                return Err("spc_per_client must be >= 1".into());
+            }
+        } else if !self.stations.is_empty() {
+            return Err("[[stations]] is the fleet role's table (database = ...); a station names its center in [fleet]".into());
         } else if self.benches.is_empty() {
             return Err("at least one [[benches]] entry is needed (or database = \"postgres://...\" for the fleet role)".into());
         }
@@ -218,6 +272,7 @@ impl Config {
                     t.name
                 ));
             }
+            check_secret(&format!("auth token '{}'", t.name), &t.token)?;
             if !secrets.insert(t.token.as_str()) {
                 return Err(format!(
                     "auth token '{}': the same secret is used twice",
@@ -260,6 +315,58 @@ impl Config {
     pub fn open_access(&self) -> bool {
         self.auth.tokens.is_empty()
     }
+}
+
+/// A secret the daemon accepts: no placeholder of the shipped deploy files
+/// or docs (`<your secret ...>`, `change-me`, `...`), at least 16
+/// characters, and not a run of a few characters repeated. `key` names the
+/// configuration key in the error.
+pub fn check_secret(key: &str, secret: &str) -> Result<(), String> {
+    let lower = secret.to_ascii_lowercase();
+    let placeholder = [
+        "<",
+        ">",
+        "your secret",
+        "your-secret",
+        "change-me",
+        "changeme",
+        "placeholder",
+        "replace",
+        "...",
+    ]
+    .iter()
+    .any(|p| lower.contains(p));
+    if placeholder || is_published_example_token(secret) {
+        return Err(format!(
+            "{key}: '{secret}' is a placeholder; set a secret of your own (e.g. `openssl rand -hex 24`)"
+        ));
+    }
+    if secret.chars().count() < 16 {
+        return Err(format!(
+            "{key}: the secret must have at least 16 characters"
+        ));
+    }
+    let distinct: std::collections::HashSet<char> = secret.chars().collect();
+    if distinct.len() < 6 || secret.chars().any(char::is_control) {
+        return Err(format!(
+            "{key}: a weak secret (fewer than 6 different characters, or control characters); use e.g. `openssl rand -hex 24`"
+        ));
+    }
+    Ok(())
+}
+
+fn check_station_id(key: &str, id: &str) -> Result<(), String> {
+    if id.is_empty()
+        || id.len() > 64
+        || !id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+    {
+        return Err(format!(
+            "{key} '{id}': 1 to 64 letters, digits, '-', '_' or '.'"
+        ));
+    }
+    Ok(())
 }
 
 /// Token secrets shown in published examples (`deploy/springbench.toml` of
@@ -350,8 +457,17 @@ pub enum RecordingsPolicy {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FleetConfig {
-    /// The center's database, `postgres://user[:password]@host[:port]/db`.
+    /// The center's fleet role, `https://center.lab:8760` (or `http://`
+    /// on a trusted network): the station posts its items there (decision
+    /// 0105); it holds no credential of the center's database.
     pub center: String,
+    /// This station's secret at the center (the center's `[[stations]]`
+    /// entry of this `station_id` holds the same): at least 16 characters.
+    pub token: String,
+    /// A PEM file of the certificate authority that signed the center's
+    /// certificate (`https://`); default: the system's trust store.
+    #[serde(default)]
+    pub ca_file: Option<String>,
     /// This station's name in the fleet (letters, digits, '-', '_', '.';
     /// at most 64): every row the center shows carries it. Never reuse one
     /// station's id for another.
@@ -384,18 +500,31 @@ fn default_recipe_poll_s() -> f64 {
 
 impl FleetConfig {
     fn validate(&self) -> Result<(), String> {
-        check_postgres_url("fleet.center", &self.center)?;
-        let id = &self.station_id;
-        if id.is_empty()
-            || id.len() > 64
-            || !id
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
-        {
-            return Err(format!(
-                "fleet.station_id '{id}': 1 to 64 letters, digits, '-', '_' or '.'"
-            ));
+        let u = url::Url::parse(&self.center).map_err(|e| {
+            format!("fleet.center: not a URL ({e}); expected https://center.lab:8760")
+        })?;
+        match u.scheme() {
+            "http" | "https" => {}
+            "postgres" | "postgresql" => return Err(
+                "fleet.center: a station no longer writes the center's database (decision 0105); name the center's fleet role, e.g. https://center.lab:8760, and set fleet.token".into(),
+            ),
+            other => {
+                return Err(format!(
+                    "fleet.center: scheme '{other}'; expected https://center.lab:8760"
+                ))
+            }
         }
+        if u.host_str().is_none_or(str::is_empty) {
+            return Err("fleet.center: no host; expected https://center.lab:8760".into());
+        }
+        if !u.username().is_empty() || u.password().is_some() {
+            return Err(
+                "fleet.center: no credentials in the URL; the station's secret is fleet.token"
+                    .into(),
+            );
+        }
+        check_secret("fleet.token", &self.token)?;
+        check_station_id("fleet.station_id", &self.station_id)?;
         if !(1..=1000).contains(&self.batch_items) {
             return Err(format!(
                 "fleet.batch_items must be in 1..=1000, got {}",
@@ -588,46 +717,113 @@ mod tests {
     }
 
     #[test]
-    fn example_fleet_configs_in_deploy_parse() {
-        let station = include_str!("../deploy/fleet-station.toml")
-            .replace("<your secret, 16+ characters>", "0123456789abcdef-station");
-        let s = Config::parse(&station).expect("deploy/fleet-station.toml is valid");
-        assert_eq!(s.fleet.unwrap().station_id, "line-3");
-        let center = include_str!("../deploy/fleet-center.toml")
-            .replace("<your secret, 16+ characters>", "0123456789abcdef-center");
-        let c = Config::parse(&center).expect("deploy/fleet-center.toml is valid");
+    fn the_shipped_fleet_configs_do_not_start_until_their_placeholders_are_replaced() {
+        let station = include_str!("../deploy/fleet-station.toml");
+        let center = include_str!("../deploy/fleet-center.toml");
+        // As shipped: refused, naming the first key with a placeholder.
+        let e = Config::parse(station).unwrap_err();
+        assert!(
+            e.contains("placeholder") && e.contains("fleet.token"),
+            "{e}"
+        );
+        let e = Config::parse(center).unwrap_err();
+        assert!(
+            e.contains("placeholder") && e.contains("stations[line-3].token"),
+            "{e}"
+        );
+        // With every placeholder replaced: valid.
+        let mut n = 0;
+        let fill = |t: &str, n: &mut usize| {
+            let mut out = String::new();
+            for (i, part) in t.split("<your secret, 16+ characters>").enumerate() {
+                if i > 0 {
+                    *n += 1;
+                    out.push_str(&format!("k3y-{i}-9f2c71ab04d8e6"));
+                }
+                out.push_str(part);
+            }
+            out
+        };
+        let s = Config::parse(&fill(station, &mut n)).expect("deploy/fleet-station.toml is valid");
+        let f = s.fleet.unwrap();
+        assert_eq!(f.station_id, "line-3");
+        assert!(f.center.starts_with("https://"));
+        let c = Config::parse(&fill(center, &mut n)).expect("deploy/fleet-center.toml is valid");
         assert!(c.is_fleet_role() && c.benches.is_empty());
+        assert!(c.stations.iter().any(|s| s.station_id == "line-3"));
+        assert!(n >= 3, "{n}");
+    }
+
+    #[test]
+    fn placeholder_and_weak_secrets_are_refused_naming_the_key() {
+        for (secret, needle) in [
+            ("<your secret, 16+ characters>", "placeholder"),
+            ("change-me-please-0001", "placeholder"),
+            ("aaaaaaaaaaaaaaaaaaaa", "weak"),
+            ("abababababababababab", "weak"),
+            ("short-1", "16 characters"),
+        ] {
+            let e = Config::parse(&format!(
+                "[fleet]\ncenter = \"https://center.lab:8760\"\nstation_id = \"line-3\"\ntoken = \"{secret}\""
+            ))
+            .unwrap_err();
+            assert!(
+                e.contains("fleet.token") && e.contains(needle),
+                "{secret}: {e}"
+            );
+            let e = Config::parse(&format!(
+                "database = \"postgres://sb@h/db\"\nbenches = []\n[[stations]]\nstation_id = \"line-4\"\ntoken = \"{secret}\""
+            ))
+            .unwrap_err();
+            assert!(
+                e.contains("stations[line-4].token") && e.contains(needle),
+                "{secret}: {e}"
+            );
+            let e = Config::parse(&format!(
+                "[[auth.tokens]]\nname = \"qe\"\ntoken = \"{secret}\"\nrole = \"viewer\""
+            ))
+            .unwrap_err();
+            assert!(e.contains("'qe'"), "{secret}: {e}");
+        }
     }
 
     #[test]
     fn fleet_keys_are_checked_with_one_line_each() {
-        let station = Config::parse(
-            "[fleet]\ncenter = \"postgres://sb:pw@center.lab:5432/springbench\"\nstation_id = \"line-3\"\nrecordings = \"reference\"",
-        )
+        const T: &str = "token = \"s3cret-line-3-0123456789\"";
+        let station = Config::parse(&format!(
+            "[fleet]\ncenter = \"https://center.lab:8760\"\nstation_id = \"line-3\"\nrecordings = \"reference\"\n{T}"
+        ))
         .unwrap();
         let f = station.fleet.as_ref().unwrap();
         assert_eq!(f.station_id, "line-3");
         assert_eq!(f.recordings, RecordingsPolicy::Reference);
         assert_eq!((f.batch_items, f.retry_max_s), (50, 30.0));
         assert!(!station.is_fleet_role());
-        let center =
-            Config::parse("database = \"postgres://sb@center.lab/springbench\"\nbenches = []")
-                .unwrap();
+        let center = Config::parse(&format!(
+            "database = \"postgres://sb@center.lab/springbench\"\nbenches = []\n[[stations]]\nstation_id = \"line-3\"\n{T}"
+        ))
+        .unwrap();
         assert!(center.is_fleet_role());
         for (text, needle) in [
-            ("database = \"postgres://sb@h/db\"", "benches = []"),
-            ("benches = []", "at least one [[benches]]"),
-            ("database = \"mysql://h/db\"\nbenches = []", "scheme 'mysql'"),
-            ("database = \"postgres://sb@h\"\nbenches = []", "no database name"),
-            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"line 3\"", "fleet.station_id"),
-            ("[fleet]\ncenter = \"sqlite://x\"\nstation_id = \"a\"", "fleet.center"),
-            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nrecordings = \"some\"", "some"),
-            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nretry_max_s = 0", "fleet.retry_max_s"),
-            ("[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"\nbatch_items = 0", "fleet.batch_items"),
-            ("[fleet]\nstation_id = \"a\"", "center"),
-            ("database = \"postgres://h/db\"\nbenches = []\n[fleet]\ncenter = \"postgres://h/db\"\nstation_id = \"a\"", "station's table"),
+            ("database = \"postgres://sb@h/db\"".to_string(), "benches = []"),
+            ("benches = []".into(), "at least one [[benches]]"),
+            ("database = \"mysql://h/db\"\nbenches = []".into(), "scheme 'mysql'"),
+            ("database = \"postgres://sb@h\"\nbenches = []".into(), "no database name"),
+            (format!("[fleet]\ncenter = \"https://h\"\nstation_id = \"line 3\"\n{T}"), "fleet.station_id"),
+            (format!("[fleet]\ncenter = \"sqlite://x\"\nstation_id = \"a\"\n{T}"), "fleet.center"),
+            // The center's database is no station's business any more.
+            (format!("[fleet]\ncenter = \"postgres://sb@h/db\"\nstation_id = \"a\"\n{T}"), "decision 0105"),
+            (format!("[fleet]\ncenter = \"https://u:p@h\"\nstation_id = \"a\"\n{T}"), "fleet.token"),
+            ("[fleet]\ncenter = \"https://h\"\nstation_id = \"a\"".into(), "token"),
+            (format!("[fleet]\ncenter = \"https://h\"\nstation_id = \"a\"\nrecordings = \"some\"\n{T}"), "some"),
+            (format!("[fleet]\ncenter = \"https://h\"\nstation_id = \"a\"\nretry_max_s = 0\n{T}"), "fleet.retry_max_s"),
+            (format!("[fleet]\ncenter = \"https://h\"\nstation_id = \"a\"\nbatch_items = 0\n{T}"), "fleet.batch_items"),
+            ("[fleet]\nstation_id = \"a\"".into(), "center"),
+            (format!("database = \"postgres://h/db\"\nbenches = []\n[fleet]\ncenter = \"https://h\"\nstation_id = \"a\"\n{T}"), "station's table"),
+            (format!("[[stations]]\nstation_id = \"a\"\n{T}"), "fleet role's table"),
+            (format!("database = \"postgres://h/db\"\nbenches = []\n[[stations]]\nstation_id = \"a\"\n{T}\n[[stations]]\nstation_id = \"b\"\ntoken = \"s3cret-line-4-0123456789\"\nformer_ids = [\"a\"]"), "given twice"),
         ] {
-            let e = Config::parse(text).unwrap_err();
+            let e = Config::parse(&text).unwrap_err();
             assert!(e.contains(needle), "{text}: {e}");
             assert!(!e.contains('\n'), "{e}");
         }

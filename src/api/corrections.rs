@@ -102,6 +102,33 @@ pub async fn create(
         }
         _ => {}
     }
+    // What the center would refuse is refused here, before the 201: the
+    // serial rule of a job's part, text without control characters,
+    // bounded lengths (issue 36: an 8 000-character serial stopped the
+    // station's replication for good).
+    if let ("part_serial", Some(v)) = (r.kind.as_str(), new_value) {
+        if !springbench_core::job::valid_serial(v) {
+            return Err(Problem::field(
+                "new_value",
+                format!("a serial is {}", springbench_core::job::SERIAL_RULE),
+            ));
+        }
+    }
+    for (field, text, max) in [
+        ("new_value", new_value, 64),
+        ("reason", Some(r.reason.as_str()), 4096),
+    ] {
+        let Some(t) = text else { continue };
+        if t.chars().count() > max {
+            return Err(Problem::field(field, format!("at most {max} characters")));
+        }
+        if let Some(c) = springbench_core::job::bad_char(t) {
+            return Err(Problem::field(
+                field,
+                format!("holds the control character U+{:04X}", c as u32),
+            ));
+        }
+    }
     if st.store.get_part(&r.part_serial).await?.is_none() {
         return Err(Problem::field(
             "part_serial",

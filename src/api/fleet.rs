@@ -36,11 +36,31 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
+mod ingest;
+pub use ingest::{ItemsRequest, ITEM_REFUSED};
+
 #[derive(Clone)]
 pub struct FleetState {
     pub store: PgStore,
     pub cfg: Arc<Config>,
+    /// Heavy SPC queries running now, per client (token name, or "open").
+    pub spc_running: Arc<std::sync::Mutex<HashMap<String, usize>>>,
 }
+
+impl FleetState {
+    pub fn new(store: PgStore, cfg: Arc<Config>) -> FleetState {
+        FleetState {
+            store,
+            cfg,
+            spc_running: Arc::default(),
+        }
+    }
+}
+
+/// The most verdicts one listing answers (`last`, a page's `limit`): 10 000
+/// verdicts are about 7 MB of JSON (issue 36: `last=1000000` took the
+/// center to 6.3 GB).
+pub const VERDICTS_MAX: i64 = 10_000;
 
 /// The fleet role's API routes, every one a GET (the OpenAPI document
 /// describes these; its test compares them with the document).
@@ -56,6 +76,7 @@ fn table() -> Vec<(&'static str, MethodRouter<FleetState>)> {
         ("/api/v1/fleet/recipes/{name}/spc", get(spc)),
         ("/api/v1/fleet/recipes/{name}/yield", get(yield_per_day)),
         ("/api/v1/fleet/audit", get(audit)),
+        ("/api/v1/fleet/refusals", get(refusals)),
     ]
 }
 
@@ -132,7 +153,7 @@ async fn recording(
         .recording(&id, kind)
         .await?
         .ok_or_else(|| Problem::not_found("measurement", &id))?;
-    let Some(bytes) = r.bytes else {
+    let Some((rec_id, len)) = r.stored else {
         return Err(Problem::new(
             StatusCode::NOT_FOUND,
             "recording-at-station",
@@ -148,7 +169,8 @@ async fn recording(
         .map(|j| serde_json::from_str(&j))
         .transpose()
         .map_err(|e| Problem::internal(format!("stored channel scale unreadable: {e}")))?;
-    super::measurements::wav_response(Box::new(std::io::Cursor::new(bytes)), scale).await
+    // Streamed: read 1 MiB at a time from the database (issue 36).
+    super::measurements::wav_response(st.store.recording_reader(rec_id, len), scale).await
 }
 
 /// The station routes the fleet role serves too (all GET).
@@ -164,11 +186,15 @@ async fn session(State(st): State<FleetState>, headers: axum::http::HeaderMap) -
 
 /// The fleet role's routes (every one a read) and the web UI.
 pub fn router(state: FleetState) -> Router {
-    let mut r = Router::new().route("/healthz", get(healthz));
+    let mut r = Router::new()
+        .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
+        .route("/metrics", get(metrics));
     for (path, h) in table().into_iter().chain(station_reads()) {
         r = r.route(path, h);
     }
-    r.merge(crate::ui::router(|path| {
+    r.merge(ingest::routes(state.cfg.max_ingest_bytes))
+        .merge(crate::ui::router(|path| {
         Problem::not_found("UI file", path).into_response()
     }))
     .fallback(|uri: axum::http::Uri| async move {
@@ -183,6 +209,7 @@ pub fn router(state: FleetState) -> Router {
         )
     })
     .layer(axum::middleware::from_fn_with_state(state.clone(), viewer))
+    .layer(axum::middleware::from_fn(bad_bytes))
     .layer(axum::middleware::from_fn(super::guard::problem_everywhere))
     .with_state(state)
 }
@@ -193,6 +220,10 @@ pub fn router(state: FleetState) -> Router {
 async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Response {
     if let Some(r) = super::guard::host_and_origin(&st.cfg.http, &req) {
         return r;
+    }
+    if ingest::is_ingest(req.uri().path()) {
+        // A station's routes: its own token, checked by the handlers.
+        return next.run(req).await;
     }
     if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD {
         return Problem::new(
@@ -206,6 +237,7 @@ async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Respo
     let path = req.uri().path();
     if st.cfg.open_access()
         || path == "/healthz"
+        || path == "/readyz"
         || path == "/api/v1/session"
         || crate::ui::is_public(path)
     {
@@ -225,6 +257,54 @@ async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Respo
         return p.into_response();
     }
     next.run(req).await
+}
+
+/// A path or query whose decoded bytes hold a NUL or another control
+/// character, or are not UTF-8, is a 400 here: it never reaches the
+/// database (`%00` gave a 500 carrying the database's error text).
+async fn bad_bytes(req: Request, next: Next) -> Response {
+    let uri = req.uri();
+    let bad = |raw: &str, plus: bool| {
+        let raw = if plus {
+            raw.replace('+', " ")
+        } else {
+            raw.to_string()
+        };
+        match percent_decode(&raw) {
+            Some(s) => s.chars().any(char::is_control),
+            None => true,
+        }
+    };
+    if bad(uri.path(), false) || uri.query().is_some_and(|q| bad(q, true)) {
+        return Problem::new(
+            StatusCode::BAD_REQUEST,
+            "bad-bytes",
+            "Bad bytes in the request",
+            "the path or query holds a control character (such as %00) or bytes that are not UTF-8",
+        )
+        .into_response();
+    }
+    next.run(req).await
+}
+
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let hex = (b[i] == b'%' && i + 2 < b.len())
+            .then(|| std::str::from_utf8(&b[i + 1..i + 3]).ok())
+            .flatten()
+            .and_then(|h| u8::from_str_radix(h, 16).ok());
+        if let Some(x) = hex {
+            out.push(x);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
 }
 
 /// The query of a request: only the `known` parameters, each once.
@@ -287,6 +367,96 @@ async fn healthz(State(st): State<FleetState>) -> Response {
         )
         .into_response(),
     }
+}
+
+/// `/readyz`: 200 while the database answers, else 503 (no internals).
+async fn readyz(State(st): State<FleetState>) -> Response {
+    match st.store.ping().await {
+        Ok(()) => Json(json!({"status": "ready", "role": "fleet"})).into_response(),
+        Err(e) => {
+            tracing::warn!("readyz: {e}");
+            Problem::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "database-unreachable",
+                "Database unreachable",
+                "the center's database does not answer",
+            )
+            .into_response()
+        }
+    }
+}
+
+/// `/metrics` (Prometheus text): per station, the age of its last contact
+/// (the center's clock), its clock skew, items held and missing, refusals;
+/// SPC queries running. An alert on `springbench_center_station_refused`
+/// rising or a contact age above a few minutes says a station is stuck.
+async fn metrics(State(st): State<FleetState>) -> Response {
+    use std::fmt::Write;
+    let stations = match st.store.stations().await {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!("metrics: {e}");
+            return Problem::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "database-unreachable",
+                "Database unreachable",
+                "the center's database does not answer",
+            )
+            .into_response();
+        }
+    };
+    let mut out = String::new();
+    let now = chrono::Utc::now();
+    let mut family = |name: &str, help: &str, f: &dyn Fn(&StationStatus) -> Option<f64>| {
+        let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} gauge");
+        for s in &stations {
+            if s.renamed_to.is_some() {
+                continue;
+            }
+            let v = f(s).map_or("NaN".to_string(), |v| format!("{v}"));
+            let _ = writeln!(out, "{name}{{station=\"{}\"}} {v}", s.station_id);
+        }
+    };
+    family(
+        "springbench_center_station_last_contact_age_seconds",
+        "Time since the station's last hello or batch, by the center's clock.",
+        &|s| {
+            chrono::DateTime::parse_from_rfc3339(&s.last_contact_at)
+                .ok()
+                .map(|t| (now - t.with_timezone(&chrono::Utc)).num_milliseconds() as f64 / 1000.0)
+        },
+    );
+    family(
+        "springbench_center_station_clock_skew_seconds",
+        "The station's clock minus the center's at its last hello.",
+        &|s| s.clock_skew_s,
+    );
+    family(
+        "springbench_center_station_items",
+        "Items of the station the center holds.",
+        &|s| Some(s.items as f64),
+    );
+    family(
+        "springbench_center_station_missing_items",
+        "Sequence numbers below the station's highest the center lacks.",
+        &|s| Some(s.missing_items as f64),
+    );
+    family(
+        "springbench_center_station_refused",
+        "Refused items and requests of (or claiming) the station (GET /api/v1/fleet/refusals).",
+        &|s| Some(s.refused as f64),
+    );
+    family(
+        "springbench_center_station_backlog_items",
+        "The backlog the station reported in its last hello.",
+        &|s| Some(s.backlog_items as f64),
+    );
+    let running: usize = st.spc_running.lock().unwrap().values().sum();
+    let _ = writeln!(
+        out,
+        "# HELP springbench_center_spc_running SPC queries running now.\n# TYPE springbench_center_spc_running gauge\nspringbench_center_spc_running {running}"
+    );
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], out).into_response()
 }
 
 /// Every station the center heard of.
@@ -355,6 +525,9 @@ pub struct FleetVerdict {
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct FleetVerdictList {
     pub items: Vec<FleetVerdict>,
+    /// The `after` of the next page (paged listings; null at the end or with `last`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub next_after: Option<i64>,
 }
 
 /// SPC of a parameter across stations and per station.
@@ -528,15 +701,17 @@ pub async fn recipes(
     }))
 }
 
-/// `GET /api/v1/fleet/recipes/{name}/verdicts?last=&since=&until=`: the
-/// measurement verdicts of a recipe across stations, oldest first.
+/// `GET /api/v1/fleet/recipes/{name}/verdicts?last=&since=&until=&after=&limit=`:
+/// the measurement verdicts of a recipe across stations, oldest first.
 #[utoipa::path(get, path = "/api/v1/fleet/recipes/{name}/verdicts", tag = "fleet",
-    summary = "A recipe's measurement verdicts across stations (voided measurements left out), oldest first: the newest `last` (default 100 without since / until), or those judged in [since, until).",
+    summary = "A recipe's measurement verdicts across stations (voided measurements left out), oldest first: the newest `last` (default 100 without since / until / after; at most 10 000), or a page of those judged in [since, until) after the verdict `after` (`limit`, default 1 000, at most 10 000; `next_after` gives the next page).",
     params(
         ("name" = String, Path, description = "Recipe name"),
-        ("last" = Option<i64>, Query, minimum = 1, maximum = 1000000, description = "The newest N verdicts"),
+        ("last" = Option<i64>, Query, minimum = 1, maximum = 10000, description = "The newest N verdicts"),
         ("since" = Option<String>, Query, format = DateTime, description = "RFC 3339"),
-        ("until" = Option<String>, Query, format = DateTime, description = "RFC 3339 (exclusive)")),
+        ("until" = Option<String>, Query, format = DateTime, description = "RFC 3339 (exclusive)"),
+        ("after" = Option<i64>, Query, minimum = 0, description = "The `next_after` of the previous page"),
+        ("limit" = Option<i64>, Query, minimum = 1, maximum = 10000, description = "Page size (default 1 000)")),
     responses(
         (status = 200, description = "Verdicts", body = FleetVerdictList),
         (status = 422, description = "A bad or unknown query parameter")))]
@@ -545,13 +720,34 @@ pub async fn verdicts(
     Path(name): Path<String>,
     Query(q): Q,
 ) -> ApiResult<Json<FleetVerdictList>> {
-    let p = Params::of(q, &["last", "since", "until"])?;
+    let p = Params::of(q, &["last", "since", "until", "after", "limit"])?;
     let (since, until) = (p.time("since")?, p.time("until")?);
-    let last = window_last(&p, &since, &until)?;
-    let rows = st
-        .store
-        .recipe_verdicts(&name, since.as_deref(), until.as_deref(), last)
-        .await?;
+    let after = p.int("after", 0..=i64::MAX)?;
+    let paged = after.is_some() || p.str("limit").is_some() || since.is_some() || until.is_some();
+    let (rows, limit) = if paged && p.str("last").is_none() {
+        let limit = p.int("limit", 1..=VERDICTS_MAX)?.unwrap_or(1000);
+        let rows = st
+            .store
+            .recipe_verdicts_page(&name, since.as_deref(), until.as_deref(), after, limit)
+            .await?;
+        (rows, Some(limit))
+    } else {
+        if p.str("after").is_some() || p.str("limit").is_some() {
+            return Err(Problem::field(
+                "last",
+                "give last, or after / limit, not both",
+            ));
+        }
+        let last = p.int("last", 1..=VERDICTS_MAX)?.unwrap_or(100);
+        let rows = st
+            .store
+            .recipe_verdicts(&name, since.as_deref(), until.as_deref(), Some(last))
+            .await?;
+        (rows, None)
+    };
+    let next_after = limit
+        .filter(|l| rows.len() as i64 == *l)
+        .and_then(|_| rows.last().map(|v| v.seq));
     let items = rows
         .into_iter()
         .map(|verdict| FleetVerdict {
@@ -559,7 +755,56 @@ pub async fn verdicts(
             verdict,
         })
         .collect();
-    Ok(Json(FleetVerdictList { items }))
+    Ok(Json(FleetVerdictList { items, next_after }))
+}
+
+/// One of a client's SPC slots (`spc_per_client`), given back on drop: a
+/// burst of heavy queries from one client is answered 429 with
+/// `Retry-After` at once instead of piling up until the pool times out
+/// (issue 36: 124 x 503 in a 200-way burst).
+struct SpcSlot {
+    running: Arc<std::sync::Mutex<HashMap<String, usize>>>,
+    client: String,
+}
+
+impl SpcSlot {
+    fn take(st: &FleetState, headers: &axum::http::HeaderMap) -> ApiResult<SpcSlot> {
+        let client = super::auth::bearer_token(&st.cfg, headers)
+            .map_or_else(|| "open".to_string(), |t| t.name.clone());
+        let mut m = st.spc_running.lock().unwrap();
+        let n = m.entry(client.clone()).or_default();
+        if *n >= st.cfg.spc_per_client {
+            let mut p = Problem::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                "too-many-spc-queries",
+                "Too many SPC queries",
+                format!(
+                    "this client runs {} SPC queries already (spc_per_client); retry after the Retry-After seconds",
+                    *n
+                ),
+            );
+            p.headers
+                .push((header::RETRY_AFTER, header::HeaderValue::from_static("1")));
+            return Err(p);
+        }
+        *n += 1;
+        Ok(SpcSlot {
+            running: st.spc_running.clone(),
+            client,
+        })
+    }
+}
+
+impl Drop for SpcSlot {
+    fn drop(&mut self) {
+        let mut m = self.running.lock().unwrap();
+        if let Some(n) = m.get_mut(&self.client) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                m.remove(&self.client);
+            }
+        }
+    }
 }
 
 fn window_last(
@@ -588,10 +833,12 @@ fn window_last(
     responses(
         (status = 200, description = "SPC", body = FleetSpc),
         (status = 404, description = "No such recipe"),
+        (status = 429, description = "This client runs `spc_per_client` SPC queries already (Retry-After)"),
         (status = 422, description = "A bad, unknown or missing query parameter")))]
 pub async fn spc(
     State(st): State<FleetState>,
     Path(name): Path<String>,
+    headers: axum::http::HeaderMap,
     Query(q): Q,
 ) -> ApiResult<Json<FleetSpc>> {
     let p = Params::of(q, &["parameter", "last", "since", "until"])?;
@@ -640,6 +887,7 @@ pub async fn spc(
         last,
         per_station,
     };
+    let _slot = SpcSlot::take(&st, &headers)?;
     let fleet = st.store.spc(&q(false)).await?;
     let stations = st.store.spc(&q(true)).await?;
     Ok(Json(FleetSpc {
@@ -704,6 +952,70 @@ pub async fn audit(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<
     Ok(Json(FleetAudit { items, next_after }))
 }
 
+/// A page of refusals, newest first.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct FleetRefusals {
+    pub items: Vec<springbench_store_pg::Refusal>,
+    /// The `before` of the next page (null at the end).
+    pub next_before: Option<i64>,
+}
+
+/// `GET /api/v1/fleet/refusals?station=&before=&limit=`: what the center
+/// refused, newest first.
+#[utoipa::path(get, path = "/api/v1/fleet/refusals", tag = "fleet",
+    summary = "What the center refused, newest first: requests claiming a station id with another station's credential (or none, or a retired station's), and items it would not store (a void of another station's measurement, a NUL byte, ...), each with its reason, the claimed station and the credential's station, first and last time (the center's clock) and how often. The station parks a refused item and goes on with the next.",
+    params(
+        ("station" = Option<String>, Query, description = "The station id claimed"),
+        ("before" = Option<i64>, Query, minimum = 1, description = "The `next_before` of the previous page"),
+        ("limit" = Option<i64>, Query, minimum = 1, maximum = 1000, description = "Page size (default 100)")),
+    responses(
+        (status = 200, description = "Refusals", body = FleetRefusals),
+        (status = 422, description = "A bad or unknown query parameter")))]
+pub async fn refusals(State(st): State<FleetState>, Query(q): Q) -> ApiResult<Json<FleetRefusals>> {
+    let p = Params::of(q, &["station", "before", "limit"])?;
+    let limit = p.int("limit", 1..=1000)?.unwrap_or(100);
+    let before = p.int("before", 1..=i64::MAX)?;
+    let items = st.store.refusals(p.str("station"), before, limit).await?;
+    let next_before = (items.len() as i64 == limit)
+        .then(|| items.last().map(|r| r.seq))
+        .flatten();
+    Ok(Json(FleetRefusals { items, next_before }))
+}
+
+/// A station's link to its center and what the center refused.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct StationLink {
+    pub link: crate::fleet::LinkStatus,
+    /// Items the center refused, parked with its reason (`last_error`),
+    /// oldest first (at most 100); later items of their parts wait behind them.
+    #[schema(value_type = Vec<Object>)]
+    pub refused: Vec<crate::store::outbox::OutboxRow>,
+    /// True while an item is parked, or the center has not been reached
+    /// for 3 attempts in a row with items waiting (`springbench_fleet_stuck`).
+    pub stuck: bool,
+}
+
+/// `GET /api/v1/fleet/link` (a station with `[fleet]`): the link to the
+/// center, the items it refused with their reasons.
+#[utoipa::path(get, path = "/api/v1/fleet/link", tag = "operations",
+    summary = "A station's link to the fleet's center (`[fleet]`): connected, last contact, last error, items sent, and the items the center refused, parked with its reason (replication goes on with the others). 404 without [fleet].",
+    responses(
+        (status = 200, description = "The link", body = StationLink),
+        (status = 404, description = "This station has no [fleet]")))]
+pub async fn station_link(State(st): State<super::AppState>) -> ApiResult<Json<StationLink>> {
+    let link = st.fleet.as_ref().ok_or_else(|| {
+        Problem::not_found("fleet link (no [fleet] in the configuration)", "link")
+    })?;
+    let refused = st.store.outbox_refused(100).await?;
+    let b = st.store.outbox_backlog().await?;
+    let link = link.status();
+    Ok(Json(StationLink {
+        stuck: crate::fleet::stuck(&b, &link),
+        link,
+        refused,
+    }))
+}
+
 /// Runs the fleet role on `addr` until `stop` resolves (`springbench serve`
 /// with `database = "postgres://..."`).
 pub async fn serve_role(
@@ -720,6 +1032,21 @@ pub async fn serve_role(
     let store = PgStore::connect(&url)
         .await
         .map_err(|e| format!("database {}: {e}", crate::config::redact_url_password(&url)))?;
+    let registrations: Vec<_> = cfg
+        .stations
+        .iter()
+        .map(|s| springbench_store_pg::StationRegistration {
+            station_id: s.station_id.clone(),
+            former_ids: s.former_ids.clone(),
+            retired: s.retired,
+        })
+        .collect();
+    store.register_stations(&registrations).await.map_err(|e| {
+        format!(
+            "database {}: stations: {e}",
+            crate::config::redact_url_password(&url)
+        )
+    })?;
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .map_err(|e| format!("cannot listen on {addr}: {e}"))?;
@@ -729,10 +1056,7 @@ pub async fn serve_role(
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let http = cfg.http.clone();
     let (max_conn, fd_note) = super::server::fit_connection_limit(http.max_connections);
-    let app = router(FleetState {
-        store: store.clone(),
-        cfg: Arc::new(cfg),
-    });
+    let app = router(FleetState::new(store.clone(), Arc::new(cfg)));
     let server =
         tokio::spawn(
             async move { super::server::serve(listener, app, &http, max_conn, stop_rx).await },

@@ -235,6 +235,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/jobs/{id}/verdict",
         get(qc::job_verdict::<AppState>),
     )
+    .add("get", "/api/v1/fleet/link", get(fleet::station_link))
     .add("get", "/api/v1/outbox", get(qc::outbox))
     .add("post", "/api/v1/outbox/{id}/retry", post(qc::outbox_retry))
     .add("delete", "/api/v1/outbox/{id}", delete(qc::outbox_drop))

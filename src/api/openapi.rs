@@ -82,6 +82,8 @@ use utoipa::{Modify, OpenApi};
         super::fleet::spc,
         super::fleet::yield_per_day,
         super::fleet::audit,
+        super::fleet::refusals,
+        super::fleet::station_link,
     ),
     components(schemas(Problem, MeasurementDocumentSchema)),
     modifiers(&Conventions),

@@ -144,19 +144,15 @@ pub fn start_station(
             })
             .collect()
     });
-    let url = cfg.center.clone();
+    let c = cfg.clone();
     let task = tokio::spawn(run(
         store,
         cfg,
         link.clone(),
         benches,
         move || {
-            let url = url.clone();
-            async move {
-                springbench_store_pg::PgStore::connect(&url)
-                    .await
-                    .map_err(|e| e.to_string())
-            }
+            let c = c.clone();
+            async move { http::HttpCenter::new(&c) }
         },
         stop,
     ));
@@ -205,7 +201,10 @@ pub async fn render_metrics(
          springbench_fleet_items_sent_total {}\n\
          # HELP springbench_fleet_conflicts_total Items the center held with another content, since start.\n\
          # TYPE springbench_fleet_conflicts_total counter\n\
-         springbench_fleet_conflicts_total {}",
+         springbench_fleet_conflicts_total {}\n\
+         # HELP springbench_fleet_stuck 1 while an item is parked (refused by the center) or the center has not answered 3 attempts in a row with items waiting.\n\
+         # TYPE springbench_fleet_stuck gauge\n\
+         springbench_fleet_stuck {}",
         b.pending - b.refused,
         b.refused,
         age(&b.oldest_pending_at),
@@ -214,8 +213,15 @@ pub async fn render_metrics(
         b.last_seq,
         s.items_sent,
         s.conflicts,
+        u8::from(stuck(&b, &s)),
     );
     Ok(())
+}
+
+/// A station is stuck when an item is parked (the center refused it), or
+/// the center has not answered 3 attempts in a row while items wait.
+pub fn stuck(b: &crate::store::outbox::OutboxBacklog, s: &LinkStatus) -> bool {
+    b.refused > 0 || (b.pending > 0 && s.failures_in_a_row >= 3)
 }
 
 /// What one round of the worker did.
@@ -425,6 +431,11 @@ async fn round<C: CenterIngest>(
                             .await
                             .map_err(|e| format!("station outbox: {e}"))?;
                         link.failed(&format!("item {}: {msg}", row.seq), true);
+                        tracing::error!(
+                            seq = row.seq,
+                            part = %row.part_serial,
+                            "fleet: item parked, the center refused it: {why} (later items of its part wait behind it; GET /api/v1/fleet/link)"
+                        );
                         held.push(&row.part_serial);
                     }
                     Err(e) => return Err(format!("center unreachable (ingest): {e}")),
@@ -440,5 +451,6 @@ async fn round<C: CenterIngest>(
     }
 }
 
+pub mod http;
 #[cfg(test)]
 mod tests;

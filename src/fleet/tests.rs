@@ -38,6 +38,10 @@ fn status(h: &StationHello) -> StationStatus {
         items: 0,
         last_seq: None,
         missing_items: 0,
+        clock_skew_s: None,
+        refused: 0,
+        retired_at: None,
+        renamed_to: None,
     }
 }
 

@@ -2,8 +2,9 @@
 //! benches) and one fleet daemon on one real PostgreSQL (a private server
 //! from Debian's packages, `.ci/pg`). Each station runs a QC lot of 20 jobs
 //! with repeated idempotency keys while other tasks poll. Each station
-//! reaches PostgreSQL through its own TCP proxy (in this test, in front of
-//! the server's Unix socket); mid-run one station's proxy is cut for 30 s
+//! posts its items to the fleet daemon (the only writer of the center's
+//! database, decision 0105) with its own token, through its own TCP proxy
+//! (in this test); mid-run one station's proxy is cut for 30 s
 //! (every connection through it closed, every new one closed at once: the
 //! center unreachable from that station alone) while the two others keep
 //! delivering, then restored. Afterwards every measurement and verdict is
@@ -29,14 +30,51 @@ use springbench::qc::spc::{compute, SpcPoint};
 use springbench_store_pg::test_server::{can_start_private, TestServer};
 use springbench_store_pg::PgStore;
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::net::{TcpListener, UnixStream};
+use tokio::net::{TcpListener, TcpStream};
 use tokio::task::AbortHandle;
 
 const JOBS: usize = 20;
+
+/// A station's secret at the center (its `[fleet] token`, the center's
+/// `[[stations]]` entry).
+fn station_token(id: &str) -> String {
+    format!("tok-{id}-9f2c71ab04d8e6")
+}
+
+/// The center's `[[stations]]` of `ids`.
+fn center_stations(ids: &[&str]) -> String {
+    ids.iter()
+        .map(|id| {
+            format!(
+                "\n[[stations]]\nstation_id = \"{id}\"\ntoken = \"{}\"\n",
+                station_token(id)
+            )
+        })
+        .collect()
+}
+
+/// Every verdict of the recipe at the center, page by page.
+async fn all_center_verdicts(c: &reqwest::Client, fleet: &Daemon) -> Vec<Value> {
+    let mut out = vec![];
+    let mut after: Option<i64> = None;
+    loop {
+        let q = after.map_or(String::new(), |a| format!("&after={a}"));
+        let v = get(
+            c,
+            &fleet.base,
+            &format!("/api/v1/fleet/recipes/{RECIPE}/verdicts?limit=10000{q}"),
+        )
+        .await;
+        out.extend(v["items"].as_array().unwrap().iter().cloned());
+        match v["next_after"].as_i64() {
+            Some(a) => after = Some(a),
+            None => return out,
+        }
+    }
+}
 const RECIPE: &str = "spider-4in";
 
 fn recipe() -> Value {
@@ -159,7 +197,7 @@ async fn center_measurements(c: &reqwest::Client, fleet: &Daemon, station: &str)
 }
 
 /// One station's way to the center: a TCP port on loopback forwarding to
-/// the server's Unix socket. Cut, it closes every connection through it
+/// the fleet daemon. Cut, it closes every connection through it
 /// and every new one as soon as it is accepted; restored, it forwards again.
 struct Proxy {
     port: u16,
@@ -169,7 +207,7 @@ struct Proxy {
 }
 
 impl Proxy {
-    async fn start(socket: PathBuf) -> Proxy {
+    async fn start(target: String) -> Proxy {
         let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let port = listener.local_addr().unwrap().port();
         let cut = Arc::new(AtomicBool::new(false));
@@ -180,10 +218,10 @@ impl Proxy {
                 if c.load(Ordering::SeqCst) {
                     continue; // dropped: closed at once
                 }
-                let socket = socket.clone();
+                let target = target.clone();
                 let link = tokio::spawn(async move {
-                    if let Ok(mut unix) = UnixStream::connect(&socket).await {
-                        let _ = tokio::io::copy_bidirectional(&mut tcp, &mut unix).await;
+                    if let Ok(mut up) = TcpStream::connect(&target).await {
+                        let _ = tokio::io::copy_bidirectional(&mut tcp, &mut up).await;
                     }
                 });
                 let mut l = l.lock().unwrap();
@@ -202,7 +240,7 @@ impl Proxy {
 
     /// The URL a station uses to reach the center through this proxy.
     fn url(&self) -> String {
-        format!("postgres://sb@127.0.0.1:{}/postgres", self.port)
+        format!("http://127.0.0.1:{}", self.port)
     }
 
     fn cut(&self) {
@@ -258,18 +296,22 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let pg = TestServer::start(55471).expect("a private PostgreSQL server");
     let url = pg.url();
     center_holds_the_recipe(&url).await;
-    let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
+    let fleet = Daemon::start(&format!(
+        "database = \"{url}\"\nbenches = []\n{}",
+        center_stations(&["line-1", "line-2", "line-3"])
+    ));
     let mut proxies = vec![];
     for _ in 0..3 {
-        proxies.push(Proxy::start(pg.socket()).await);
+        proxies.push(Proxy::start(fleet.addr()).await);
     }
     let stations: Vec<(String, Daemon)> = (1..=3)
         .map(|i| {
             let id = format!("line-{i}");
             let center = proxies[i - 1].url();
             let d = Daemon::start(&format!(
-                "[fleet]\ncenter = \"{center}\"\nstation_id = \"{id}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
+                "[fleet]\ncenter = \"{center}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
                  [[benches]]\nid = \"virtual-1\"\nseed = {}\n",
+                station_token(&id),
                 if i == 2 { "reference" } else { "full" },
                 1000 * i
             ));
@@ -418,13 +460,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     // Exactly once, station by station, in the station's order.
     let center = PgStore::connect(&url).await.unwrap();
     let mut total = 0usize;
-    let all_verdicts = get(
-        &c,
-        &fleet.base,
-        &format!("/api/v1/fleet/recipes/{RECIPE}/verdicts?last=1000000"),
-    )
-    .await;
-    let all_verdicts = all_verdicts["items"].as_array().unwrap().clone();
+    let all_verdicts = all_center_verdicts(&c, &fleet).await;
     let ids: BTreeSet<&str> = all_verdicts
         .iter()
         .map(|v| v["id"].as_str().unwrap())
@@ -912,10 +948,15 @@ const STATION: &str = "line-7";
 async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
     let url = pg.url();
     center_holds_the_recipe(&url).await;
-    let fleet = Daemon::start(&format!("database = \"{url}\"\nbenches = []"));
+    let fleet = Daemon::start(&format!(
+        "database = \"{url}\"\nbenches = []\n{}",
+        center_stations(&[STATION])
+    ));
     let station = Daemon::start(&format!(
-        "[fleet]\ncenter = \"{url}\"\nstation_id = \"{STATION}\"\nrecordings = \"full\"\nretry_max_s = 1\n\
-         [[benches]]\nid = \"virtual-1\"\nseed = 7\n"
+        "[fleet]\ncenter = \"{}\"\nstation_id = \"{STATION}\"\ntoken = \"{}\"\nrecordings = \"full\"\nretry_max_s = 1\n\
+         [[benches]]\nid = \"virtual-1\"\nseed = 7\n",
+        fleet.base,
+        station_token(STATION)
     ));
     let c = client();
     recipe_arrived(&c, STATION, &station).await;
@@ -1509,4 +1550,333 @@ async fn the_ui_on_the_center_shows_the_stations_data() {
     .await;
     b.assert_no_console_errors("on the center").await;
     b.quit().await;
+}
+
+/// Runs one job of `serial` on station `d`; its measurements' ids.
+async fn one_job(c: &reqwest::Client, d: &Daemon, serial: &str) -> Vec<String> {
+    let body = json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE});
+    let id = common::submit(c, d, body).await;
+    let j = common::wait_job(c, d, &id, Duration::from_secs(300), common::terminal).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let m = get(c, &d.base, &format!("/api/v1/measurements?job={id}")).await;
+    m["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x["id"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// Waits until the center holds measurement `id`; its document.
+async fn at_center(c: &reqwest::Client, fleet: &Daemon, id: &str, within: Duration) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let r = c
+            .get(fleet.url(&format!("/api/v1/fleet/measurements/{id}")))
+            .send()
+            .await
+            .unwrap();
+        if r.status().as_u16() == 200 {
+            return r.json().await.unwrap();
+        }
+        assert!(
+            t0.elapsed() < within,
+            "measurement {id} did not reach the center within {within:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// Posts `body` to a center's ingest route with `token`: status and body.
+async fn post_ingest(
+    c: &reqwest::Client,
+    fleet: &Daemon,
+    route: &str,
+    token: &str,
+    body: &Value,
+) -> (u16, Value) {
+    let r = c
+        .post(fleet.url(&format!("/api/v1/fleet/ingest/{route}")))
+        .bearer_auth(token)
+        .json(body)
+        .send()
+        .await
+        .unwrap();
+    let s = r.status().as_u16();
+    (s, r.json().await.unwrap_or(Value::Null))
+}
+
+/// Issue 36's attacks (decision 0105), each of which went through before:
+/// with everything in station B's configuration (it held the center's
+/// database URL and owner role, now the center's HTTP URL and B's token),
+/// B cannot delete, change or void A's data at the center; B's token
+/// claiming A's id is refused and listed; a void of A's measurement forged
+/// in B's own SQLite is refused, listed at the center with its reason,
+/// parked at B with it, and B's next measurement still arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it() {
+    if !can_start_private("fleet identity test") {
+        return;
+    }
+    let pg = TestServer::start(55475).expect("a private PostgreSQL server");
+    let url = pg.url();
+    center_holds_the_recipe(&url).await;
+    let fleet = Daemon::start(&format!(
+        "database = \"{url}\"\nbenches = []\n{}",
+        center_stations(&["line-a", "line-b"])
+    ));
+    let station = |id: &str, seed: u32| {
+        let cfg = format!(
+            "[fleet]\ncenter = \"{}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"reference\"\nretry_max_s = 2\n\
+             [[benches]]\nid = \"virtual-1\"\nseed = {seed}\n",
+            fleet.base,
+            station_token(id)
+        );
+        (Daemon::start(&cfg), cfg)
+    };
+    let (a, _) = station("line-a", 11);
+    let (b, b_cfg) = station("line-b", 12);
+    let c = client();
+    recipe_arrived(&c, "line-a", &a).await;
+    recipe_arrived(&c, "line-b", &b).await;
+    let ma = one_job(&c, &a, "A-1").await;
+    let a_doc = at_center(&c, &fleet, &ma[0], Duration::from_secs(60)).await;
+    assert_eq!(a_doc["measurement"]["station_id"], "line-a");
+
+    // B's configuration holds no credential of the center's database: the
+    // direct DELETE / UPDATE of before has nothing to connect with.
+    assert!(!b_cfg.contains("postgres"), "{b_cfg}");
+    let b_center = b_cfg
+        .lines()
+        .find_map(|l| l.strip_prefix("center = \""))
+        .unwrap()
+        .trim_end_matches('"');
+    assert!(
+        PgStore::connect(b_center).await.is_err(),
+        "B's center URL opens the database"
+    );
+    // The readers' API writes nothing, with B's token or any.
+    for m in [
+        reqwest::Method::DELETE,
+        reqwest::Method::PUT,
+        reqwest::Method::PATCH,
+    ] {
+        let r = c
+            .request(
+                m.clone(),
+                fleet.url(&format!("/api/v1/fleet/measurements/{}", ma[0])),
+            )
+            .bearer_auth(station_token("line-b"))
+            .json(&json!({"verdict": "fail"}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status().as_u16(), 405, "{m}");
+    }
+
+    // B's token claiming A's id: refused, and the readers see it.
+    let hello = json!({"station_id": "line-a", "software_version": "x", "bench_states": [],
+        "backlog_items": 0, "sent_at": "2026-11-28T00:00:00.000Z"});
+    let (s, p) = post_ingest(&c, &fleet, "hello", &station_token("line-b"), &hello).await;
+    assert_eq!(
+        (
+            s,
+            p["type"]
+                .as_str()
+                .unwrap_or("")
+                .ends_with("station-mismatch")
+        ),
+        (403, true),
+        "{p}"
+    );
+    let (s, p) = post_ingest(
+        &c,
+        &fleet,
+        "items",
+        &station_token("line-b"),
+        &json!({"station_id": "line-a", "items": []}),
+    )
+    .await;
+    assert_eq!(s, 403, "{p}");
+    // No token, a reader's token: 401.
+    let (s, _) = post_ingest(
+        &c,
+        &fleet,
+        "items",
+        "not-a-station-token-0123",
+        &json!({"station_id": "line-a", "items": []}),
+    )
+    .await;
+    assert_eq!(s, 401);
+    let refusals = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-a").await;
+    let by_b: Vec<&Value> = refusals["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["credential_station"] == "line-b")
+        .collect();
+    assert!(!by_b.is_empty(), "{refusals}");
+    assert!(by_b[0]["reason"]
+        .as_str()
+        .unwrap()
+        .contains("claims station id 'line-a'"));
+    let stations = get(&c, &fleet.base, "/api/v1/fleet/stations").await;
+    let line_a = stations["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["station_id"] == "line-a")
+        .unwrap();
+    assert!(line_a["refused"].as_i64().unwrap() >= 2, "{line_a}");
+
+    // B, as itself, posts corrections of A's data: refused one by one, with
+    // their reasons, nothing changed at the center.
+    let correction = |id: &str, kind: &str, m: Option<&str>, new: Option<&str>| {
+        json!({"station_id": "line-b", "items": [{"seq": 900, "type": "correction", "id": id,
+            "kind": kind, "part_serial": "A-1", "measurement_id": m, "old_value": null,
+            "new_value": new, "reason": "forged", "made_by": "intruder",
+            "made_at": "2026-11-28T00:00:00.000Z"}]})
+    };
+    for (id, kind, m, new, why) in [
+        (
+            "forged-void",
+            "void_measurement",
+            Some(ma[0].as_str()),
+            None,
+            "its own measurements only",
+        ),
+        (
+            "forged-move",
+            "part_serial",
+            Some(ma[0].as_str()),
+            Some("B-STOLEN"),
+            "its own measurements only",
+        ),
+        (
+            "forged-kind",
+            "part_kind",
+            None,
+            Some("woofer"),
+            "its own parts only",
+        ),
+    ] {
+        let (s, p) = post_ingest(
+            &c,
+            &fleet,
+            "items",
+            &station_token("line-b"),
+            &correction(id, kind, m, new),
+        )
+        .await;
+        assert_eq!(s, 422, "{id}: {p}");
+        assert!(p["detail"].as_str().unwrap().contains(why), "{id}: {p}");
+    }
+    let a_now = get(
+        &c,
+        &fleet.base,
+        &format!("/api/v1/fleet/measurements/{}", ma[0]),
+    )
+    .await;
+    assert_eq!(a_now["void_correction_id"], Value::Null, "{a_now}");
+    assert_eq!(a_now["measurement"]["part_serial"], "A-1");
+    let part = get(&c, &fleet.base, "/api/v1/fleet/parts/A-1").await;
+    assert_eq!(part["part"]["kind"], "spider", "{part}");
+
+    // A void of A's measurement forged in B's own SQLite (as someone with
+    // B's disk would): B's worker sends it, the center refuses it.
+    {
+        use sqlx::ConnectOptions;
+        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(b.dir.join("data").join("springbench.db"))
+            .foreign_keys(false)
+            .connect()
+            .await
+            .unwrap();
+        sqlx::query(
+            "INSERT INTO corrections (id, kind, part_serial, measurement_id, reason, made_by, made_at) \
+             VALUES ('sqlite-forged-void', 'void_measurement', 'A-1', ?, 'forged in SQLite', 'intruder', \
+             strftime('%Y-%m-%dT%H:%M:%fZ', 'now'))",
+        )
+        .bind(&ma[0])
+        .execute(&mut db)
+        .await
+        .unwrap();
+    }
+    let t0 = Instant::now();
+    loop {
+        let r = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-b").await;
+        let hit = r["items"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["item_id"] == "correction:sqlite-forged-void");
+        if let Some(x) = hit {
+            assert!(
+                x["reason"]
+                    .as_str()
+                    .unwrap()
+                    .contains("made by station line-a"),
+                "{x}"
+            );
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the forged void was not refused: {r}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // Parked at B with its reason; B's next measurement still arrives
+    // within 30 s of its end.
+    let t0 = Instant::now();
+    while metric(&c, &b, "springbench_fleet_backlog_items{state=\"refused\"}").await < 1.0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "not parked at the station"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let link = get(&c, &b.base, "/api/v1/fleet/link").await;
+    let parked = &link["refused"][0];
+    assert_eq!(parked["ref_id"], "sqlite-forged-void", "{link}");
+    assert!(
+        parked["last_error"]
+            .as_str()
+            .unwrap_or("")
+            .contains("made by station line-a"),
+        "{link}"
+    );
+    assert_eq!(link["stuck"], true, "{link}");
+    assert_eq!(metric(&c, &b, "springbench_fleet_stuck").await, 1.0);
+    let mb = one_job(&c, &b, "B-1").await;
+    at_center(&c, &fleet, &mb[0], Duration::from_secs(30)).await;
+    let a_now = get(
+        &c,
+        &fleet.base,
+        &format!("/api/v1/fleet/measurements/{}", ma[0]),
+    )
+    .await;
+    assert_eq!(a_now["void_correction_id"], Value::Null, "{a_now}");
+
+    // Text the center could not store is refused at the station, before
+    // its 202 / 201: a NUL byte in notes, an 8 000-character serial.
+    let r = c
+        .post(b.url("/api/v1/jobs"))
+        .json(&json!({"part": {"serial": "B-2", "kind": "spider", "notes": "bad\u{0}byte"}, "recipe": RECIPE}))
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 422).await;
+    assert!(p.to_string().contains("part.notes"), "{p}");
+    let r = c
+        .post(b.url("/api/v1/corrections"))
+        .json(
+            &json!({"kind": "part_serial", "part_serial": "B-1", "new_value": "S".repeat(8000),
+            "reason": "label misread"}),
+        )
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 422).await;
+    assert!(p.to_string().contains("new_value"), "{p}");
 }

@@ -8,7 +8,7 @@ use crate::PgStore;
 use springbench_store::fleet::{
     verdict_kind, CenterIngest, Correction, IngestConflict, IngestReport, ItemBody,
     JobVerdictsItem, MeasurementItem, RecordingItem, ReplicationItem, StationHello, StationStatus,
-    VerdictItem, CONTRACT_VERSION,
+    VerdictItem, CLOCK_SKEW_REPORT_S, CONTRACT_VERSION,
 };
 use springbench_store::results::{FinishedMeasurement, RecipeRow, ResultIngest, Upserted};
 use springbench_store::{now, StoreError, StoreResult};
@@ -261,6 +261,46 @@ fn check_job_verdicts(j: &JobVerdictsItem) -> Result<(), String> {
     Ok(())
 }
 
+/// The ids a station's rows may carry: its own and its former names
+/// (a rename keeps the rows as they were made, decision 0105).
+pub(crate) async fn owned_ids(tx: &mut Tx<'_>, station: &str) -> StoreResult<Vec<String>> {
+    let mut ids: Vec<String> =
+        sqlx::query_scalar("SELECT former_id FROM station_names WHERE station_id = $1")
+            .bind(station)
+            .fetch_all(&mut **tx)
+            .await?;
+    ids.push(station.to_string());
+    Ok(ids)
+}
+
+/// A station voids or moves only a measurement it made (under its id or
+/// a former one); the center itself (station None) any.
+async fn check_owner(
+    tx: &mut Tx<'_>,
+    station: Option<&str>,
+    measurement: &str,
+    what: &str,
+) -> Result<(), String> {
+    let Some(st) = station else { return Ok(()) };
+    let owner: Option<Option<String>> =
+        sqlx::query_scalar("SELECT station_id FROM measurements WHERE id = $1")
+            .bind(measurement)
+            .fetch_optional(&mut **tx)
+            .await
+            .map_err(|e| e.to_string())?;
+    let Some(owner) = owner else {
+        return Err(format!("no measurement {measurement} at the center"));
+    };
+    let owned = owned_ids(tx, st).await.map_err(|e| e.to_string())?;
+    match owner {
+        Some(o) if owned.contains(&o) => Ok(()),
+        o => Err(format!(
+            "measurement {measurement} was made by station {}; station {st} {what} its own measurements only",
+            o.as_deref().unwrap_or("(the center)")
+        )),
+    }
+}
+
 /// Applies a correction and writes its audit row; false when its id is
 /// stored already. Nothing is deleted: a serial correction moves the
 /// measurements and verdicts (the old part row stays, with its history in
@@ -286,6 +326,7 @@ pub(crate) async fn apply_correction(
                 .measurement_id
                 .as_deref()
                 .ok_or_else(|| bad("a void names its measurement".into()))?;
+            check_owner(tx, station, m, "voids").await.map_err(bad)?;
             let r = sqlx::query(
                 "UPDATE measurements SET void_id = COALESCE(void_id, $2) WHERE id = $1",
             )
@@ -312,6 +353,22 @@ pub(crate) async fn apply_correction(
             recompute_spc_points(tx, m).await?;
         }
         "part_kind" => {
+            if let Some(st) = station {
+                // A station sets the kind of a part it measured, no other's.
+                let measured: Option<i32> = sqlx::query_scalar(
+                    "SELECT 1 FROM measurements WHERE part_serial = $1 AND station_id = ANY($2) LIMIT 1",
+                )
+                .bind(&c.part_serial)
+                .bind(owned_ids(tx, st).await?)
+                .fetch_optional(&mut **tx)
+                .await?;
+                if measured.is_none() {
+                    return Err(bad(format!(
+                        "station {st} measured no part '{}' at the center; a station corrects its own parts only",
+                        c.part_serial
+                    )));
+                }
+            }
             let r = sqlx::query("UPDATE parts SET kind = $2, updated_at = GREATEST(updated_at, $3) WHERE serial = $1")
                 .bind(&c.part_serial)
                 .bind(&c.new_value)
@@ -328,6 +385,13 @@ pub(crate) async fn apply_correction(
                 .as_deref()
                 .filter(|s| !s.is_empty())
                 .ok_or_else(|| bad("a serial correction names the new serial".into()))?;
+            if let Some(m) = c.measurement_id.as_deref() {
+                check_owner(tx, station, m, "moves").await.map_err(bad)?;
+            }
+            let owned = match station {
+                Some(st) => Some(owned_ids(tx, st).await?),
+                None => None,
+            };
             let r = sqlx::query(
                 "INSERT INTO parts (serial, kind, notes, created_at, updated_at, station_id) \
                  SELECT $2, kind, notes, created_at, updated_at, station_id FROM parts WHERE serial = $1 \
@@ -352,22 +416,22 @@ pub(crate) async fn apply_correction(
             // moves every station's.
             sqlx::query(
                 "UPDATE measurements SET part_serial = $2 WHERE part_serial = $1 AND ($3::text IS NULL OR id = $3) \
-                 AND ($4::text IS NULL OR station_id = $4)",
+                 AND ($4::text[] IS NULL OR station_id = ANY($4))",
             )
             .bind(&c.part_serial)
             .bind(new)
             .bind(&c.measurement_id)
-            .bind(station)
+            .bind(&owned)
             .execute(&mut **tx)
             .await?;
             sqlx::query(
                 "UPDATE qc_verdicts SET part_serial = $2 WHERE part_serial = $1 \
-                 AND ($3::text IS NULL OR measurement_id = $3) AND ($4::text IS NULL OR station_id = $4)",
+                 AND ($3::text IS NULL OR measurement_id = $3) AND ($4::text[] IS NULL OR station_id = ANY($4))",
             )
             .bind(&c.part_serial)
             .bind(new)
             .bind(&c.measurement_id)
-            .bind(station)
+            .bind(&owned)
             .execute(&mut **tx)
             .await?;
         }
@@ -458,12 +522,17 @@ fn status_from_row(r: &sqlx::postgres::PgRow) -> StoreResult<StationStatus> {
         items,
         last_seq,
         missing_items: last_seq.map_or(0, |l| (l - distinct).max(0)),
+        clock_skew_s: r.get("clock_skew_s"),
+        refused: r.get("refused"),
+        retired_at: r.get("retired_at"),
+        renamed_to: r.get("renamed_to"),
     })
 }
 
 const STATION_SELECT: &str = "SELECT s.station_id, s.software_version, s.contract_version, s.bench_states::text AS bench_states, \
      s.backlog_items, s.oldest_backlog_at, s.sent_at, s.first_contact_at, s.last_contact_at, \
-     s.items, s.distinct_seqs, s.last_seq FROM stations s";
+     s.items, s.distinct_seqs, s.last_seq, s.clock_skew_s, s.retired_at, s.renamed_to, \
+     (SELECT COUNT(*) FROM ingest_refusals r WHERE r.station_id = s.station_id) AS refused FROM stations s";
 
 /// What a batch added to a station's stream: items claimed, outbox seqs
 /// new to the center, the highest seq claimed.
@@ -508,16 +577,25 @@ impl CenterIngest for PgStore {
             )));
         }
         let t = now();
+        let skew = clock_skew_s(&h.sent_at, &t);
+        if let Some(x) = skew.filter(|x| x.abs() > CLOCK_SKEW_REPORT_S) {
+            tracing::warn!(
+                station = %h.station_id,
+                skew_s = x,
+                "fleet: the station's clock is {x:.0} s off the center's (its measurements keep their own time)"
+            );
+        }
         let states = serde_json::to_string(&h.bench_states)
             .map_err(|e| StoreError::Invalid(e.to_string()))?;
         sqlx::query(
             "INSERT INTO stations (station_id, software_version, contract_version, bench_states, backlog_items, \
-             oldest_backlog_at, sent_at, first_contact_at, last_contact_at) \
-             VALUES ($1, $2, $3, $4::jsonb, $5, $6, $7, $8, $8) \
+             oldest_backlog_at, sent_at, first_contact_at, last_contact_at, clock_skew_s) \
+             VALUES ($1, $2, $3, $4::jsonb, $5, $6, $7, $8, $8, $9) \
              ON CONFLICT (station_id) DO UPDATE SET software_version = EXCLUDED.software_version, \
              contract_version = EXCLUDED.contract_version, bench_states = EXCLUDED.bench_states, \
              backlog_items = EXCLUDED.backlog_items, oldest_backlog_at = EXCLUDED.oldest_backlog_at, \
-             sent_at = EXCLUDED.sent_at, last_contact_at = EXCLUDED.last_contact_at",
+             sent_at = EXCLUDED.sent_at, last_contact_at = EXCLUDED.last_contact_at, \
+             clock_skew_s = EXCLUDED.clock_skew_s",
         )
         .bind(&h.station_id)
         .bind(&h.software_version)
@@ -527,6 +605,7 @@ impl CenterIngest for PgStore {
         .bind(&h.oldest_backlog_at)
         .bind(&h.sent_at)
         .bind(&t)
+        .bind(skew)
         .execute(&self.pool)
         .await?;
         let row = sqlx::query(sqlx::AssertSqlSafe(format!(
@@ -570,7 +649,21 @@ impl CenterIngest for PgStore {
                     held.new_seqs += 1;
                 }
                 held.last_seq = held.last_seq.max(Some(item.seq));
-                apply_item(&mut tx, station, item).await?;
+                if let Err(e) = apply_item(&mut tx, station, item).await {
+                    // Nothing of the batch is written; an item the center
+                    // refuses (it contradicts itself or the center's rules,
+                    // or its values do not fit the database: a NUL byte) is
+                    // recorded with its reason, so the readers of the fleet
+                    // see it, and the station parks it (decision 0105).
+                    drop(tx);
+                    let e = as_refusal(e, item);
+                    if let StoreError::Invalid(why) = &e {
+                        let _ = self
+                            .record_refusal(station, Some(station), &id, Some(item.seq), why)
+                            .await;
+                    }
+                    return Err(e);
+                }
                 report.inserted += 1;
                 continue;
             }
@@ -631,5 +724,203 @@ impl CenterIngest for PgStore {
         .fetch_all(&self.pool)
         .await?;
         rows.iter().map(status_from_row).collect()
+    }
+}
+
+/// The station's clock minus the center's (s), None when `sent_at` is unreadable.
+fn clock_skew_s(sent_at: &str, center: &str) -> Option<f64> {
+    let a = chrono::DateTime::parse_from_rfc3339(sent_at).ok()?;
+    let b = chrono::DateTime::parse_from_rfc3339(center).ok()?;
+    Some((a - b).num_milliseconds() as f64 / 1000.0)
+}
+
+/// An error of one item's apply as the station should see it: a value the
+/// database refuses (a data exception: a NUL byte, bytes not UTF-8, a
+/// number out of range; an integrity or size limit) is the item's fault,
+/// `Invalid`, not an outage, so the station parks it and goes on; the
+/// reason names the item, not the database's internals.
+fn as_refusal(e: StoreError, item: &ReplicationItem) -> StoreError {
+    let name = format!("item {} ({})", item.seq, item.item_id());
+    match e {
+        StoreError::Invalid(why) if why.starts_with("item ") => StoreError::Invalid(why),
+        StoreError::Invalid(why) => StoreError::Invalid(format!("{name}: {why}")),
+        StoreError::Db(sqlx::Error::Database(d)) => {
+            let code = d.code().map(|c| c.to_string()).unwrap_or_default();
+            let why = match code.as_str() {
+                "22021" | "22P05" => {
+                    "a text holds a NUL byte or a character the database cannot store".to_string()
+                }
+                c if c.starts_with("22") => format!("a value out of the database's range ({c})"),
+                c if c.starts_with("23") => {
+                    format!("a value breaks one of the center's rules ({c})")
+                }
+                c if c.starts_with("54") => format!("a value too long for the center ({c})"),
+                _ => return StoreError::Db(sqlx::Error::Database(d)),
+            };
+            StoreError::Invalid(format!("{name}: refused by the center's database: {why}"))
+        }
+        e => e,
+    }
+}
+
+/// A refused request or item, as the fleet's readers see it.
+#[derive(Debug, Clone, serde::Serialize, utoipa::ToSchema)]
+pub struct Refusal {
+    pub seq: i64,
+    /// The station id the request claimed.
+    pub station_id: String,
+    /// The station its credential belongs to (null: no valid credential).
+    pub credential_station: Option<String>,
+    /// The refused item's id (`measurement:<id>`, ...); empty: a request.
+    pub item_id: String,
+    pub item_seq: Option<i64>,
+    pub reason: String,
+    /// The center's clock: first and last time, and how often.
+    pub first_at: String,
+    pub last_at: String,
+    pub times: i64,
+}
+
+/// A station of the center's configuration: its id, former ids, retired.
+#[derive(Debug, Clone)]
+pub struct StationRegistration {
+    pub station_id: String,
+    pub former_ids: Vec<String>,
+    pub retired: bool,
+}
+
+impl PgStore {
+    /// Records a refused request or item (one row per claimed station,
+    /// item and reason; a repeat counts up).
+    pub async fn record_refusal(
+        &self,
+        station: &str,
+        credential_station: Option<&str>,
+        item_id: &str,
+        item_seq: Option<i64>,
+        reason: &str,
+    ) -> StoreResult<()> {
+        let t = now();
+        // What the database cannot hold is replaced (the reason is for people).
+        let clean = |s: &str| s.replace('\0', "\u{fffd}");
+        sqlx::query(
+            "INSERT INTO ingest_refusals (station_id, credential_station, item_id, item_seq, reason, first_at, last_at) \
+             VALUES ($1, $2, $3, $4, $5, $6, $6) ON CONFLICT (station_id, item_id, reason) DO UPDATE SET \
+             last_at = EXCLUDED.last_at, times = ingest_refusals.times + 1, \
+             credential_station = EXCLUDED.credential_station, item_seq = EXCLUDED.item_seq",
+        )
+        .bind(clean(station))
+        .bind(credential_station.map(clean))
+        .bind(clean(item_id))
+        .bind(item_seq)
+        .bind(clean(reason))
+        .bind(&t)
+        .execute(&self.pool)
+        .await?;
+        tracing::warn!(station, item_id, "fleet: refused: {reason}");
+        Ok(())
+    }
+
+    /// The refusals, newest first, of one station (claimed id) or all.
+    pub async fn refusals(
+        &self,
+        station: Option<&str>,
+        before: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<Refusal>> {
+        let rows = sqlx::query(
+            "SELECT seq, station_id, credential_station, item_id, item_seq, reason, first_at, last_at, times \
+             FROM ingest_refusals WHERE ($1::text IS NULL OR station_id = $1) AND ($2::bigint IS NULL OR seq < $2) \
+             ORDER BY seq DESC LIMIT $3",
+        )
+        .bind(station)
+        .bind(before)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .iter()
+            .map(|r| Refusal {
+                seq: r.get("seq"),
+                station_id: r.get("station_id"),
+                credential_station: r.get("credential_station"),
+                item_id: r.get("item_id"),
+                item_seq: r.get("item_seq"),
+                reason: r.get("reason"),
+                first_at: r.get("first_at"),
+                last_at: r.get("last_at"),
+                times: r.get("times"),
+            })
+            .collect())
+    }
+
+    /// Applies the center's configured stations at start: a rename
+    /// (`former_ids`) once, in one transaction: the former id's rows keep
+    /// their id (history), the station owns them under its new id, and the
+    /// center's record of the stream (items held, sequence numbers) moves
+    /// to the new id so that no false gap appears; a retirement marks the
+    /// station (its history stays, its token is refused).
+    pub async fn register_stations(&self, stations: &[StationRegistration]) -> StoreResult<()> {
+        let t = now();
+        let mut tx = self.pool.begin().await?;
+        for s in stations {
+            for old in &s.former_ids {
+                let new: Option<String> = sqlx::query_scalar(
+                    "INSERT INTO station_names (former_id, station_id, renamed_at) VALUES ($1, $2, $3) \
+                     ON CONFLICT (former_id) DO NOTHING RETURNING station_id",
+                )
+                .bind(old)
+                .bind(&s.station_id)
+                .bind(&t)
+                .fetch_optional(&mut *tx)
+                .await?;
+                if new.is_none() {
+                    continue;
+                }
+                // A station renamed twice: its older names follow.
+                sqlx::query("UPDATE station_names SET station_id = $2 WHERE station_id = $1")
+                    .bind(old)
+                    .bind(&s.station_id)
+                    .execute(&mut *tx)
+                    .await?;
+                sqlx::query("UPDATE station_items SET station_id = $2 WHERE station_id = $1")
+                    .bind(old)
+                    .bind(&s.station_id)
+                    .execute(&mut *tx)
+                    .await?;
+                sqlx::query(
+                    "INSERT INTO stations (station_id, software_version, contract_version, bench_states, backlog_items, \
+                     sent_at, first_contact_at, last_contact_at, items, distinct_seqs, last_seq) \
+                     SELECT $2, software_version, contract_version, bench_states, backlog_items, sent_at, \
+                     first_contact_at, last_contact_at, items, distinct_seqs, last_seq FROM stations WHERE station_id = $1 \
+                     ON CONFLICT (station_id) DO UPDATE SET items = stations.items + EXCLUDED.items, \
+                     distinct_seqs = stations.distinct_seqs + EXCLUDED.distinct_seqs, \
+                     last_seq = GREATEST(stations.last_seq, EXCLUDED.last_seq)",
+                )
+                .bind(old)
+                .bind(&s.station_id)
+                .execute(&mut *tx)
+                .await?;
+                sqlx::query(
+                    "UPDATE stations SET renamed_to = $2, items = 0, distinct_seqs = 0, last_seq = NULL \
+                     WHERE station_id = $1",
+                )
+                .bind(old)
+                .bind(&s.station_id)
+                .execute(&mut *tx)
+                .await?;
+                tracing::info!(from = %old, to = %s.station_id, "fleet: station renamed");
+            }
+            sqlx::query(
+                "UPDATE stations SET retired_at = CASE WHEN $2 THEN COALESCE(retired_at, $3) END WHERE station_id = $1",
+            )
+            .bind(&s.station_id)
+            .bind(s.retired)
+            .bind(&t)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(())
     }
 }

@@ -19,6 +19,7 @@ mod reads;
 pub mod test_server;
 
 pub use center::{SpcGroup, SpcQuery, YieldDay};
+pub use ingest::{Refusal, StationRegistration};
 pub use reads::CenterRecording;
 pub use springbench_store::corrections::{AuditEntry, Corrections};
 

@@ -337,10 +337,10 @@ impl RecipeReads for PgStore {
 /// A measurement's recording as the center holds it.
 #[derive(Debug, Clone)]
 pub struct CenterRecording {
-    /// The bytes as the station stored them (FLAC, or WAV for some
+    /// The stored bytes' recording id and length (FLAC, or WAV for some
     /// imports); None when the station sends references only
     /// (`[fleet] recordings = "reference"`).
-    pub bytes: Option<Vec<u8>>,
+    pub stored: Option<(i64, i64)>,
     /// The channel scale of a FLAC recording (JSON), as the station sent it.
     pub channel_scale_json: Option<String>,
     /// The station that measured it.
@@ -348,14 +348,44 @@ pub struct CenterRecording {
 }
 
 impl PgStore {
-    /// The `pre` or `main` recording of a measurement (None: no such measurement).
+    /// A recipe's valid measurement verdicts in [since, until), oldest
+    /// first, after the verdict `after_seq` (keyset), at most `limit`:
+    /// the center's listing pages with a hard cap (issue 36).
+    pub async fn recipe_verdicts_page(
+        &self,
+        recipe: &str,
+        since: Option<&str>,
+        until: Option<&str>,
+        after_seq: Option<i64>,
+        limit: i64,
+    ) -> StoreResult<Vec<VerdictRow>> {
+        let rows = sqlx::query(concat!(
+            "SELECT ",
+            verdict_cols!(),
+            ", level_index FROM qc_verdicts WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided \
+             AND ($2::text IS NULL OR created_at >= $2) AND ($3::text IS NULL OR created_at < $3) \
+             AND ($4::bigint IS NULL OR seq > $4) ORDER BY seq LIMIT $5"
+        ))
+        .bind(recipe)
+        .bind(since)
+        .bind(until)
+        .bind(after_seq)
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(verdict_from_row).collect()
+    }
+
+    /// The `pre` or `main` recording of a measurement (None: no such
+    /// measurement): where its bytes are, not the bytes (they are read in
+    /// chunks by [`PgStore::recording_reader`]).
     pub async fn recording(
         &self,
         measurement_id: &str,
         kind: &str,
     ) -> StoreResult<Option<CenterRecording>> {
         let row = sqlx::query(
-            "SELECT r.wav, r.channel_scale_json, m.station_id FROM measurements m \
+            "SELECT r.id, octet_length(r.wav)::bigint, r.channel_scale_json, m.station_id FROM measurements m \
              JOIN recordings r ON r.id = CASE WHEN $2 = 'pre' THEN m.pre_recording_id ELSE m.main_recording_id END \
              WHERE m.id = $1",
         )
@@ -364,9 +394,77 @@ impl PgStore {
         .fetch_optional(&self.pool)
         .await?;
         Ok(row.map(|r| CenterRecording {
-            bytes: r.get(0),
-            channel_scale_json: r.get(1),
-            station_id: r.get(2),
+            stored: r.get::<Option<i64>, _>(1).map(|len| (r.get(0), len)),
+            channel_scale_json: r.get(2),
+            station_id: r.get(3),
         }))
+    }
+
+    /// The bytes of recording `id` (`len` bytes) as a reader that fetches
+    /// 1 MiB at a time: a download holds one chunk, not the recording
+    /// (issue 36: 24 downloads of a 120 MB recording took the center to
+    /// 3.3 GB). Read it off the async workers (`spawn_blocking`): each
+    /// chunk is a query run on the runtime it was made on.
+    pub fn recording_reader(&self, id: i64, len: i64) -> Box<dyn std::io::Read + Send> {
+        Box::new(ChunkReader {
+            pool: self.pool.clone(),
+            rt: tokio::runtime::Handle::current(),
+            id,
+            off: 0,
+            len,
+            buf: vec![],
+            pos: 0,
+        })
+    }
+}
+
+const CHUNK_BYTES: i64 = 1 << 20;
+
+struct ChunkReader {
+    pool: sqlx::PgPool,
+    rt: tokio::runtime::Handle,
+    id: i64,
+    off: i64,
+    len: i64,
+    buf: Vec<u8>,
+    pos: usize,
+}
+
+impl std::io::Read for ChunkReader {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        if self.pos == self.buf.len() {
+            if self.off >= self.len {
+                return Ok(0);
+            }
+            let n = CHUNK_BYTES.min(self.len - self.off);
+            // substring() of bytea counts from 1; the column is stored
+            // uncompressed (migration 0320), so it reads only these pages.
+            let chunk: Option<Vec<u8>> = self
+                .rt
+                .block_on(
+                    sqlx::query_scalar(
+                        "SELECT substring(wav FROM $2 FOR $3) FROM recordings WHERE id = $1",
+                    )
+                    .bind(self.id)
+                    .bind(self.off + 1)
+                    .bind(n)
+                    .fetch_optional(&self.pool),
+                )
+                .map_err(std::io::Error::other)?
+                .flatten();
+            let chunk = chunk.filter(|c| !c.is_empty()).ok_or_else(|| {
+                std::io::Error::new(
+                    std::io::ErrorKind::UnexpectedEof,
+                    "the recording is shorter than stored",
+                )
+            })?;
+            self.off += chunk.len() as i64;
+            self.buf = chunk;
+            self.pos = 0;
+        }
+        let k = out.len().min(self.buf.len() - self.pos);
+        out[..k].copy_from_slice(&self.buf[self.pos..self.pos + k]);
+        self.pos += k;
+        Ok(k)
     }
 }

@@ -1268,3 +1268,296 @@ async fn a_stations_serial_correction_moves_only_its_own_measurements() {
     assert_eq!(count("P-7").await, 1, "line 2's measurement stays");
     assert_eq!(count("P-8").await, 1, "line 1's measurement moved");
 }
+
+fn void_of(id: &str, measurement: &str, serial: &str) -> Correction {
+    Correction {
+        id: id.into(),
+        kind: "void_measurement".into(),
+        part_serial: serial.into(),
+        measurement_id: Some(measurement.into()),
+        old_value: None,
+        new_value: None,
+        reason: "mis-clamped".into(),
+        made_by: Some("admin".into()),
+        made_at: time(5),
+    }
+}
+
+/// Issue 36: a station voided, moved and re-kinded another line's
+/// measurement and part at the center (the center did not check who owns
+/// what). Now each is refused, named, and recorded for the fleet's readers;
+/// an item whose text the database cannot hold (a NUL byte) is refused as
+/// the item's fault, not taken for an outage, and the next item goes in.
+#[tokio::test]
+async fn a_station_corrects_and_voids_only_its_own_and_a_refusal_is_recorded() {
+    let Some(s) = store("owner_checks").await else {
+        return;
+    };
+    s.ingest(
+        "line-1",
+        &[measurement(
+            1,
+            "a-1",
+            "P-1",
+            None,
+            None,
+            1000.0,
+            "pass",
+            &time(0),
+        )],
+    )
+    .await
+    .unwrap();
+    let item = |seq, c: Correction| ReplicationItem {
+        seq,
+        body: ItemBody::Correction(c),
+    };
+    let mut moved = void_of("c-move", "a-1", "P-1");
+    moved.kind = "part_serial".into();
+    moved.new_value = Some("P-STOLEN".into());
+    let mut kind = void_of("c-kind", "a-1", "P-1");
+    kind.kind = "part_kind".into();
+    kind.measurement_id = None;
+    kind.new_value = Some("woofer".into());
+    for (c, why) in [
+        (
+            void_of("c-void", "a-1", "P-1"),
+            "made by station line-1; station line-2 voids its own",
+        ),
+        (
+            moved,
+            "made by station line-1; station line-2 moves its own",
+        ),
+        (kind, "station line-2 measured no part 'P-1'"),
+    ] {
+        let id = c.id.clone();
+        match s.ingest("line-2", &[item(7, c)]).await {
+            Err(StoreError::Invalid(m)) => {
+                assert!(m.contains(why) && m.contains(&id), "{m}")
+            }
+            r => panic!("{id}: {r:?}"),
+        }
+    }
+    assert_eq!(s.measurement_void("a-1").await.unwrap(), None);
+    let m = s.get_measurement("a-1").await.unwrap().unwrap();
+    assert_eq!(m.0.part_serial, "P-1");
+    assert_eq!(
+        s.get_part("P-1").await.unwrap().unwrap().kind.as_deref(),
+        Some("spider")
+    );
+    let refused = s.refusals(Some("line-2"), None, 100).await.unwrap();
+    let ids: Vec<&str> = refused.iter().map(|r| r.item_id.as_str()).collect();
+    assert_eq!(
+        ids,
+        [
+            "correction:c-kind",
+            "correction:c-move",
+            "correction:c-void"
+        ]
+    );
+    assert!(refused
+        .iter()
+        .all(|r| r.credential_station.as_deref() == Some("line-2")));
+    // Sent again (the station's item-by-item retry): counted, not listed twice.
+    let _ = s
+        .ingest("line-2", &[item(7, void_of("c-void", "a-1", "P-1"))])
+        .await;
+    let refused = s.refusals(Some("line-2"), None, 100).await.unwrap();
+    assert_eq!(refused.len(), 3);
+    assert_eq!(
+        refused
+            .iter()
+            .find(|r| r.item_id == "correction:c-void")
+            .unwrap()
+            .times,
+        2
+    );
+    // Its own: applied.
+    assert!(s
+        .ingest("line-1", &[item(2, void_of("c-own", "a-1", "P-1"))])
+        .await
+        .is_ok());
+    assert_eq!(
+        s.measurement_void("a-1").await.unwrap().as_deref(),
+        Some("c-own")
+    );
+
+    // A NUL byte in a part's notes: the item's fault (Invalid, recorded),
+    // nothing of the batch written; the next batch goes in.
+    let mut bad = measurement(3, "a-2", "P-2", None, None, 1000.0, "pass", &time(1));
+    if let ItemBody::Measurement(m) = &mut bad.body {
+        m.part_notes = Some("torn\0edge".into());
+    }
+    let good = measurement(4, "a-3", "P-3", None, None, 1000.0, "pass", &time(2));
+    match s.ingest("line-1", &[bad, good.clone()]).await {
+        Err(StoreError::Invalid(m)) => assert!(m.contains("item 3") && m.contains("NUL"), "{m}"),
+        r => panic!("{r:?}"),
+    }
+    assert!(s.get_measurement("a-3").await.unwrap().is_none());
+    s.ingest("line-1", &[good]).await.unwrap();
+    assert!(s.get_measurement("a-3").await.unwrap().is_some());
+    let refused = s.refusals(Some("line-1"), None, 100).await.unwrap();
+    assert_eq!(refused[0].item_id, "measurement:a-2");
+    let st = s.stations().await.unwrap();
+    let line2 = st.iter().find(|x| x.station_id == "line-2");
+    assert!(line2.is_none_or(|x| x.refused == 3), "{line2:?}");
+    let line1 = st.iter().find(|x| x.station_id == "line-1").unwrap();
+    assert_eq!(line1.refused, 1);
+}
+
+/// Issue 36 (M1): the center's clock stamps contact and receipt; the
+/// station's stays the measurement's own time; a skew is reported. The
+/// station's clock is one day ahead in what it sends (its hello's
+/// `sent_at`, its measurement's time): the seam is the item itself.
+#[tokio::test]
+async fn the_centers_clock_stamps_contact_and_a_day_ahead_station_is_reported() {
+    let Some(s) = store("clock_skew").await else {
+        return;
+    };
+    let day = chrono::Duration::days(1);
+    let ahead = (chrono::Utc::now() + day).to_rfc3339_opts(chrono::SecondsFormat::Millis, true);
+    let mut h = hello("line-9", 0);
+    h.sent_at = ahead.clone();
+    let before = chrono::Utc::now();
+    let st = s.hello(&h).await.unwrap();
+    s.ingest(
+        "line-9",
+        &[measurement(
+            1,
+            "z-1",
+            "Z-1",
+            Some("j-1"),
+            None,
+            1000.0,
+            "pass",
+            &ahead,
+        )],
+    )
+    .await
+    .unwrap();
+    let after = chrono::Utc::now();
+    let at = |t: &str| {
+        chrono::DateTime::parse_from_rfc3339(t)
+            .unwrap()
+            .with_timezone(&chrono::Utc)
+    };
+    for t in [&st.last_contact_at, &st.first_contact_at] {
+        let t = at(t);
+        assert!(
+            t >= before - chrono::Duration::seconds(1) && t <= after + chrono::Duration::seconds(1),
+            "{t}"
+        );
+    }
+    let skew = st.clock_skew_s.unwrap();
+    assert!((skew - 86_400.0).abs() < 5.0, "{skew}");
+    let listed = s.stations().await.unwrap();
+    let l9 = listed.iter().find(|x| x.station_id == "line-9").unwrap();
+    assert!(at(&l9.last_contact_at) <= after + chrono::Duration::seconds(1));
+    assert_eq!(l9.sent_at, ahead, "the station's own clock stays visible");
+    // The measurement keeps its own (the station's) time; yield counts its day.
+    let m = s.get_measurement("z-1").await.unwrap().unwrap();
+    assert_eq!(m.0.created_at, ahead);
+    s.ingest(
+        "line-9",
+        &[ReplicationItem {
+            seq: 2,
+            body: ItemBody::JobVerdicts(JobVerdictsItem {
+                job_id: "j-1".into(),
+                part_serial: "Z-1".into(),
+                verdicts: vec![VerdictItem {
+                    id: "v-j-1".into(),
+                    job_id: Some("j-1".into()),
+                    measurement_id: None,
+                    part_serial: "Z-1".into(),
+                    recipe_name: "R".into(),
+                    recipe_version: 1,
+                    recipe_sha256: "ab".repeat(32),
+                    verdict: "pass".into(),
+                    detail: json!({"verdict": "pass"}),
+                    trace: json!({}),
+                    created_at: ahead.clone(),
+                }],
+            }),
+        }],
+    )
+    .await
+    .unwrap();
+    let days = s
+        .yield_per_day("R", "2000-01-01T00:00:00.000Z", "2100-01-01T00:00:00.000Z")
+        .await
+        .unwrap();
+    assert_eq!(days.len(), 1, "{days:?}");
+    assert_eq!(
+        days[0].day,
+        &ahead[..10],
+        "the measurement's (station's) day"
+    );
+    assert_eq!(days[0].passed, 1);
+}
+
+/// Issue 36 (M2): a station renamed on purpose keeps its history (its rows
+/// keep the old id), shows no false gap under its new id, and may still
+/// void what it made under the old one; the old id says where it went.
+#[tokio::test]
+async fn a_renamed_station_keeps_its_history_without_false_gaps() {
+    let Some(s) = store("rename").await else {
+        return;
+    };
+    s.ingest(
+        "line-3",
+        &[
+            measurement(1, "r-1", "R-1", None, None, 1000.0, "pass", &time(0)),
+            measurement(2, "r-2", "R-2", None, None, 1001.0, "pass", &time(1)),
+        ],
+    )
+    .await
+    .unwrap();
+    let reg = |retired| springbench_store_pg::StationRegistration {
+        station_id: "line-3b".into(),
+        former_ids: vec!["line-3".into()],
+        retired,
+    };
+    s.register_stations(&[reg(false)]).await.unwrap();
+    s.register_stations(&[reg(false)]).await.unwrap(); // at every start: once
+    s.ingest(
+        "line-3b",
+        &[
+            ReplicationItem {
+                seq: 3,
+                body: ItemBody::Correction(void_of("v-1", "r-1", "R-1")),
+            },
+            measurement(4, "r-3", "R-3", None, None, 1002.0, "pass", &time(2)),
+        ],
+    )
+    .await
+    .unwrap();
+    assert_eq!(
+        s.measurement_void("r-1").await.unwrap().as_deref(),
+        Some("v-1")
+    );
+    let st = s.stations().await.unwrap();
+    let new = st.iter().find(|x| x.station_id == "line-3b").unwrap();
+    assert_eq!(
+        (new.items, new.last_seq, new.missing_items),
+        (4, Some(4), 0),
+        "{new:?}"
+    );
+    let old = st.iter().find(|x| x.station_id == "line-3").unwrap();
+    assert_eq!(old.renamed_to.as_deref(), Some("line-3b"));
+    let m = s.get_measurement("r-1").await.unwrap().unwrap();
+    assert_eq!(
+        m.0.station_id.as_deref(),
+        Some("line-3"),
+        "history keeps the old id"
+    );
+    // Retired: marked, history stays.
+    s.register_stations(&[reg(true)]).await.unwrap();
+    let st = s.stations().await.unwrap();
+    assert!(st
+        .iter()
+        .find(|x| x.station_id == "line-3b")
+        .unwrap()
+        .retired_at
+        .is_some());
+    assert!(s.get_measurement("r-3").await.unwrap().is_some());
+}

@@ -70,6 +70,45 @@ pub fn check(c: &Correction) -> StoreResult<()> {
     if c.reason.trim().is_empty() {
         return bad("a reason is required");
     }
+    // Every text of a correction travels to the center: no control
+    // character, bounded lengths, a new serial by the serial rule (an
+    // 8 000-character serial was accepted and stopped replication, issue 36).
+    for (field, text, max) in [
+        ("id", Some(c.id.as_str()), 128),
+        ("part_serial", Some(c.part_serial.as_str()), 64),
+        ("measurement_id", c.measurement_id.as_deref(), 128),
+        ("old_value", c.old_value.as_deref(), 4096),
+        ("new_value", c.new_value.as_deref(), 4096),
+        ("reason", Some(c.reason.as_str()), 4096),
+        ("made_by", c.made_by.as_deref(), 256),
+    ] {
+        let Some(t) = text else { continue };
+        if t.chars().count() > max {
+            return bad(&format!("{field}: at most {max} characters"));
+        }
+        if let Some(ch) = springbench_core::job::bad_char(t) {
+            return bad(&format!(
+                "{field}: holds the control character U+{:04X}",
+                ch as u32
+            ));
+        }
+    }
+    if c.kind == "part_serial" {
+        let new = c.new_value.as_deref().unwrap_or_default();
+        if !new.trim().is_empty() && !springbench_core::job::valid_serial(new) {
+            return bad(&format!(
+                "new_value: a serial is {}",
+                springbench_core::job::SERIAL_RULE
+            ));
+        }
+    }
+    if c.kind == "part_kind"
+        && c.new_value
+            .as_deref()
+            .is_some_and(|k| k.chars().count() > 64)
+    {
+        return bad("new_value: a kind has at most 64 characters");
+    }
     match c.kind.as_str() {
         "void_measurement" if c.measurement_id.is_none() => bad("a void names its measurement"),
         "part_serial" if c.new_value.as_deref().is_none_or(|v| v.trim().is_empty()) => {

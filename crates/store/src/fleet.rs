@@ -88,7 +88,28 @@ pub struct StationStatus {
     /// Sequence numbers below `last_seq` the center does not hold (a gap:
     /// 0 after a complete catch-up).
     pub missing_items: i64,
+    /// The station's clock minus the center's at its last hello (s); a
+    /// large value is a station whose clock is off (decision 0105: the
+    /// center's clock stamps contact and receipt, the station's stays the
+    /// measurements' own time).
+    #[serde(default)]
+    pub clock_skew_s: Option<f64>,
+    /// Items and requests of (or claiming) this station the center refused,
+    /// each with its reason (`GET /api/v1/fleet/refusals?station=`).
+    #[serde(default)]
+    pub refused: i64,
+    /// When the station was retired on purpose (its token no longer
+    /// accepted; its history stays). None: active.
+    #[serde(default)]
+    pub retired_at: Option<String>,
+    /// The station's new id after a rename (its rows keep this id).
+    #[serde(default)]
+    pub renamed_to: Option<String>,
 }
+
+/// The clock skew (s) above which the center reports a station's clock as
+/// off (log line, `/metrics`, the station listing's `clock_skew_s`).
+pub const CLOCK_SKEW_REPORT_S: f64 = 60.0;
 
 /// One outbox item of a station.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -260,6 +260,18 @@ impl Store {
         })
     }
 
+    /// The items the center refused (parked, with the center's reason in
+    /// `last_error`), oldest first: `GET /api/v1/fleet/link`.
+    pub async fn outbox_refused(&self, limit: i64) -> StoreResult<Vec<OutboxRow>> {
+        let rows = sqlx::query(
+            "SELECT * FROM fleet_outbox WHERE delivered_at IS NULL AND refused_at IS NOT NULL ORDER BY seq LIMIT ?",
+        )
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter().map(outbox_from_row).collect()
+    }
+
     /// Every outbox row after `after_seq`, oldest first (the API; tests).
     pub async fn outbox_rows(&self, after_seq: i64, limit: i64) -> StoreResult<Vec<OutboxRow>> {
         let rows = sqlx::query("SELECT * FROM fleet_outbox WHERE seq > ? ORDER BY seq LIMIT ?")

@@ -40,7 +40,7 @@ pub use measurement::{
     HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,
     RepeatEnded, SweepSettings,
 };
-pub use parse::{check_chars, parse_lenient, FieldError};
+pub use parse::{bad_char, check_chars, parse_lenient, FieldError};
 pub use problem::{JobProblem, ProblemKind};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{

@@ -33,6 +33,23 @@ pub fn check_chars(text: Option<&str>, field: &str, max: usize, errors: &mut Vec
     if text.is_some_and(|t| t.chars().count() > max) {
         errors.push(FieldError::new(field, format!("at most {max} characters")));
     }
+    if let Some(c) = text.and_then(bad_char) {
+        errors.push(FieldError::new(
+            field,
+            format!(
+                "holds the control character U+{:04X}; text only (tab and line breaks allowed)",
+                c as u32
+            ),
+        ));
+    }
+}
+
+/// The first control character of `text` other than tab and line breaks
+/// (a NUL byte in a part's notes was stored, then refused by the fleet's
+/// center for good, issue 36), if any.
+pub fn bad_char(text: &str) -> Option<char> {
+    text.chars()
+        .find(|c| c.is_control() && !matches!(c, '\t' | '\n' | '\r'))
 }
 
 /// One step of a JSON path.
