@@ -197,7 +197,9 @@ fn verdict(id: &str, job: &str, m: Option<&str>, serial: &str) -> NewVerdict {
 
 fn cfg() -> FleetConfig {
     FleetConfig {
-        center: "postgres://sb@localhost/center".into(),
+        center: "https://center.lab:8760".into(),
+        token: "tok-line-1-9f2c71ab04d8e6".into(),
+        ca_file: None,
         station_id: "line-1".into(),
         recordings: RecordingsPolicy::Reference,
         batch_items: 3,

@@ -1286,6 +1286,8 @@ async fn fleet_role_contract(o: &OneStation) {
         ("/api/v1/fleet/recipes/{name}/yield", format!("{f}/recipes/{r}/yield?since=yesterday"), 422, Some("since")),
         ("/api/v1/fleet/audit", format!("{f}/audit?part=U2"), 200, None),
         ("/api/v1/fleet/audit", format!("{f}/audit?after=-1"), 422, Some("after")),
+        ("/api/v1/fleet/refusals", format!("{f}/refusals"), 200, None),
+        ("/api/v1/fleet/refusals", format!("{f}/refusals?limit=0"), 422, Some("limit")),
         ("/api/v1/parts", "/api/v1/parts".into(), 200, None),
         ("/api/v1/parts", "/api/v1/parts?limit=0".into(), 422, Some("limit")),
         ("/api/v1/parts/{serial}", "/api/v1/parts/U1".into(), 200, None),
@@ -1335,6 +1337,42 @@ async fn fleet_role_contract(o: &OneStation) {
         let r = c.get(guarded.url(page)).send().await.unwrap();
         assert_eq!(r.status().as_u16(), 200, "{page}");
     }
+    // Issue 36: a NUL or another control byte is a 400 without the
+    // database's text (it was a 500 carrying it); /readyz and /metrics.
+    for bad in [
+        "/api/v1/fleet/parts/%00",
+        "/api/v1/fleet/measurements?part=a%00b",
+        "/api/v1/fleet/audit?part=%1b",
+        "/api/v1/parts/%ff%fe",
+    ] {
+        let r = c.get(o.fleet.url(bad)).send().await.unwrap();
+        let status = r.status().as_u16();
+        let text = r.text().await.unwrap();
+        assert_eq!(status, 400, "{bad}: {text}");
+        assert!(
+            !text.contains("byte sequence") && !text.contains("database"),
+            "{bad}: {text}"
+        );
+    }
+    let r = c.get(o.fleet.url("/readyz")).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let m = c
+        .get(o.fleet.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let held = m
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix(&format!(
+                "springbench_center_station_items{{station=\"{STATION}\"}} "
+            ))
+        })
+        .unwrap_or_else(|| panic!("{m}"));
+    assert!(held.parse::<f64>().unwrap() >= 4.0, "{m}");
     let s = c
         .get(guarded.url("/api/v1/session"))
         .bearer_auth("viewer-token-0123456789")

@@ -138,6 +138,8 @@ async fn bound(st: &FleetState, cred: &StationCredential, claimed: &str) -> Resu
     .into_response())
 }
 
+// The error is the answer itself, made once per refused request.
+#[allow(clippy::result_large_err)]
 fn body<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, Response> {
     serde_json::from_slice(bytes).map_err(|e| {
         Problem::new(
