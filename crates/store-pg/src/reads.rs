@@ -443,7 +443,7 @@ impl std::io::Read for ChunkReader {
                 .rt
                 .block_on(
                     sqlx::query_scalar(
-                        "SELECT substring(wav FROM $2 FOR $3) FROM recordings WHERE id = $1",
+                        "SELECT substring(wav FROM $2::int FOR $3::int) FROM recordings WHERE id = $1",
                     )
                     .bind(self.id)
                     .bind(self.off + 1)
