@@ -982,11 +982,16 @@ async fn every_route_answers_as_its_schema_says() {
     }
 
     // Every route of the router was answered and validated, with a success
-    // except where a success needs a hardware bench (feature `hardware`).
-    const HARDWARE_ONLY: [&str; 2] = [
+    // except where a success needs a hardware bench (feature `hardware`),
+    // and where it needs a fleet center (the station's link: its 200 is
+    // tested in fleet.rs, a station with a center).
+    const HARDWARE_ONLY: [&str; 3] = [
         "post /api/v1/benches/{id}/self-check",
         "get /api/v1/calibrations/{id}",
+        "get /api/v1/fleet/link",
     ];
+    // A station without [fleet] has no link: 404, a problem.
+    a.get("/api/v1/fleet/link", "/api/v1/fleet/link", 404).await;
     // Gauge study: planned (201), listed, read back; a bad body names its
     // field; an unknown study is 404.
     let gs = "/api/v1/gauge-studies";
