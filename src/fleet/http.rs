@@ -19,6 +19,17 @@ use http_body_util::BodyExt;
 use std::sync::Arc;
 use std::time::Duration;
 
+/// The `items` request's body (`POST /api/v1/fleet/ingest/items`), as the
+/// station sends it and the center reads it.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+pub struct ItemsRequest {
+    pub station_id: String,
+    pub items: Vec<crate::store::fleet::ReplicationItem>,
+}
+
+/// The problem `type` of a refused item (the station parks it).
+pub const ITEM_REFUSED: &str = "item-refused";
+
 type Client = hyper_util::client::legacy::Client<
     hyper_rustls::HttpsConnector<hyper_util::client::legacy::connect::HttpConnector>,
     http_body_util::Full<bytes::Bytes>,
@@ -99,7 +110,7 @@ impl HttpCenter {
                 let p: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
                 let detail = p["detail"].as_str().unwrap_or("").to_string();
                 let kind = p["type"].as_str().unwrap_or("");
-                if s == 422 && kind.ends_with(crate::api::fleet::ITEM_REFUSED) {
+                if s == 422 && kind.ends_with(ITEM_REFUSED) {
                     return Err(StoreError::Invalid(detail));
                 }
                 Err(unreachable(format!("{s}: {detail}")))
@@ -129,7 +140,7 @@ impl CenterIngest for HttpCenter {
 
     async fn ingest(&self, station: &str, items: &[ReplicationItem]) -> StoreResult<IngestReport> {
         debug_assert_eq!(station, self.station_id);
-        let req = crate::api::fleet::ItemsRequest {
+        let req = ItemsRequest {
             station_id: station.to_string(),
             items: items.to_vec(),
         };

@@ -18,24 +18,17 @@
 use super::FleetState;
 use crate::api::problem::Problem;
 use crate::config::StationCredential;
-use crate::store::fleet::{CenterIngest, ReplicationItem, StationHello};
+use crate::store::fleet::{CenterIngest, StationHello};
 use crate::store::StoreError;
 use axum::extract::{DefaultBodyLimit, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use serde::{Deserialize, Serialize};
 
-/// The `items` request's body.
-#[derive(Debug, Serialize, Deserialize)]
-pub struct ItemsRequest {
-    pub station_id: String,
-    pub items: Vec<ReplicationItem>,
-}
-
-/// The problem `type` of a refused item (the station parks it).
-pub const ITEM_REFUSED: &str = "item-refused";
+// The wire types both ends share live with the station's worker (a lower
+// room: `fleet` may not import `api`, tests/it/layers.rs).
+pub use crate::fleet::http::{ItemsRequest, ITEM_REFUSED};
 
 pub fn routes(max_body: usize) -> Router<FleetState> {
     Router::new()
