@@ -5,7 +5,7 @@
 // (noise level).
 
 import uPlot from './vendor/uplot/uPlot.esm.js';
-import { num } from './util.js';
+import { num, tickLabel } from './util.js';
 import { svgChart } from './svgplot.js';
 
 export const COLORS = ['#1f77b4', '#d62728', '#2ca02c', '#9467bd', '#ff7f0e', '#17becf', '#8c564b', '#e377c2'];
@@ -23,19 +23,6 @@ export function ticks125(lo, hi) {
     }
   }
   return out;
-}
-
-function tickLabel(v) {
-  // uPlot passes null for ticks it leaves unlabelled (too close together).
-  if (v === null || v === undefined || !Number.isFinite(v)) return '';
-  if (v === 0) return '0';
-  const a = Math.abs(v);
-  if (a >= 1e4 || a < 1e-3) {
-    const e = Math.floor(Math.log10(a));
-    const m = Number((v / 10 ** e).toPrecision(3));
-    return `${m}e${e}`;
-  }
-  return String(Number(v.toPrecision(4)));
 }
 
 function clean(arr) {

@@ -6,7 +6,7 @@
 // and the four report plots need a few hundred lines, not a charting package
 // (decision in docs/ui.md, "The printable report").
 
-import { num } from './util.js';
+import { num, tickLabel } from './util.js';
 
 const NS = 'http://www.w3.org/2000/svg';
 
@@ -26,16 +26,6 @@ export function niceTicks(lo, hi, n = 5) {
   const out = [];
   for (let v = Math.ceil(lo / step - 1e-9) * step; v <= hi + step * 1e-9; v += step) out.push(Number(v.toPrecision(12)));
   return out;
-}
-
-function tick(v) {
-  if (v === 0) return '0';
-  const a = Math.abs(v);
-  if (a >= 1e4 || a < 1e-3) {
-    const e = Math.floor(Math.log10(a));
-    return `${Number((v / 10 ** e).toPrecision(3))}e${e}`;
-  }
-  return String(Number(v.toPrecision(4)));
 }
 
 const finite = (v) => v !== null && v !== undefined && Number.isFinite(v);
@@ -130,48 +120,38 @@ export function svgChart(host, spec) {
   axes.append(el('line', { x1: pad.l, x2: pad.l + pw, y1: pad.t + ph, y2: pad.t + ph }));
   axes.append(el('line', { x1: pad.l, x2: pad.l, y1: pad.t, y2: pad.t + ph }));
   svg.append(axes);
-  for (const t of xt) svg.append(el('text', { x: f(X(t)), y: pad.t + ph + 12, 'text-anchor': 'middle' }, tick(t)));
-  for (const t of yt) svg.append(el('text', { x: pad.l - 4, y: f(Y(t) + 3.5), 'text-anchor': 'end' }, tick(t)));
+  for (const t of xt) svg.append(el('text', { x: f(X(t)), y: pad.t + ph + 12, 'text-anchor': 'middle' }, tickLabel(t)));
+  for (const t of yt) svg.append(el('text', { x: pad.l - 4, y: f(Y(t) + 3.5), 'text-anchor': 'end' }, tickLabel(t)));
   const lab = (a) => (a.unit ? `${a.label} (${a.unit})` : a.label);
   svg.append(el('text', { x: pad.l + pw / 2, y: H - 4, 'text-anchor': 'middle' }, lab(spec.x)));
   svg.append(el('text', { x: 12, y: pad.t + ph / 2, 'text-anchor': 'middle', transform: `rotate(-90 12 ${f(pad.t + ph / 2)})` }, lab(spec.y)));
 
-  // The legend: each series' line (or marker) and its name, under the plot.
+  // The legend: each series' line (or marker) and its name, under the plot;
+  // then each named area and the range outside the valid one.
   const legend = document.createElement('ul');
   legend.className = 'svg-legend';
+  const entry = (data, mark, text) => {
+    const li = document.createElement('li');
+    Object.assign(li.dataset, data);
+    const sw = el('svg', { width: 26, height: 10, viewBox: '0 0 26 10', 'aria-hidden': 'true' });
+    sw.append(mark);
+    const name = document.createElement('span');
+    name.className = 'svg-legend-name';
+    name.textContent = text;
+    li.append(sw, name);
+    legend.append(li);
+  };
+  const box = (fill) => el('rect', { x: 1, y: 1, width: 24, height: 8, fill });
   spec.series.forEach((s, k) => {
-    const li = document.createElement('li');
-    li.dataset.series = String(k);
-    const sw = el('svg', { width: 26, height: 10, viewBox: '0 0 26 10', 'aria-hidden': 'true' });
-    if (s.points === 'only') sw.append(el('circle', { cx: 13, cy: 5, r: 3.5, fill: s.color || '#1f77b4' }));
-    else sw.append(el('line', { x1: 1, x2: 25, y1: 5, y2: 5, stroke: s.color || '#1f77b4', 'stroke-width': 2, 'stroke-dasharray': s.dash ? '6 4' : undefined }));
-    const name = document.createElement('span');
-    name.className = 'svg-legend-name';
-    name.textContent = s.label;
-    li.append(sw, name);
-    legend.append(li);
+    const color = s.color || '#1f77b4';
+    entry({ series: String(k) }, s.points === 'only'
+      ? el('circle', { cx: 13, cy: 5, r: 3.5, fill: color })
+      : el('line', { x1: 1, x2: 25, y1: 5, y2: 5, stroke: color, 'stroke-width': 2, 'stroke-dasharray': s.dash ? '6 4' : undefined }), s.label);
   });
-  for (const a of (spec.areas || []).filter((x) => x.label)) {
-    const li = document.createElement('li');
-    li.dataset.area = 'true';
-    const sw = el('svg', { width: 26, height: 10, viewBox: '0 0 26 10', 'aria-hidden': 'true' });
-    sw.append(el('rect', { x: 1, y: 1, width: 24, height: 8, fill: a.fill || 'rgba(44,160,44,0.13)' }));
-    const name = document.createElement('span');
-    name.className = 'svg-legend-name';
-    name.textContent = a.label;
-    li.append(sw, name);
-    legend.append(li);
-  }
+  for (const a of (spec.areas || []).filter((x) => x.label)) entry({ area: 'true' }, box(a.fill || 'rgba(44,160,44,0.13)'), a.label);
   if (spec.validRange) {
-    const li = document.createElement('li');
-    li.dataset.valid = 'true';
-    const sw = el('svg', { width: 26, height: 10, viewBox: '0 0 26 10', 'aria-hidden': 'true' });
-    sw.append(el('rect', { x: 1, y: 1, width: 24, height: 8, fill: 'rgb(120,120,120)', 'fill-opacity': 0.35 }));
-    const name = document.createElement('span');
-    name.className = 'svg-legend-name';
-    name.textContent = `outside the valid range (${num(spec.validRange[0], 3)} to ${num(spec.validRange[1], 3)} ${spec.x.unit || ''})`;
-    li.append(sw, name);
-    legend.append(li);
+    entry({ valid: 'true' }, box('rgba(120,120,120,0.35)'),
+      `outside the valid range (${num(spec.validRange[0], 3)} to ${num(spec.validRange[1], 3)} ${spec.x.unit || ''})`);
   }
   host.replaceChildren(svg, legend);
   host.classList.add('plot', 'plot-vector');

@@ -27,6 +27,20 @@ export function put(e, ...children) {
   return e;
 }
 
+/** An axis tick's label: 4 significant digits, or m e k beyond 1e4 and below 1e-3; '' for none. */
+export function tickLabel(v) {
+  // uPlot passes null for ticks it leaves unlabelled (too close together).
+  if (v === null || v === undefined || !Number.isFinite(v)) return '';
+  if (v === 0) return '0';
+  const a = Math.abs(v);
+  if (a >= 1e4 || a < 1e-3) {
+    const e = Math.floor(Math.log10(a));
+    const m = Number((v / 10 ** e).toPrecision(3));
+    return `${m}e${e}`;
+  }
+  return String(Number(v.toPrecision(4)));
+}
+
 /** A number with `digits` significant digits, or an en dash. */
 export function num(v, digits = 4) {
   if (v === undefined || v === null || !Number.isFinite(v)) return '\u2013';
