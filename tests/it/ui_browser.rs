@@ -2345,19 +2345,10 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
     b.screenshot_sizes("station-bench-faulted-refused").await;
     // The one console error is the refusal's own 409 (Chromium logs every
     // failed load); anything else is a defect of the page.
-    let errors: Vec<Value> = b
-        .drain_log()
-        .await
-        .into_iter()
-        .filter(|e| e["level"] == "SEVERE")
-        .collect();
-    assert!(
-        errors.iter().all(|e| {
-            let m = e["message"].as_str().unwrap_or_default();
-            m.contains("/api/v1/jobs") && m.contains("409")
-        }),
-        "browser console errors after the refusal: {errors:#?}"
-    );
+    b.assert_no_console_errors_but("after the refusal", |m| {
+        m.contains("/api/v1/jobs") && m.contains("409")
+    })
+    .await;
     b.quit().await;
     drop(d);
     drop(tmp);

@@ -184,8 +184,23 @@ impl Browser {
 
     /// Fails on any console message of level SEVERE (errors, failed loads, CSP violations).
     pub async fn assert_no_console_errors(&mut self, when: &str) {
+        self.assert_no_console_errors_but(when, |_| false).await;
+    }
+
+    /// The same, except the SEVERE messages that `expected` accepts (by
+    /// their text: a refusal the test provoked on purpose).
+    pub async fn assert_no_console_errors_but(
+        &mut self,
+        when: &str,
+        expected: impl Fn(&str) -> bool,
+    ) {
         let new = self.drain_log().await;
-        let errors: Vec<&Value> = new.iter().filter(|e| e["level"] == "SEVERE").collect();
+        let errors: Vec<&Value> = new
+            .iter()
+            .filter(|e| {
+                e["level"] == "SEVERE" && !expected(e["message"].as_str().unwrap_or_default())
+            })
+            .collect();
         assert!(
             errors.is_empty(),
             "browser console errors {when}: {errors:#?}"
