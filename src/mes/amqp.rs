@@ -154,8 +154,21 @@ pub fn topic_of(name: &str) -> &str {
     name.rsplit_once('.').map(|x| x.0).unwrap_or(name)
 }
 
+/// The application property of a message sent again after an attempt
+/// without outcome: the number of earlier attempts (decision 0098).
+pub const PRIOR_ATTEMPTS: &str = "springbench-prior-attempts";
+
 /// The AMQP message of a CFX envelope, with the SDK's properties.
-pub fn amqp_message(env: &Value) -> Message<Data> {
+///
+/// `prior_attempts` is the number of earlier sends of this envelope whose
+/// outcome the station never learnt (a timeout or a lost connection): the
+/// broker may hold such a copy already, so the resend says so, beside the
+/// unchanged `UniqueID` (decision 0098): in the application property
+/// `springbench-prior-attempts` (absent on a first send), which RabbitMQ
+/// passes on, and in the AMQP header's `delivery-count` ("the number of
+/// prior unsuccessful delivery attempts", AMQP 1.0 §3.2.1), which RabbitMQ
+/// 3.10 replaces by its own count.
+pub fn amqp_message(env: &Value, prior_attempts: u32) -> Message<Data> {
     let name = env["MessageName"].as_str().unwrap_or_default();
     let source = env["Source"].as_str().unwrap_or_default();
     let mut props = Properties::builder()
@@ -179,15 +192,19 @@ pub fn amqp_message(env: &Value) -> Message<Data> {
         Some(t) => SimpleValue::String(t.to_string()),
         None => SimpleValue::Null,
     };
-    let app = ApplicationProperties::builder()
+    let mut app = ApplicationProperties::builder()
         .insert("cfx-topic", SimpleValue::String(topic_of(name).to_string()))
         .insert("cfx-message", SimpleValue::String(name.to_string()))
         .insert("cfx-handle", SimpleValue::String(source.to_string()))
-        .insert("cfx-target", target)
-        .build();
+        .insert("cfx-target", target);
+    if prior_attempts > 0 {
+        app = app.insert(PRIOR_ATTEMPTS, SimpleValue::Uint(prior_attempts));
+    }
+    let app = app.build();
     Message::builder()
         .header(Header {
             durable: true,
+            delivery_count: prior_attempts,
             ..Default::default()
         })
         .properties(props.build())
@@ -290,15 +307,17 @@ async fn connect(b: &Broker) -> Result<Link, String> {
 }
 
 impl Link {
-    /// Sends one envelope to `to` (None: the publishing address); Ok(false)
-    /// when the broker refused it (not accepted).
+    /// Sends one envelope to `to` (None: the publishing address) as its
+    /// `prior_attempts`+1-th try; Ok(false) when the broker refused it (not
+    /// accepted).
     async fn send(
         &mut self,
         env: &Value,
         to: Option<&str>,
         timeout: Duration,
+        prior_attempts: u32,
     ) -> Result<bool, String> {
-        let msg = amqp_message(env);
+        let msg = amqp_message(env, prior_attempts);
         let sender = match to {
             None => &mut self.sender,
             Some(a) => {
@@ -398,7 +417,7 @@ pub async fn run(
                 let t = crate::store::now();
                 for e in &eps {
                     let env = cfx::endpoint_shutting_down(e, &new_uid(), &t).2;
-                    let _ = link.send(&env, None, Duration::from_secs(2)).await;
+                    let _ = link.send(&env, None, Duration::from_secs(2), 0).await;
                 }
                 link.close().await;
                 return;
@@ -431,7 +450,7 @@ async fn serve(
     let t = crate::store::now();
     for e in eps {
         let env = cfx::endpoint_connected(e, &new_uid(), &t).2;
-        link.send(&env, None, timeout).await?;
+        link.send(&env, None, timeout, 0).await?;
     }
     let period = Duration::from_secs(b.heartbeat_s);
     let mut beat = tokio::time::interval_at(tokio::time::Instant::now() + period, period);
@@ -451,7 +470,11 @@ async fn serve(
             if *shutdown.borrow() {
                 return Ok(());
             }
-            let r = link.send(&d.body, None, timeout).await;
+            // every earlier attempt of an outbox item ended without an
+            // outcome the station saw (a refusal is final or backed off
+            // the same way): each may have reached the queue
+            let prior = u32::try_from(d.attempts).unwrap_or(u32::MAX);
+            let r = link.send(&d.body, None, timeout, prior).await;
             let stored = match &r {
                 Ok(true) => store.mark_delivered(d.id).await,
                 Ok(false) | Err(_) => {
@@ -538,7 +561,7 @@ async fn heartbeats(
     let t = crate::store::now();
     for e in eps {
         let env = cfx::heartbeat(e, &new_uid(), &t, period_s).2;
-        link.send(&env, None, timeout).await?;
+        link.send(&env, None, timeout, 0).await?;
     }
     Ok(())
 }
@@ -566,7 +589,7 @@ async fn answer(
     for e in who {
         let env = cfx::answer(e, req, &new_uid(), &t).2;
         tracing::info!(request = %name, request_id = ?req["RequestID"].as_str(), answer = %env["MessageName"], "MES request answered");
-        link.send(&env, reply_to, timeout).await?;
+        link.send(&env, reply_to, timeout, 0).await?;
     }
     Ok(())
 }
@@ -646,7 +669,7 @@ mod tests {
         let env = serde_json::json!({"MessageName": "CFX.Production.WorkStarted", "UniqueID": "u-1",
             "Source": "Acme.Line3.Bench1", "Target": null, "RequestID": null,
             "TimeStamp": "2026-11-28T09:00:00.000Z", "MessageBody": {}});
-        let m = amqp_message(&env);
+        let m = amqp_message(&env, 0);
         let p = m.properties.unwrap();
         assert_eq!(
             p.subject.as_deref(),
@@ -662,7 +685,16 @@ mod tests {
             Some(&SimpleValue::String("CFX.Production".into()))
         );
         assert_eq!(a.get("cfx-target"), Some(&SimpleValue::Null));
-        assert!(m.header.unwrap().durable);
+        let h = m.header.unwrap();
+        assert!(h.durable);
+        assert_eq!(h.delivery_count, 0, "a first send");
+        assert_eq!(a.get(PRIOR_ATTEMPTS), None, "a first send is the SDK's");
+        let again = amqp_message(&env, 2);
+        assert_eq!(again.header.unwrap().delivery_count, 2);
+        assert_eq!(
+            again.application_properties.unwrap().get(PRIOR_ATTEMPTS),
+            Some(&SimpleValue::Uint(2))
+        );
         assert_eq!(topic_of("CFX.Heartbeat"), "CFX");
     }
 }

@@ -125,6 +125,9 @@ impl Broker {
 struct Got {
     env: Value,
     durable: Option<bool>,
+    /// `springbench-prior-attempts`: the station's earlier tries without
+    /// outcome (decision 0098), absent on a first send.
+    prior_attempts: Option<u32>,
     message_id: Option<String>,
     to: Option<String>,
     reply_to: Option<String>,
@@ -171,6 +174,12 @@ async fn recv(r: &mut Receiver, within: Duration) -> Option<Got> {
     Some(Got {
         env: serde_json::from_slice(&bytes).unwrap(),
         durable: m.header.as_ref().map(|h| h.durable),
+        prior_attempts: m.application_properties.as_ref().and_then(|a| {
+            match a.get(springbench::mes::amqp::PRIOR_ATTEMPTS) {
+                Some(SimpleValue::Uint(n)) => Some(*n),
+                _ => None,
+            }
+        }),
         message_id: p.message_id.map(id_text),
         to: p.to,
         reply_to: p.reply_to,
@@ -309,8 +318,8 @@ async fn wait_all(c: &reqwest::Client, d: &Daemon, ids: &[String]) {
     }
 }
 
-/// The outbox's messages of the broker target: (UniqueID, part), in outbox order.
-async fn outbox(d: &Daemon) -> Vec<(String, String)> {
+/// The outbox's deliveries to the broker target, in outbox order.
+async fn outbox_rows(d: &Daemon) -> Vec<springbench::store::qc::DeliveryRow> {
     let store = springbench::store::Store::open(&d.dir.join("data"))
         .await
         .unwrap();
@@ -319,28 +328,66 @@ async fn outbox(d: &Daemon) -> Vec<(String, String)> {
         all.extend(store.list_outbox(Some(state), 100_000).await.unwrap());
     }
     all.sort_by_key(|x| x.id);
-    all.into_iter()
-        .filter(|x| x.webhook == "broker")
-        .map(|x| (x.unique_id, x.part_serial))
-        .collect()
+    all.into_iter().filter(|x| x.webhook == "broker").collect()
 }
 
-/// Per part, the order of first arrival is the outbox's, each message once.
-fn assert_once_in_order(expected: &[(String, String)], got: &[Got]) {
-    let mut count: HashMap<String, usize> = HashMap::new();
+/// (UniqueID, part) of `rows` in outbox order, and the UniqueIDs the station
+/// tried before without learning the outcome.
+fn expected_and_in_doubt(
+    rows: &[springbench::store::qc::DeliveryRow],
+) -> (Vec<(String, String)>, Vec<String>) {
+    let expected = rows
+        .iter()
+        .map(|x| (x.unique_id.clone(), x.part_serial.clone()))
+        .collect();
+    let in_doubt = rows
+        .iter()
+        // a delivered item's attempts count the one that succeeded
+        .filter(|x| x.attempts - i64::from(x.state == "delivered") > 0)
+        .map(|x| x.unique_id.clone())
+        .collect();
+    (expected, in_doubt)
+}
+
+/// Per part, the order of first arrival is the outbox's, each message at
+/// least once; a message arrives again only if it is one of `in_doubt` (the
+/// station tried it before without learning the outcome: a timeout or a lost
+/// connection, after which the broker may or may not hold it), and then the
+/// later copy is the same envelope and says so (`springbench-prior-attempts`).
+/// Returns the UniqueIDs that arrived more than once.
+fn assert_arrived_in_order(
+    expected: &[(String, String)],
+    got: &[Got],
+    in_doubt: &[String],
+) -> Vec<String> {
+    let mut first: HashMap<String, &Got> = HashMap::new();
     let mut per_part: HashMap<String, Vec<String>> = HashMap::new();
+    let mut again = vec![];
     for g in got {
         let uid = g.env["UniqueID"].as_str().unwrap().to_string();
-        if let Some(e) = expected.iter().find(|e| e.0 == uid) {
-            *count.entry(uid.clone()).or_default() += 1;
-            per_part.entry(e.1.clone()).or_default().push(uid);
+        let Some(e) = expected.iter().find(|e| e.0 == uid) else {
+            continue; // heartbeats, EndpointConnected
+        };
+        if let Some(f) = first.get(&uid) {
+            assert!(
+                in_doubt.contains(&uid),
+                "{uid} arrived more than once, but the station never lost an outcome of it"
+            );
+            assert_eq!(f.env, g.env, "a copy of {uid} differs");
+            assert!(
+                g.prior_attempts.unwrap_or(0) >= 1,
+                "the copy of {uid} does not say it is a retry (prior attempts {:?})",
+                g.prior_attempts
+            );
+            again.push(uid);
+        } else {
+            per_part.entry(e.1.clone()).or_default().push(uid.clone());
+            first.insert(uid, g);
         }
     }
-    let twice: Vec<_> = count.iter().filter(|c| *c.1 > 1).collect();
-    assert!(twice.is_empty(), "arrived more than once: {twice:?}");
     let missing: Vec<_> = expected
         .iter()
-        .filter(|e| !count.contains_key(&e.0))
+        .filter(|e| !first.contains_key(&e.0))
         .collect();
     assert!(missing.is_empty(), "lost: {missing:?}");
     for (part, uids) in &per_part {
@@ -351,6 +398,7 @@ fn assert_once_in_order(expected: &[(String, String)], got: &[Got]) {
             .collect();
         assert_eq!(uids, &want, "order of {part}");
     }
+    again
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -371,7 +419,7 @@ async fn amqp_qc_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbea
     let mut d = Daemon::start_logged(dir.path(), &cfg, Some(log.path()));
     let c = client();
     let lot = qc_lot(&c, &d).await;
-    let expected = outbox(&d).await;
+    let (expected, in_doubt) = expected_and_in_doubt(&outbox_rows(&d).await);
     assert_eq!(expected.len(), 3 * lot.len(), "three messages a job");
     // Heartbeats: at least three (2 s apart) besides the lot.
     let t = Instant::now();
@@ -414,7 +462,7 @@ async fn amqp_qc_lot_arrives_once_in_order_with_the_sdks_properties_and_heartbea
         assert_sdk_properties(g);
         assert_eq!(shapes.check(&g.env), Vec::<String>::new(), "{}", g.env);
     }
-    assert_once_in_order(&expected, &got);
+    assert_arrived_in_order(&expected, &got, &in_doubt);
     // The lot's results as the MES reads them, per part in arrival order.
     let mut results: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for g in got
@@ -614,7 +662,7 @@ async fn amqp_requests_are_answered_with_their_request_id() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twice() {
+async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_marks_what_it_sends_again() {
     let Some(b) = Broker::find() else { return };
     let _one = BROKER.lock().await;
     let q = format!("cfx-{}", uuid::Uuid::new_v4());
@@ -638,6 +686,28 @@ async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twic
             .unwrap();
         // RabbitMQ 3.10 answers the detach of a fresh link in a way fe2o3
         // calls IllegalState; the queue exists by then, which is all we need
+        let _ = rx.close().await;
+        // the mark of a copy sent again (decision 0098) reaches the MES
+        // through the broker: a message built as the station's third try
+        let side = format!("/queue/{q}-mark");
+        let mut rx = Receiver::attach(&mut session, "test-mark-rx", side.as_str())
+            .await
+            .unwrap();
+        let mut tx = Sender::attach(&mut session, "test-mark-tx", side.as_str())
+            .await
+            .unwrap();
+        let env = json!({"MessageName": "CFX.Production.WorkStarted", "UniqueID": "u-mark",
+            "Source": "Acme.Line3.Springbench", "Target": null, "RequestID": null,
+            "TimeStamp": "2026-11-28T09:00:00.000Z", "MessageBody": {}});
+        tx.send(springbench::mes::amqp::amqp_message(&env, 2))
+            .await
+            .unwrap();
+        let g = recv(&mut rx, Duration::from_secs(10))
+            .await
+            .expect("the marked message");
+        assert_eq!(g.env, env);
+        assert_eq!(g.prior_attempts, Some(2), "the broker kept the mark");
+        let _ = tx.close().await;
         let _ = rx.close().await;
         let _ = session.end().await;
         let _ = conn.close().await;
@@ -693,8 +763,6 @@ async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twic
         "nothing waited for the broker: the outage tested nothing"
     );
     wait_all(&c, &d, &ids).await;
-    let expected = outbox(&d).await;
-    assert_eq!(expected.len(), 27);
     // delivered in full once the broker is back
     let t = Instant::now();
     loop {
@@ -710,6 +778,8 @@ async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twic
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
+    let (expected, in_doubt) = expected_and_in_doubt(&outbox_rows(&d).await);
+    assert_eq!(expected.len(), 27);
     d.terminate();
     let (_conn, mut session) = b.connect().await;
     let mut rx = Receiver::builder()
@@ -724,10 +794,13 @@ async fn amqp_broker_away_30_s_during_a_lot_loses_nothing_and_sends_nothing_twic
         .await
         .unwrap();
     let got = drain(&mut rx, Duration::from_secs(3)).await;
-    assert_once_in_order(&expected, &got);
+    let again = assert_arrived_in_order(&expected, &got, &in_doubt);
     println!(
-        "AMQP outage: {} messages written, {before} delivered before the broker stopped, {waiting} waiting when it returned after {away_s:.1} s; each arrived once, in order per part",
-        expected.len()
+        "AMQP outage: {} messages written, {before} delivered before the broker stopped, {waiting} waiting when it returned after {away_s:.1} s; \
+         all arrived, in order per part; {} retried after an attempt without outcome, {} of them arrived twice, the copy marked (springbench-prior-attempts >= 1)",
+        expected.len(),
+        in_doubt.len(),
+        again.len()
     );
 }
 
