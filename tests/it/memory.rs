@@ -5,6 +5,7 @@
 use springbench::bench::procedure::memory::run_recovery;
 use springbench::bench::virtual_bench::VirtualBench;
 use springbench::bench::Control;
+use springbench::diagnose::engine::Term;
 use springbench::diagnose::memory::RecoveryPlan;
 use springbench::effects::*;
 use springbench::physics::{preset, PartSpec};
@@ -223,22 +224,157 @@ fn matrix_full() {
     );
 }
 
-/// Softening against drift (decision 0118): on the 3" spider a strong
-/// softening's envelope grows with the clock over the sweep, and the ladder
-/// adds `stiffness_drift` before the softening; once the softening is in,
-/// the drift is idle and leaves the model again (before the backward check
-/// the final model held both: drift 0.16 +- 0.10 N/m/s).
+/// Softening against drift (decisions 0118, 0120): on the 3" spider a
+/// strong softening's envelope grows with the clock over the sweep, and
+/// `stiffness_drift` alone removes as much of the base model's error as the
+/// softening (44 % against 41 % at tau 2 s). The ladder took the drift
+/// first; once the softening is in, the drift is idle and leaves the model
+/// again (before the backward check the final model held both). The drift
+/// is never named with confidence: it ranks below the softening, marked as
+/// having only stood in for it, and no warning says the part misses it
+/// (before decision 0120 it was the first candidate, "the base model misses
+/// stiffness_drift: the diagnostics added it"). Also with a softening that
+/// recovers slower than the record (tau 30 s: the envelope is the sweep's).
 #[test]
-fn softening_not_left_beside_a_drift_that_mimicked_it() {
+fn softening_is_named_and_drift_never_with_confidence() {
     use springbench::bench::simulate::simulate_recording_set;
     use springbench::diagnose::{diagnose, DiagnoseOptions};
-    let mut part = preset("spider_3in").unwrap();
-    part.effects = softening(0.15 * 1500.0 / 5e-3, 2.0);
-    let set = simulate_recording_set(&part, 900).unwrap();
-    let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
-    let ids = d.report.model.effects.ids();
-    eprintln!("{ids:?} {:?}", d.report.model.effects);
-    assert_eq!(ids, vec![EffectId::ReversibleSoftening]);
-    let got = d.report.model.effects.reversible_softening.unwrap();
-    assert!((got.depth_n_per_m2 / 4.5e4 - 1.0).abs() <= 0.2, "{got:?}");
+    for (depth, tau) in [(4.5e4, 2.0), (1.8e4, 30.0)] {
+        let mut part = preset("spider_3in").unwrap();
+        part.effects = softening(depth, tau);
+        let set = simulate_recording_set(&part, 900).unwrap();
+        let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
+        let ids = d.report.model.effects.ids();
+        let diag = d.report.diagnostics.as_ref().unwrap();
+        let first = &diag.candidates[0];
+        let drift = diag
+            .candidates
+            .iter()
+            .find(|c| c.effect == "stiffness_drift")
+            .unwrap();
+        eprintln!(
+            "depth {depth} tau {tau}: model {ids:?}, first {} ({:.1} %), drift cut {:.1} % stands in for {:?}; warnings {:#?}",
+            first.effect, first.error_reduction_percent, drift.error_reduction_percent, drift.stands_in_for, d.report.warnings
+        );
+        assert_eq!(ids, vec![EffectId::ReversibleSoftening]);
+        let got = d.report.model.effects.reversible_softening.unwrap();
+        assert!((got.depth_n_per_m2 / depth - 1.0).abs() <= 0.2, "{got:?}");
+        assert_eq!(first.effect, "reversible_softening");
+        assert!(first.significant && first.stands_in_for.is_none());
+        // The drift fits much of the same structure, and the document says
+        // it only stood in for the softening.
+        assert!(drift.significant && drift.error_reduction_percent >= 30.0);
+        assert_eq!(drift.stands_in_for.as_deref(), Some("reversible_softening"));
+        assert!(drift
+            .note
+            .as_deref()
+            .unwrap()
+            .contains("the data name reversible_softening"));
+        assert!(
+            !d.report
+                .warnings
+                .iter()
+                .any(|w| w.contains("misses stiffness_drift")),
+            "{:#?}",
+            d.report.warnings
+        );
+    }
+}
+
+fn hysteresis(k_n_per_m: f64, x_yield_m: f64) -> Effects {
+    Effects {
+        hysteresis: Some(Hysteresis {
+            k_n_per_m,
+            x_yield_m,
+        }),
+        ..Default::default()
+    }
+}
+
+/// The diagnosis of a 4" spider with `effects` measured at `levels_m`
+/// (one level: the single-sweep diagnosis; the joint fit of a series
+/// otherwise, returned as its ambiguities and the joint model's effects).
+fn diagnose_at(
+    effects: Effects,
+    levels_m: Vec<f64>,
+) -> (
+    Vec<EffectId>,
+    Vec<springbench::identify::diagnostics::Ambiguity>,
+    Vec<String>,
+) {
+    use springbench::bench::simulate::{simulate, SimulateOptions};
+    use springbench::diagnose::{diagnose, DiagnoseOptions};
+    let part = spider_with(effects);
+    let mut opts = SimulateOptions::default();
+    opts.procedure.levels_m = levels_m;
+    let sim = simulate(&part, 900, &opts).unwrap();
+    if sim.outcome.narrow.len() > 1 {
+        let sets: Vec<springbench::recording::RecordingSet> = sim
+            .outcome
+            .narrow
+            .iter()
+            .map(|n| springbench::recording::RecordingSet {
+                meta: sim.set.meta.clone(),
+                pre: sim.set.pre.clone(),
+                main: n.signals.clone(),
+            })
+            .collect();
+        let s = springbench::diagnose::series::fit_series_sets(&sets, &Default::default()).unwrap();
+        return (s.joint.effects.ids(), s.joint.ambiguities, vec![]);
+    }
+    let d = diagnose(&sim.set, &DiagnoseOptions::default()).unwrap();
+    let diag = d.report.diagnostics.unwrap();
+    // The engine's chosen model (the headline's may leave stand-ins out).
+    (
+        diag.final_model.effects,
+        diag.ambiguities,
+        d.report.warnings,
+    )
+}
+
+/// Hysteresis against its neighbours (decision 0120). Where one sweep
+/// cannot separate them the diagnostics say so, name both and the
+/// separating experiment, instead of naming one with confidence:
+/// - a yield excursion of 0.02 mm at an 8 mm sweep: the element is a dry
+///   friction force but for 0.02 mm after each reversal (each removes
+///   17-18 % of the base model's error);
+/// - a yield excursion of 20 mm, beyond the sweep's 8 mm: a thin loop that
+///   creep (tau 80 ms) also draws, both mostly a stiffness (variance
+///   inflation 488 and 721).
+///
+/// The same part with the separating experiment, a level series (3, 6,
+/// 9 mm): the joint fit names hysteresis, not creep (at 3 mm alone the
+/// ladder takes creep and v|v| damping). A hysteresis whose loop the sweep
+/// resolves (0.3 mm) is named without any ambiguity.
+#[test]
+fn hysteresis_cannot_tell_and_the_separating_experiment() {
+    let experiment = Term::Effect(EffectId::Hysteresis).separating_experiment();
+    for (xy, other) in [(2e-5, "coulomb_friction"), (2e-2, "creep")] {
+        let (chosen, amb, warnings) = diagnose_at(hysteresis(1000.0, xy), vec![0.008]);
+        eprintln!("x_yield {xy}: chosen {chosen:?}; {amb:#?}");
+        let a = amb
+            .iter()
+            .find(|a| {
+                a.effects.contains(&"hysteresis".to_string())
+                    && a.effects.contains(&other.to_string())
+            })
+            .unwrap_or_else(|| panic!("no cannot-tell for hysteresis/{other}: {amb:#?}"));
+        assert!(a.note.starts_with("cannot tell"), "{}", a.note);
+        assert_eq!(a.separating_experiment, experiment);
+        assert!(warnings.iter().any(|w| w == &a.note));
+    }
+    // The separating experiment on the 20 mm part: a level series.
+    let (joint, amb, _) = diagnose_at(hysteresis(1000.0, 2e-2), vec![0.003, 0.006, 0.009]);
+    eprintln!("level series: joint {joint:?}; {amb:#?}");
+    assert!(joint.contains(&EffectId::Hysteresis), "{joint:?}");
+    assert!(!joint.contains(&EffectId::Creep), "{joint:?}");
+    // A loop the sweep resolves: named, nothing ambiguous about it.
+    let (chosen, amb, _) = diagnose_at(hysteresis(300.0, 3e-4), vec![0.008]);
+    eprintln!("x_yield 0.3 mm: chosen {chosen:?}; {amb:#?}");
+    assert_eq!(chosen, vec![EffectId::Hysteresis]);
+    assert!(
+        amb.iter()
+            .all(|a| !a.effects.contains(&"hysteresis".to_string())),
+        "{amb:#?}"
+    );
 }

@@ -6,6 +6,7 @@
 pub mod engine;
 pub mod headline;
 pub mod memory;
+pub mod neighbours;
 pub mod regress;
 pub mod series;
 pub mod spectrum;
@@ -159,7 +160,10 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         l.keff_n_per_m
             .mark(crate::identify::validity::State::Unreliable, &why);
     }
-    let ambiguities = ambiguities(&data, &result, &engine_opts);
+    let mut ambiguities = ambiguities(&data, &result, &engine_opts);
+    // The memory against its neighbours (decision 0120): named only where
+    // the data separate them, else "cannot tell" with the experiment.
+    let pairs = neighbours::check(&data, &result, &engine_opts);
     let mut small_signal_model = None;
     // The small-signal model: the same engine on the pre-measurement (creep,
     // friction and delay show below resonance), k0, f0 and Q from its choice.
@@ -274,12 +278,21 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         unexplained.parameters_not_claimed = ids;
     }
     let mut diagnostics = result.diagnostics(&data, unexplained);
+    warnings.extend(neighbours::apply(
+        &pairs,
+        &mut diagnostics.candidates,
+        &mut ambiguities,
+    ));
     diagnostics.ambiguities = ambiguities;
     diagnostics.small_signal_model = small_signal_model;
     diagnostics.comparison.small_signal = small_signal_comparison(set, &report, &pre_spectra);
     report.diagnostics = Some(diagnostics);
+    // The ladder's steps that stayed in the model (one it removed again
+    // has its own warning above).
+    let kept =
+        |e: &str| EffectId::parse(e).map_or(true, |id| result.model.effect_ids.contains(&id));
     for step in result.ladder.iter().skip(1) {
-        if let Some(added) = &step.added {
+        if let Some(added) = step.added.as_deref().filter(|a| kept(a)) {
             warnings.push(format!(
                 "the base model misses {added}: the diagnostics added it (model error {:.3} % after it)",
                 step.model_error_percent

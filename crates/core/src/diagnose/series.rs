@@ -94,7 +94,10 @@ pub fn fit_series(
     drop(levels);
     let r = engine::run(&all, opts).map_err(|e| format!("joint fit: {e}"))?;
     let [lo, hi] = range(&all);
-    let ambiguities = super::ambiguities(&all, &r, opts);
+    let mut ambiguities = super::ambiguities(&all, &r, opts);
+    let pairs = super::neighbours::check(&all, &r, opts);
+    let mut candidates = r.candidates.clone();
+    super::neighbours::apply(&pairs, &mut candidates, &mut ambiguities);
     Ok(SeriesFit {
         levels: per,
         joint: JointFit {
@@ -115,7 +118,7 @@ pub fn fit_series(
             model_error_percent: r.model_error_percent,
             noise_floor_percent: r.noise_floor_percent,
             ladder: r.ladder,
-            candidates: r.candidates,
+            candidates,
             ambiguities,
         },
     })

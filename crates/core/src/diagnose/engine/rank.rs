@@ -157,6 +157,7 @@ pub(super) fn rank(
             identifiable,
             collinear_with: with,
             note,
+            stands_in_for: None,
             cv_residual_percent: pct(p, cv),
             hyper: ev.hyper,
             cv_sse: cv,

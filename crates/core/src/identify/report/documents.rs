@@ -33,6 +33,11 @@ pub struct CandidateResult {
     /// "cannot tell from this data ..." and the separating experiment, when not identifiable.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// The memory effect or neighbour this candidate only stood in for: not
+    /// significant once that one is in, which stays significant with this
+    /// one in its place (decision 0120); it ranks below it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stands_in_for: Option<String>,
     pub cv_residual_percent: f64,
     #[serde(skip)]
     pub hyper: Option<f64>,
