@@ -741,7 +741,7 @@ pub async fn verdicts(
         let last = p.int("last", 1..=VERDICTS_MAX)?.unwrap_or(100);
         let rows = st
             .store
-            .recipe_verdicts(&name, since.as_deref(), until.as_deref(), Some(last))
+            .recipe_verdicts(&name, None, since.as_deref(), until.as_deref(), Some(last))
             .await?;
         (rows, None)
     };

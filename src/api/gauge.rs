@@ -131,7 +131,7 @@ fn check(req: &GaugeStudyRequest, benches: &[String]) -> ApiResult<Vec<String>> 
         ));
     }
     if let Some(job) = &req.job {
-        for k in ["part", "recipe", "bench", "production"] {
+        for k in ["part", "recipe", "bench", "production", "purpose"] {
             if job.contains_key(k) {
                 return Err(Problem::field(
                     &format!("job.{k}"),
@@ -153,6 +153,8 @@ fn run_request(req: &GaugeStudyRequest, run: &GaugeRun) -> Value {
     body.insert("part".into(), json!({ "serial": part.serial }));
     body.insert("recipe".into(), json!(req.recipe));
     body.insert("bench".into(), json!(run.bench_id));
+    // A study's runs are its own pool: never production SPC or yield.
+    body.insert("purpose".into(), json!(crate::job::Purpose::GaugeStudy));
     if let Some(p) = &part.production {
         body.insert("production".into(), json!(p));
     }

@@ -238,6 +238,11 @@ pub struct SpcDocument {
     /// Verdicts of the window left out of every figure because their stored
     /// detail does not read in this software version (0 normally).
     pub unreadable_verdicts: usize,
+    /// The pool counted: a purpose (`production` unless asked) or `all`.
+    #[schema(
+        pattern = "^(all|production|golden_unit|bench_calibration|gauge_study|repeat|engineering)$"
+    )]
+    pub purpose: String,
     /// Present when `unreadable_verdicts` is not 0: what was left out and why.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,

@@ -101,6 +101,7 @@ impl Runner {
                 job_started_at: started_at.to_string(),
                 judged_at: finished_at.clone(),
                 measurement_id: m.map(|m| m.id.clone()),
+                purpose: spec.map(|s| s.purpose).unwrap_or_default(),
                 fleet: fleet.clone(),
             };
             let verdict = |mid: Option<&String>, v: &Verdict, m: Option<&NewMeasurement>| {

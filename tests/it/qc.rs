@@ -932,3 +932,189 @@ fn cfx_messages_are_read_by_the_reference_sdk() {
         sdk["sdk_version"]
     );
 }
+
+/// Pools (issue 35, decision 0100): SPC and yield count production only.
+/// Production parts, golden units and a gauge study's runs of known parts
+/// under one recipe: the SPC figures of the recipe are those of the
+/// production parts alone (computed here from their stored k0), while
+/// `purpose=all` and each other pool count their own, and the gauge study
+/// keeps its figures. Before pools, the gauge study's four soft runs and the
+/// golden units were SPC points (n 11 instead of 5).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spc_and_yield_count_production_parts_only() {
+    let d = Daemon::start(&format!("{}{}", tokens(), benches()));
+    let c = client();
+    let k0 = springbench::physics::preset("spider_4in")
+        .unwrap()
+        .k_coeffs_si[0];
+    let recipe = json!({
+        "name": "pools",
+        "part_kind": "spider",
+        "procedure": {"levels_m": [0.004], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+        "parameters": [
+            {"name": "k0", "quantity": "k0", "lower": 0.85 * k0, "upper": 1.15 * k0},
+            {"name": "model_error", "quantity": "model_error", "upper": 5.0}
+        ]
+    });
+    let (s, v) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/recipes",
+        ENGINEER,
+        Some(recipe),
+    )
+    .await;
+    assert_eq!(s, 201, "{v}");
+    let part = |serial: &str, seed: u64, defect: Option<&str>, purpose: Option<&str>| {
+        let mut production = json!({"preset": "spider_4in", "seed": seed});
+        if let Some(d) = defect {
+            production["defect"] = json!(d);
+        }
+        let mut b =
+            json!({"part": {"serial": serial}, "recipe": "pools", "production": production});
+        if let Some(p) = purpose {
+            b["purpose"] = json!(p);
+        }
+        b
+    };
+    // Production: four good parts (one says so, three take the default) and
+    // a stiff one (k0 30 % high: fails). Golden units: two soft parts
+    // (k0 30 % low), so that counting them would move every figure.
+    let production = [
+        part("P-1", 11, None, Some("production")),
+        part("P-2", 12, None, None),
+        part("P-3", 13, None, None),
+        part("P-4", 14, None, None),
+        part("P-stiff", 15, Some("stiff"), None),
+    ];
+    let golden = [
+        part("G-1", 21, Some("soft"), Some("golden_unit")),
+        part("G-2", 22, Some("soft"), Some("golden_unit")),
+    ];
+    let bodies: Vec<Value> = production.iter().chain(&golden).cloned().collect();
+    let done = run_jobs(&c, &d, &bodies).await;
+    for (j, b) in done.iter().zip(&bodies) {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let want = b["purpose"].as_str().unwrap_or("production");
+        assert_eq!(j["request"]["purpose"], want, "{}", b["part"]["serial"]);
+    }
+    // A gauge study of two soft parts, twice each on one bench: four runs.
+    let (s, study) = send(
+        &c,
+        &d,
+        reqwest::Method::POST,
+        "/api/v1/gauge-studies",
+        STATION,
+        Some(json!({"recipe": "pools", "repeats": 2, "benches": ["virtual-1"], "parts": [
+            {"serial": "S-1", "production": {"preset": "spider_4in", "seed": 31, "defect": "soft"}},
+            {"serial": "S-2", "production": {"preset": "spider_4in", "seed": 32, "defect": "soft"}}
+        ]})),
+    )
+    .await;
+    assert_eq!(s, 201, "{study}");
+    let sid = study["id"].as_str().unwrap();
+    let t = Instant::now();
+    let study = loop {
+        let v = get(&c, &d, &format!("/api/v1/gauge-studies/{sid}")).await;
+        if v["state"] == "done" {
+            break v;
+        }
+        assert!(t.elapsed() < Duration::from_secs(600), "study: {v}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    // The study keeps working: its runs are its own, with figures for k0.
+    let runs = study["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 4);
+    for r in runs {
+        let j = get(
+            &c,
+            &d,
+            &format!("/api/v1/jobs/{}", r["job_id"].as_str().unwrap()),
+        )
+        .await;
+        assert_eq!(j["request"]["purpose"], "gauge_study", "{j}");
+    }
+    assert!(
+        study.to_string().contains("\"k0\""),
+        "the study has its k0 figures: {study}"
+    );
+
+    // The production parts' k0 as stored, in job order.
+    let mut values = vec![];
+    for j in &done[..production.len()] {
+        let mid = j["measurement_ids"][0].as_str().unwrap();
+        let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+        values.push(m["small_signal"]["k0_n_per_m"].as_f64().unwrap());
+    }
+    let spc = get(&c, &d, "/api/v1/recipes/pools/spc?parameter=k0&last=1000").await;
+    assert_eq!(spc["purpose"], "production");
+    assert_eq!(
+        (spc["n"].as_u64(), spc["invalid"].as_u64()),
+        (Some(5), Some(0)),
+        "{spc}"
+    );
+    let got: Vec<f64> = spc["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["value"].as_f64().unwrap())
+        .collect();
+    assert_eq!(got, values, "the points are the production parts' k0");
+    let (mean, sd) = mean_sd(&values);
+    let sw = values.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / 4.0 / 1.128;
+    let (lo, hi) = (0.85 * k0, 1.15 * k0);
+    let cpk = (hi - mean).min(mean - lo) / (3.0 * sw);
+    let ppk = (hi - mean).min(mean - lo) / (3.0 * sd);
+    let rel = |a: &Value, b: f64| {
+        let a = a.as_f64().unwrap();
+        assert!((a - b).abs() <= 1e-9 * b.abs(), "{a} vs {b}");
+    };
+    rel(&spc["mean"], mean);
+    rel(&spc["sigma"], sd);
+    rel(&spc["cpk"], cpk);
+    rel(&spc["ppk"], ppk);
+    assert_eq!(
+        (spc["passed"].as_u64(), spc["failed"].as_u64()),
+        (Some(4), Some(1))
+    );
+    rel(&spc["yield_fraction"], 0.8);
+    // The other pools, and all of them when asked.
+    for (purpose, n) in [
+        ("all", 11),
+        ("golden_unit", 2),
+        ("gauge_study", 4),
+        ("engineering", 0),
+    ] {
+        let s = get(
+            &c,
+            &d,
+            &format!("/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose={purpose}"),
+        )
+        .await;
+        // (a gauge run may be invalid: counted apart, without a value)
+        let counted = s["n"].as_u64().unwrap() + s["invalid"].as_u64().unwrap();
+        assert_eq!(counted, n, "{purpose}: {s}");
+        assert_eq!(s["purpose"], purpose);
+    }
+    let (s, v) = send(
+        &c,
+        &d,
+        reqwest::Method::GET,
+        "/api/v1/recipes/pools/spc?parameter=k0&purpose=scrap",
+        STATION,
+        None,
+    )
+    .await;
+    assert_eq!(s, 422, "{v}");
+    assert!(v.to_string().contains("purpose"), "{v}");
+    println!(
+        "pools: production k0 mean {mean:.1} N/m, Cpk {cpk:.3}; all pools n 11, mean {}",
+        get(
+            &c,
+            &d,
+            "/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose=all"
+        )
+        .await["mean"]
+    );
+}

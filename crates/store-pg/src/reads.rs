@@ -274,22 +274,26 @@ impl VerdictReads for PgStore {
     async fn recipe_verdicts(
         &self,
         recipe: &str,
+        purpose: Option<springbench_core::job::Purpose>,
         since: Option<&str>,
         until: Option<&str>,
         last: Option<i64>,
     ) -> StoreResult<Vec<VerdictRow>> {
-        // A voided measurement's verdicts are no part of SPC.
+        // A voided measurement's verdicts are no part of SPC; the pool is
+        // the trace's (a verdict without one is production, decision 0100).
         let rows = sqlx::query(concat!(
             "SELECT * FROM (SELECT ",
             verdict_cols!(),
             ", level_index FROM qc_verdicts WHERE recipe_name = $1 AND measurement_id IS NOT NULL AND NOT voided \
              AND ($2::text IS NULL OR created_at >= $2) AND ($3::text IS NULL OR created_at < $3) \
+             AND ($5::text IS NULL OR COALESCE(trace_json->>'purpose', 'production') = $5) \
              ORDER BY seq DESC LIMIT $4) w ORDER BY seq"
         ))
         .bind(recipe)
         .bind(since)
         .bind(until)
         .bind(last)
+        .bind(purpose.map(|p| p.as_str()))
         .fetch_all(&self.pool)
         .await?;
         rows.iter().map(verdict_from_row).collect()

@@ -794,17 +794,21 @@ impl VerdictReads for Store {
     async fn recipe_verdicts(
         &self,
         recipe: &str,
+        purpose: Option<springbench_core::job::Purpose>,
         since: Option<&str>,
         until: Option<&str>,
         last: Option<i64>,
     ) -> StoreResult<Vec<VerdictRow>> {
+        // `purpose`: the generated column of migration 0310 (the trace's).
         let rows = sqlx::query(concat!("SELECT * FROM (SELECT ", verdict_cols!(), ", \
              (SELECT m.level_index FROM measurements m WHERE m.id = qc_verdicts.measurement_id) AS level_index \
-             FROM qc_verdicts WHERE recipe_name = ? AND measurement_id IS NOT NULL \
+             FROM qc_verdicts WHERE recipe_name = ? AND (? IS NULL OR purpose = ?) AND measurement_id IS NOT NULL \
              AND NOT EXISTS (SELECT 1 FROM corrections c WHERE c.kind = 'void_measurement' \
                              AND c.measurement_id = qc_verdicts.measurement_id) \
              AND (? IS NULL OR created_at >= ?) AND (? IS NULL OR created_at < ?) ORDER BY seq DESC LIMIT ?) ORDER BY seq"))
         .bind(recipe.to_string())
+        .bind(purpose.map(|p| p.as_str()))
+        .bind(purpose.map(|p| p.as_str()))
         .bind(since.map(str::to_string))
         .bind(since.map(str::to_string))
         .bind(until.map(str::to_string))

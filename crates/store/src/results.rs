@@ -271,10 +271,13 @@ pub trait VerdictReads: Sync {
 
     /// Measurement verdicts of a recipe (any version), oldest first: the
     /// newest `last` of them, or those made in [since, until); each with its
-    /// measurement's level in a series (SPC reads these).
+    /// measurement's level in a series (SPC reads these). `purpose`: only
+    /// the verdicts of that pool (a verdict without one in its trace is
+    /// `production`); None: every pool.
     fn recipe_verdicts(
         &self,
         recipe: &str,
+        purpose: Option<springbench_core::job::Purpose>,
         since: Option<&str>,
         until: Option<&str>,
         last: Option<i64>,

@@ -244,7 +244,10 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
     assert_eq!(v1.created_at, T1);
     assert_eq!(v1.traceability, json!({"bench": "line-1"}));
     assert!(s.measurement_verdict("m-3").await.unwrap().is_none());
-    let spc = s.recipe_verdicts("R", None, None, None).await.unwrap();
+    let spc = s
+        .recipe_verdicts("R", None, None, None, None)
+        .await
+        .unwrap();
     let got: Vec<(Option<&str>, &str, Option<i64>)> = spc
         .iter()
         .map(|v| {
@@ -262,17 +265,26 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
             (Some("m-2"), "fail", Some(1))
         ]
     );
-    let last = s.recipe_verdicts("R", None, None, Some(1)).await.unwrap();
+    let last = s
+        .recipe_verdicts("R", None, None, None, Some(1))
+        .await
+        .unwrap();
     assert_eq!(last.len(), 1);
     assert_eq!(last[0].measurement_id.as_deref(), Some("m-2"));
-    let from_t2 = s.recipe_verdicts("R", Some(T2), None, None).await.unwrap();
+    let from_t2 = s
+        .recipe_verdicts("R", None, Some(T2), None, None)
+        .await
+        .unwrap();
     assert_eq!(from_t2.len(), 1);
     assert_eq!(from_t2[0].measurement_id.as_deref(), Some("m-2"));
-    let before_t2 = s.recipe_verdicts("R", None, Some(T2), None).await.unwrap();
+    let before_t2 = s
+        .recipe_verdicts("R", None, None, Some(T2), None)
+        .await
+        .unwrap();
     assert_eq!(before_t2.len(), 1);
     assert_eq!(before_t2[0].measurement_id.as_deref(), Some("m-1"));
     assert!(s
-        .recipe_verdicts("other", None, None, None)
+        .recipe_verdicts("other", None, None, None, None)
         .await
         .unwrap()
         .is_empty());
@@ -301,6 +313,46 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
     assert!(s.get_measurement("m-4").await.unwrap().is_none());
     assert!(s.get_part("P-9").await.unwrap().is_none());
     assert_eq!(s.list_parts(None, 10).await.unwrap().len(), 2);
+
+    // Pools (decision 0100): a verdict's purpose is its trace's; one
+    // without (stored before purposes) is production.
+    for (id, purpose) in [
+        ("m-5", None),
+        ("m-6", Some("gauge_study")),
+        ("m-7", Some("production")),
+    ] {
+        let mut v = verdict(id, "P-5", "pass");
+        v.recipe_name = "R-pools".into();
+        if let Some(p) = purpose {
+            v.trace = json!({"bench": "line-1", "purpose": p});
+        }
+        let m = finished(
+            id,
+            "P-5",
+            None,
+            T3,
+            Some(0),
+            Some(result(1.0, 1.0, true)),
+            vec![v],
+        );
+        assert_eq!(s.upsert_measurement(&m).await.unwrap(), Upserted::Inserted);
+    }
+    use springbench_core::job::Purpose;
+    for (purpose, want) in [
+        (None, vec!["m-5", "m-6", "m-7"]),
+        (Some(Purpose::Production), vec!["m-5", "m-7"]),
+        (Some(Purpose::GaugeStudy), vec!["m-6"]),
+        (Some(Purpose::GoldenUnit), vec![]),
+    ] {
+        let got: Vec<String> = s
+            .recipe_verdicts("R-pools", purpose, None, None, None)
+            .await
+            .unwrap()
+            .into_iter()
+            .filter_map(|v| v.measurement_id)
+            .collect();
+        assert_eq!(got, want, "{purpose:?}");
+    }
 }
 
 /// A backend that holds versions 1 and 2 of recipe `name` (body
@@ -413,7 +465,7 @@ pub async fn corrections_suite<S: ResultStore + Corrections>(s: &S) {
         assert_eq!(s.upsert_measurement(&m).await.unwrap(), Upserted::Inserted);
     }
     let spc_ids = || async {
-        s.recipe_verdicts("R", None, None, None)
+        s.recipe_verdicts("R", None, None, None, None)
             .await
             .unwrap()
             .into_iter()

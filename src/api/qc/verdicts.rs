@@ -93,6 +93,30 @@ pub struct SpcQuery {
     /// `json` (default) or `csv` (the chart points).
     #[param(pattern = "^(json|csv)$")]
     format: Option<String>,
+    /// The pool counted: `production` (default), another purpose
+    /// (`golden_unit`, `bench_calibration`, `gauge_study`, `repeat`,
+    /// `engineering`), or `all` (decision 0100).
+    #[param(
+        pattern = "^(all|production|golden_unit|bench_calibration|gauge_study|repeat|engineering)$"
+    )]
+    purpose: Option<String>,
+}
+
+/// The pool a query names: `production` when absent, None for `all`.
+pub fn parse_purpose(s: Option<&str>) -> ApiResult<Option<crate::job::Purpose>> {
+    match s {
+        None | Some("") => Ok(Some(crate::job::Purpose::Production)),
+        Some("all") => Ok(None),
+        Some(p) => crate::job::Purpose::parse(p).map(Some).ok_or_else(|| {
+            Problem::field(
+                "purpose",
+                format!(
+                    "all or one of {}, got '{p}'",
+                    crate::job::Purpose::ALL.map(|p| p.as_str()).join(", ")
+                ),
+            )
+        }),
+    }
 }
 
 /// A time filter value: RFC 3339, normalised to the stored form (UTC, milliseconds).
@@ -112,7 +136,7 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
 
 /// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/spc", tag = "qc",
-    summary = "SPC of one parameter over a window of valid measurement verdicts, one point per part and job (and level): a job's repeats are averaged into one point. n (points), mean, sigma (overall), sigma_within (average moving range of the points / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
+    summary = "SPC of one parameter over a window of valid measurement verdicts of one pool (`purpose`, default production: golden units, bench calibrations, gauge studies, repeats and engineering runs are not counted unless asked), one point per part and job (and level): a job's repeats are averaged into one point. n (points), mean, sigma (overall), sigma_within (average moving range of the points / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
     params(("name" = String, Path, description = "Recipe name"), SpcQuery),
     responses(
         (status = 200, description = "SPC", content(
@@ -138,6 +162,7 @@ pub async fn spc<R: Reads>(
     };
     let since = parse_time("since", q.since.as_deref())?;
     let until = parse_time("until", q.until.as_deref())?;
+    let purpose = parse_purpose(q.purpose.as_deref())?;
     let max = R::SPC_WINDOW_MAX;
     let last = match q.last {
         None if since.is_none() && until.is_none() => Some(100),
@@ -174,6 +199,7 @@ pub async fn spc<R: Reads>(
         .results()
         .recipe_verdicts(
             &name,
+            purpose,
             since.as_deref(),
             until.as_deref(),
             Some(last.unwrap_or(max + 1)),
@@ -251,6 +277,7 @@ pub async fn spc<R: Reads>(
     let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
     doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
     doc["unreadable_verdicts"] = json!(left_out);
+    doc["purpose"] = json!(purpose.map_or("all", |p| p.as_str()));
     if left_out > 0 {
         // Each part named once (a part's verdicts need not be adjacent).
         unreadable.sort();

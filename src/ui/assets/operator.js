@@ -75,7 +75,9 @@ export async function render(main, ctx) {
     } catch {
       return;
     }
-    const judged = (l.items || []).filter((j) => FINISHED.includes(j.state) && j.verdict && j.verdict !== 'no_limits');
+    // Production parts only (a job stored before purposes is production).
+    const production = (j) => ((j.request && j.request.purpose) || 'production') === 'production';
+    const judged = (l.items || []).filter((j) => FINISHED.includes(j.state) && j.verdict && j.verdict !== 'no_limits' && production(j));
     const n = (v) => judged.filter((j) => j.verdict === v).length;
     const [pass, fail, invalid] = [n('pass'), n('fail'), n('invalid')];
     const tested = judged.length;
@@ -146,6 +148,12 @@ export async function render(main, ctx) {
     const level = h('input', { id: 'level-mm', name: 'level', type: 'number', min: '0.1', max: '15', step: '0.1', value: '8', required: true });
     const benchSel = h('select', { id: 'bench', name: 'bench' });
     const recipeSel = h('select', { id: 'recipe', name: 'recipe' }, h('option', { value: '' }, 'none (level below)'));
+    // Why the part is measured (issue 35, decision 0100): SPC, yield and the
+    // shift counters count production only. Not kept across reloads: a
+    // golden-unit choice left over must not take the next shift's parts.
+    const purposeSel = h('select', { id: 'purpose', name: 'purpose' },
+      [['production', 'production'], ['golden_unit', 'golden unit'], ['bench_calibration', 'bench calibration'], ['repeat', 're-test'], ['engineering', 'engineering / R&D']]
+        .map(([v, t]) => h('option', { value: v }, t)));
     const recipeKinds = new Map();
     const saved = stationGet();
     if (saved.kind) kind.value = saved.kind;
@@ -185,6 +193,7 @@ export async function render(main, ctx) {
         h('label', { for: 'serial' }, 'Serial'), serial,
         h('label', { for: 'kind' }, 'Part kind'), kind,
         h('label', { for: 'recipe' }, 'QC recipe'), recipeSel,
+        h('label', { for: 'purpose' }, 'Purpose'), purposeSel,
         h('label', { for: 'level-mm' }, 'Target Xpeak (mm)'), level,
         h('label', { for: 'bench' }, 'Bench'), benchSel,
       ),
@@ -203,6 +212,8 @@ export async function render(main, ctx) {
       // A recipe sets the levels and the part kind (and is judged by); otherwise the form's.
       if (recipeSel.value) body.recipe = recipeSel.value;
       else body.target_xpeak_m = mm / 1000;
+      // Without a recipe the daemon's default is engineering; production then means nothing.
+      if (recipeSel.value || purposeSel.value !== 'production') body.purpose = purposeSel.value;
       if (!kind.disabled) body.part.kind = kind.value;
       if (benchSel.value) body.bench = benchSel.value;
       formMsg.className = '';

@@ -45,6 +45,6 @@ pub use problem::{JobProblem, ProblemKind};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
-    RecipeRef,
+    Purpose, RecipeRef,
 };
 pub use stored::{SelfCheck, StoredRequest};

@@ -7,6 +7,7 @@
 use super::parse::{check_chars, FieldError};
 use super::spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
+    Purpose,
 };
 use super::{
     valid_serial, MAX_LEVELS, MAX_ORDER, MAX_REPEATS, MIN_MOVING_MASS_KG, MIN_TARGET_XPEAK_M,
@@ -65,6 +66,11 @@ pub struct JobRequest {
     pub procedure: Option<ProcedureMode>,
     /// Tighter limits than the bench's.
     pub limits: Option<JobLimits>,
+    /// Why the part is measured: `production`, `golden_unit`,
+    /// `bench_calibration`, `gauge_study`, `repeat` or `engineering`. SPC,
+    /// yield and the shift counters count `production` only. Default:
+    /// `production` with a recipe, else `engineering` (decision 0100).
+    pub purpose: Option<Purpose>,
 }
 
 /// A limit of the job: the bench's, or a tighter one given in `field` (`unit`).
@@ -364,6 +370,11 @@ impl JobRequest {
                 recipe: None,
                 production: self.production,
                 submitted_by: None,
+                purpose: self.purpose.unwrap_or(if self.recipe.is_some() {
+                    Purpose::Production
+                } else {
+                    Purpose::Engineering
+                }),
             }),
             _ => Err(vec![FieldError::new("", "invalid job")]),
         }

@@ -59,6 +59,56 @@ impl ProcedureMode {
     }
 }
 
+/// Why a part is measured: the pool its measurement belongs to (issue 35).
+/// SPC, yield, the shift counters and the lot statistics count
+/// `production` only; golden units, bench calibrations, gauge-study runs,
+/// repeats and engineering runs are kept in their own pools (decision 0100).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize, utoipa::ToSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Purpose {
+    /// A part of the line judged for shipping. The default of a job under a
+    /// recipe and of every verdict stored before purposes existed.
+    #[default]
+    Production,
+    /// A reference part measured to set or check limits (limit proposals).
+    GoldenUnit,
+    /// A golden unit measured to calibrate a bench against the reference bench.
+    BenchCalibration,
+    /// A run of a gauge study (repeatability and reproducibility).
+    GaugeStudy,
+    /// A production part measured again (a re-test): not a new part.
+    Repeat,
+    /// Engineering / R&D: anything else. The default of a job without a recipe.
+    Engineering,
+}
+
+impl Purpose {
+    pub const ALL: [Purpose; 6] = [
+        Purpose::Production,
+        Purpose::GoldenUnit,
+        Purpose::BenchCalibration,
+        Purpose::GaugeStudy,
+        Purpose::Repeat,
+        Purpose::Engineering,
+    ];
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Purpose::Production => "production",
+            Purpose::GoldenUnit => "golden_unit",
+            Purpose::BenchCalibration => "bench_calibration",
+            Purpose::GaugeStudy => "gauge_study",
+            Purpose::Repeat => "repeat",
+            Purpose::Engineering => "engineering",
+        }
+    }
+    /// The purpose named `s` (its `as_str`).
+    pub fn parse(s: &str) -> Option<Purpose> {
+        Purpose::ALL.into_iter().find(|p| p.as_str() == s)
+    }
+}
+
 /// Hard limits of a bench; a procedure never exceeds them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Limits {
@@ -105,6 +155,10 @@ pub struct JobSpec {
     /// Name of the token that submitted the job (traceability); None with open access.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub submitted_by: Option<String>,
+    /// The pool of this job's measurements (a job stored before purposes
+    /// existed reads as `production`, as it was counted then).
+    #[serde(default)]
+    pub purpose: Purpose,
 }
 
 /// The recipe version a job runs (`"recipe": NAME` in the request; filled in at submission).

@@ -113,7 +113,19 @@ mod tests {
             recipe: None,
             production: None,
             submitted_by: None,
+            purpose: crate::job::Purpose::Engineering,
         }
+    }
+
+    #[test]
+    fn a_spec_stored_before_purposes_reads_as_production() {
+        let mut old = serde_json::to_value(spec()).unwrap();
+        old.as_object_mut().unwrap().remove("purpose");
+        let read: StoredRequest = serde_json::from_value(old).unwrap();
+        assert_eq!(
+            read.measure().unwrap().purpose,
+            crate::job::Purpose::Production
+        );
     }
 
     #[test]

@@ -37,6 +37,11 @@ pub struct VerdictTrace {
     pub judged_at: String,
     /// None for the verdict of a whole job.
     pub measurement_id: Option<String>,
+    /// The pool of the job judged (issue 35, decision 0100): SPC and yield
+    /// count `production` only. A verdict stored before purposes existed
+    /// reads as `production`, as it was counted then.
+    #[serde(default)]
+    pub purpose: crate::job::Purpose,
     /// A fleet station: its recipes' provenance (`fleet::Link::recipe_trace`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub fleet: Option<FleetTrace>,
@@ -133,6 +138,7 @@ mod tests {
             "job_started_at": "2026-11-28T10:00:01.000Z",
             "judged_at": "2026-11-28T10:00:40.000Z",
             "measurement_id": "m1",
+            "purpose": "production",
         });
         if let (Some(t), Some(Value::Object(f))) = (t.as_object_mut(), fleet) {
             t.extend(f);
@@ -167,6 +173,7 @@ mod tests {
             job_started_at: "2026-11-28T10:00:01.000Z".into(),
             judged_at: "2026-11-28T10:00:40.000Z".into(),
             measurement_id: Some("m1".into()),
+            purpose: crate::job::Purpose::Production,
             fleet,
         }
     }
@@ -207,6 +214,11 @@ mod tests {
                 let got = serde_json::to_value(&t).unwrap().to_string();
                 assert_eq!(got, want);
                 let back: VerdictTrace = serde_json::from_str(&want).unwrap();
+                assert_eq!(back, t);
+                // written before purposes existed: read as production
+                let mut older: Value = serde_json::from_str(&want).unwrap();
+                older.as_object_mut().unwrap().remove("purpose");
+                let back: VerdictTrace = serde_json::from_value(older).unwrap();
                 assert_eq!(back, t);
             }
         }
