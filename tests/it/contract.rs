@@ -1204,6 +1204,7 @@ fn request_body_schemas_agree_with_the_validators() {
             "recipe",
             "procedure",
             "production",
+            "purpose",
         ])
     );
     assert_eq!(names("JobPart"), set(&["serial", "kind", "notes"]));
@@ -1232,6 +1233,7 @@ fn request_body_schemas_agree_with_the_validators() {
         ("recipe", json!("spider-4in")),
         // `production` needs a recipe (the validator names `procedure` without one)
         ("procedure", json!("full")),
+        ("purpose", json!("golden_unit")),
         (
             "limits",
             json!({"max_displacement_m": 0.012, "max_drive_v": 50.0}),
