@@ -1079,6 +1079,9 @@ async fn spc_and_yield_count_production_parts_only() {
         (Some(4), Some(1))
     );
     rel(&spc["yield_fraction"], 0.8);
+    // Western Electric signals of the production chart: those of its values.
+    let signals = springbench::qc::spc::western_electric(&values, mean, sw);
+    assert_eq!(spc["rules"], serde_json::to_value(&signals).unwrap());
     // The other pools, and all of them when asked.
     for (purpose, n) in [
         ("all", 11),

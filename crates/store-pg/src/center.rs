@@ -96,6 +96,8 @@ fn summary(r: Option<&sqlx::postgres::PgRow>, q: &SpcQuery<'_>) -> Spc {
         ucl: limit(3.0),
         lcl: limit(-3.0),
         points: Vec::new(),
+        // no chart points at the fleet's figures: no rule is read
+        rules: Vec::new(),
     }
 }
 

@@ -366,6 +366,15 @@ function drawSpc(el, ctx, name, params) {
     if (s.unreadable_verdicts) {
       stats.append(h('tr', { id: 'spc-unreadable' }, h('th', { class: 'error' }, 'left out'), h('td', { class: 'error' }, (s.warnings || []).join(' ') || `${s.unreadable_verdicts} verdicts unreadable`)));
     }
+    // Out-of-control signals (Western Electric rules 1-4 on the individuals chart).
+    const rules = s.rules || [];
+    const ruleText = { 1: 'beyond 3σ', 2: '2 of 3 beyond 2σ', 3: '4 of 5 beyond 1σ', 4: '8 on one side' };
+    stats.append(h('tr', { id: 'spc-rules', dataset: { n: String(rules.length) } },
+      h('th', { class: rules.length ? 'error' : '' }, 'out of control (Western Electric)'),
+      h('td', { class: rules.length ? 'error' : '' }, rules.length
+        ? rules.map((r) => `rule ${r.rule} (${ruleText[r.rule] || ''}, ${r.side}) at ${(s.points[r.index] || {}).part_serial || `#${r.index + 1}`}`).join('; ')
+        : 'none')));
+    stats.append(h('tr', {}, h('th', {}, 'counted'), h('td', { id: 'spc-purpose' }, s.purpose === 'all' ? 'every pool' : `${s.purpose || 'production'} parts only`)));
     stats.dataset.cpk = s.cpk === null || s.cpk === undefined ? '' : String(s.cpk);
     if (daemon.center) drawStations(perStation, name, sel.value, Number(last.value) || 100, u);
     stats.dataset.n = String(s.n);

@@ -102,6 +102,65 @@ pub struct Spc {
     pub lcl: Option<f64>,
     /// The values in time order.
     pub points: Vec<SpcPoint>,
+    /// Out-of-control signals of the individuals chart (Western Electric
+    /// rules 1-4 against the centre line and sigma_within), in point order.
+    #[serde(default)]
+    pub rules: Vec<RuleSignal>,
+}
+
+/// A Western Electric rule met at a point of the individuals chart.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RuleSignal {
+    /// 1: one point beyond 3 sigma; 2: two of three successive points
+    /// beyond 2 sigma on one side; 3: four of five beyond 1 sigma on one
+    /// side; 4: eight successive points on one side of the centre line.
+    pub rule: u8,
+    /// The point (index into `points`) that completes the pattern; it lies
+    /// itself in the zone the rule names.
+    pub index: usize,
+    /// `above` or `below` the centre line.
+    pub side: String,
+}
+
+/// The Western Electric rules (Statistical Quality Control Handbook, 1956)
+/// over `values` in time order, with centre line `center` and sigma
+/// `sigma` (> 0). A point exactly on the centre line is on neither side. A
+/// signal is raised at the point that completes a pattern and lies in its
+/// zone; each rule once per point and side.
+pub fn western_electric(values: &[f64], center: f64, sigma: f64) -> Vec<RuleSignal> {
+    let mut out = Vec::new();
+    if !(sigma.is_finite() && sigma > 0.0 && center.is_finite()) {
+        return out;
+    }
+    // z-scores, signed: > 0 above the centre line
+    let z: Vec<f64> = values.iter().map(|v| (v - center) / sigma).collect();
+    // (rule, window, how many of it, zone in sigma)
+    const ZONES: [(u8, usize, usize, f64); 4] = [
+        (1, 1, 1, 3.0),
+        (2, 3, 2, 2.0),
+        (3, 5, 4, 1.0),
+        (4, 8, 8, 0.0),
+    ];
+    for i in 0..z.len() {
+        for (rule, window, need, zone) in ZONES {
+            if i + 1 < window {
+                continue;
+            }
+            for (side, sign) in [("above", 1.0), ("below", -1.0)] {
+                let beyond = |x: f64| sign * x > zone;
+                if beyond(z[i])
+                    && z[i + 1 - window..=i].iter().filter(|&&x| beyond(x)).count() >= need
+                {
+                    out.push(RuleSignal {
+                        rule,
+                        index: i,
+                        side: side.to_string(),
+                    });
+                }
+            }
+        }
+    }
+    out
 }
 
 /// Cp and Cpk (or Pp and Ppk) of `mean` and the sigma `s` against the
@@ -186,6 +245,7 @@ pub fn compute(
         center_line: fin(mean),
         ucl: fin(mean + 3.0 * sigma_within),
         lcl: fin(mean - 3.0 * sigma_within),
+        rules: western_electric(&v, mean, sigma_within),
         points,
     }
 }

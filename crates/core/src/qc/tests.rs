@@ -648,3 +648,41 @@ fn a_small_signal_value_not_determined_names_its_reason() {
         .detail
         .contains("no physical stiffness"));
 }
+
+/// Western Electric rules 1-4 on a chart with centre 0 and sigma 1, each
+/// pattern placed by hand: 3.2 beyond 3 sigma (rule 1 at 1); 3.2 and 2.5 two
+/// of three beyond 2 sigma (rule 2 at 3); -1.5, -1.2, -1.1, -1.3 four of
+/// five beyond 1 sigma below (rule 3 at 9, the first window holding four);
+/// eight negative points from index 4 (rule 4 at 11). Index 10 (-0.4) ends a
+/// window of four beyond 1 sigma too but is not itself beyond: no signal.
+#[test]
+fn western_electric_rules_flag_the_points_that_complete_each_pattern() {
+    use crate::qc::spc::western_electric;
+    let v = [
+        0.0, 3.2, 0.0, 2.5, -0.5, -0.3, -1.5, -1.2, -1.1, -1.3, -0.4, -0.2,
+    ];
+    let got: Vec<(u8, usize, &str)> = western_electric(&v, 0.0, 1.0)
+        .iter()
+        .map(|r| {
+            (
+                r.rule,
+                r.index,
+                if r.side == "above" { "above" } else { "below" },
+            )
+        })
+        .collect();
+    assert_eq!(
+        got,
+        [
+            (1, 1, "above"),
+            (2, 3, "above"),
+            (3, 9, "below"),
+            (4, 11, "below")
+        ]
+    );
+    // Scaled and shifted: the same signals (the rules read z-scores).
+    let w: Vec<f64> = v.iter().map(|x| 2400.0 + 50.0 * x).collect();
+    assert_eq!(western_electric(&w, 2400.0, 50.0).len(), 4);
+    // No sigma: no signal.
+    assert!(western_electric(&v, 0.0, 0.0).is_empty());
+}
