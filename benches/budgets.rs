@@ -29,9 +29,30 @@ use springbench::store::fleet::{
 };
 use std::hint::black_box;
 
+/// Rayon's pool as this one thread: the analysis splits its independent
+/// halves with `rayon::join` (two cores, a shorter wall time), and callgrind
+/// counts only the benchmark function's own thread. With the benchmark's
+/// thread as the pool's only worker, every join runs both halves on it, one
+/// after the other: the count is the whole work, the same every run. Called
+/// by each setup (one process per benchmark), outside the count.
+fn pool_on_this_thread() {
+    // a second call (production_set's spider()) finds it built
+    let _ = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .use_current_thread()
+        .build_global();
+    assert_eq!(
+        rayon::current_thread_index(),
+        Some(0),
+        "rayon's pool must be this thread alone, or the count misses the other threads' work"
+    );
+    assert_eq!(rayon::current_num_threads(), 1);
+}
+
 /// A reference recording set (16.5 s pre-measurement + 10.5 s main sweep,
 /// 48 kHz, 3 channels), as `springbench analyze DIR` reads it.
 fn reference_set(name: &str) -> RecordingSet {
+    pool_on_this_thread();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/reference-recordings")
         .join(name);
@@ -58,6 +79,7 @@ fn short_full_procedure() -> SimulateOptions {
 }
 
 fn spider() -> PartSpec {
+    pool_on_this_thread();
     preset("spider_4in").expect("preset spider_4in")
 }
 
@@ -65,6 +87,7 @@ fn spider() -> PartSpec {
 /// unit measured by the (short) full procedure, then the production
 /// procedure (1.5 s pre-measurement, 2 s narrow sweep) on another unit.
 fn production_set() -> RecordingSet {
+    pool_on_this_thread();
     let part = spider();
     let golden_unit = simulate(&part, 1, &short_full_procedure()).expect("golden unit");
     let r = analyze(&golden_unit.set, &AnalyzeOptions::default()).expect("golden analysis");
@@ -250,6 +273,7 @@ fn cfx_lot_messages(lot: Vec<JobFacts>) -> usize {
 /// sweeps; under Valgrind that hour would take minutes, and its cost is the
 /// measurements', which this counts (two, at a quarter of their length).
 fn long_term_hour() -> (VirtualBench, LongTermPlan) {
+    pool_on_this_thread();
     let part = preset("spider_3in").expect("preset spider_3in");
     assert!(part.ageing.is_some(), "spider_3in ages");
     let plan = LongTermPlan {

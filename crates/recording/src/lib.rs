@@ -69,9 +69,10 @@ impl RecordingSetFiles for RecordingSet {
                 e => with_path(e, &p),
             })
         };
-        let pre = read("pre.wav")?;
-        let main = read("main.wav")?;
-        RecordingSet::settled(meta, pre, main)
+        // the two files decode side by side (rayon's pool: the analysis
+        // that follows runs there too)
+        let (pre, main) = rayon::join(|| read("pre.wav"), || read("main.wav"));
+        RecordingSet::settled(meta, pre?, main?)
     }
 
     /// Reads a set from in-memory parts (the API's multipart import).

@@ -111,10 +111,27 @@ impl<'a> Sweeps<'a> {
 
 /// [`analyze`] of borrowed sweeps.
 pub fn analyze_sweeps(s: Sweeps<'_>, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
-    let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
-    let (mut r, creep) = analyze_prepared(s.pre, &p, opts, None)?;
+    let (p, fitted) = prepare_and_fit(s);
+    let (mut r, creep) = analyze_prepared(s.pre, &p?, opts, fitted)?;
     validity::judge_plain(&mut r, creep.as_deref());
     Ok(r)
+}
+
+/// The main sweep's preparation and the small-signal fit of the
+/// pre-measurement: independent of each other and about equal in cost, so
+/// they run side by side on the two cores (rayon's pool, whose threads keep
+/// their FFT plans between calls). The same arithmetic as one after the
+/// other: the numbers are bit for bit the same.
+fn prepare_and_fit(
+    s: Sweeps<'_>,
+) -> (
+    Result<prep::Prepared, AnalyzeError>,
+    Result<small::SmallFit, AnalyzeError>,
+) {
+    rayon::join(
+        || prep::prepare_sweep(s.main, s.moving_mass_kg, "main"),
+        || small::fit(s.pre, s.moving_mass_kg),
+    )
 }
 
 /// [`analyze`] and [`force_balance_data`] from one preparation of the main
@@ -131,8 +148,9 @@ pub fn analyze_sweeps_with_force_balance(
     s: Sweeps<'_>,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
-    let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
-    let (mut report, creep) = analyze_prepared(s.pre, &p, opts, None)?;
+    let (p, fitted) = prepare_and_fit(s);
+    let p = p?;
+    let (mut report, creep) = analyze_prepared(s.pre, &p, opts, fitted)?;
     validity::judge_plain(&mut report, creep.as_deref());
     Ok((report, force_balance_of(&p, false)))
 }
@@ -175,27 +193,29 @@ pub fn analyze_for_diagnosis(
     set: &RecordingSet,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData, PreSpectra), AnalyzeError> {
-    let p = prep::prepare(set)?;
-    small::check(&set.pre)?;
-    let (sx, sm) = prep::spectra(&set.pre);
+    let (p, pre_spectra) = rayon::join(
+        || prep::prepare(set),
+        || small::check(&set.pre).map(|()| prep::spectra(&set.pre)),
+    );
+    let p = p?;
+    let (sx, sm) = pre_spectra?;
     // The diagnostics fit creep themselves: the plain analysis's mark for it
     // is not theirs.
-    let (report, _) = analyze_prepared(&set.pre, &p, opts, Some((&sx, &sm)))?;
+    let fitted = small::fit_spectra(&set.pre, p.mass_kg, &sx, &sm);
+    let (report, _) = analyze_prepared(&set.pre, &p, opts, fitted)?;
     Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
+/// The report of a prepared main sweep and the small-signal fit of its
+/// pre-measurement.
 fn analyze_prepared(
     pre: &crate::recording::Signals,
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
-    pre_spectra: Option<(&crate::dsp::Spectrum, &crate::dsp::Spectrum)>,
+    fitted: Result<small::SmallFit, AnalyzeError>,
 ) -> Result<(Report, Option<String>), AnalyzeError> {
     let mut warnings = Vec::new();
 
-    let fitted = match pre_spectra {
-        Some((sx, sm)) => small::fit_spectra(pre, p.mass_kg, sx, sm),
-        None => small::fit(pre, p.mass_kg),
-    };
     let (mut small_signal, creep) = match fitted {
         Ok(f) => {
             warnings.extend(f.warnings);

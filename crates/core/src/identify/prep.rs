@@ -187,9 +187,9 @@ fn check_mass(mass_kg: f64) -> Result<(), AnalyzeError> {
 pub fn spectra(s: &Signals) -> (Spectrum, Spectrum) {
     let fs = s.sample_rate_hz;
     let (low, noise) = (lowpass_for(fs).stop_hz, noise_band(fs));
-    (
-        Spectrum::bands(&s.displacement_m, fs, 64, low, Some(noise)),
-        Spectrum::bands(&s.microphone_v, fs, 64, low, Some(noise)),
+    rayon::join(
+        || Spectrum::bands(&s.displacement_m, fs, 64, low, Some(noise)),
+        || Spectrum::bands(&s.microphone_v, fs, 64, low, Some(noise)),
     )
 }
 

@@ -36,9 +36,9 @@ pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check(pre)?;
     let (fs, fmax) = (pre.sample_rate_hz, max_hz(pre.sample_rate_hz));
     // Only the bins up to fmax are used.
-    let (sx, sm) = (
-        Spectrum::bands(&pre.displacement_m, fs, 64, fmax, None),
-        Spectrum::bands(&pre.microphone_v, fs, 64, fmax, None),
+    let (sx, sm) = rayon::join(
+        || Spectrum::bands(&pre.displacement_m, fs, 64, fmax, None),
+        || Spectrum::bands(&pre.microphone_v, fs, 64, fmax, None),
     );
     fit_spectra(pre, mass_kg, &sx, &sm)
 }
