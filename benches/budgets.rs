@@ -184,6 +184,7 @@ fn spc_points(n: usize) -> Vec<SpcPoint> {
             measurement_id: format!("m-{i}"),
             job_id: Some(format!("j-{}", i / 4)),
             level_index: Some(0),
+            recipe_version: Some(1),
             value: 2500.0 + ((i * 7919) % 1000) as f64 * 0.1,
             repeats: 1,
             verdict: if i % 97 == 0 {

@@ -1061,6 +1061,9 @@ async fn spc_and_yield_count_production_parts_only() {
         .map(|p| p["value"].as_f64().unwrap())
         .collect();
     assert_eq!(got, values, "the points are the production parts' k0");
+    for p in spc["points"].as_array().unwrap() {
+        assert_eq!(p["recipe_version"], 1, "{p}");
+    }
     let (mean, sd) = mean_sd(&values);
     let sw = values.windows(2).map(|w| (w[1] - w[0]).abs()).sum::<f64>() / 4.0 / 1.128;
     let (lo, hi) = (0.85 * k0, 1.15 * k0);

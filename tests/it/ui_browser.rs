@@ -1000,6 +1000,37 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     assert!(spc["n"].as_u64().unwrap() >= 7, "{spc}");
     let stats = b.text("#spc-stats").await;
     assert!(stats.contains("Cpk") && stats.contains("N/m"), "{stats}");
+    // The pool counted, the rules' row, and the recipe version changes the
+    // points carry, named under the chart (issue 35).
+    assert!(stats.contains("production parts only"), "{stats}");
+    let rules = b
+        .js(
+            "return document.querySelector('#spc-rules').dataset.n;",
+            vec![],
+        )
+        .await;
+    assert_eq!(
+        rules,
+        json!(spc["rules"].as_array().unwrap().len().to_string())
+    );
+    let pts = spc["points"].as_array().unwrap();
+    let changes = pts
+        .windows(2)
+        .filter(|w| w[0]["recipe_version"] != w[1]["recipe_version"])
+        .count();
+    assert!(
+        pts.iter().all(|p| p["recipe_version"].as_i64().is_some()),
+        "{spc}"
+    );
+    let shown = b
+        .js(
+            "return document.querySelector('#spc-note').dataset.versionChanges;",
+            vec![],
+        )
+        .await;
+    assert_eq!(shown, json!(changes.to_string()));
+    let note = b.text("#spc-note").await;
+    assert!(note.contains("hours since"), "{note}");
     b.js(
         "document.querySelector('#spc').scrollIntoView(); return true;",
         vec![],

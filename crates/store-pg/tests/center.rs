@@ -277,6 +277,7 @@ fn truth(made: &[Made], last: usize, station: Option<&str>) -> Spc {
             continue;
         }
         points.push(SpcPoint {
+            recipe_version: None,
             time: m.time.clone(),
             part_serial: String::new(),
             measurement_id: m.id.clone(),
@@ -666,6 +667,7 @@ async fn corrections_and_voids_keep_an_audit_trail_and_leave_spc() {
             .iter()
             .enumerate()
             .map(|(i, v)| SpcPoint {
+                recipe_version: None,
                 time: time(i),
                 part_serial: String::new(),
                 measurement_id: format!("{i}"),

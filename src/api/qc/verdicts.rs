@@ -247,6 +247,7 @@ pub async fn spc<R: Reads>(
                 value: p.value,
                 repeats: 1,
                 verdict: v.verdict,
+                recipe_version: Some(r.recipe_version),
             });
         }
     }

@@ -36,6 +36,10 @@ pub struct SpcPoint {
     pub repeats: usize,
     /// `fail` when any repeat failed, else the first repeat's verdict.
     pub verdict: VerdictKind,
+    /// The recipe version the point was judged by (the first repeat's):
+    /// the QC view marks where it changes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe_version: Option<i64>,
 }
 
 fn one() -> usize {

@@ -431,6 +431,7 @@ fn spc_matches_the_closed_form() {
         .iter()
         .enumerate()
         .map(|(i, &v)| SpcPoint {
+            recipe_version: None,
             time: format!("2026-01-01T00:00:0{i}Z"),
             part_serial: format!("S{i}"),
             measurement_id: format!("m{i}"),
@@ -476,6 +477,7 @@ fn spc_matches_the_closed_form() {
         .iter()
         .flat_map(|p| {
             [-0.3, 0.1, 0.2].map(|d| SpcPoint {
+                recipe_version: None,
                 value: p.value + d,
                 ..p.clone()
             })
