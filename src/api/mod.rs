@@ -15,6 +15,7 @@ pub mod gauge;
 pub mod guard;
 pub mod import;
 pub mod jobs;
+pub mod longterm;
 pub mod measurements;
 pub mod metrics;
 pub mod openapi;
@@ -109,6 +110,26 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     .add("get", "/api/v1/jobs", get(jobs::list))
     .add("get", "/api/v1/jobs/{id}", get(jobs::get_one))
     .add("post", "/api/v1/jobs/{id}/cancel", post(jobs::cancel))
+    .add(
+        "post",
+        "/api/v1/long-term-tests",
+        post(longterm::submit).layer(json_limit),
+    )
+    .add(
+        "get",
+        "/api/v1/long-term-tests/{id}",
+        get(longterm::get_one),
+    )
+    .add(
+        "get",
+        "/api/v1/long-term-tests/{id}/series.csv",
+        get(longterm::series_csv),
+    )
+    .add(
+        "get",
+        "/api/v1/long-term-tests/{id}/last-signals.wav",
+        get(longterm::last_signals),
+    )
     .add("get", "/api/v1/parts", get(jobs::list_parts::<AppState>))
     .add(
         "get",

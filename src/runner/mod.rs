@@ -17,6 +17,7 @@ mod execute;
 mod guard;
 pub mod hardware;
 pub mod job;
+mod longterm;
 mod records;
 mod series;
 
@@ -188,6 +189,7 @@ impl Runner {
             outbox: Arc::new(Notify::new()),
             recipe_trace: std::sync::OnceLock::new(),
         });
+        longterm::requeue(&runner.store).await?;
         runner.end_interrupted(cfg).await?;
         let tasks = runner
             .slots
@@ -383,7 +385,9 @@ impl Runner {
         // the transaction that starts it.
         let started_at = crate::store::now();
         let announce = match job.request.read() {
-            Ok(crate::job::StoredRequest::SelfCheck(_)) => Default::default(),
+            Ok(
+                crate::job::StoredRequest::SelfCheck(_) | crate::job::StoredRequest::LongTerm(_),
+            ) => Default::default(),
             _ => self.start_records(&slot.cfg, job, &started_at),
         };
         if !self
@@ -410,6 +414,9 @@ impl Runner {
         let spec: Result<JobSpec, String> = match job.request.read() {
             Ok(crate::job::StoredRequest::SelfCheck(_)) => {
                 return self.run_self_check(slot, job, started).await
+            }
+            Ok(crate::job::StoredRequest::LongTerm(t)) => {
+                return self.run_long_term(slot, job, t.clone(), cancel).await
             }
             Ok(crate::job::StoredRequest::Measure(s)) => Ok(s.clone()),
             Err(e) => Err(e.to_string()),

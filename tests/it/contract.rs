@@ -1101,6 +1101,42 @@ async fn every_route_answers_as_its_schema_says() {
         "{log}"
     );
 
+    // Long-term test (issue 32): stopped by a failure limit at its second
+    // interval (spider_3in's break-in takes ~10 % of K(0)): the test, its
+    // series as CSV and its last signals; a bad body names its field.
+    let lt = "/api/v1/long-term-tests";
+    let lt_body = json!({"measurement": {"part": {"serial": "LT-C"}, "bench": "virtual-2",
+        "preset": "spider_3in", "target_xpeak_m": 0.006},
+        "duration_s": 3600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053},
+        "failure_limits": {"k0_change_percent": 5.0}});
+    let (s, v) = a
+        .call(
+            "post",
+            lt,
+            lt,
+            Some(OPERATOR),
+            Some(json!({"measurement": {"part": {"serial": "LT-C"}},
+            "duration_s": 600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.005}})),
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    let (s, ltj) = a.call("post", lt, lt, Some(OPERATOR), Some(lt_body)).await;
+    assert_eq!(s, 202, "{ltj}");
+    let ltid = ltj["id"].as_str().unwrap().to_string();
+    a.wait_job(&ltid).await;
+    let one = "/api/v1/long-term-tests/{id}";
+    let v = a.get(one, &format!("{lt}/{ltid}"), 200).await;
+    assert_eq!(v["state"]["failure"]["limit"], "k0_change_percent", "{v}");
+    a.get(one, &format!("{lt}/nope"), 404).await;
+    let csv = "/api/v1/long-term-tests/{id}/series.csv";
+    a.get(csv, &format!("{lt}/{ltid}/series.csv"), 200).await;
+    a.get(csv, &format!("{lt}/nope/series.csv"), 404).await;
+    let wav = "/api/v1/long-term-tests/{id}/last-signals.wav";
+    a.get(wav, &format!("{lt}/{ltid}/last-signals.wav"), 200)
+        .await;
+    a.get(wav, &format!("{lt}/nope/last-signals.wav"), 404)
+        .await;
+
     let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
     let mut missing = vec![];
     let mut no_success = vec![];

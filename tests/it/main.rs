@@ -35,6 +35,7 @@ mod identify_cli;
 mod identify_reference;
 mod identify_synthetic;
 mod layers;
+mod longterm;
 mod memory;
 mod mes;
 mod migration_0150;

@@ -106,8 +106,8 @@ fn message(db: *mut ffi::sqlite3) -> String {
 /// imports) or `recordings.wav` of recording `rowid`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BlobRef {
-    pub(super) in_blobs: bool,
-    pub(super) rowid: i64,
+    pub(crate) in_blobs: bool,
+    pub(crate) rowid: i64,
     /// Bytes.
     pub len: u64,
 }

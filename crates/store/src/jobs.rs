@@ -565,7 +565,7 @@ impl Store {
 }
 
 /// Refuses to add to a job that is not running.
-async fn running_job(
+pub(crate) async fn running_job(
     tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
     job_id: &str,
 ) -> StoreResult<()> {

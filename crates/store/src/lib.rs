@@ -17,6 +17,7 @@ pub mod hardware;
 pub mod health;
 mod imports;
 mod jobs;
+pub mod longterm;
 mod measurements;
 pub mod migrations;
 pub mod outbox;

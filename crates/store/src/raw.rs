@@ -255,7 +255,7 @@ impl Store {
     }
 }
 
-fn scale_of(json: Option<String>) -> StoreResult<Option<ChannelScale>> {
+pub(crate) fn scale_of(json: Option<String>) -> StoreResult<Option<ChannelScale>> {
     json.map(|s| {
         serde_json::from_str(&s)
             .map_err(|e| StoreError::Corrupt(format!("stored channel scale unreadable: {e}")))

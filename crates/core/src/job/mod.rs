@@ -29,6 +29,7 @@ pub const SERIAL_RULE: &str =
 /// noise; 1e-300 m was accepted and fitted before.
 pub const MIN_TARGET_XPEAK_M: f64 = 1e-5;
 
+pub mod long_term;
 mod measurement;
 mod parse;
 mod problem;
@@ -36,6 +37,7 @@ mod request;
 mod spec;
 mod stored;
 
+pub use long_term::{Failure, FailureLimits, LongTermRequest, LongTermSpec, PartState, Stimulus};
 pub use measurement::{
     HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,
     RepeatEnded, SweepSettings,

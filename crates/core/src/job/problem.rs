@@ -35,11 +35,13 @@ pub enum ProblemKind {
     SelfCheckUnsupported,
     /// The job's bench is no longer configured.
     UnknownBench,
+    /// A long-term test reached one of its failure limits (the detail names it).
+    FailureLimit,
     /// A kind this version does not know (a row of another version).
     Other(String),
 }
 
-const KINDS: [(ProblemKind, &str); 13] = [
+const KINDS: [(ProblemKind, &str); 14] = [
     (ProblemKind::Part, "part"),
     (ProblemKind::Bench, "bench"),
     (ProblemKind::BenchFault, "bench-fault"),
@@ -53,6 +55,7 @@ const KINDS: [(ProblemKind, &str); 13] = [
     (ProblemKind::Interrupted, "interrupted"),
     (ProblemKind::SelfCheckUnsupported, "self-check-unsupported"),
     (ProblemKind::UnknownBench, "unknown-bench"),
+    (ProblemKind::FailureLimit, "failure-limit"),
 ];
 
 impl ProblemKind {

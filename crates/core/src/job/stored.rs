@@ -20,6 +20,8 @@ pub enum StoredRequest {
     Measure(JobSpec),
     /// Check a hardware bench (latency, noise floors) and store a calibration record.
     SelfCheck(SelfCheck),
+    /// A long-term test: the full procedure at intervals under a stimulus that ages the part.
+    LongTerm(super::long_term::LongTermSpec),
 }
 
 /// A self-check of a hardware bench.
@@ -30,10 +32,13 @@ pub struct SelfCheck {
 }
 
 /// The kinds that name themselves in `type` (every kind but a measurement).
+// Serialized or read once per job: a box would buy nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 enum Tagged {
     SelfCheck(SelfCheck),
+    LongTerm(super::long_term::LongTermSpec),
 }
 
 impl StoredRequest {
@@ -66,6 +71,7 @@ impl Serialize for StoredRequest {
         match self {
             StoredRequest::Measure(spec) => spec.serialize(s),
             StoredRequest::SelfCheck(c) => Tagged::SelfCheck(c.clone()).serialize(s),
+            StoredRequest::LongTerm(t) => Tagged::LongTerm(t.clone()).serialize(s),
         }
     }
 }
@@ -80,6 +86,7 @@ impl<'de> Deserialize<'de> for StoredRequest {
         }
         match Tagged::deserialize(v).map_err(D::Error::custom)? {
             Tagged::SelfCheck(c) => Ok(StoredRequest::SelfCheck(c)),
+            Tagged::LongTerm(t) => Ok(StoredRequest::LongTerm(t)),
         }
     }
 }

@@ -1,0 +1,407 @@
+//! The long-term test as a job (issue 32): the full procedure at intervals
+//! while a sine held at the part's current resonance ages it in between.
+//! `POST /api/v1/long-term-tests` takes a [`LongTermRequest`]; the accepted
+//! [`LongTermSpec`] is stored with the job (`StoredRequest::LongTerm`) and
+//! read back by the runner (`src/runner/longterm.rs`).
+
+use super::parse::FieldError;
+use super::request::JobRequest;
+use super::spec::{Admission, JobSpec, ProcedureMode};
+use serde::{Deserialize, Serialize};
+
+/// Shortest interval (s): one measurement takes about 40 s of bench time.
+pub const MIN_INTERVAL_S: f64 = 60.0;
+/// Longest test (s): 30 days.
+pub const MAX_DURATION_S: f64 = 30.0 * 86400.0;
+/// Most measurements of one test.
+pub const MAX_INTERVALS: usize = 2000;
+/// Default failure limit: a change of K(0) by more than this (%).
+pub const DEFAULT_K0_CHANGE_PERCENT: f64 = 60.0;
+
+/// The stimulus between two measurements.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Stimulus {
+    /// Peak displacement of the sine held at the part's current resonance (m).
+    pub excursion_m: f64,
+    /// On/off cycling: seconds on, then `off_s` seconds off (both or neither).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub on_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub off_s: Option<f64>,
+}
+
+impl Stimulus {
+    /// Seconds of stimulus on between test times `a_s` and `b_s` (the
+    /// cycle's phase runs from the test's start, so a resumed test keeps it).
+    pub fn on_time_s(&self, a_s: f64, b_s: f64) -> f64 {
+        if b_s <= a_s {
+            return 0.0;
+        }
+        let (Some(on), Some(off)) = (self.on_s, self.off_s) else {
+            return b_s - a_s;
+        };
+        let period = on + off;
+        // on-time in [0, t)
+        let upto = |t: f64| {
+            let n = (t / period).floor();
+            n * on + (t - n * period).min(on)
+        };
+        upto(b_s) - upto(a_s)
+    }
+}
+
+/// Limits that stop the test.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FailureLimits {
+    /// Largest change of the small-signal K(0) from the first interval (%,
+    /// either way). The test also stops when no resonance is found.
+    pub k0_change_percent: f64,
+}
+
+impl Default for FailureLimits {
+    fn default() -> Self {
+        FailureLimits {
+            k0_change_percent: DEFAULT_K0_CHANGE_PERCENT,
+        }
+    }
+}
+
+/// `POST /api/v1/long-term-tests`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct LongTermRequest {
+    /// The measurement made at each interval: a measurement job's request
+    /// (part, bench, level, mounted part...); one repeat, full procedure.
+    pub measurement: JobRequest,
+    /// Length of the test in test time (s).
+    pub duration_s: Option<f64>,
+    /// Time between the starts of two measurements (s, at least 60).
+    pub interval_s: Option<f64>,
+    /// The stimulus between the measurements.
+    pub stimulus: Option<Stimulus>,
+    /// Virtual bench: run faster than real time (default true); results say so.
+    pub accelerated: Option<bool>,
+    #[serde(default)]
+    pub failure_limits: Option<FailureLimits>,
+    /// Predict K(0) at this test time with the fitted law (s; default twice the duration).
+    pub predict_s: Option<f64>,
+}
+
+/// A long-term test as accepted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LongTermSpec {
+    pub measurement: JobSpec,
+    pub duration_s: f64,
+    pub interval_s: f64,
+    pub stimulus: Stimulus,
+    pub accelerated: bool,
+    pub failure_limits: FailureLimits,
+    pub predict_s: f64,
+}
+
+impl LongTermSpec {
+    /// Number of measurements: one at the start and one per interval.
+    pub fn intervals(&self) -> usize {
+        (self.duration_s / self.interval_s + 1e-9).floor() as usize + 1
+    }
+}
+
+/// The part's state on the virtual bench, as persisted after each interval.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct PartState {
+    /// The load the part has taken (J).
+    pub load_j: f64,
+    /// Its stiffness at rest then (N/m; the virtual part's truth).
+    pub k0_true_n_per_m: f64,
+}
+
+/// A failure limit that stopped the test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Failure {
+    /// `k0_change_percent` or `no_resonance`.
+    pub limit: String,
+    /// The interval at which it was reached.
+    pub interval: usize,
+    /// The value and the bound (`k0_change_percent`), when the limit has them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub value: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bound: Option<f64>,
+    pub detail: String,
+}
+
+fn prefixed(e: FieldError) -> FieldError {
+    let field = if e.field.is_empty() {
+        "measurement".to_string()
+    } else {
+        format!("measurement.{}", e.field)
+    };
+    FieldError::new(field, e.message)
+}
+
+impl LongTermRequest {
+    /// A body checked whole, one message per bad field (`parsed` is
+    /// [`super::parse_lenient`]'s answer).
+    pub fn check(
+        parsed: (Option<LongTermRequest>, Vec<FieldError>),
+        adm: &Admission,
+    ) -> Result<LongTermSpec, Vec<FieldError>> {
+        let (req, mut errors) = parsed;
+        let Some(req) = req else {
+            return Err(errors);
+        };
+        let mut add = |e: FieldError| {
+            if !errors.iter().any(|x| x.field == e.field) {
+                errors.push(e);
+            }
+        };
+        let m = &req.measurement;
+        if m.repeats.is_some_and(|r| r != 1) {
+            add(FieldError::new(
+                "measurement.repeats",
+                "a long-term test measures once per interval: 1 or absent",
+            ));
+        }
+        if m.procedure.is_some_and(|p| p != ProcedureMode::Full) {
+            add(FieldError::new(
+                "measurement.procedure",
+                "a long-term test runs the full procedure at each interval",
+            ));
+        }
+        if m.recipe.is_some() {
+            add(FieldError::new(
+                "measurement.recipe",
+                "a long-term test is not judged by a recipe",
+            ));
+        }
+        let spec = match req.measurement.clone().validate(adm) {
+            Ok(s) => Some(s),
+            Err(es) => {
+                for e in es {
+                    add(prefixed(e));
+                }
+                None
+            }
+        };
+        let num = |v: Option<f64>, field: &str, add: &mut dyn FnMut(FieldError)| match v {
+            None => {
+                add(FieldError::new(field, "required (s)"));
+                None
+            }
+            Some(x) if !x.is_finite() => {
+                add(FieldError::new(field, "must be a finite number"));
+                None
+            }
+            Some(x) => Some(x),
+        };
+        let interval = num(req.interval_s, "interval_s", &mut add).and_then(|x| {
+            if x < MIN_INTERVAL_S {
+                add(FieldError::new(
+                    "interval_s",
+                    format!(
+                        "must be at least {MIN_INTERVAL_S} s (a measurement takes about 40 s), got {x}"
+                    ),
+                ));
+                None
+            } else {
+                Some(x)
+            }
+        });
+        let duration = num(req.duration_s, "duration_s", &mut add).and_then(|x| {
+            if !(x > 0.0 && x <= MAX_DURATION_S) {
+                add(FieldError::new(
+                    "duration_s",
+                    format!("must be in (0, {MAX_DURATION_S}] s, got {x}"),
+                ));
+                None
+            } else {
+                Some(x)
+            }
+        });
+        if let (Some(i), Some(d)) = (interval, duration) {
+            if i > d {
+                add(FieldError::new(
+                    "interval_s",
+                    format!("{i} s is longer than the test (duration_s {d} s)"),
+                ));
+            } else if d / i + 1.0 > MAX_INTERVALS as f64 {
+                add(FieldError::new(
+                    "interval_s",
+                    format!(
+                        "{} measurements: at most {MAX_INTERVALS} per test",
+                        (d / i).floor() + 1.0
+                    ),
+                ));
+            }
+        }
+        // The job's limit, or its bench's when the measurement was refused.
+        let max_x = spec.as_ref().map(|s| s.limits.max_displacement_m).or_else(|| {
+            let b = match &m.bench {
+                Some(id) => adm.benches.iter().find(|b| &b.id == id),
+                None => adm.benches.first(),
+            };
+            b.map(|b| b.limits.max_displacement_m)
+        });
+        match &req.stimulus {
+            None => add(FieldError::new(
+                "stimulus",
+                "required: {\"excursion_m\": peak displacement of the sine at resonance}",
+            )),
+            Some(s) => {
+                if !(s.excursion_m.is_finite() && s.excursion_m >= 0.0) {
+                    add(FieldError::new(
+                        "stimulus.excursion_m",
+                        format!("must be a peak displacement >= 0 m, got {}", s.excursion_m),
+                    ));
+                } else if let Some(mx) = max_x.filter(|mx| s.excursion_m > *mx) {
+                    add(FieldError::new(
+                        "stimulus.excursion_m",
+                        format!(
+                            "{} m is beyond the bench's displacement limit ({mx} m)",
+                            s.excursion_m
+                        ),
+                    ));
+                }
+                match (s.on_s, s.off_s) {
+                    (None, None) => {}
+                    (Some(on), Some(off)) => {
+                        if !(on.is_finite() && on > 0.0) {
+                            add(FieldError::new("stimulus.on_s", "must be > 0 s"));
+                        }
+                        if !(off.is_finite() && off >= 0.0) {
+                            add(FieldError::new("stimulus.off_s", "must be >= 0 s"));
+                        }
+                    }
+                    (Some(_), None) => add(FieldError::new(
+                        "stimulus.off_s",
+                        "on/off cycling needs both on_s and off_s",
+                    )),
+                    (None, Some(_)) => add(FieldError::new(
+                        "stimulus.on_s",
+                        "on/off cycling needs both on_s and off_s",
+                    )),
+                }
+            }
+        }
+        let limits = req.failure_limits.unwrap_or_default();
+        if !(limits.k0_change_percent.is_finite() && limits.k0_change_percent > 0.0) {
+            add(FieldError::new(
+                "failure_limits.k0_change_percent",
+                format!("must be > 0 %, got {}", limits.k0_change_percent),
+            ));
+        }
+        if let Some(p) = req.predict_s {
+            if !(p.is_finite() && p > 0.0) {
+                add(FieldError::new(
+                    "predict_s",
+                    format!("must be > 0 s, got {p}"),
+                ));
+            }
+        }
+        match (spec, interval, duration, req.stimulus) {
+            (Some(measurement), Some(interval_s), Some(duration_s), Some(stimulus))
+                if errors.is_empty() =>
+            {
+                Ok(LongTermSpec {
+                    measurement,
+                    duration_s,
+                    interval_s,
+                    stimulus,
+                    accelerated: req.accelerated.unwrap_or(true),
+                    failure_limits: limits,
+                    predict_s: req.predict_s.unwrap_or(2.0 * duration_s),
+                })
+            }
+            _ => Err(errors),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::job::{BenchOffer, Limits};
+    use serde_json::json;
+
+    fn adm() -> Admission {
+        Admission {
+            benches: vec![BenchOffer {
+                id: "b1".into(),
+                limits: Limits {
+                    max_displacement_m: 0.012,
+                    max_drive_v: 100.0,
+                },
+                preset: "spider_3in".into(),
+            }],
+            target_xpeak_m: 0.006,
+            method: crate::identify::Method::TwoSignal,
+            order: None,
+        }
+    }
+
+    fn check(body: serde_json::Value) -> Result<LongTermSpec, Vec<FieldError>> {
+        LongTermRequest::check(crate::job::parse_lenient(&body), &adm())
+    }
+
+    #[test]
+    fn a_test_is_accepted_with_its_defaults() {
+        let s = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.005}}))
+        .unwrap();
+        assert_eq!(s.intervals(), 5);
+        assert!(s.accelerated);
+        assert_eq!(s.predict_s, 7200.0);
+        assert_eq!(s.measurement.levels_m, vec![0.006]);
+        assert_eq!(s.failure_limits.k0_change_percent, 60.0);
+    }
+
+    #[test]
+    fn every_bad_field_is_named() {
+        let e = check(json!({"measurement": {"part": {"serial": "LT-1"}, "repeats": 3},
+            "duration_s": 600.0, "interval_s": 900.0, "stimulus": {"excursion_m": -0.001, "on_s": 5.0},
+            "failure_limits": {"k0_change_percent": 0.0}}))
+        .unwrap_err();
+        let fields: Vec<&str> = e.iter().map(|e| e.field.as_str()).collect();
+        for f in [
+            "measurement.repeats",
+            "interval_s",
+            "stimulus.excursion_m",
+            "stimulus.off_s",
+            "failure_limits.k0_change_percent",
+        ] {
+            assert!(fields.contains(&f), "{f} not in {e:?}");
+        }
+        let iv = e.iter().find(|e| e.field == "interval_s").unwrap();
+        assert!(iv.message.contains("longer than the test"), "{iv:?}");
+        let e = check(
+            json!({"measurement": {"part": {"serial": "../x"}}, "duration_s": 600.0,
+            "interval_s": 60.0, "stimulus": {"excursion_m": 0.02}}),
+        )
+        .unwrap_err();
+        let fields: Vec<&str> = e.iter().map(|e| e.field.as_str()).collect();
+        assert!(fields.contains(&"measurement.part.serial"), "{e:?}");
+        assert!(fields.contains(&"stimulus.excursion_m"), "{e:?}");
+    }
+
+    #[test]
+    fn on_off_cycling_counts_the_on_time_from_the_tests_start() {
+        let s = Stimulus {
+            excursion_m: 0.005,
+            on_s: Some(60.0),
+            off_s: Some(30.0),
+        };
+        assert_eq!(s.on_time_s(0.0, 90.0), 60.0);
+        assert_eq!(s.on_time_s(0.0, 900.0), 600.0);
+        assert_eq!(s.on_time_s(45.0, 100.0), 15.0 + 10.0);
+        // split anywhere: the same on-time
+        assert!((s.on_time_s(0.0, 500.0) + s.on_time_s(500.0, 900.0) - 600.0).abs() < 1e-9);
+        let c = Stimulus {
+            on_s: None,
+            off_s: None,
+            ..s
+        };
+        assert_eq!(c.on_time_s(10.0, 20.0), 10.0);
+    }
+}

@@ -1,0 +1,315 @@
+//! The long-term test's own rows (issue 32): its state, written with each
+//! finished interval's measurement in one transaction (a daemon killed
+//! during the test resumes where it stopped), the interval index, the
+//! stored fit of the ageing law, the failure and the last signals.
+
+use crate::measurements::{insert_measurement_rows, insert_results};
+use crate::results::{NewMeasurement, NewRecording};
+use crate::{now, Store, StoreError, StoreResult};
+use serde::Serialize;
+use springbench_core::ageing::series::AgeingDocument;
+use springbench_core::job::{Failure, PartState};
+use sqlx::Row;
+
+/// Where a long-term test stands after its last finished interval.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct LongTermState {
+    /// Intervals finished (the next one's index).
+    pub intervals_done: usize,
+    /// Test time at the end of the last measurement (s).
+    pub clock_s: f64,
+    /// The part's accumulated load then (J).
+    pub load_j: f64,
+    pub part: PartState,
+    /// The ageing law fitted over the intervals so far.
+    pub document: Option<AgeingDocument>,
+    /// The failure limit that stopped the test.
+    pub failure: Option<Failure>,
+    /// Each time the test was resumed after a crash, a kill or a stop.
+    pub resumptions: Vec<Resumption>,
+    pub updated_at: String,
+}
+
+/// A resumption of a test cut off by a crash, a kill or a stop.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct Resumption {
+    /// When the daemon put it back in the queue.
+    pub at: String,
+    /// Intervals stored then (the next one is run next).
+    pub intervals_done: usize,
+    /// The part's load then (J).
+    pub load_j: f64,
+}
+
+/// One finished interval: an ordinary stored measurement linked to the test.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct LongTermInterval {
+    pub index: usize,
+    pub measurement_id: String,
+    /// Test time at the measurement's start (s).
+    pub elapsed_s: f64,
+    /// The load the part had taken then (J).
+    pub load_j: f64,
+    /// Run faster than real time (virtual bench).
+    pub accelerated: bool,
+    pub created_at: String,
+}
+
+/// What one finished interval stores.
+pub struct NewInterval {
+    pub index: usize,
+    pub elapsed_s: f64,
+    pub load_j: f64,
+    pub accelerated: bool,
+    /// The interval's recordings (pre, main) and measurement (`pre`/`main` index them).
+    pub recordings: Vec<NewRecording>,
+    pub measurement: NewMeasurement,
+    /// The test's state after it.
+    pub clock_s: f64,
+    pub part: PartState,
+    pub document: Option<AgeingDocument>,
+}
+
+fn to_json<T: Serialize>(v: &T) -> StoreResult<String> {
+    // Never a stored NaN: a non-finite number is refused, not written as null.
+    springbench_core::finite::to_value(v)
+        .map(|v| v.to_string())
+        .map_err(|e| StoreError::Invalid(e.to_string()))
+}
+
+fn from_json<T: serde::de::DeserializeOwned>(what: &str, s: &str) -> StoreResult<T> {
+    serde_json::from_str(s).map_err(|e| StoreError::Corrupt(format!("{what} unreadable: {e}")))
+}
+
+impl Store {
+    /// Stores a finished interval of running test `job_id` and the test's
+    /// state after it, in one transaction. Refuses (nothing written) an
+    /// interval that is not the next one: none is stored twice.
+    pub async fn insert_long_term_interval(
+        &self,
+        job_id: &str,
+        iv: NewInterval,
+    ) -> StoreResult<()> {
+        let part = to_json(&iv.part)?;
+        let doc = iv.document.as_ref().map(to_json).transpose()?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        crate::jobs::running_job(&mut tx, job_id).await?;
+        let done: i64 = sqlx::query_scalar(
+            "SELECT COALESCE((SELECT intervals_done FROM long_term_state WHERE job_id = ?), 0)",
+        )
+        .bind(job_id)
+        .fetch_one(&mut *tx)
+        .await?;
+        if done != iv.index as i64 {
+            return Err(StoreError::Invalid(format!(
+                "interval {} of test {job_id}: {done} are stored, the next is {done}",
+                iv.index
+            )));
+        }
+        let mid = iv.measurement.id.clone();
+        let ids = insert_results(&mut tx, iv.recordings, vec![]).await?;
+        insert_measurement_rows(&mut tx, vec![iv.measurement], &ids).await?;
+        let t = now();
+        sqlx::query(
+            "INSERT INTO long_term_intervals (job_id, idx, measurement_id, elapsed_s, load_j, accelerated, created_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?)",
+        )
+        .bind(job_id)
+        .bind(iv.index as i64)
+        .bind(&mid)
+        .bind(iv.elapsed_s)
+        .bind(iv.load_j)
+        .bind(iv.accelerated)
+        .bind(&t)
+        .execute(&mut *tx)
+        .await?;
+        sqlx::query(
+            "INSERT INTO long_term_state (job_id, intervals_done, clock_s, load_j, part_state_json, document_json, updated_at) \
+             VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT(job_id) DO UPDATE SET intervals_done = excluded.intervals_done, \
+             clock_s = excluded.clock_s, load_j = excluded.load_j, part_state_json = excluded.part_state_json, \
+             document_json = excluded.document_json, updated_at = excluded.updated_at",
+        )
+        .bind(job_id)
+        .bind(iv.index as i64 + 1)
+        .bind(iv.clock_s)
+        .bind(iv.part.load_j)
+        .bind(part)
+        .bind(doc)
+        .bind(&t)
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// The state of test `job_id` (None: no interval finished yet).
+    pub async fn long_term_state(&self, job_id: &str) -> StoreResult<Option<LongTermState>> {
+        let Some(r) = sqlx::query(
+            "SELECT intervals_done, clock_s, load_j, part_state_json, document_json, failure_json, updated_at, \
+             resumptions_json FROM long_term_state WHERE job_id = ?",
+        )
+        .bind(job_id)
+        .fetch_optional(&self.pool)
+        .await?
+        else {
+            return Ok(None);
+        };
+        Ok(Some(LongTermState {
+            intervals_done: r.get::<i64, _>(0).max(0) as usize,
+            clock_s: r.get(1),
+            load_j: r.get(2),
+            part: from_json("part state", &r.get::<String, _>(3))?,
+            document: r
+                .get::<Option<String>, _>(4)
+                .map(|s| from_json("ageing document", &s))
+                .transpose()?,
+            failure: r
+                .get::<Option<String>, _>(5)
+                .map(|s| from_json("failure", &s))
+                .transpose()?,
+            updated_at: r.get(6),
+            resumptions: from_json("resumptions", &r.get::<String, _>(7))?,
+        }))
+    }
+
+    /// The finished intervals of test `job_id`, in order.
+    pub async fn long_term_intervals(&self, job_id: &str) -> StoreResult<Vec<LongTermInterval>> {
+        let rows = sqlx::query(
+            "SELECT idx, measurement_id, elapsed_s, load_j, accelerated, created_at \
+             FROM long_term_intervals WHERE job_id = ? ORDER BY idx",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        Ok(rows
+            .iter()
+            .map(|r| LongTermInterval {
+                index: r.get::<i64, _>(0).max(0) as usize,
+                measurement_id: r.get(1),
+                elapsed_s: r.get(2),
+                load_j: r.get(3),
+                accelerated: r.get(4),
+                created_at: r.get(5),
+            })
+            .collect())
+    }
+
+    /// Records the failure limit that stopped running test `job_id`, and the
+    /// last seconds of its signals (a recording), in one transaction.
+    pub async fn set_long_term_failure(
+        &self,
+        job_id: &str,
+        failure: &Failure,
+        signals: Option<(NewRecording, f64)>,
+    ) -> StoreResult<()> {
+        let f = to_json(failure)?;
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        crate::jobs::running_job(&mut tx, job_id).await?;
+        let t = now();
+        let r = sqlx::query(
+            "UPDATE long_term_state SET failure_json = ?, updated_at = ? WHERE job_id = ?",
+        )
+        .bind(f)
+        .bind(&t)
+        .bind(job_id)
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() != 1 {
+            return Err(StoreError::Invalid(format!(
+                "test {job_id} has no finished interval to fail after"
+            )));
+        }
+        if let Some((rec, duration_s)) = signals {
+            let ids = insert_results(&mut tx, vec![rec], vec![]).await?;
+            sqlx::query(
+                "INSERT OR REPLACE INTO long_term_signals (job_id, recording_id, duration_s, created_at) VALUES (?, ?, ?, ?)",
+            )
+            .bind(job_id)
+            .bind(ids[0])
+            .bind(duration_s)
+            .bind(&t)
+            .execute(&mut *tx)
+            .await?;
+        }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// The recording of the last signals of a failed test: (recording id, duration s).
+    pub async fn long_term_signals(&self, job_id: &str) -> StoreResult<Option<(i64, f64)>> {
+        let r =
+            sqlx::query("SELECT recording_id, duration_s FROM long_term_signals WHERE job_id = ?")
+                .bind(job_id)
+                .fetch_optional(&self.pool)
+                .await?;
+        Ok(r.map(|r| (r.get(0), r.get(1))))
+    }
+
+    /// The stored last signals of a failed test, without their bytes.
+    pub async fn long_term_signals_info(
+        &self,
+        job_id: &str,
+    ) -> StoreResult<Option<crate::RecordingInfo>> {
+        let row = sqlx::query(
+            "SELECT r.id, b.recording_id IS NOT NULL, COALESCE(length(b.bytes), length(r.wav)), \
+             r.channel_scale_json, r.frames, r.sample_rate_hz, r.pruned_at \
+             FROM long_term_signals s JOIN recordings r ON r.id = s.recording_id \
+             LEFT JOIN recording_blobs b ON b.recording_id = r.id WHERE s.job_id = ?",
+        )
+        .bind(job_id)
+        .fetch_optional(&self.pool)
+        .await?;
+        row.map(|r| {
+            Ok(crate::RecordingInfo {
+                blob: crate::blob::BlobRef {
+                    rowid: r.get(0),
+                    in_blobs: r.get(1),
+                    len: r.get::<i64, _>(2).max(0) as u64,
+                },
+                channel_scale: crate::raw::scale_of(r.get(3))?,
+                frames: r.get(4),
+                sample_rate_hz: r.get(5),
+                pruned_at: r.get(6),
+            })
+        })
+        .transpose()
+    }
+
+    /// A running job back to `queued` (a long-term test cut off by a crash
+    /// or a stop, resumed from its stored state); false when it is not running.
+    /// The resumption is recorded with the test's state (when an interval
+    /// was stored), in the same transaction.
+    pub async fn requeue_running(&self, job_id: &str) -> StoreResult<bool> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let r = sqlx::query(
+            "UPDATE jobs SET state = 'queued', step = NULL, eta_s = NULL WHERE id = ? AND state = 'running'",
+        )
+        .bind(job_id)
+        .execute(&mut *tx)
+        .await?;
+        if r.rows_affected() != 1 {
+            return Ok(false);
+        }
+        let row = sqlx::query(
+            "SELECT intervals_done, load_j, resumptions_json FROM long_term_state WHERE job_id = ?",
+        )
+        .bind(job_id)
+        .fetch_optional(&mut *tx)
+        .await?;
+        if let Some(row) = row {
+            let mut list: Vec<Resumption> = from_json("resumptions", &row.get::<String, _>(2))?;
+            list.push(Resumption {
+                at: now(),
+                intervals_done: row.get::<i64, _>(0).max(0) as usize,
+                load_j: row.get(1),
+            });
+            sqlx::query("UPDATE long_term_state SET resumptions_json = ? WHERE job_id = ?")
+                .bind(to_json(&list)?)
+                .bind(job_id)
+                .execute(&mut *tx)
+                .await?;
+        }
+        tx.commit().await?;
+        Ok(true)
+    }
+}

@@ -1,0 +1,227 @@
+//! Long-term tests (issue 32): submit one (a job of its own kind, run by the
+//! bench's runner, cancelled like any job at `/api/v1/jobs/{id}/cancel`),
+//! read its intervals, state and the fitted ageing law, the series as CSV,
+//! and the last signals before a failure limit stopped it.
+
+use super::problem::{ApiResult, Problem};
+use super::{AppState, JsonBody};
+use crate::config::BenchKind;
+use crate::job::{FieldError, LongTermRequest, LongTermSpec, StoredRequest};
+use crate::runner::{job, new_id};
+use crate::store::{Inserted, MeasurementReads};
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Serialize;
+use serde_json::{json, Value};
+
+/// `GET /api/v1/long-term-tests/{id}`.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct LongTermDocument {
+    /// The job (state, progress, eta_s: the time left, problem).
+    pub job: crate::store::Job,
+    /// Intervals planned (one at the start and one per interval).
+    pub intervals_planned: usize,
+    /// Finished intervals: each an ordinary measurement linked to the test.
+    pub intervals: Vec<crate::store::longterm::LongTermInterval>,
+    /// The test's state after its last finished interval (the fitted law in `document`).
+    pub state: Option<crate::store::longterm::LongTermState>,
+    /// Every interval was run faster than real time (virtual bench).
+    pub accelerated: bool,
+    /// The series as CSV, and the last signals when a failure limit stopped the test.
+    pub series_csv: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub last_signals: Option<String>,
+}
+
+fn spec_of(j: &crate::store::Job) -> Option<&LongTermSpec> {
+    match j.request.read() {
+        Ok(StoredRequest::LongTerm(t)) => Some(t),
+        _ => None,
+    }
+}
+
+#[utoipa::path(post, path = "/api/v1/long-term-tests", tag = "jobs",
+    summary = "Submit a long-term test: the full procedure at intervals while a sine held at the part's current resonance ages it (virtual bench; cancel it as a job).",
+    request_body(content = crate::job::LongTermRequest, content_type = "application/json",
+        example = json!({"measurement": {"part": {"serial": "LT-0001"}, "preset": "spider_3in", "target_xpeak_m": 0.006},
+            "duration_s": 36000.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053}})),
+    responses(
+        (status = 202, description = "Queued", body = crate::store::Job,
+            headers(("Location" = String, description = "The test"))),
+        (status = 400, description = "Unreadable body"),
+        (status = 409, description = "The bench is faulted"),
+        (status = 413, description = "Body too large"),
+        (status = 422, description = "Invalid fields, one message each in `errors` (e.g. `interval_s` longer than `duration_s`, a negative `stimulus.excursion_m`)"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
+/// `POST /api/v1/long-term-tests`: validate, store as a queued job, wake the bench.
+pub async fn submit(
+    State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    st.store.check_space(st.cfg.min_free_bytes)?;
+    let parsed = crate::job::parse_lenient::<LongTermRequest>(&body);
+    let mut spec =
+        LongTermRequest::check(parsed, &job::admission(&st.cfg)).map_err(Problem::validation)?;
+    let bench = st
+        .cfg
+        .benches
+        .iter()
+        .find(|b| b.id == spec.measurement.bench);
+    if bench.is_some_and(|b| b.kind != BenchKind::Virtual) {
+        return Err(Problem::validation(vec![FieldError::new(
+            "measurement.bench",
+            format!(
+                "bench '{}' is not virtual: this version runs long-term tests on virtual benches",
+                spec.measurement.bench
+            ),
+        )]));
+    }
+    st.store
+        .check_admission(st.cfg.min_free_bytes, spec.intervals() as u64)
+        .await?;
+    spec.measurement.submitted_by = caller.0;
+    super::benches::refuse_faulted(&st, &spec.measurement.bench)?;
+    let m = &spec.measurement;
+    let request = StoredRequest::LongTerm(spec.clone());
+    let sha = hex(&sha2::Digest::finalize(sha2::Digest::chain_update(
+        <sha2::Sha256 as sha2::Digest>::new(),
+        body.to_string().as_bytes(),
+    )));
+    let id = new_id();
+    let inserted = st
+        .store
+        .insert_job(
+            &id,
+            &m.bench,
+            (
+                &m.part.serial,
+                m.part.kind.as_deref(),
+                m.part.notes.as_deref(),
+            ),
+            m.priority,
+            &request,
+            &sha,
+            None,
+        )
+        .await?;
+    let Inserted::New(j) = inserted else {
+        return Err(Problem::internal("a new job was not inserted"));
+    };
+    st.runner
+        .events()
+        .publish(
+            "job.state",
+            Some(&j.id),
+            json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id, "kind": "long_term"}),
+        )
+        .await?;
+    st.runner.wake(&j.bench_id);
+    let mut r = (StatusCode::ACCEPTED, Json(&j)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/long-term-tests/{}", j.id)) {
+        r.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(r)
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+async fn test_job(st: &AppState, id: &str) -> ApiResult<(crate::store::Job, LongTermSpec)> {
+    let j = st
+        .store
+        .get_job(id)
+        .await?
+        .ok_or_else(|| Problem::not_found("long-term test", id))?;
+    let spec = spec_of(&j)
+        .cloned()
+        .ok_or_else(|| Problem::not_found("long-term test", id))?;
+    Ok((j, spec))
+}
+
+#[utoipa::path(get, path = "/api/v1/long-term-tests/{id}", tag = "jobs",
+    summary = "A long-term test: its job (progress, time left, problem), the finished intervals (measurement, elapsed_s, load_j), its state and the ageing law fitted so far.",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 200, description = "The test", body = LongTermDocument),
+        (status = 404, description = "No such long-term test")))]
+pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
+    let (job, spec) = test_job(&st, &id).await?;
+    let intervals = st.store.long_term_intervals(&id).await?;
+    let state = st.store.long_term_state(&id).await?;
+    let last = st.store.long_term_signals(&id).await?;
+    let doc = LongTermDocument {
+        job,
+        intervals_planned: spec.intervals(),
+        intervals,
+        state,
+        accelerated: spec.accelerated,
+        series_csv: format!("/api/v1/long-term-tests/{id}/series.csv"),
+        last_signals: last.map(|_| format!("/api/v1/long-term-tests/{id}/last-signals.wav")),
+    };
+    Ok(Json(serde_json::to_value(&doc).map_err(Problem::internal)?))
+}
+
+fn num(v: Option<f64>) -> String {
+    v.filter(|x| x.is_finite())
+        .map(|x| format!("{x}"))
+        .unwrap_or_default()
+}
+
+#[utoipa::path(get, path = "/api/v1/long-term-tests/{id}/series.csv", tag = "jobs",
+    summary = "A long-term test's series as CSV: one row per finished interval (elapsed_s, load_j, k0_n_per_m, its standard error, f0_hz, keff_n_per_m, xpeak_m, measurement_id, accelerated).",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 200, description = "CSV", content_type = "text/csv", body = String),
+        (status = 404, description = "No such long-term test")))]
+pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
+    test_job(&st, &id).await?;
+    let mut out = String::from(
+        "index,elapsed_s,load_j,k0_n_per_m,k0_se_n_per_m,f0_hz,keff_n_per_m,xpeak_m,measurement_id,accelerated\n",
+    );
+    for iv in st.store.long_term_intervals(&id).await? {
+        let report = match st.store.get_measurement(&iv.measurement_id).await? {
+            Some((_, Some(r), _)) => serde_json::from_value::<crate::identify::Report>(r).ok(),
+            _ => None,
+        };
+        let ss = report.as_ref().and_then(|r| r.small_signal.as_ref());
+        out.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{}\n",
+            iv.index,
+            iv.elapsed_s,
+            iv.load_j,
+            num(ss.and_then(|s| s.k0_n_per_m)),
+            num(ss.map(|s| s.k0_se_n_per_m)),
+            num(ss.and_then(|s| s.f0_hz)),
+            num(report.as_ref().map(|r| r.large_signal.keff_n_per_m)),
+            num(report.as_ref().map(|r| r.large_signal.xpeak_m)),
+            iv.measurement_id,
+            iv.accelerated
+        ));
+    }
+    Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
+}
+
+#[utoipa::path(get, path = "/api/v1/long-term-tests/{id}/last-signals.wav", tag = "jobs",
+    summary = "The last 10 s of the signals before a failure limit stopped the test: float32 WAV (channel 0 displacement m, 1 microphone V, 2 drive V when present).",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 200, description = "WAV", content_type = "audio/wav", body = Vec<u8>),
+        (status = 404, description = "No such long-term test, or no failure limit stopped it")))]
+pub async fn last_signals(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    test_job(&st, &id).await?;
+    let info = st
+        .store
+        .long_term_signals_info(&id)
+        .await?
+        .ok_or_else(|| Problem::not_found("last signals of long-term test", &id))?;
+    let reader: crate::recording::codec::BlobRead =
+        Box::new(std::io::BufReader::new(st.store.blob_reader(info.blob)));
+    super::measurements::wav_response(reader, info.channel_scale).await
+}

@@ -1,0 +1,617 @@
+//! The long-term test as a job (issue 32): on one bench, the full procedure
+//! at intervals while a sine held at the part's current resonance ages the
+//! part in between (the other benches keep working). Each interval is an
+//! ordinary stored measurement linked to the test with its elapsed time and
+//! the load taken; the test's state (intervals done, test clock, the part's
+//! load) and the ageing law fitted so far (`ageing::series::analyse`, the
+//! core code `springbench ageing` runs) are written in the same transaction
+//! ([`crate::store::Store::insert_long_term_interval`]). A daemon killed
+//! during the test finds the job `running` at its next start, puts it back
+//! in the queue ([`requeue`]) and resumes after the last stored interval:
+//! none lost or run twice, the load carried on.
+//!
+//! Virtual benches only: the stimulus between two measurements is applied
+//! analytically (`physics::ageing::apply_sine`), faster than real time
+//! unless the test asks for `accelerated: false` (then it is paced).
+//! A failure limit (a change of K(0) beyond its bound, no resonance found)
+//! stops the test, names the limit and stores the last 10 s of the signals.
+
+use super::{new_id, Runner, Slot, Stop, CANCEL, COMMIT};
+use crate::ageing::series::{self, AgeingDocument};
+use crate::bench::virtual_bench::VirtualBench;
+use crate::config::{BenchConfig, BenchKind};
+use crate::identify::{self, AnalyzeOptions, Report};
+use crate::job::{
+    Failure, JobProblem, LongTermSpec, MeasurementConfig, PartState, PreSweepSettings, ProblemKind,
+    SweepSettings,
+};
+use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
+use crate::recording::{Meta, Signals};
+use crate::store::longterm::NewInterval;
+use crate::store::{Job, JobState, MeasurementReads, NewRecording, Store, StoreResult};
+use serde_json::json;
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+
+/// Seconds of signals stored when a failure limit stops the test.
+pub const LAST_SIGNALS_S: f64 = 10.0;
+/// Test time of stimulus applied per step (s): the cancel is polled between steps.
+const STIMULUS_STEP_S: f64 = 60.0;
+
+enum Msg {
+    Progress {
+        progress: f64,
+        eta_s: f64,
+    },
+    Interval(
+        Box<NewInterval>,
+        std::sync::mpsc::SyncSender<Result<(), String>>,
+    ),
+    Failure(
+        Failure,
+        Option<(NewRecording, f64)>,
+        std::sync::mpsc::SyncSender<Result<(), String>>,
+    ),
+}
+
+/// At the daemon's start: long-term tests still `running` (a crash, a kill,
+/// a stop) go back to the queue and resume from their stored state.
+pub(super) async fn requeue(store: &Store) -> StoreResult<Vec<String>> {
+    let mut ids = vec![];
+    for job in store.running_jobs().await? {
+        if matches!(
+            job.request.read(),
+            Ok(crate::job::StoredRequest::LongTerm(_))
+        ) && store.requeue_running(&job.id).await?
+        {
+            tracing::warn!(job = %job.id, "long-term test was running when the daemon stopped: resumes");
+            ids.push(job.id);
+        }
+    }
+    Ok(ids)
+}
+
+struct Resume {
+    index: usize,
+    clock_s: f64,
+    load_j: f64,
+    /// The finished intervals' (elapsed_s, load_j, result).
+    done: Vec<series::Interval>,
+    first_k0: Option<f64>,
+}
+
+impl Runner {
+    /// Runs (or resumes) long-term test `job` on `slot`'s bench.
+    pub(super) async fn run_long_term(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        spec: LongTermSpec,
+        cancel: Arc<AtomicU8>,
+    ) -> StoreResult<()> {
+        if slot.cfg.kind != BenchKind::Virtual {
+            let p = JobProblem::new(
+                ProblemKind::Bench,
+                "Long-term test needs a virtual bench",
+                format!(
+                    "bench '{}' is {:?}: this version runs long-term tests on virtual benches",
+                    slot.cfg.id, slot.cfg.kind
+                ),
+            );
+            return self.finish_failed(slot, job, p).await;
+        }
+        let (resume, resumptions) = self.resume_point(&job.id).await?;
+        let resumed_at = resume.index;
+        // One line per resumption so far (the job's log is written at its end).
+        let mut log: Vec<String> = resumptions
+            .iter()
+            .map(|r| {
+                format!(
+                    "resumed after interval {} at {} (load {:.1} J): the daemon had stopped",
+                    r.intervals_done as i64 - 1,
+                    r.at,
+                    r.load_j
+                )
+            })
+            .collect();
+        if resumed_at > 0 {
+            self.events
+                .publish(
+                    "longterm.resumed",
+                    Some(&job.id),
+                    json!({"intervals_done": resumed_at, "load_j": resume.load_j}),
+                )
+                .await?;
+        }
+        let (tx, mut rx) = mpsc::unbounded_channel();
+        let bench_cfg = slot.cfg.clone();
+        let shutdown = self.shutdown.clone();
+        let flag = cancel.clone();
+        let spec2 = spec.clone();
+        let job_id = job.id.clone();
+        let mut handle = tokio::task::spawn_blocking(move || {
+            run_blocking(&job_id, &spec2, &bench_cfg, resume, &tx, &flag, &shutdown)
+        });
+        let res = loop {
+            tokio::select! {
+                msg = rx.recv() => match msg {
+                    Some(m) => self.on_long_term(&job.id, m).await,
+                    None => break (&mut handle).await,
+                },
+                r = &mut handle => break r,
+            }
+        };
+        while let Ok(m) = rx.try_recv() {
+            self.on_long_term(&job.id, m).await;
+        }
+        let outcome = match res {
+            Ok(r) => r,
+            Err(e) => Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Internal,
+                "Job crashed",
+                format!("the long-term test's task ended abnormally: {e}"),
+            ))),
+        };
+        let cancelled_late = cancel.swap(COMMIT, Ordering::SeqCst) == CANCEL;
+        let (state, problem) = match outcome {
+            Ok(n) if !cancelled_late => {
+                log.push(format!("{n} intervals measured"));
+                (JobState::Succeeded, None)
+            }
+            Ok(_) => (JobState::Cancelled, None),
+            Err(Stop::Aborted) if self.shutdown.load(Ordering::SeqCst) => {
+                // Left running: the next start resumes it after its last stored interval.
+                tracing::info!(job = %job.id, "daemon stopping: the long-term test resumes at the next start");
+                self.settle(slot);
+                return Ok(());
+            }
+            Err(Stop::Aborted) => (JobState::Cancelled, None),
+            Err(Stop::Failed(p)) => (JobState::Failed, Some(p)),
+        };
+        let commit = self.store.finish_job(
+            &job.id,
+            state,
+            problem.as_ref(),
+            None,
+            &log,
+            &[],
+            vec![],
+            vec![],
+        );
+        self.commit_settled(slot, &job.id, commit).await?;
+        let measurement_ids = self
+            .store
+            .get_job(&job.id)
+            .await?
+            .map(|j| j.measurement_ids)
+            .unwrap_or_default();
+        self.events
+            .publish(
+                "job.state",
+                Some(&job.id),
+                json!({"state": state.as_str(), "problem": problem, "measurement_ids": measurement_ids}),
+            )
+            .await?;
+        Ok(())
+    }
+
+    async fn resume_point(
+        &self,
+        job_id: &str,
+    ) -> StoreResult<(Resume, Vec<crate::store::longterm::Resumption>)> {
+        let Some(st) = self.store.long_term_state(job_id).await? else {
+            let start = Resume {
+                index: 0,
+                clock_s: 0.0,
+                load_j: 0.0,
+                done: vec![],
+                first_k0: None,
+            };
+            return Ok((start, vec![]));
+        };
+        let mut done = vec![];
+        let mut first_k0 = None;
+        for iv in self.store.long_term_intervals(job_id).await? {
+            let report = match self.store.get_measurement(&iv.measurement_id).await? {
+                Some((_, Some(result), _)) => serde_json::from_value::<Report>(result).ok(),
+                _ => None,
+            };
+            if let Some(report) = report {
+                if iv.index == 0 {
+                    first_k0 = k0_of(&report);
+                }
+                done.push(series::Interval {
+                    elapsed_s: iv.elapsed_s,
+                    load_j: Some(iv.load_j),
+                    report,
+                });
+            }
+        }
+        let resume = Resume {
+            index: st.intervals_done,
+            clock_s: st.clock_s,
+            load_j: st.load_j,
+            done,
+            first_k0,
+        };
+        Ok((resume, st.resumptions))
+    }
+
+    async fn on_long_term(&self, job_id: &str, m: Msg) {
+        match m {
+            Msg::Progress { progress, eta_s } => {
+                if let Err(e) = self
+                    .store
+                    .set_progress(job_id, "long_term", progress, eta_s)
+                    .await
+                {
+                    tracing::warn!(job = %job_id, "progress not stored: {e}");
+                }
+                let _ = self
+                    .events
+                    .publish(
+                        "job.progress",
+                        Some(job_id),
+                        json!({"step": "long_term", "progress": progress, "eta_s": eta_s}),
+                    )
+                    .await;
+            }
+            Msg::Interval(iv, reply) => {
+                let (index, mid) = (iv.index, iv.measurement.id.clone());
+                let (elapsed_s, load_j) = (iv.elapsed_s, iv.load_j);
+                let r = self
+                    .store
+                    .insert_long_term_interval(job_id, *iv)
+                    .await
+                    .map_err(|e| e.to_string());
+                if r.is_ok() {
+                    let _ = self
+                        .events
+                        .publish(
+                            "longterm.interval",
+                            Some(job_id),
+                            json!({"index": index, "measurement_id": mid, "elapsed_s": elapsed_s, "load_j": load_j}),
+                        )
+                        .await;
+                }
+                let _ = reply.send(r);
+            }
+            Msg::Failure(f, signals, reply) => {
+                let r = self
+                    .store
+                    .set_long_term_failure(job_id, &f, signals)
+                    .await
+                    .map_err(|e| e.to_string());
+                let _ = reply.send(r);
+            }
+        }
+    }
+}
+
+fn k0_of(r: &Report) -> Option<f64> {
+    r.small_signal.as_ref().and_then(|s| s.k0_n_per_m)
+}
+
+struct LtObserver<'a> {
+    cancel: &'a AtomicU8,
+    shutdown: &'a AtomicBool,
+}
+
+impl Observer for LtObserver<'_> {
+    fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed) == CANCEL || self.shutdown.load(Ordering::Relaxed)
+    }
+}
+
+fn send_and_wait(
+    tx: &mpsc::UnboundedSender<Msg>,
+    make: impl FnOnce(std::sync::mpsc::SyncSender<Result<(), String>>) -> Msg,
+) -> Result<(), Stop> {
+    let (rtx, rrx) = std::sync::mpsc::sync_channel(1);
+    let failed = |e: String| {
+        Stop::Failed(JobProblem::new(
+            ProblemKind::Storage,
+            "Results not stored",
+            format!("storing a finished interval failed: {e}"),
+        ))
+    };
+    tx.send(make(rtx))
+        .map_err(|_| failed("the job's task is gone".into()))?;
+    match rrx.recv() {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(failed(e)),
+        Err(_) => Err(failed("no answer from the store".into())),
+    }
+}
+
+/// The last `seconds` of `s`.
+fn tail(s: &Signals, seconds: f64) -> Signals {
+    let n = ((seconds * s.sample_rate_hz).round() as usize).min(s.len());
+    let a = s.len() - n;
+    Signals {
+        sample_rate_hz: s.sample_rate_hz,
+        displacement_m: s.displacement_m[a..].to_vec(),
+        microphone_v: s.microphone_v[a..].to_vec(),
+        drive_v: s.drive_v.as_ref().map(|d| d[a.min(d.len())..].to_vec()),
+    }
+}
+
+fn failure_problem(f: &Failure) -> Stop {
+    Stop::Failed(JobProblem::new(
+        ProblemKind::FailureLimit,
+        "Long-term test stopped by a failure limit",
+        format!(
+            "failure limit `{}` at interval {}: {}",
+            f.limit, f.interval, f.detail
+        ),
+    ))
+}
+
+/// The test on the job's blocking thread; Ok(intervals measured in all).
+fn run_blocking(
+    job_id: &str,
+    spec: &LongTermSpec,
+    bench_cfg: &BenchConfig,
+    resume: Resume,
+    tx: &mpsc::UnboundedSender<Msg>,
+    cancel: &AtomicU8,
+    shutdown: &AtomicBool,
+) -> Result<usize, Stop> {
+    let m = &spec.measurement;
+    let part = super::job::mounted_part(m, bench_cfg)
+        .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
+    part.validate()
+        .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
+    let vcfg = bench_cfg.virtual_.unwrap_or_default();
+    let n = spec.intervals();
+    let pcfg = ProcedureConfig {
+        moving_mass_kg: m.moving_mass_kg,
+        levels_m: m.levels_m.clone(),
+        ..ProcedureConfig::default()
+    };
+    let opts = AnalyzeOptions {
+        method: m.method,
+        order: m.order,
+    };
+    let mut obs = LtObserver { cancel, shutdown };
+    let Resume {
+        index: start,
+        mut clock_s,
+        mut load_j,
+        mut done,
+        mut first_k0,
+    } = resume;
+    let started = Instant::now();
+    let progress = |i: usize, elapsed_test_s: f64, per_interval_wall_s: Option<f64>| {
+        let p = (elapsed_test_s / spec.duration_s).clamp(0.0, 1.0);
+        let left_test_s = (spec.duration_s - elapsed_test_s).max(0.0);
+        // Accelerated: what the intervals left take at this pace; else the test time left.
+        let eta_s = match per_interval_wall_s {
+            Some(w) if spec.accelerated => w * (n - i) as f64,
+            _ => left_test_s,
+        };
+        let _ = tx.send(Msg::Progress { progress: p, eta_s });
+    };
+    for index in start..n {
+        if obs.cancelled() {
+            return Err(Stop::Aborted);
+        }
+        let seed = bench_cfg.seed.wrapping_add(index as u64);
+        // The bench is made anew for each interval from the part's state: a
+        // resumed test carries on from the stored load alone.
+        let mut vb = VirtualBench::new(part.clone(), seed)
+            .with_limits(m.limits)
+            .with_config(&vcfg)
+            .with_ageing(load_j);
+        vb.id = bench_cfg.id.clone();
+        let t_start = index as f64 * spec.interval_s;
+        // The stimulus up to this interval's start, from the last measurement's end.
+        let mut t = clock_s.min(t_start);
+        while t < t_start {
+            if obs.cancelled() {
+                return Err(Stop::Aborted);
+            }
+            let step = (t_start - t).min(STIMULUS_STEP_S);
+            let on = spec.stimulus.on_time_s(t, t + step);
+            vb.apply_sine_load(spec.stimulus.excursion_m, on);
+            if !spec.accelerated {
+                pace(step, &obs);
+            }
+            t += step;
+            let per =
+                (index > start).then(|| started.elapsed().as_secs_f64() / (index - start) as f64);
+            progress(index, t, per);
+        }
+        let load_at_start = vb.ageing_load_j().unwrap_or(load_j);
+        let k0_true = vb.k0_now_n_per_m();
+        let wall = Instant::now();
+        let out = match procedure::run(&mut vb, &pcfg, &mut obs) {
+            Ok(o) => o,
+            Err(ProcedureError::Cancelled)
+            | Err(ProcedureError::Bench(crate::bench::BenchError::Aborted)) => {
+                return Err(Stop::Aborted)
+            }
+            Err(ProcedureError::Failed(why)) if why.contains("resonance") => {
+                let f = Failure {
+                    limit: "no_resonance".into(),
+                    interval: index,
+                    value: None,
+                    bound: None,
+                    detail: format!("the procedure found no resonance: {why}"),
+                };
+                if index > 0 {
+                    send_and_wait(tx, |r| Msg::Failure(f.clone(), None, r))?;
+                }
+                return Err(failure_problem(&f));
+            }
+            Err(e) => return Err(super::execute::procedure_stop(e)),
+        };
+        if !spec.accelerated {
+            pace(out.bench_time_s - wall.elapsed().as_secs_f64(), &obs);
+        }
+        let first = out.narrow.first().ok_or_else(|| {
+            Stop::Failed(JobProblem::new(
+                ProblemKind::Procedure,
+                "Procedure failed",
+                "the procedure made no narrow sweep",
+            ))
+        })?;
+        let mut meta = Meta::standard(m.moving_mass_kg, out.pre.sample_rate_hz);
+        for (k, v) in [
+            ("elapsed_s", json!(t_start)),
+            ("load_j", json!(load_at_start)),
+            ("accelerated", json!(spec.accelerated)),
+            ("long_term_test", json!(job_id)),
+            ("long_term_interval", json!(index)),
+        ] {
+            meta.extra.insert(k.into(), v);
+        }
+        let analysed = identify::analyze_sweeps(
+            identify::Sweeps {
+                moving_mass_kg: m.moving_mass_kg,
+                pre: &out.pre,
+                main: &first.signals,
+            },
+            &opts,
+        )
+        .map_err(|e| e.to_string())
+        .and_then(|r| {
+            crate::finite::check(&r)
+                .map(|()| r)
+                .map_err(|e| format!("result refused: {e}"))
+        });
+        let (report, analysis_error) = match analysed {
+            Ok(r) => (Some(r), None),
+            Err(e) => (None, Some(e)),
+        };
+        let config = MeasurementConfig {
+            analysis: Some(opts.clone()),
+            procedure: Some(pcfg.clone()),
+            procedure_mode: Some(m.procedure),
+            procedure_run: None,
+            limits: Some(m.limits),
+            bench: Some(bench_cfg.id.clone()),
+            bench_description: Some(crate::bench::Bench::describe(&vb)),
+            seed: Some(seed),
+            narrow_sweep: Some(SweepSettings {
+                drive_v: first.drive_v,
+                f_start_hz: first.f_start_hz,
+                f_end_hz: first.f_end_hz,
+                duration_s: Some(first.sweep.duration_s),
+            }),
+            pre_sweep: Some(PreSweepSettings {
+                sweep: SweepSettings {
+                    drive_v: out.pre_sweep.amplitude_v,
+                    f_start_hz: out.pre_sweep.f_start_hz,
+                    f_end_hz: out.pre_sweep.f_end_hz,
+                    duration_s: Some(out.pre_sweep.duration_s),
+                },
+                q_drive_to_x: out.pre_q_drive_to_x,
+            }),
+            hardware: None,
+            other: Default::default(),
+        };
+        let res = crate::bench::Bench::resolution(&vb);
+        let recordings = vec![
+            super::execute::recording("pre", &out.pre, res.as_ref())?,
+            super::execute::recording("main", &first.signals, res.as_ref())?,
+        ];
+        let measurement = crate::store::NewMeasurement {
+            id: new_id(),
+            part_serial: m.part.serial.clone(),
+            job_id: Some(job_id.to_string()),
+            source: "bench",
+            bench_id: Some(bench_cfg.id.clone()),
+            config,
+            meta: serde_json::to_value(&meta).unwrap_or_default(),
+            result: report.as_ref().and_then(|r| serde_json::to_value(r).ok()),
+            analysis_error,
+            target_xpeak_m: m.levels_m.first().copied(),
+            repeat_index: Some(0),
+            level_index: Some(0),
+            pre: 0,
+            main: 1,
+        };
+        let k0 = report.as_ref().and_then(k0_of);
+        if index == 0 {
+            first_k0 = k0;
+        }
+        if let Some(r) = report.clone() {
+            done.push(series::Interval {
+                elapsed_s: t_start,
+                load_j: Some(load_at_start),
+                report: r,
+            });
+        }
+        let document: Option<AgeingDocument> = Some(series::analyse(&done, Some(spec.predict_s)))
+            .filter(|d| crate::finite::check(d).is_ok());
+        load_j = vb.ageing_load_j().unwrap_or(load_at_start);
+        clock_s = t_start + out.bench_time_s;
+        let iv = NewInterval {
+            index,
+            elapsed_s: t_start,
+            load_j: load_at_start,
+            accelerated: spec.accelerated,
+            recordings,
+            measurement,
+            clock_s,
+            part: PartState {
+                load_j,
+                k0_true_n_per_m: k0_true,
+            },
+            document,
+        };
+        send_and_wait(tx, |r| Msg::Interval(Box::new(iv), r))?;
+        // The failure limits, on what this interval measured.
+        let f0 = report
+            .as_ref()
+            .and_then(|r| r.small_signal.as_ref())
+            .and_then(|s| s.f0_hz);
+        let failure = if k0.is_none() || f0.is_none() {
+            Some(Failure {
+                limit: "no_resonance".into(),
+                interval: index,
+                value: None,
+                bound: None,
+                detail: "the measurement determined no small-signal resonance (f0, K(0))".into(),
+            })
+        } else {
+            match (first_k0, k0) {
+                (Some(a), Some(b)) if a > 0.0 => {
+                    let change = 100.0 * (b / a - 1.0);
+                    let bound = spec.failure_limits.k0_change_percent;
+                    (change.abs() > bound).then(|| Failure {
+                        limit: "k0_change_percent".into(),
+                        interval: index,
+                        value: Some(change),
+                        bound: Some(bound),
+                        detail: format!(
+                            "K(0) changed by {change:+.1} % from the first interval ({a:.1} → {b:.1} N/m), beyond ±{bound} %"
+                        ),
+                    })
+                }
+                _ => None,
+            }
+        };
+        if let Some(f) = failure {
+            let last = tail(&first.signals, LAST_SIGNALS_S);
+            let secs = last.len() as f64 / last.sample_rate_hz;
+            let rec = super::execute::recording("main", &last, res.as_ref())?;
+            send_and_wait(tx, |r| Msg::Failure(f.clone(), Some((rec, secs)), r))?;
+            return Err(failure_problem(&f));
+        }
+        let per = started.elapsed().as_secs_f64() / (index + 1 - start) as f64;
+        progress(index + 1, clock_s.min(spec.duration_s), Some(per));
+    }
+    Ok(n)
+}
+
+/// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.
+fn pace(seconds: f64, obs: &LtObserver<'_>) {
+    let until = Instant::now() + Duration::from_secs_f64(seconds.max(0.0));
+    while Instant::now() < until && !obs.cancelled() {
+        std::thread::sleep(Duration::from_millis(100).min(until - Instant::now()));
+    }
+}

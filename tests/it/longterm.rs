@@ -1,0 +1,392 @@
+//! Issue 32: the long-term test as a daemon job, over the REST API: one
+//! bench runs it while the other keeps working; each interval an ordinary
+//! measurement with `elapsed_s` and `load_j`; the ageing law stored with the
+//! test; bad input named; cancel; a failure limit stops it with its last
+//! signals; kill -9 of the daemon five times loses and repeats no interval.
+//!
+//! Accelerated on the virtual bench: each interval's measurement is
+//! simulated sample by sample (~2-3 s wall in a debug build), the 15 min of
+//! stimulus between two of them analytically.
+
+use crate::common::{client, problem, Daemon};
+use serde_json::{json, Value};
+use std::time::{Duration, Instant};
+
+const BENCHES: &str = "[[benches]]\nid = \"virtual-1\"\nseed = 7\npreset = \"spider_3in\"\n\
+                       [[benches]]\nid = \"virtual-2\"\nseed = 1007\npreset = \"spider_3in\"\n";
+
+fn test_body(serial: &str, intervals: usize) -> Value {
+    json!({
+        "measurement": {"part": {"serial": serial}, "bench": "virtual-1", "preset": "spider_3in",
+                        "target_xpeak_m": 0.006},
+        "duration_s": 900.0 * (intervals - 1) as f64,
+        "interval_s": 900.0,
+        "stimulus": {"excursion_m": 0.0053},
+    })
+}
+
+async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
+    let r = c.get(d.url(path)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200, "{path}");
+    r.json().await.unwrap()
+}
+
+async fn submit(c: &reqwest::Client, d: &Daemon, body: &Value) -> String {
+    let r = c
+        .post(d.url("/api/v1/long-term-tests"))
+        .json(body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let loc = r.headers()["location"].to_str().unwrap().to_string();
+    let j: Value = r.json().await.unwrap();
+    let id = j["id"].as_str().unwrap().to_string();
+    assert_eq!(loc, format!("/api/v1/long-term-tests/{id}"));
+    assert_eq!(j["request"]["type"], "long_term", "{j}");
+    id
+}
+
+async fn wait_test(
+    c: &reqwest::Client,
+    d: &Daemon,
+    id: &str,
+    timeout: Duration,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let t = Instant::now();
+    loop {
+        let v = get(c, d, &format!("/api/v1/long-term-tests/{id}")).await;
+        if done(&v) {
+            return v;
+        }
+        assert!(t.elapsed() < timeout, "timed out: {v}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+fn terminal(v: &Value) -> bool {
+    crate::common::terminal(v["job"]["state"].as_str().unwrap_or(""))
+}
+
+fn loads(v: &Value) -> Vec<f64> {
+    v["intervals"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|i| i["load_j"].as_f64().unwrap())
+        .collect()
+}
+
+/// Indices 0..n, each once, and every interval an ordinary stored measurement.
+async fn check_intervals(c: &reqwest::Client, d: &Daemon, v: &Value, n: usize) {
+    let iv = v["intervals"].as_array().unwrap();
+    let idx: Vec<u64> = iv.iter().map(|i| i["index"].as_u64().unwrap()).collect();
+    assert_eq!(idx, (0..n as u64).collect::<Vec<_>>(), "{v}");
+    for i in iv {
+        let mid = i["measurement_id"].as_str().unwrap();
+        let m = get(c, d, &format!("/api/v1/measurements/{mid}")).await;
+        let meta = &m["measurement"]["meta"];
+        assert_eq!(meta["elapsed_s"], i["elapsed_s"], "{m}");
+        assert_eq!(meta["load_j"], i["load_j"]);
+        assert_eq!(meta["accelerated"], true);
+        assert_eq!(m["measurement"]["job_id"], v["job"]["id"]);
+        assert!(m["small_signal"]["k0_n_per_m"].as_f64().unwrap() > 0.0);
+        assert_eq!(
+            i["elapsed_s"].as_f64().unwrap(),
+            900.0 * i["index"].as_f64().unwrap()
+        );
+    }
+    // The job lists every interval's measurement once.
+    let mids: Vec<&str> = iv
+        .iter()
+        .map(|i| i["measurement_id"].as_str().unwrap())
+        .collect();
+    let job_mids: Vec<&str> = v["job"]["measurement_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m.as_str().unwrap())
+        .collect();
+    let mut a = mids.clone();
+    let mut b = job_mids.clone();
+    a.sort();
+    b.sort();
+    assert_eq!(a, b);
+}
+
+#[tokio::test]
+async fn a_long_term_test_runs_as_a_job_while_the_other_bench_works() {
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    // Bad input: problem+json naming the field.
+    for (patch, field) in [
+        (
+            json!({"interval_s": 1800.0, "duration_s": 900.0}),
+            "interval_s",
+        ),
+        (
+            json!({"stimulus": {"excursion_m": -0.001}}),
+            "stimulus.excursion_m",
+        ),
+        (json!({"interval_s": 10.0}), "interval_s"),
+        (
+            json!({"stimulus": {"excursion_m": 0.005, "on_s": 60.0}}),
+            "stimulus.off_s",
+        ),
+    ] {
+        let mut body = test_body("LT-BAD", 3);
+        for (k, v) in patch.as_object().unwrap() {
+            body[k] = v.clone();
+        }
+        let r = c
+            .post(d.url("/api/v1/long-term-tests"))
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        let p = problem(r, 422).await;
+        let fields: Vec<&str> = p["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e["field"].as_str().unwrap())
+            .collect();
+        assert!(fields.contains(&field), "{field} not named: {p}");
+    }
+
+    let n = 9;
+    let id = submit(&c, &d, &test_body("LT-1", n)).await;
+    // Running, with progress and the time left.
+    let v = wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        v["intervals"].as_array().unwrap().len() >= 2 || terminal(v)
+    })
+    .await;
+    assert_eq!(v["job"]["state"], "running", "{v}");
+    assert_eq!(v["intervals_planned"], n);
+    assert_eq!(v["accelerated"], true);
+    let p = v["job"]["progress"].as_f64().unwrap();
+    assert!(p > 0.0 && p < 1.0, "{v}");
+    assert!(v["job"]["eta_s"].as_f64().unwrap() > 0.0, "{v}");
+    // The other bench keeps working meanwhile.
+    let r: Value = c
+        .post(d.url("/api/v1/jobs"))
+        .json(&json!({"part": {"serial": "SN-OTHER"}, "bench": "virtual-2"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let other = r["id"].as_str().unwrap().to_string();
+    let o = crate::common::wait_job(
+        &c,
+        &d,
+        &other,
+        Duration::from_secs(120),
+        crate::common::terminal,
+    )
+    .await;
+    assert_eq!(o["state"], "succeeded", "{o}");
+
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    assert_eq!(v["job"]["progress"], 1.0);
+    // The other job started before the test ended: they ran side by side.
+    assert!(
+        o["started_at"].as_str().unwrap() < v["job"]["finished_at"].as_str().unwrap(),
+        "{o} {v}"
+    );
+    check_intervals(&c, &d, &v, n).await;
+    // The load grows with every interval.
+    let e = loads(&v);
+    assert_eq!(e[0], 0.0);
+    assert!(e.windows(2).all(|w| w[1] > w[0]), "{e:?}");
+    // The fitted law is stored with the test, with standard errors.
+    let doc = &v["state"]["document"];
+    let law = &doc["law"];
+    assert_eq!(law["axis"], "load_j", "{doc}");
+    assert_eq!(law["intervals_used"], n);
+    for k in ["k_inf_n_per_m", "break_in_k_n_per_m", "fatigue_k_n_per_m"] {
+        assert!(law[k]["value"].as_f64().unwrap().is_finite(), "{law}");
+        assert!(law[k]["se"].as_f64().unwrap() > 0.0, "{law}");
+    }
+    assert_eq!(doc["intervals"].as_array().unwrap().len(), n);
+    assert_eq!(doc["prediction"]["elapsed_s"], 2.0 * 900.0 * (n - 1) as f64);
+    // The part softened near rest: K(0) of the last interval below the first
+    // by about the part's break-in (150 N/m) and some fatigue.
+    let k0 = |i: usize| doc["intervals"][i]["k0_n_per_m"].as_f64().unwrap();
+    let drop = k0(0) - k0(n - 1);
+    assert!(
+        drop > 150.0 && drop < 500.0,
+        "K(0) fell by {drop} N/m: {doc}"
+    );
+    // The series as CSV.
+    let csv = c
+        .get(d.url(&format!("/api/v1/long-term-tests/{id}/series.csv")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(csv.status().as_u16(), 200);
+    assert!(csv.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/csv"));
+    let text = csv.text().await.unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), n + 1, "{text}");
+    assert!(lines[0].starts_with("index,elapsed_s,load_j,k0_n_per_m"));
+    let last: Vec<&str> = lines[n].split(',').collect();
+    assert_eq!(last[1].parse::<f64>().unwrap(), 900.0 * (n - 1) as f64);
+    assert_eq!(last[2].parse::<f64>().unwrap(), e[n - 1]);
+    assert_eq!(last[3].parse::<f64>().unwrap(), k0(n - 1));
+    // No failure: no last signals.
+    assert!(v.get("last_signals").is_none(), "{v}");
+    let r = c
+        .get(d.url(&format!("/api/v1/long-term-tests/{id}/last-signals.wav")))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404).await;
+    // An ordinary job is not a long-term test.
+    let r = c
+        .get(d.url(&format!("/api/v1/long-term-tests/{other}")))
+        .send()
+        .await
+        .unwrap();
+    problem(r, 404).await;
+}
+
+#[tokio::test]
+async fn a_failure_limit_stops_the_test_names_it_and_keeps_the_last_signals() {
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    // spider_3in loses ~150 N/m (~10 %) of its K(0) to break-in in the
+    // first interval: a 5 % limit is reached at interval 1.
+    let mut body = test_body("LT-FAIL", 6);
+    body["failure_limits"] = json!({"k0_change_percent": 5.0});
+    let id = submit(&c, &d, &body).await;
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "failed", "{v}");
+    let p = &v["job"]["problem"];
+    assert_eq!(p["type"], "/problems/failure-limit", "{p}");
+    assert!(
+        p["detail"]
+            .as_str()
+            .unwrap()
+            .contains("failure limit `k0_change_percent` at interval 1"),
+        "{p}"
+    );
+    let f = &v["state"]["failure"];
+    assert_eq!(f["limit"], "k0_change_percent", "{v}");
+    assert_eq!(f["interval"], 1);
+    assert!(f["value"].as_f64().unwrap() < -5.0, "{f}");
+    assert_eq!(f["bound"], 5.0);
+    assert_eq!(v["intervals"].as_array().unwrap().len(), 2);
+    // The last 10 s of the signals, downloadable.
+    let url = v["last_signals"].as_str().unwrap();
+    let r = c.get(d.url(url)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let wav = r.bytes().await.unwrap();
+    let h = hound::WavReader::new(std::io::Cursor::new(wav.to_vec())).unwrap();
+    let spec = h.spec();
+    let seconds = h.duration() as f64 / spec.sample_rate as f64;
+    assert!((seconds - 10.0).abs() < 1e-3, "{seconds} s");
+    assert!(spec.channels >= 2);
+}
+
+#[tokio::test]
+async fn cancel_stops_a_running_long_term_test() {
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let id = submit(&c, &d, &test_body("LT-CANCEL", 40)).await;
+    wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        !v["intervals"].as_array().unwrap().is_empty()
+    })
+    .await;
+    let r = c
+        .post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
+        .header("content-type", "application/json")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let v = wait_test(&c, &d, &id, Duration::from_secs(120), terminal).await;
+    assert_eq!(v["job"]["state"], "cancelled", "{v}");
+    let n = v["intervals"].as_array().unwrap().len();
+    assert!(n < 40);
+    check_intervals(&c, &d, &v, n).await;
+}
+
+/// The acceptance: kill -9 of the daemon five times during a test; 0
+/// intervals lost or repeated, and the accumulated load continuous within
+/// 1 % (against the same test run without a kill by a second daemon with
+/// the same configuration).
+#[tokio::test]
+async fn kill_9_five_times_during_a_test_loses_and_repeats_no_interval() {
+    let n = 12;
+    let mut d = Daemon::start(BENCHES);
+    let tmp = d.take_dir().unwrap();
+    let reference = Daemon::start(BENCHES);
+    let c = client();
+    let id = submit(&c, &d, &test_body("LT-K9", n)).await;
+    let ref_id = submit(&c, &reference, &test_body("LT-K9", n)).await;
+    let mut kills = 0;
+    for after in [2, 4, 6, 8, 10] {
+        let v = wait_test(&c, &d, &id, Duration::from_secs(300), |v| {
+            v["intervals"].as_array().unwrap().len() >= after || terminal(v)
+        })
+        .await;
+        assert_eq!(v["job"]["state"], "running", "{v}");
+        d.kill9();
+        kills += 1;
+        d = Daemon::start_in(tmp.path(), BENCHES);
+        // Resumed, not interrupted.
+        let j = get(&c, &d, &format!("/api/v1/jobs/{id}")).await;
+        assert!(
+            matches!(j["state"].as_str(), Some("queued" | "running")),
+            "{j}"
+        );
+    }
+    assert_eq!(kills, 5);
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    check_intervals(&c, &d, &v, n).await;
+    let resumed = v["job"]["log"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|l| l.as_str().unwrap().starts_with("resumed after interval"))
+        .count();
+    assert_eq!(resumed, 5, "{v}");
+    let res = v["state"]["resumptions"].as_array().unwrap();
+    assert_eq!(res.len(), 5, "{v}");
+    // Each resumption carried on from a stored interval, never behind one.
+    for (r, after) in res.iter().zip([2, 4, 6, 8, 10]) {
+        assert!(r["intervals_done"].as_u64().unwrap() >= after, "{r}");
+    }
+    // The part's measurements: exactly one per interval.
+    let ms = get(&c, &d, "/api/v1/parts/LT-K9/measurements?limit=100").await;
+    assert_eq!(ms["items"].as_array().unwrap().len(), n);
+    let r = wait_test(&c, &reference, &ref_id, Duration::from_secs(300), terminal).await;
+    assert_eq!(r["job"]["state"], "succeeded", "{r}");
+    let (e, e_ref) = (loads(&v), loads(&r));
+    for (i, (a, b)) in e.iter().zip(&e_ref).enumerate().skip(1) {
+        assert!(
+            (a / b - 1.0).abs() <= 0.01,
+            "interval {i}: load {a} J after five kills, {b} J without: {e:?} {e_ref:?}"
+        );
+    }
+    let last = |v: &Value| v["state"]["load_j"].as_f64().unwrap();
+    assert!((last(&v) / last(&r) - 1.0).abs() <= 0.01);
+    println!(
+        "kill -9 x5: loads {e:?}, reference {e_ref:?}; largest deviation {:.2e}",
+        e.iter()
+            .zip(&e_ref)
+            .skip(1)
+            .map(|(a, b)| (a / b - 1.0).abs())
+            .fold(0.0, f64::max)
+    );
+    drop(d);
+    drop(tmp);
+}
