@@ -237,13 +237,16 @@ impl LongTermRequest {
             }
         }
         // The job's limit, or its bench's when the measurement was refused.
-        let max_x = spec.as_ref().map(|s| s.limits.max_displacement_m).or_else(|| {
-            let b = match &m.bench {
-                Some(id) => adm.benches.iter().find(|b| &b.id == id),
-                None => adm.benches.first(),
-            };
-            b.map(|b| b.limits.max_displacement_m)
-        });
+        let max_x = spec
+            .as_ref()
+            .map(|s| s.limits.max_displacement_m)
+            .or_else(|| {
+                let b = match &m.bench {
+                    Some(id) => adm.benches.iter().find(|b| &b.id == id),
+                    None => adm.benches.first(),
+                };
+                b.map(|b| b.limits.max_displacement_m)
+            });
         match &req.stimulus {
             None => add(FieldError::new(
                 "stimulus",
