@@ -186,10 +186,21 @@ fn check_mass(mass_kg: f64) -> Result<(), AnalyzeError> {
 /// least 64): the band up to the low-pass and the noise band above it.
 pub fn spectra(s: &Signals) -> (Spectrum, Spectrum) {
     let fs = s.sample_rate_hz;
-    let (low, noise) = (lowpass_for(fs).stop_hz, noise_band(fs));
+    band_spectra(s, lowpass_for(fs).stop_hz, Some(noise_band(fs)))
+}
+
+/// Displacement and microphone spectra of `s` (whole records, padded by at
+/// least 64) up to `up_to_hz` and in the `noise` band, side by side on
+/// rayon's pool.
+pub(super) fn band_spectra(
+    s: &Signals,
+    up_to_hz: f64,
+    noise: Option<(f64, f64)>,
+) -> (Spectrum, Spectrum) {
+    let fs = s.sample_rate_hz;
     rayon::join(
-        || Spectrum::bands(&s.displacement_m, fs, 64, low, Some(noise)),
-        || Spectrum::bands(&s.microphone_v, fs, 64, low, Some(noise)),
+        || Spectrum::bands(&s.displacement_m, fs, 64, up_to_hz, noise),
+        || Spectrum::bands(&s.microphone_v, fs, 64, up_to_hz, noise),
     )
 }
 

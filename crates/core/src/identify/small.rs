@@ -3,7 +3,7 @@
 //! on the full-record transfer function around the resonance, reweighted to
 //! the output error (the displacement spectrum) in a few passes.
 
-use super::prep::{check_signals, lowpass_for, noise_band};
+use super::prep::{band_spectra, check_signals, lowpass_for, noise_band};
 use super::{AnalyzeError, SmallSignal, WideBandResonance};
 use crate::dsp::{self, Complex64, Spectrum};
 use crate::recording::Signals;
@@ -34,12 +34,8 @@ pub struct SmallFit {
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check(pre)?;
-    let (fs, fmax) = (pre.sample_rate_hz, max_hz(pre.sample_rate_hz));
     // Only the bins up to fmax are used.
-    let (sx, sm) = rayon::join(
-        || Spectrum::bands(&pre.displacement_m, fs, 64, fmax, None),
-        || Spectrum::bands(&pre.microphone_v, fs, 64, fmax, None),
-    );
+    let (sx, sm) = band_spectra(pre, max_hz(pre.sample_rate_hz), None);
     fit_spectra(pre, mass_kg, &sx, &sm)
 }
 
