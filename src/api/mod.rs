@@ -28,6 +28,7 @@ pub mod report;
 pub mod schema;
 pub mod server;
 pub mod session;
+pub mod studies;
 
 use crate::config::Config;
 use crate::runner::Runner;
@@ -129,6 +130,17 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "get",
         "/api/v1/long-term-tests/{id}/last-signals.wav",
         get(longterm::last_signals),
+    )
+    .add(
+        "post",
+        "/api/v1/studies",
+        post(studies::submit).layer(json_limit),
+    )
+    .add("get", "/api/v1/studies/{id}", get(studies::get_one))
+    .add(
+        "post",
+        "/api/v1/studies/{id}/confirm",
+        post(studies::confirm),
     )
     .add("get", "/api/v1/parts", get(jobs::list_parts::<AppState>))
     .add(

@@ -20,6 +20,7 @@ pub mod job;
 mod longterm;
 mod records;
 mod series;
+mod studies;
 
 use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind, Config};
@@ -386,7 +387,9 @@ impl Runner {
         let started_at = crate::store::now();
         let announce = match job.request.read() {
             Ok(
-                crate::job::StoredRequest::SelfCheck(_) | crate::job::StoredRequest::LongTerm(_),
+                crate::job::StoredRequest::SelfCheck(_)
+                | crate::job::StoredRequest::LongTerm(_)
+                | crate::job::StoredRequest::Study(_),
             ) => Default::default(),
             _ => self.start_records(&slot.cfg, job, &started_at),
         };
@@ -417,6 +420,9 @@ impl Runner {
             }
             Ok(crate::job::StoredRequest::LongTerm(t)) => {
                 return self.run_long_term(slot, job, t.clone(), cancel).await
+            }
+            Ok(crate::job::StoredRequest::Study(s)) => {
+                return self.run_study(slot, job, s.clone(), cancel, started).await
             }
             Ok(crate::job::StoredRequest::Measure(s)) => Ok(s.clone()),
             Err(e) => Err(e.to_string()),

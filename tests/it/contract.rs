@@ -981,6 +981,64 @@ async fn every_route_answers_as_its_schema_says() {
         );
     }
 
+    // The memory's studies (issue 33): a bad body names its field; an
+    // added-mass study waits for the operator, is confirmed (again: 409),
+    // ends with its result; an unknown study is 404.
+    let (s, v) = a
+        .call(
+            "post",
+            "/api/v1/studies",
+            "/api/v1/studies",
+            Some(OPERATOR),
+            Some(
+                json!({"bench": "virtual-1", "part_serial": "SN-STUDY", "moving_mass_kg": 0.05,
+                "plan": {"kind": "added_mass", "added_mass_kg": -0.02, "level_m": 0.004}}),
+            ),
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    assert_eq!(v["errors"][0]["field"], "plan.added_mass_kg", "{v}");
+    let (s, v) = a
+        .call(
+            "post",
+            "/api/v1/studies",
+            "/api/v1/studies",
+            Some(OPERATOR),
+            Some(
+                json!({"bench": "virtual-1", "part_serial": "SN-STUDY", "moving_mass_kg": 0.05,
+                "plan": {"kind": "added_mass", "added_mass_kg": 0.02, "level_m": 0.004}}),
+            ),
+        )
+        .await;
+    assert_eq!(s, 202, "{v}");
+    let sid = v["id"].as_str().unwrap().to_string();
+    let (sp, su) = ("/api/v1/studies/{id}", format!("/api/v1/studies/{sid}"));
+    let t = Instant::now();
+    while a.get(sp, &su, 200).await["state"] != "awaiting_operator" {
+        assert!(
+            t.elapsed() < Duration::from_secs(600),
+            "study {sid} never waited"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let (cp, cu) = (
+        "/api/v1/studies/{id}/confirm",
+        format!("/api/v1/studies/{sid}/confirm"),
+    );
+    let (s, v) = a
+        .call("post", cp, &cu, Some(OPERATOR), Some(json!({})))
+        .await;
+    assert_eq!(s, 200, "{v}");
+    let (s, v) = a
+        .call("post", cp, &cu, Some(OPERATOR), Some(json!({})))
+        .await;
+    assert_eq!(s, 409, "{v}");
+    let sj = a.wait_job(&sid).await;
+    assert_eq!(sj["state"], "succeeded", "{sj}");
+    let v = a.get(sp, &su, 200).await;
+    assert_eq!(v["result"]["kind"], "added_mass", "{}", short(&v));
+    a.get(sp, "/api/v1/studies/nope", 404).await;
+
     // Every route of the router was answered and validated, with a success
     // except where a success needs a hardware bench (feature `hardware`),
     // and where it needs a fleet center (the station's link: its 200 is

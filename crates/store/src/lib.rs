@@ -26,6 +26,7 @@ pub mod qc;
 mod raw;
 mod replication;
 pub mod results;
+pub mod studies;
 
 pub use blob::BlobRef;
 pub use derived::Derived;

@@ -11,6 +11,7 @@ pub mod regress;
 pub mod series;
 pub mod spectrum;
 pub mod stats;
+pub mod studies;
 pub mod svg;
 pub mod synth;
 pub mod unexplained;

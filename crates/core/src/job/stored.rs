@@ -22,6 +22,8 @@ pub enum StoredRequest {
     SelfCheck(SelfCheck),
     /// A long-term test: the full procedure at intervals under a stimulus that ages the part.
     LongTerm(super::long_term::LongTermSpec),
+    /// A study of the part's memory (issue 33): added mass, recovery.
+    Study(crate::diagnose::studies::Study),
 }
 
 /// A self-check of a hardware bench.
@@ -39,6 +41,7 @@ pub struct SelfCheck {
 enum Tagged {
     SelfCheck(SelfCheck),
     LongTerm(super::long_term::LongTermSpec),
+    Study(crate::diagnose::studies::Study),
 }
 
 impl StoredRequest {
@@ -72,6 +75,7 @@ impl Serialize for StoredRequest {
             StoredRequest::Measure(spec) => spec.serialize(s),
             StoredRequest::SelfCheck(c) => Tagged::SelfCheck(c.clone()).serialize(s),
             StoredRequest::LongTerm(t) => Tagged::LongTerm(t.clone()).serialize(s),
+            StoredRequest::Study(c) => Tagged::Study(c.clone()).serialize(s),
         }
     }
 }
@@ -87,6 +91,7 @@ impl<'de> Deserialize<'de> for StoredRequest {
         match Tagged::deserialize(v).map_err(D::Error::custom)? {
             Tagged::SelfCheck(c) => Ok(StoredRequest::SelfCheck(c)),
             Tagged::LongTerm(t) => Ok(StoredRequest::LongTerm(t)),
+            Tagged::Study(c) => Ok(StoredRequest::Study(c)),
         }
     }
 }

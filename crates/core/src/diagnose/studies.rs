@@ -1,0 +1,357 @@
+//! The memory's studies as jobs of the daemon (issue 33, decision 0121): a
+//! typed request (`job::StoredRequest::Study`), its checks (one message per
+//! bad field), and the added-mass study's analysis. The recovery
+//! measurement's plan and analysis are [`super::memory`].
+//!
+//! **Added mass** (the paper's two clamping masses; method notes: "mass and
+//! stiffness scale together ... the added-mass method (two masses) resolves
+//! m"): the part is measured with the mass as mounted, the operator adds a
+//! known mass `dm` to the slide, and the part is measured again. The
+//! small-signal resonance does not depend on the mass the fit is given
+//! (`w0^2 = k0 / m`), so the two resonances give the moving mass and the
+//! stiffness without the weighed mass:
+//! `m = dm f2^2 / (f1^2 - f2^2)`, `k0 = m (2 pi f1)^2`.
+//! The large-signal Keff at the same level with both masses shows how much
+//! of the stiffness depends on the frequency (creep, viscoelastic: Keff
+//! falls with the lower resonance) rather than on the amplitude.
+
+use super::memory::RecoveryPlan;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+
+/// A study job's request.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Study {
+    /// The bench that runs it.
+    pub bench: String,
+    /// The part's serial number.
+    pub part_serial: String,
+    /// The part preset on a virtual bench (default: the bench's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+    /// Moving mass of part + inner clamp as weighed (kg).
+    pub moving_mass_kg: f64,
+    /// What to measure.
+    pub plan: StudyPlan,
+}
+
+/// The study's kind and its plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum StudyPlan {
+    /// The part, then (after the operator confirms) the part with a mass added to the slide.
+    AddedMass(AddedMassPlan),
+    /// A large excitation, then small-signal probes while the part recovers.
+    Recovery(RecoveryPlan),
+}
+
+/// The added-mass study's plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AddedMassPlan {
+    /// The known mass the operator adds to the slide (kg).
+    pub added_mass_kg: f64,
+    /// Target peak displacement of the large-signal sweep, the same with both masses (m).
+    pub level_m: f64,
+}
+
+/// A bad field: its path in the request and the message (the API's
+/// `job::FieldError`; this module stays below `job`, which stores a [`Study`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldError {
+    pub field: String,
+    pub message: String,
+}
+
+impl FieldError {
+    fn new(field: impl Into<String>, message: impl Into<String>) -> FieldError {
+        FieldError {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Largest moving or added mass a study accepts (kg).
+pub const MAX_MASS_KG: f64 = 10.0;
+/// Largest target level (m).
+pub const MAX_LEVEL_M: f64 = 0.05;
+
+impl Study {
+    /// The kind's name (`added_mass`, `recovery`).
+    pub fn kind(&self) -> &'static str {
+        match self.plan {
+            StudyPlan::AddedMass(_) => "added_mass",
+            StudyPlan::Recovery(_) => "recovery",
+        }
+    }
+
+    /// Every bad field: (its path in the request, the message).
+    pub fn check(&self) -> Vec<FieldError> {
+        let mut e = Vec::new();
+        let name =
+            |s: &str| !s.trim().is_empty() && s.len() <= 200 && !s.chars().any(char::is_control);
+        if !name(&self.bench) {
+            e.push(FieldError::new(
+                "bench",
+                "must be 1-200 characters without control characters",
+            ));
+        }
+        if !name(&self.part_serial) {
+            e.push(FieldError::new(
+                "part_serial",
+                "must be 1-200 characters without control characters",
+            ));
+        }
+        let mass = |v: f64| v.is_finite() && v > 0.0 && v <= MAX_MASS_KG;
+        if !mass(self.moving_mass_kg) {
+            e.push(FieldError::new(
+                "moving_mass_kg",
+                format!(
+                    "must be above 0 and at most {MAX_MASS_KG} kg, got {}",
+                    self.moving_mass_kg
+                ),
+            ));
+        }
+        match &self.plan {
+            StudyPlan::AddedMass(p) => {
+                if !mass(p.added_mass_kg) {
+                    e.push(FieldError::new(
+                        "plan.added_mass_kg",
+                        format!(
+                            "must be above 0 and at most {MAX_MASS_KG} kg, got {}",
+                            p.added_mass_kg
+                        ),
+                    ));
+                }
+                if !(p.level_m.is_finite() && p.level_m > 0.0 && p.level_m <= MAX_LEVEL_M) {
+                    e.push(FieldError::new(
+                        "plan.level_m",
+                        format!(
+                            "must be above 0 and at most {MAX_LEVEL_M} m, got {}",
+                            p.level_m
+                        ),
+                    ));
+                }
+            }
+            StudyPlan::Recovery(p) => {
+                if let Err(m) = p.validate() {
+                    // "recovery.<field> ..." names the field.
+                    let field = m
+                        .split_whitespace()
+                        .next()
+                        .unwrap_or("")
+                        .trim_start_matches("recovery.")
+                        .split('[')
+                        .next()
+                        .unwrap_or("")
+                        .to_string();
+                    e.push(FieldError::new(format!("plan.{field}"), m));
+                }
+            }
+        }
+        e
+    }
+
+    /// What the operator must do before the second measurement.
+    pub fn instruction(&self) -> Option<String> {
+        match &self.plan {
+            StudyPlan::AddedMass(p) => Some(format!(
+                "add {:.1} g to the slide of bench '{}' (part {}), then confirm: POST /api/v1/studies/{{id}}/confirm",
+                p.added_mass_kg * 1e3,
+                self.bench,
+                self.part_serial
+            )),
+            StudyPlan::Recovery(_) => None,
+        }
+    }
+}
+
+/// One measurement of the added-mass study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct MassRun {
+    /// Mass the fit was given (weighed, plus the added mass on the second run) (kg).
+    pub mass_given_kg: f64,
+    /// Small-signal resonance (Hz).
+    pub f0_hz: f64,
+    /// Small-signal stiffness with the given mass (N/m).
+    pub k0_given_mass_n_per_m: f64,
+    /// Large-signal effective stiffness at the level's peak excursion, with the given mass (N/m).
+    pub keff_n_per_m: f64,
+    /// Its resonance (Hz) and peak excursion (m).
+    pub resonance_hz: f64,
+    pub xpeak_m: f64,
+}
+
+/// What the added-mass study found.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AddedMassResult {
+    pub added_mass_kg: f64,
+    pub without: MassRun,
+    pub with_mass: MassRun,
+    /// The moving mass from the two resonances (kg), independent of the weighing.
+    pub moving_mass_derived_kg: f64,
+    /// The weighed mass against the derived one (%).
+    pub weighed_mass_error_percent: f64,
+    /// Small-signal stiffness from the derived mass and the first resonance (N/m).
+    pub k0_derived_n_per_m: f64,
+    /// The first run's k0 (with the weighed mass) against the derived k0 (%):
+    /// the error the weighing put into every stiffness.
+    pub k0_given_mass_error_percent: f64,
+    /// Keff with the added mass (lower resonance) against Keff without, both
+    /// scaled with the derived mass, at the same level (%): negative when the
+    /// part is softer at the lower frequency (creep, viscoelastic).
+    pub keff_change_with_frequency_percent: f64,
+}
+
+/// A study's result as stored (`studies.result_json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum StudyResult {
+    AddedMass(AddedMassResult),
+    Recovery(super::memory::RecoveryResult),
+}
+
+/// A study's own state (the job stays `running` while it waits).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StudyState {
+    /// Measuring (the first run, or the part alone).
+    Measuring,
+    /// Waiting for the operator: the instruction says what to do, POST confirm when done.
+    AwaitingOperator,
+    /// The operator confirmed: the second run.
+    Confirmed,
+    Succeeded,
+    Failed,
+}
+
+impl StudyState {
+    pub const ALL: [StudyState; 5] = [
+        StudyState::Measuring,
+        StudyState::AwaitingOperator,
+        StudyState::Confirmed,
+        StudyState::Succeeded,
+        StudyState::Failed,
+    ];
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StudyState::Measuring => "measuring",
+            StudyState::AwaitingOperator => "awaiting_operator",
+            StudyState::Confirmed => "confirmed",
+            StudyState::Succeeded => "succeeded",
+            StudyState::Failed => "failed",
+        }
+    }
+    pub fn parse(s: &str) -> Option<StudyState> {
+        StudyState::ALL.into_iter().find(|x| x.as_str() == s)
+    }
+}
+
+/// The added-mass study from the two measurements' results.
+pub fn analyze_added_mass(
+    added_mass_kg: f64,
+    without: MassRun,
+    with_mass: MassRun,
+) -> Result<AddedMassResult, String> {
+    let (f1, f2) = (without.f0_hz, with_mass.f0_hz);
+    if !(f1.is_finite() && f2.is_finite() && f1 > 0.0 && f2 > 0.0) {
+        return Err(format!(
+            "the small-signal resonance was not determined (without the mass {f1} Hz, with it {f2} Hz)"
+        ));
+    }
+    if f2 >= f1 {
+        return Err(format!(
+            "the resonance did not fall with the added mass ({f1:.3} Hz without, {f2:.3} Hz with {:.1} g): was the mass added?",
+            added_mass_kg * 1e3
+        ));
+    }
+    let m = added_mass_kg * f2 * f2 / (f1 * f1 - f2 * f2);
+    let k0 = m * (2.0 * PI * f1).powi(2);
+    // Keff is m wR^2: rescale each run's Keff from its given mass to the derived one.
+    let keff = |r: &MassRun, m_true: f64| r.keff_n_per_m * m_true / r.mass_given_kg;
+    let (k1, k2) = (keff(&without, m), keff(&with_mass, m + added_mass_kg));
+    let out = AddedMassResult {
+        added_mass_kg,
+        moving_mass_derived_kg: m,
+        weighed_mass_error_percent: 100.0 * (without.mass_given_kg / m - 1.0),
+        k0_derived_n_per_m: k0,
+        k0_given_mass_error_percent: 100.0 * (without.k0_given_mass_n_per_m / k0 - 1.0),
+        keff_change_with_frequency_percent: 100.0 * (k2 / k1 - 1.0),
+        without,
+        with_mass,
+    };
+    let finite = [
+        out.moving_mass_derived_kg,
+        out.weighed_mass_error_percent,
+        out.k0_derived_n_per_m,
+        out.k0_given_mass_error_percent,
+        out.keff_change_with_frequency_percent,
+    ]
+    .iter()
+    .all(|v| v.is_finite());
+    if !finite {
+        return Err("the added-mass study gave a non-finite value".into());
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(m_given: f64, m_true: f64, k: f64) -> MassRun {
+        let f0 = (k / m_true).sqrt() / (2.0 * PI);
+        MassRun {
+            mass_given_kg: m_given,
+            f0_hz: f0,
+            k0_given_mass_n_per_m: m_given * (2.0 * PI * f0).powi(2),
+            keff_n_per_m: m_given * (2.0 * PI * f0).powi(2),
+            resonance_hz: f0,
+            xpeak_m: 0.008,
+        }
+    }
+
+    #[test]
+    fn two_resonances_give_the_mass_and_the_stiffness() {
+        // A 40 g slide weighed as 36 g, k 2400 N/m, 20 g added.
+        let r =
+            analyze_added_mass(0.02, run(0.036, 0.04, 2400.0), run(0.056, 0.06, 2400.0)).unwrap();
+        assert!((r.moving_mass_derived_kg - 0.04).abs() < 1e-12, "{r:?}");
+        assert!((r.k0_derived_n_per_m - 2400.0).abs() < 1e-9);
+        assert!((r.weighed_mass_error_percent + 10.0).abs() < 1e-9);
+        assert!((r.k0_given_mass_error_percent + 10.0).abs() < 1e-9);
+        assert!(r.keff_change_with_frequency_percent.abs() < 1e-9);
+        // No fall of the resonance: said, not a negative mass.
+        let e =
+            analyze_added_mass(0.02, run(0.04, 0.04, 2400.0), run(0.06, 0.04, 2400.0)).unwrap_err();
+        assert!(e.contains("was the mass added"), "{e}");
+    }
+
+    #[test]
+    fn every_bad_field_is_named() {
+        let s = Study {
+            bench: "".into(),
+            part_serial: "SN-1".into(),
+            preset: None,
+            moving_mass_kg: f64::NAN,
+            plan: StudyPlan::AddedMass(AddedMassPlan {
+                added_mass_kg: -1.0,
+                level_m: 0.008,
+            }),
+        };
+        let fields: Vec<String> = s.check().into_iter().map(|e| e.field).collect();
+        assert_eq!(fields, ["bench", "moving_mass_kg", "plan.added_mass_kg"]);
+        let mut plan = RecoveryPlan::standard(30.0, 5.0, 0.2);
+        plan.delays_s = vec![0.5];
+        let s = Study {
+            plan: StudyPlan::Recovery(plan),
+            bench: "b1".into(),
+            moving_mass_kg: 0.05,
+            ..s
+        };
+        let e = s.check();
+        assert_eq!(e.len(), 1);
+        assert_eq!(e[0].field, "plan.delays_s", "{e:?}");
+    }
+}
