@@ -68,7 +68,7 @@ async fn view(st: &AppState, id: &str) -> ApiResult<StudyView> {
     summary = "Submit a study of the part's memory (issue 33): `added_mass` (the part, then the part with a known mass added to the slide after the operator confirms) or `recovery` (a large excitation, then small-signal probes).",
     request_body(content = Study, content_type = "application/json",
         example = json!({"bench": "virtual-1", "part_serial": "SN-0001", "moving_mass_kg": 0.05,
-            "plan": {"kind": "added_mass", "added_mass_kg": 0.02, "level_m": 0.004}})),
+            "plan": {"added_mass": {"added_mass_kg": 0.02, "level_m": 0.004}}})),
     responses(
         (status = 202, description = "Queued as a job of its bench", body = StudyView,
             headers(("Location" = String, description = "The study"))),

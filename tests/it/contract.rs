@@ -992,12 +992,15 @@ async fn every_route_answers_as_its_schema_says() {
             Some(OPERATOR),
             Some(
                 json!({"bench": "virtual-1", "part_serial": "SN-STUDY", "moving_mass_kg": 0.05,
-                "plan": {"kind": "added_mass", "added_mass_kg": -0.02, "level_m": 0.004}}),
+                "plan": {"added_mass": {"added_mass_kg": -0.02, "level_m": 0.004}}}),
             ),
         )
         .await;
     assert_eq!(s, 422, "{v}");
-    assert_eq!(v["errors"][0]["field"], "plan.added_mass_kg", "{v}");
+    assert_eq!(
+        v["errors"][0]["field"], "plan.added_mass.added_mass_kg",
+        "{v}"
+    );
     let (s, v) = a
         .call(
             "post",
@@ -1006,7 +1009,7 @@ async fn every_route_answers_as_its_schema_says() {
             Some(OPERATOR),
             Some(
                 json!({"bench": "virtual-1", "part_serial": "SN-STUDY", "moving_mass_kg": 0.05,
-                "plan": {"kind": "added_mass", "added_mass_kg": 0.02, "level_m": 0.004}}),
+                "plan": {"added_mass": {"added_mass_kg": 0.02, "level_m": 0.004}}}),
             ),
         )
         .await;

@@ -400,7 +400,7 @@ async fn added_mass_study_job_derives_the_moving_mass() {
         .post(d.url("/api/v1/studies"))
         .json(
             &json!({"bench": "virtual-1", "part_serial": "SN-M", "moving_mass_kg": -1.0,
-            "plan": {"kind": "added_mass", "added_mass_kg": 0.0, "level_m": 0.004}}),
+            "plan": {"added_mass": {"added_mass_kg": 0.0, "level_m": 0.004}}}),
         )
         .send()
         .await
@@ -412,12 +412,16 @@ async fn added_mass_study_job_derives_the_moving_mass() {
         .iter()
         .map(|e| e["field"].as_str().unwrap())
         .collect();
-    assert_eq!(fields, ["moving_mass_kg", "plan.added_mass_kg"], "{p}");
+    assert_eq!(
+        fields,
+        ["moving_mass_kg", "plan.added_mass.added_mass_kg"],
+        "{p}"
+    );
     let r = c
         .post(d.url("/api/v1/studies"))
         .json(
             &json!({"bench": "nope", "part_serial": "SN-M", "moving_mass_kg": 0.05,
-            "plan": {"kind": "added_mass", "added_mass_kg": 0.02, "level_m": 0.004}}),
+            "plan": {"added_mass": {"added_mass_kg": 0.02, "level_m": 0.004}}}),
         )
         .send()
         .await
@@ -430,7 +434,7 @@ async fn added_mass_study_job_derives_the_moving_mass() {
         .json(
             &json!({"bench": "virtual-1", "part_serial": "SN-M", "preset": "spider_4in",
             "moving_mass_kg": 0.045,
-            "plan": {"kind": "added_mass", "added_mass_kg": 0.02, "level_m": 0.004}}),
+            "plan": {"added_mass": {"added_mass_kg": 0.02, "level_m": 0.004}}}),
         )
         .send()
         .await

@@ -20,6 +20,7 @@ use std::f64::consts::PI;
 
 /// The recovery measurement's plan (SI).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct RecoveryPlan {
     /// The large excitation: a sine at this frequency (near the resonance).
     pub excitation_hz: f64,

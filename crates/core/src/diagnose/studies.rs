@@ -36,9 +36,12 @@ pub struct Study {
     pub plan: StudyPlan,
 }
 
-/// The study's kind and its plan.
+/// The study's kind and its plan, tagged by the kind's name
+/// (`{"added_mass": {...}}`): externally tagged, so that each plan refuses
+/// unknown members and its schema says so (an internal `kind` tag would be
+/// an unknown member of the plan's `additionalProperties: false` schema).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(rename_all = "snake_case")]
 pub enum StudyPlan {
     /// The part, then (after the operator confirms) the part with a mass added to the slide.
     AddedMass(AddedMassPlan),
@@ -48,6 +51,7 @@ pub enum StudyPlan {
 
 /// The added-mass study's plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct AddedMassPlan {
     /// The known mass the operator adds to the slide (kg).
     pub added_mass_kg: f64,
@@ -117,7 +121,7 @@ impl Study {
             StudyPlan::AddedMass(p) => {
                 if !mass(p.added_mass_kg) {
                     e.push(FieldError::new(
-                        "plan.added_mass_kg",
+                        "plan.added_mass.added_mass_kg",
                         format!(
                             "must be above 0 and at most {MAX_MASS_KG} kg, got {}",
                             p.added_mass_kg
@@ -126,7 +130,7 @@ impl Study {
                 }
                 if !(p.level_m.is_finite() && p.level_m > 0.0 && p.level_m <= MAX_LEVEL_M) {
                     e.push(FieldError::new(
-                        "plan.level_m",
+                        "plan.added_mass.level_m",
                         format!(
                             "must be above 0 and at most {MAX_LEVEL_M} m, got {}",
                             p.level_m
@@ -146,7 +150,7 @@ impl Study {
                         .next()
                         .unwrap_or("")
                         .to_string();
-                    e.push(FieldError::new(format!("plan.{field}"), m));
+                    e.push(FieldError::new(format!("plan.recovery.{field}"), m));
                 }
             }
         }
@@ -313,6 +317,29 @@ mod tests {
     }
 
     #[test]
+    fn an_unknown_member_of_either_plan_is_refused() {
+        let base = r#""bench":"b","part_serial":"s","moving_mass_kg":0.05"#;
+        let added = format!(
+            r#"{{{base},"plan":{{"added_mass":{{"added_mass_kg":0.01,"level_m":0.005}}}}}}"#
+        );
+        assert!(serde_json::from_str::<Study>(&added).is_ok());
+        let typo = added.replace("level_m", "level_m\":0.005,\"levl_m");
+        let e = serde_json::from_str::<Study>(&typo)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("levl_m"), "{e}");
+        let plan = RecoveryPlan::standard(40.0, 1.0, 0.1);
+        let mut v = serde_json::to_value(&plan).unwrap();
+        let rec = format!(r#"{{{base},"plan":{{"recovery":{v}}}}}"#);
+        assert!(serde_json::from_str::<Study>(&rec).is_ok(), "{rec}");
+        v["excitaton_hz"] = 40.0.into();
+        let e = serde_json::from_str::<Study>(&format!(r#"{{{base},"plan":{{"recovery":{v}}}}}"#))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("excitaton_hz"), "{e}");
+    }
+
+    #[test]
     fn two_resonances_give_the_mass_and_the_stiffness() {
         // A 40 g slide weighed as 36 g, k 2400 N/m, 20 g added.
         let r =
@@ -341,7 +368,10 @@ mod tests {
             }),
         };
         let fields: Vec<String> = s.check().into_iter().map(|e| e.field).collect();
-        assert_eq!(fields, ["bench", "moving_mass_kg", "plan.added_mass_kg"]);
+        assert_eq!(
+            fields,
+            ["bench", "moving_mass_kg", "plan.added_mass.added_mass_kg"]
+        );
         let mut plan = RecoveryPlan::standard(30.0, 5.0, 0.2);
         plan.delays_s = vec![0.5];
         let s = Study {
@@ -352,6 +382,6 @@ mod tests {
         };
         let e = s.check();
         assert_eq!(e.len(), 1);
-        assert_eq!(e[0].field, "plan.delays_s", "{e:?}");
+        assert_eq!(e[0].field, "plan.recovery.delays_s", "{e:?}");
     }
 }
