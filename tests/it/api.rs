@@ -4,8 +4,9 @@
 
 use crate::common;
 
-use common::{client, get_bytes, get_text, problem, terminal, wait_job, Daemon};
+use common::{Api, Config, Daemon};
 use futures_util::StreamExt;
+use reqwest::Method;
 use serde_json::{json, Value};
 use springbench::recording::RecordingSetFiles;
 use std::time::Duration;
@@ -13,22 +14,13 @@ use std::time::Duration;
 #[tokio::test]
 async fn health_ready_metrics_and_unknown_routes() {
     let d = Daemon::start("");
-    let c = client();
-    let h: Value = c
-        .get(d.url("/healthz"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let api = Api::new(&d);
+    let h = api.get("/healthz").await;
     assert_eq!(h["status"], "ok");
-    let r = c.get(d.url("/readyz")).send().await.unwrap();
-    assert_eq!(r.status().as_u16(), 200);
-    let r: Value = r.json().await.unwrap();
+    let r = api.get("/readyz").await;
     assert_eq!(r["benches"][0]["id"], "virtual-1");
     assert_eq!(r["benches"][0]["state"], "idle");
-    let m = get_text(&c, &d, "/metrics").await;
+    let m = api.text("/metrics").await;
     assert!(m.contains("springbench_jobs{state=\"queued\"} 0"), "{m}");
     assert!(
         m.contains(
@@ -36,85 +28,48 @@ async fn health_ready_metrics_and_unknown_routes() {
         ),
         "{m}"
     );
-    problem(c.get(d.url("/api/v1/nope")).send().await.unwrap(), 404).await;
-    problem(
-        c.delete(d.url("/api/v1/jobs"))
-            .header("content-type", "application/json")
-            .send()
-            .await
-            .unwrap(),
-        405,
+    api.get_reply("/api/v1/nope").await.problem(404);
+    api.send(
+        api.builder(Method::DELETE, "/api/v1/jobs")
+            .header("content-type", "application/json"),
     )
-    .await;
-    let p = problem(
-        c.get(d.url("/api/v1/jobs/does-not-exist"))
-            .send()
-            .await
-            .unwrap(),
-        404,
-    )
-    .await;
+    .await
+    .problem(405);
+    let p = api
+        .get_reply("/api/v1/jobs/does-not-exist")
+        .await
+        .problem(404);
     assert!(p["detail"].as_str().unwrap().contains("does-not-exist"));
-    problem(
-        c.get(d.url("/api/v1/measurements/x")).send().await.unwrap(),
-        404,
-    )
-    .await;
-    problem(c.get(d.url("/api/v1/parts/x")).send().await.unwrap(), 404).await;
-    problem(
-        c.post(d.url("/api/v1/jobs/x/cancel"))
-            .header("content-type", "application/json")
-            .send()
-            .await
-            .unwrap(),
-        404,
-    )
-    .await;
-    problem(
-        c.get(d.url("/api/v1/jobs?state=finished"))
-            .send()
-            .await
-            .unwrap(),
-        422,
-    )
-    .await;
-    problem(
-        c.get(d.url("/api/v1/jobs?limit=0")).send().await.unwrap(),
-        422,
-    )
-    .await;
-    problem(
-        c.get(d.url("/api/v1/jobs?limit=abc")).send().await.unwrap(),
-        400,
-    )
-    .await;
+    for (path, status) in [
+        ("/api/v1/measurements/x", 404),
+        ("/api/v1/parts/x", 404),
+        ("/api/v1/jobs?state=finished", 422),
+        ("/api/v1/jobs?limit=0", 422),
+        ("/api/v1/jobs?limit=abc", 400),
+    ] {
+        api.get_reply(path).await.problem(status);
+    }
+    api.post_empty("/api/v1/jobs/x/cancel").await.problem(404);
     // A plain GET on the websocket route is refused with a problem document.
-    let r = c.get(d.url("/api/v1/events")).send().await.unwrap();
-    assert!(r.status().is_client_error());
-    assert_eq!(r.headers()["content-type"], "application/problem+json");
+    let r = api.get_reply("/api/v1/events").await;
+    assert!((400..500).contains(&r.status));
+    assert_eq!(r.header("content-type"), "application/problem+json");
 }
 
 #[tokio::test]
 async fn bad_job_requests_get_one_message_per_field() {
     let d = Daemon::start("");
-    let c = client();
+    let api = Api::new(&d);
     let post = |body: String| {
-        c.post(d.url("/api/v1/jobs"))
-            .header("content-type", "application/json")
-            .body(body)
-            .send()
-    };
-    let p = problem(
-        post(
-            json!({"part": {"serial": "SN-1"}, "moving_mass_kg": 0.0, "levels_m": [0.004, 0.5],
-                     "method": "three-signal", "preset": "no-such-part", "wat": 1})
-            .to_string(),
+        api.send(
+            api.builder(Method::POST, "/api/v1/jobs")
+                .header("content-type", "application/json")
+                .body(body),
         )
-        .await
-        .unwrap(),
-        422,
-    )
-    .await;
+    };
+    let bad = json!({"part": {"serial": "SN-1"}, "moving_mass_kg": 0.0, "levels_m": [0.004, 0.5],
+                     "method": "three-signal", "preset": "no-such-part", "wat": 1});
+    let p = post(bad.to_string()).await.problem(422);
     let fields: Vec<&str> = p["errors"]
         .as_array()
         .unwrap()
@@ -128,49 +83,23 @@ async fn bad_job_requests_get_one_message_per_field() {
         assert!(!e["message"].as_str().unwrap().is_empty());
     }
     // NaN cannot be written in JSON; a string or a huge number is caught.
-    let p = problem(
-        post(r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": "NaN"}"#.into())
-            .await
-            .unwrap(),
-        422,
-    )
-    .await;
+    let nan = r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": "NaN"}"#;
+    let p = post(nan.into()).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "moving_mass_kg");
-    let p = problem(
-        post(r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": 1e400}"#.into())
-            .await
-            .unwrap(),
-        400,
-    )
-    .await;
+    let huge = r#"{"part": {"serial": "SN-1"}, "moving_mass_kg": 1e400}"#;
+    let p = post(huge.into()).await.problem(400);
     assert!(p["detail"].as_str().unwrap().contains("JSON"));
     // Beyond the bench's limits.
-    let p = problem(
-        post(
-            json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02,
-                     "limits": {"max_drive_v": 1000.0}})
-            .to_string(),
-        )
-        .await
-        .unwrap(),
-        422,
-    )
-    .await;
+    let drive = json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02,
+                     "limits": {"max_drive_v": 1000.0}});
+    let p = post(drive.to_string()).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "limits.max_drive_v");
-    let p = problem(
-        post(
-            json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02, "target_xpeak_m": 0.05})
-                .to_string(),
-        )
-        .await
-        .unwrap(),
-        422,
-    )
-    .await;
+    let far = json!({"part": {"serial": "S"}, "moving_mass_kg": 0.02, "target_xpeak_m": 0.05});
+    let p = post(far.to_string()).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "target_xpeak_m");
     // Not JSON at all, missing part, oversize body.
-    problem(post("{not json".into()).await.unwrap(), 400).await;
-    let p = problem(post("{}".into()).await.unwrap(), 422).await;
+    post("{not json".into()).await.problem(400);
+    let p = post("{}".into()).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "part");
     // Oversize: the declared Content-Length alone is refused, before any of
     // the body is read. (Sent raw, headers only: a client still writing a
@@ -194,77 +123,41 @@ async fn bad_job_requests_get_one_message_per_field() {
     let p: Value = serde_json::from_slice(&body).unwrap();
     assert_eq!(p["status"], 413);
     // Nothing was stored.
-    let jobs: Value = c
-        .get(d.url("/api/v1/jobs"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let jobs = api.get("/api/v1/jobs").await;
     assert_eq!(jobs["items"].as_array().unwrap().len(), 0);
 }
 
 #[tokio::test]
 async fn idempotent_resubmit_and_conflict() {
     let d = Daemon::start("");
-    let c = client();
+    let api = Api::new(&d);
+    let keyed = |body: &Value| {
+        api.send(
+            api.builder(Method::POST, "/api/v1/jobs")
+                .header("Idempotency-Key", "qc1-0001")
+                .json(body),
+        )
+    };
     let body = json!({"part": {"serial": "SN-7"}, "moving_mass_kg": 0.02, "priority": 3});
-    let r1 = c
-        .post(d.url("/api/v1/jobs"))
-        .header("Idempotency-Key", "qc1-0001")
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r1.status().as_u16(), 202);
-    let loc = r1.headers()["location"].to_str().unwrap().to_string();
-    let j1: Value = r1.json().await.unwrap();
+    let r1 = keyed(&body).await;
+    let loc = r1.header("location").to_string();
+    let j1 = r1.expect(202);
     assert_eq!(loc, format!("/api/v1/jobs/{}", j1["id"].as_str().unwrap()));
     assert_eq!(j1["state"], "queued");
     assert_eq!(j1["priority"], 3);
     // The same key and body: the same job, not a second one.
-    let r2 = c
-        .post(d.url("/api/v1/jobs"))
-        .header("Idempotency-Key", "qc1-0001")
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r2.status().as_u16(), 200);
-    assert_eq!(r2.headers()["idempotent-replayed"], "true");
-    let j2: Value = r2.json().await.unwrap();
+    let r2 = keyed(&body).await;
+    assert_eq!(r2.header("idempotent-replayed"), "true");
+    let j2 = r2.expect(200);
     assert_eq!(j2["id"], j1["id"]);
     // The same key with another body: 409.
-    let p = problem(
-        c.post(d.url("/api/v1/jobs"))
-            .header("Idempotency-Key", "qc1-0001")
-            .json(&json!({"part": {"serial": "SN-8"}, "moving_mass_kg": 0.02}))
-            .send()
-            .await
-            .unwrap(),
-        409,
-    )
-    .await;
+    let other = json!({"part": {"serial": "SN-8"}, "moving_mass_kg": 0.02});
+    let p = keyed(&other).await.problem(409);
     assert_eq!(p["job_id"], j1["id"]);
-    let jobs: Value = c
-        .get(d.url("/api/v1/jobs"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let jobs = api.get("/api/v1/jobs").await;
     assert_eq!(jobs["items"].as_array().unwrap().len(), 1);
     // The part exists now.
-    let part: Value = c
-        .get(d.url("/api/v1/parts/SN-7"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let part = api.get("/api/v1/parts/SN-7").await;
     assert_eq!(part["serial"], "SN-7");
 }
 
@@ -274,25 +167,14 @@ async fn idempotent_resubmit_and_conflict() {
 #[tokio::test]
 async fn impossible_job_fails_with_a_problem_and_events() {
     let d = Daemon::start("");
-    let c = client();
+    let api = Api::new(&d);
     let (mut ws, _) = tokio_tungstenite::connect_async(d.ws_url("/api/v1/events?after=0"))
         .await
         .expect("websocket");
-    let r = c
-        .post(d.url("/api/v1/jobs"))
-        .json(
-            &json!({"part": {"serial": "SN-9", "kind": "spider"}, "target_xpeak_m": 0.0005,
-                      "limits": {"max_displacement_m": 0.0008}}),
-        )
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 202);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let j = wait_job(&c, &d, &id, Duration::from_secs(120), terminal).await;
+    let small = json!({"part": {"serial": "SN-9", "kind": "spider"}, "target_xpeak_m": 0.0005,
+                      "limits": {"max_displacement_m": 0.0008}});
+    let id = api.submit(&small).await;
+    let j = api.finished_within(&id, Duration::from_secs(120)).await;
     assert_eq!(j["state"], "failed", "{j}");
     let p = &j["problem"];
     assert!(p["type"].as_str().unwrap().starts_with("/problems/"), "{j}");
@@ -336,145 +218,48 @@ async fn impossible_job_fails_with_a_problem_and_events() {
     assert_eq!(e["seq"], 2);
     assert_eq!(e["data"]["state"], "running");
 
-    let p = problem(
-        c.post(d.url(&format!("/api/v1/jobs/{id}/cancel")))
-            .header("content-type", "application/json")
-            .send()
-            .await
-            .unwrap(),
-        409,
-    )
-    .await;
+    let cancel = format!("/api/v1/jobs/{id}/cancel");
+    let p = api.post_empty(&cancel).await.problem(409);
     assert_eq!(p["state"], "failed");
-    let m = get_text(&c, &d, "/metrics").await;
+    let m = api.text("/metrics").await;
     assert!(m.contains("springbench_jobs{state=\"failed\"} 1"), "{m}");
 }
 
-const TOKENS: &str = r#"
-[[auth.tokens]]
-name = "mes"
-token = "viewer-token-0123456789"
-role = "viewer"
-[[auth.tokens]]
-name = "qc"
-token = "operator-token-0123456789"
-role = "operator"
-[[auth.tokens]]
-name = "lab"
-token = "admin-token-0123456789"
-role = "admin"
-"#;
-
 #[tokio::test]
 async fn bearer_tokens_and_roles() {
-    let d = Daemon::start(TOKENS);
-    let c = client();
+    let (v, o, a) = (
+        "viewer-token-0123456789",
+        "operator-token-0123456789",
+        "admin-token-0123456789",
+    );
+    let cfg = Config::new()
+        .token("mes", v, springbench::config::Role::Viewer)
+        .token("qc", o, springbench::config::Role::Operator)
+        .token("lab", a, springbench::config::Role::Admin);
+    let d = Daemon::start(&cfg.text());
+    let open = Api::new(&d);
     let job = json!({"part": {"serial": "SN-A"}, "moving_mass_kg": 0.02});
     // Open routes.
-    assert_eq!(
-        c.get(d.url("/healthz"))
-            .send()
-            .await
-            .unwrap()
-            .status()
-            .as_u16(),
-        200
-    );
-    assert_eq!(
-        c.get(d.url("/readyz"))
-            .send()
-            .await
-            .unwrap()
-            .status()
-            .as_u16(),
-        200
-    );
+    assert_eq!(open.get_reply("/healthz").await.status, 200);
+    assert_eq!(open.get_reply("/readyz").await.status, 200);
     // No token, unknown token: 401 with a challenge.
-    let r = c.get(d.url("/api/v1/jobs")).send().await.unwrap();
-    assert!(r.headers()["www-authenticate"]
-        .to_str()
-        .unwrap()
-        .starts_with("Bearer"));
-    problem(r, 401).await;
-    problem(
-        c.get(d.url("/api/v1/jobs"))
-            .bearer_auth("nope-nope-nope-nope")
-            .send()
-            .await
-            .unwrap(),
-        401,
-    )
-    .await;
+    let r = open.get_reply("/api/v1/jobs").await;
+    assert!(r.header("www-authenticate").starts_with("Bearer"));
+    r.problem(401);
+    let nope = open.token("nope-nope-nope-nope");
+    nope.get_reply("/api/v1/jobs").await.problem(401);
     // Viewer reads, may not submit or read the configuration.
-    let v = "viewer-token-0123456789";
-    assert_eq!(
-        c.get(d.url("/api/v1/jobs"))
-            .bearer_auth(v)
-            .send()
-            .await
-            .unwrap()
-            .status()
-            .as_u16(),
-        200
-    );
-    assert_eq!(
-        c.get(d.url("/metrics"))
-            .bearer_auth(v)
-            .send()
-            .await
-            .unwrap()
-            .status()
-            .as_u16(),
-        200
-    );
-    problem(
-        c.post(d.url("/api/v1/jobs"))
-            .bearer_auth(v)
-            .json(&job)
-            .send()
-            .await
-            .unwrap(),
-        403,
-    )
-    .await;
-    problem(
-        c.get(d.url("/api/v1/config"))
-            .bearer_auth(v)
-            .send()
-            .await
-            .unwrap(),
-        403,
-    )
-    .await;
+    let viewer = open.token(v);
+    assert_eq!(viewer.get_reply("/api/v1/jobs").await.status, 200);
+    assert_eq!(viewer.get_reply("/metrics").await.status, 200);
+    viewer.post("/api/v1/jobs", &job).await.problem(403);
+    viewer.get_reply("/api/v1/config").await.problem(403);
     // Operator submits and cancels.
-    let o = "operator-token-0123456789";
-    let r = c
-        .post(d.url("/api/v1/jobs"))
-        .bearer_auth(o)
-        .json(&job)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 202);
-    problem(
-        c.get(d.url("/api/v1/config"))
-            .bearer_auth(o)
-            .send()
-            .await
-            .unwrap(),
-        403,
-    )
-    .await;
+    let operator = open.token(o);
+    assert_eq!(operator.post("/api/v1/jobs", &job).await.status, 202);
+    operator.get_reply("/api/v1/config").await.problem(403);
     // Admin reads the configuration, without the secrets.
-    let cfg = c
-        .get(d.url("/api/v1/config"))
-        .bearer_auth("admin-token-0123456789")
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let cfg = open.token(a).text("/api/v1/config").await;
     assert!(
         cfg.contains("virtual-1") && !cfg.contains("0123456789"),
         "{cfg}"
@@ -489,50 +274,54 @@ async fn bearer_tokens_and_roles() {
     assert!(ok.is_ok());
 }
 
+/// A multipart upload of meta, pre and main (what an import sends).
+fn upload(meta: Vec<u8>, pre: Vec<u8>, main: Vec<u8>) -> reqwest::multipart::Form {
+    let part = |bytes: Vec<u8>, name: &str| {
+        reqwest::multipart::Part::bytes(bytes).file_name(name.to_string())
+    };
+    reqwest::multipart::Form::new()
+        .part("meta", part(meta, "meta.json"))
+        .part("pre", part(pre, "pre.wav"))
+        .part("main", part(main, "main.wav"))
+}
+
 #[tokio::test]
 async fn import_stores_the_recordings_and_refuses_bad_uploads() {
     let d = Daemon::start("");
-    let c = client();
+    let api = Api::with(&d, "any-value-in-open-access");
     let dir = common::reference_dir("p1_spider");
     let meta = std::fs::read(dir.join("meta.json")).unwrap();
     let pre = std::fs::read(dir.join("pre.wav")).unwrap();
     let main = std::fs::read(dir.join("main.wav")).unwrap();
     let form = |meta: Vec<u8>, pre: Vec<u8>, main: Vec<u8>| {
-        reqwest::multipart::Form::new()
-            .part(
-                "meta",
-                reqwest::multipart::Part::bytes(meta).file_name("meta.json"),
-            )
-            .part(
-                "pre",
-                reqwest::multipart::Part::bytes(pre).file_name("pre.wav"),
-            )
-            .part(
-                "main",
-                reqwest::multipart::Part::bytes(main).file_name("main.wav"),
-            )
+        upload(meta, pre, main)
             .text("serial", "REF-P1")
             .text("kind", "spider")
     };
-    let r = c
-        .post(d.url("/api/v1/measurements"))
-        .bearer_auth("any-value-in-open-access")
-        .multipart(form(meta.clone(), pre.clone(), main.clone()))
-        .send()
+    let import = |form: reqwest::multipart::Form| {
+        api.send(
+            api.builder(Method::POST, "/api/v1/measurements")
+                .multipart(form),
+        )
+    };
+    let doc = import(form(meta.clone(), pre.clone(), main.clone()))
         .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let doc: Value = r.json().await.unwrap();
+        .expect(201);
     let id = doc["measurement"]["id"].as_str().unwrap().to_string();
     assert_eq!(doc["measurement"]["source"], "import");
     assert_eq!(doc["measurement"]["part_serial"], "REF-P1");
     // The stored recording reads back with the same samples (float32 as sent).
-    let wav = get_bytes(
-        &c,
-        &d,
-        &format!("/api/v1/measurements/{id}/recordings/main.wav"),
-    )
-    .await;
+    let wav = api
+        .builder(
+            Method::GET,
+            &format!("/api/v1/measurements/{id}/recordings/main.wav"),
+        )
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
     let set = springbench::recording::RecordingSet::read_dir(&dir).unwrap();
     let meta_std = springbench::recording::Meta::standard(0.05, 48000.0);
     let back =
@@ -545,51 +334,20 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
     assert!(max_err <= 1e-9, "{max_err}");
-    problem(
-        c.get(d.url(&format!("/api/v1/measurements/{id}/recordings/other.wav")))
-            .send()
-            .await
-            .unwrap(),
-        404,
-    )
-    .await;
+    let other = format!("/api/v1/measurements/{id}/recordings/other.wav");
+    api.get_reply(&other).await.problem(404);
     // Listed under the part.
-    let l: Value = c
-        .get(d.url("/api/v1/parts/REF-P1/measurements"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l = api.get("/api/v1/parts/REF-P1/measurements").await;
     assert_eq!(l["items"][0]["id"], id.as_str());
 
     // Broken uploads: a WAV that is not one, a missing field, too large.
-    let p = problem(
-        c.post(d.url("/api/v1/measurements"))
-            .bearer_auth("any-value-in-open-access")
-            .multipart(form(meta.clone(), b"RIFF nonsense".to_vec(), main.clone()))
-            .send()
-            .await
-            .unwrap(),
-        422,
-    )
-    .await;
+    let not_wav = form(meta.clone(), b"RIFF nonsense".to_vec(), main.clone());
+    let p = import(not_wav).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "pre");
-    let p = problem(
-        c.post(d.url("/api/v1/measurements"))
-            .bearer_auth("any-value-in-open-access")
-            .multipart(
-                reqwest::multipart::Form::new()
-                    .part("meta", reqwest::multipart::Part::bytes(meta.clone()))
-                    .text("serial", "X"),
-            )
-            .send()
-            .await
-            .unwrap(),
-        422,
-    )
-    .await;
+    let meta_only = reqwest::multipart::Form::new()
+        .part("meta", reqwest::multipart::Part::bytes(meta.clone()))
+        .text("serial", "X");
+    let p = import(meta_only).await.problem(422);
     let f: Vec<_> = p["errors"]
         .as_array()
         .unwrap()
@@ -597,45 +355,20 @@ async fn import_stores_the_recordings_and_refuses_bad_uploads() {
         .map(|e| e["field"].as_str().unwrap())
         .collect();
     assert_eq!(f, ["pre", "main"]);
-    let l: Value = c
-        .get(d.url("/api/v1/measurements"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l = api.get("/api/v1/measurements").await;
     assert_eq!(l["items"].as_array().unwrap().len(), 1);
 
     // Fits and diagnostics on the stored recordings: a bad request is refused
     // before any work; a valid one either fits or says why it cannot.
-    let p = problem(
-        c.post(d.url(&format!("/api/v1/measurements/{id}/fits")))
-            .json(&json!({"effects": ["warp_drive"]}))
-            .send()
-            .await
-            .unwrap(),
-        422,
-    )
-    .await;
+    let api = Api::new(&d);
+    let fits = format!("/api/v1/measurements/{id}/fits");
+    let warp = json!({"effects": ["warp_drive"]});
+    let p = api.post(&fits, &warp).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "effects[0]");
-    problem(
-        c.post(d.url("/api/v1/measurements/nope/fits"))
-            .json(&json!({}))
-            .send()
-            .await
-            .unwrap(),
-        404,
-    )
-    .await;
-    problem(
-        c.get(d.url(&format!("/api/v1/measurements/{id}/plots/nonsense.svg")))
-            .send()
-            .await
-            .unwrap(),
-        404,
-    )
-    .await;
+    let nope = "/api/v1/measurements/nope/fits";
+    api.post(nope, &json!({})).await.problem(404);
+    let svg = format!("/api/v1/measurements/{id}/plots/nonsense.svg");
+    api.get_reply(&svg).await.problem(404);
 }
 
 /// The declared length is checked before the body is read, so the client
@@ -664,23 +397,15 @@ fn oversize_upload_is_413() {
 #[tokio::test]
 async fn fits_diagnostics_and_plots_of_an_imported_set() {
     let d = Daemon::start("");
-    let c = client();
+    let api = Api::with(&d, "any-value-in-open-access");
     let dir = common::reference_dir("p2_spider_friction");
-    let part = |name: &str| reqwest::multipart::Part::bytes(std::fs::read(dir.join(name)).unwrap());
-    let form = reqwest::multipart::Form::new()
-        .part("meta", part("meta.json"))
-        .part("pre", part("pre.wav"))
-        .part("main", part("main.wav"))
-        .text("serial", "REF-P2");
-    let r = c
-        .post(d.url("/api/v1/measurements"))
-        .bearer_auth("any-value-in-open-access")
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let doc: Value = r.json().await.unwrap();
+    let file = |name: &str| std::fs::read(dir.join(name)).unwrap();
+    let form =
+        upload(file("meta.json"), file("pre.wav"), file("main.wav")).text("serial", "REF-P2");
+    let r = api
+        .builder(Method::POST, "/api/v1/measurements")
+        .multipart(form);
+    let doc = api.send(r).await.expect(201);
     let id = doc["measurement"]["id"].as_str().unwrap().to_string();
     assert!(doc["measurement"]["analysis_error"].is_null(), "{doc}");
     assert!(
@@ -691,27 +416,19 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
             >= 2
     );
 
-    let diag: Value = c
-        .get(d.url(&format!("/api/v1/measurements/{id}/diagnostics")))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let api = Api::new(&d);
+    let diag = api
+        .get(&format!("/api/v1/measurements/{id}/diagnostics"))
+        .await;
     let cands = diag["diagnostics"]["candidates"]
         .as_array()
         .expect("candidates");
     assert_eq!(cands[0]["effect"], "coulomb_friction", "{diag}");
     let plots = diag["plots"].as_array().unwrap();
     assert!(!plots.is_empty());
-    let svg = c
-        .get(d.url(plots[0].as_str().unwrap()))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(svg.headers()["content-type"], "image/svg+xml");
-    assert!(svg.text().await.unwrap().contains("<svg"));
+    let svg = api.get_reply(plots[0].as_str().unwrap()).await;
+    assert_eq!(svg.header("content-type"), "image/svg+xml");
+    assert!(svg.text.contains("<svg"));
 
     // The base model (first ladder step) misses the friction.
     let base_error = diag["diagnostics"]["ladder"][0]["model_error_percent"]
@@ -719,19 +436,14 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
         .unwrap();
     // Two fits, both kept; with friction forced in, the model carries its
     // force and explains more than the base model.
+    let path = format!("/api/v1/measurements/{id}/fits");
     let mut fits_made = vec![];
     for (effects, order) in [
         (json!(["coulomb_friction"]), json!(null)),
         (json!(["coulomb_friction"]), json!(5)),
     ] {
-        let r = c
-            .post(d.url(&format!("/api/v1/measurements/{id}/fits")))
-            .json(&json!({"effects": effects, "order": order}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 201);
-        let f: Value = r.json().await.unwrap();
+        let body = json!({"effects": effects, "order": order});
+        let f = api.post(&path, &body).await.expect(201);
         let model = &f["result"]["model"];
         assert!(model["effects"]["coulomb_friction"].is_object(), "{model}");
         let e = model["model_error_percent"].as_f64().unwrap();
@@ -739,14 +451,7 @@ async fn fits_diagnostics_and_plots_of_an_imported_set() {
         assert_eq!(f["request"]["effects"], effects);
         fits_made.push(f["id"].as_str().unwrap().to_string());
     }
-    let fits: Value = c
-        .get(d.url(&format!("/api/v1/measurements/{id}/fits")))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let fits = api.get(&path).await;
     let ids: Vec<_> = fits["items"]
         .as_array()
         .unwrap()

@@ -57,6 +57,16 @@ fn strict_schemas_refuse_what_the_document_does_not_describe() {
     assert!(!k.errors("o", &s, &bad).is_empty());
 }
 
+/// A row of a route table: method, route template, URL, token, body, status.
+type Row<'a> = (
+    &'a str,
+    &'a str,
+    &'a str,
+    Option<&'a str>,
+    Option<Value>,
+    u16,
+);
+
 /// One request and its validation.
 struct Api<'a> {
     c: reqwest::Client,
@@ -98,6 +108,30 @@ impl Api<'_> {
         let bytes = resp.bytes().await.unwrap();
         let v = self.k.check(method, path, status, &ct, &bytes);
         (status, v)
+    }
+
+    /// [`Api::call`], expecting `status`; the answer.
+    async fn expect(
+        &mut self,
+        method: &str,
+        path: &str,
+        url: &str,
+        token: Option<&str>,
+        body: Option<Value>,
+        status: u16,
+    ) -> Value {
+        let (s, v) = self.call(method, path, url, token, body).await;
+        assert_eq!(s, status, "{} {url}: {}", method.to_uppercase(), short(&v));
+        v
+    }
+
+    /// A route table: each row is sent as by [`Api::expect`] and must
+    /// answer its status.
+    async fn expect_all(&mut self, rows: &[Row<'_>]) {
+        for (method, path, url, token, body, status) in rows {
+            self.expect(method, path, url, *token, body.clone(), *status)
+                .await;
+        }
     }
 
     /// GET with the viewer token, expecting `status`.
@@ -194,11 +228,12 @@ async fn every_route_answers_as_its_schema_says() {
     // Operations, open routes, auth problems.
     a.call("get", "/api/openapi.json", "/api/openapi.json", None, None)
         .await;
-    assert_eq!(
-        a.call("get", "/healthz", "/healthz", None, None).await.0,
-        200
-    );
-    assert_eq!(a.call("get", "/readyz", "/readyz", None, None).await.0, 200);
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/healthz", "/healthz", None, None, 200),
+        ("get", "/readyz", "/readyz", None, None, 200),
+    ];
+    a.expect_all(rows).await;
     let s = a
         .call("get", "/api/v1/session", "/api/v1/session", None, None)
         .await
@@ -215,56 +250,35 @@ async fn every_route_answers_as_its_schema_says() {
         .await
         .1;
     assert_eq!(s["role"], "operator");
-    a.get("/metrics", "/metrics", 200).await;
-    assert_eq!(
-        a.call("get", "/metrics", "/metrics", None, None).await.0,
-        401
-    );
-    a.get("/api/v1/config", "/api/v1/config", 403).await;
-    let (s, _) = a
-        .call("get", "/api/v1/config", "/api/v1/config", Some(ADMIN), None)
-        .await;
-    assert_eq!(s, 200);
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/metrics", "/metrics", Some(VIEWER), None, 200),
+        ("get", "/metrics", "/metrics", None, None, 401),
+        ("get", "/api/v1/config", "/api/v1/config", Some(VIEWER), None, 403),
+        ("get", "/api/v1/config", "/api/v1/config", Some(ADMIN), None, 200),
+    ];
+    a.expect_all(rows).await;
     let b = a.get("/api/v1/benches", "/api/v1/benches", 200).await;
     assert_eq!(b["items"].as_array().unwrap().len(), 2);
     // Hardware-only routes on a virtual bench.
     let p = "/api/v1/benches/{id}/self-check";
-    assert_eq!(
-        a.call(
-            "post",
-            p,
-            "/api/v1/benches/virtual-1/self-check",
-            Some(OPERATOR),
-            None
-        )
-        .await
-        .0,
-        409
-    );
-    assert_eq!(
-        a.call(
-            "post",
-            p,
-            "/api/v1/benches/nope/self-check",
-            Some(OPERATOR),
-            None
-        )
-        .await
-        .0,
-        404
-    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", p, "/api/v1/benches/virtual-1/self-check", Some(OPERATOR), None, 409),
+        ("post", p, "/api/v1/benches/nope/self-check", Some(OPERATOR), None, 404),
+    ];
+    a.expect_all(rows).await;
     let p = "/api/v1/benches/{id}/calibrations";
     let cal = a
         .get(p, "/api/v1/benches/virtual-1/calibrations", 200)
         .await;
     assert_eq!(cal["items"], json!([]));
-    a.get(p, "/api/v1/benches/nope/calibrations", 404).await;
-    a.get(
-        "/api/v1/calibrations/{id}",
-        "/api/v1/calibrations/nope",
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", p, "/api/v1/benches/nope/calibrations", Some(VIEWER), None, 404),
+        ("get", "/api/v1/calibrations/{id}", "/api/v1/calibrations/nope", Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     // A plain GET on the websocket route, then a websocket.
     a.get("/api/v1/events", "/api/v1/events", 426).await;
     {
@@ -291,18 +305,15 @@ async fn every_route_answers_as_its_schema_says() {
         .await;
     assert_eq!(s, 201, "{r}");
     assert_eq!(r["version"], 1);
-    assert_eq!(
-        a.call(
-            "post",
-            "/api/v1/recipes",
-            "/api/v1/recipes",
-            Some(ADMIN),
-            Some(recipe())
-        )
-        .await
-        .0,
-        409
-    );
+    a.expect(
+        "post",
+        "/api/v1/recipes",
+        "/api/v1/recipes",
+        Some(ADMIN),
+        Some(recipe()),
+        409,
+    )
+    .await;
     let (s, p) = a
         .call(
             "post",
@@ -313,23 +324,19 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(s, 422, "{p}");
-    assert_eq!(
-        a.call(
-            "post",
-            "/api/v1/recipes",
-            "/api/v1/recipes",
-            Some(OPERATOR),
-            Some(recipe())
-        )
-        .await
-        .0,
-        403
-    );
-    a.get("/api/v1/recipes", "/api/v1/recipes", 200).await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", "/api/v1/recipes", "/api/v1/recipes", Some(OPERATOR), Some(recipe()), 403),
+        ("get", "/api/v1/recipes", "/api/v1/recipes", Some(VIEWER), None, 200),
+    ];
+    a.expect_all(rows).await;
     let rn = "/api/v1/recipes/contract-spider";
-    a.get("/api/v1/recipes/{name}", rn, 200).await;
-    a.get("/api/v1/recipes/{name}", "/api/v1/recipes/nope", 404)
-        .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/api/v1/recipes/{name}", rn, Some(VIEWER), None, 200),
+        ("get", "/api/v1/recipes/{name}", "/api/v1/recipes/nope", Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     let (s, _) = a
         .call(
             "put",
@@ -348,12 +355,15 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!((s, v2["version"].as_i64()), (201, Some(2)), "{v2}");
     let mut bad = recipe();
     bad["name"] = json!("other");
-    assert_eq!(
-        a.call("put", "/api/v1/recipes/{name}", rn, Some(ADMIN), Some(bad))
-            .await
-            .0,
-        422
-    );
+    a.expect(
+        "put",
+        "/api/v1/recipes/{name}",
+        rn,
+        Some(ADMIN),
+        Some(bad),
+        422,
+    )
+    .await;
     let v = a
         .get(
             "/api/v1/recipes/{name}/versions",
@@ -362,24 +372,13 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(v["items"].as_array().unwrap().len(), 2);
-    a.get(
-        "/api/v1/recipes/{name}/versions",
-        "/api/v1/recipes/nope/versions",
-        404,
-    )
-    .await;
-    a.get(
-        "/api/v1/recipes/{name}/versions/{version}",
-        &format!("{rn}/versions/1"),
-        200,
-    )
-    .await;
-    a.get(
-        "/api/v1/recipes/{name}/versions/{version}",
-        &format!("{rn}/versions/9"),
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/api/v1/recipes/{name}/versions", "/api/v1/recipes/nope/versions", Some(VIEWER), None, 404),
+        ("get", "/api/v1/recipes/{name}/versions/{version}", &format!("{rn}/versions/1"), Some(VIEWER), None, 200),
+        ("get", "/api/v1/recipes/{name}/versions/{version}", &format!("{rn}/versions/9"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // Jobs: five golden units under the recipe, a job that cannot be measured.
     let mut ids = vec![];
@@ -466,16 +465,15 @@ async fn every_route_answers_as_its_schema_says() {
         golden.push(j);
     }
     let jid = ids[0].clone();
-    let (s, _) = a
-        .call(
-            "post",
-            "/api/v1/jobs/{id}/cancel",
-            &format!("/api/v1/jobs/{jid}/cancel"),
-            Some(OPERATOR),
-            None,
-        )
-        .await;
-    assert_eq!(s, 409);
+    a.expect(
+        "post",
+        "/api/v1/jobs/{id}/cancel",
+        &format!("/api/v1/jobs/{jid}/cancel"),
+        Some(OPERATOR),
+        None,
+        409,
+    )
+    .await;
     a.call(
         "post",
         "/api/v1/jobs/{id}/cancel",
@@ -488,15 +486,13 @@ async fn every_route_answers_as_its_schema_says() {
     let page = a.get("/api/v1/jobs", "/api/v1/jobs?limit=3", 200).await;
     assert!(page["next_cursor"].is_string(), "{page}");
     let cur = page["next_cursor"].as_str().unwrap().to_string();
-    a.get(
-        "/api/v1/jobs",
-        &format!("/api/v1/jobs?limit=3&cursor={cur}"),
-        200,
-    )
-    .await;
-    a.get("/api/v1/jobs", "/api/v1/jobs?state=succeeded&part=G-1", 200)
-        .await;
-    a.get("/api/v1/jobs", "/api/v1/jobs?state=bogus", 422).await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/api/v1/jobs", &format!("/api/v1/jobs?limit=3&cursor={cur}"), Some(VIEWER), None, 200),
+        ("get", "/api/v1/jobs", "/api/v1/jobs?state=succeeded&part=G-1", Some(VIEWER), None, 200),
+        ("get", "/api/v1/jobs", "/api/v1/jobs?state=bogus", Some(VIEWER), None, 422),
+    ];
+    a.expect_all(rows).await;
     let v = a
         .get(
             "/api/v1/jobs/{id}/verdict",
@@ -513,36 +509,18 @@ async fn every_route_answers_as_its_schema_says() {
     .await;
 
     // Parts.
-    a.get("/api/v1/parts", "/api/v1/parts?limit=2", 200).await;
-    a.get("/api/v1/parts", "/api/v1/parts?limit=0", 422).await;
-    a.get("/api/v1/parts/{serial}", "/api/v1/parts/G-0", 200)
-        .await;
-    a.get("/api/v1/parts/{serial}", "/api/v1/parts/nope", 404)
-        .await;
-    a.get(
-        "/api/v1/parts/{serial}/measurements",
-        "/api/v1/parts/G-0/measurements",
-        200,
-    )
-    .await;
-    a.get(
-        "/api/v1/parts/{serial}/measurements",
-        "/api/v1/parts/nope/measurements",
-        404,
-    )
-    .await;
-    a.get(
-        "/api/v1/parts/{serial}/verdict",
-        "/api/v1/parts/G-0/verdict",
-        200,
-    )
-    .await;
-    a.get(
-        "/api/v1/parts/{serial}/verdict",
-        "/api/v1/parts/nope/verdict",
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", "/api/v1/parts", "/api/v1/parts?limit=2", Some(VIEWER), None, 200),
+        ("get", "/api/v1/parts", "/api/v1/parts?limit=0", Some(VIEWER), None, 422),
+        ("get", "/api/v1/parts/{serial}", "/api/v1/parts/G-0", Some(VIEWER), None, 200),
+        ("get", "/api/v1/parts/{serial}", "/api/v1/parts/nope", Some(VIEWER), None, 404),
+        ("get", "/api/v1/parts/{serial}/measurements", "/api/v1/parts/G-0/measurements", Some(VIEWER), None, 200),
+        ("get", "/api/v1/parts/{serial}/measurements", "/api/v1/parts/nope/measurements", Some(VIEWER), None, 404),
+        ("get", "/api/v1/parts/{serial}/verdict", "/api/v1/parts/G-0/verdict", Some(VIEWER), None, 200),
+        ("get", "/api/v1/parts/{serial}/verdict", "/api/v1/parts/nope/verdict", Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // Measurements of a bench job.
     let mid = golden[0]["measurement_ids"][0]
@@ -574,24 +552,13 @@ async fn every_route_answers_as_its_schema_says() {
     )
     .await;
     let rp = "/api/v1/measurements/{id}/recordings/{file}";
-    a.get(
-        rp,
-        &format!("/api/v1/measurements/{mid}/recordings/pre.wav"),
-        200,
-    )
-    .await;
-    a.get(
-        rp,
-        &format!("/api/v1/measurements/{mid}/recordings/main.wav"),
-        200,
-    )
-    .await;
-    a.get(
-        rp,
-        &format!("/api/v1/measurements/{mid}/recordings/x.wav"),
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", rp, &format!("/api/v1/measurements/{mid}/recordings/pre.wav"), Some(VIEWER), None, 200),
+        ("get", rp, &format!("/api/v1/measurements/{mid}/recordings/main.wav"), Some(VIEWER), None, 200),
+        ("get", rp, &format!("/api/v1/measurements/{mid}/recordings/x.wav"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     let dp = "/api/v1/measurements/{id}/diagnostics";
     let dg = a
         .get(dp, &format!("/api/v1/measurements/{mid}/diagnostics"), 200)
@@ -600,13 +567,12 @@ async fn every_route_answers_as_its_schema_says() {
         .await;
     let plot = dg["plots"][0].as_str().unwrap().to_string();
     let pp = "/api/v1/measurements/{id}/plots/{file}";
-    a.get(pp, &plot, 200).await;
-    a.get(
-        pp,
-        &format!("/api/v1/measurements/{mid}/plots/nope.svg"),
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", pp, &plot, Some(VIEWER), None, 200),
+        ("get", pp, &format!("/api/v1/measurements/{mid}/plots/nope.svg"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     let fp = "/api/v1/measurements/{id}/fits";
     let furl = format!("/api/v1/measurements/{mid}/fits");
     let (s, f) = a
@@ -619,26 +585,12 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(s, 201, "{}", short(&f));
-    let (s, _) = a
-        .call(
-            "post",
-            fp,
-            &furl,
-            Some(OPERATOR),
-            Some(json!({"effects": ["nope"]})),
-        )
-        .await;
-    assert_eq!(s, 422);
-    let (s, _) = a
-        .call(
-            "post",
-            fp,
-            "/api/v1/measurements/nope/fits",
-            Some(OPERATOR),
-            Some(json!({})),
-        )
-        .await;
-    assert_eq!(s, 404);
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", fp, &furl, Some(OPERATOR), Some(json!({"effects": ["nope"]})), 422),
+        ("post", fp, "/api/v1/measurements/nope/fits", Some(OPERATOR), Some(json!({})), 404),
+    ];
+    a.expect_all(rows).await;
     // The same model again: the stored fit (200), no copy.
     let (s, again) = a
         .call(
@@ -668,26 +620,12 @@ async fn every_route_answers_as_its_schema_says() {
         .await;
     assert_eq!(s, 200, "{}", short(&hc));
     assert_eq!(hc["fit_id"], f["id"]);
-    let (s, _) = a
-        .call(
-            "put",
-            hp,
-            &hurl,
-            Some(OPERATOR),
-            Some(json!({"fit_id": "nope"})),
-        )
-        .await;
-    assert_eq!(s, 422);
-    let (s, _) = a
-        .call(
-            "put",
-            hp,
-            "/api/v1/measurements/nope/headline",
-            Some(OPERATOR),
-            Some(json!({"fit_id": null})),
-        )
-        .await;
-    assert_eq!(s, 404);
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("put", hp, &hurl, Some(OPERATOR), Some(json!({"fit_id": "nope"})), 422),
+        ("put", hp, "/api/v1/measurements/nope/headline", Some(OPERATOR), Some(json!({"fit_id": null})), 404),
+    ];
+    a.expect_all(rows).await;
     let doc = a
         .get(
             "/api/v1/measurements/{id}",
@@ -698,26 +636,12 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!(doc["measurement"]["headline"]["fit_id"], f["id"]);
     // The printable report (HTML) from the headline fit.
     let rp = "/api/v1/measurements/{id}/report";
-    let (s, _) = a
-        .call(
-            "get",
-            rp,
-            &format!("/api/v1/measurements/{mid}/report"),
-            Some(OPERATOR),
-            None,
-        )
-        .await;
-    assert_eq!(s, 200);
-    let (s, _) = a
-        .call(
-            "get",
-            rp,
-            "/api/v1/measurements/nope/report",
-            Some(OPERATOR),
-            None,
-        )
-        .await;
-    assert_eq!(s, 404);
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", rp, &format!("/api/v1/measurements/{mid}/report"), Some(OPERATOR), None, 200),
+        ("get", rp, "/api/v1/measurements/nope/report", Some(OPERATOR), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // An imported recording set.
     let dir = common::reference_dir("p1_spider");
@@ -780,86 +704,50 @@ async fn every_route_answers_as_its_schema_says() {
         assert_eq!(s, 201, "{}", short(&p));
         proposals.push(p["id"].as_str().unwrap().to_string());
     }
-    let (s, _) = a
-        .call(
-            "post",
-            lp,
-            &lurl,
-            Some(OPERATOR),
-            Some(json!({"serials": ["G-0", "nope", "G-1", "G-2", "G-3"], "method": "k_sigma", "k": 6})),
-        )
-        .await;
-    assert_eq!(s, 422);
-    let (s, _) = a
-        .call(
-            "post",
-            lp,
-            "/api/v1/recipes/nope/limit-proposals",
-            Some(OPERATOR),
-            Some(pbody.clone()),
-        )
-        .await;
-    assert_eq!(s, 404);
-    a.get(
-        "/api/v1/limit-proposals/{id}",
-        &format!("/api/v1/limit-proposals/{}", proposals[0]),
-        200,
-    )
-    .await;
-    a.get(
-        "/api/v1/limit-proposals/{id}",
-        "/api/v1/limit-proposals/nope",
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", lp, &lurl, Some(OPERATOR), Some(json!({"serials": ["G-0", "nope", "G-1", "G-2", "G-3"], "method": "k_sigma", "k": 6})), 422),
+        ("post", lp, "/api/v1/recipes/nope/limit-proposals", Some(OPERATOR), Some(pbody.clone()), 404),
+        ("get", "/api/v1/limit-proposals/{id}", &format!("/api/v1/limit-proposals/{}", proposals[0]), Some(VIEWER), None, 200),
+        ("get", "/api/v1/limit-proposals/{id}", "/api/v1/limit-proposals/nope", Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     let pl = a.get(lp, &lurl, 200).await;
     assert_eq!(pl["items"].as_array().unwrap().len(), 2);
     a.get(lp, "/api/v1/recipes/nope/limit-proposals", 404).await;
     let rj = "/api/v1/limit-proposals/{id}/reject";
     let rurl = format!("/api/v1/limit-proposals/{}/reject", proposals[0]);
-    assert_eq!(a.call("post", rj, &rurl, Some(ADMIN), None).await.0, 200);
-    assert_eq!(a.call("post", rj, &rurl, Some(ADMIN), None).await.0, 409);
-    assert_eq!(
-        a.call(
-            "post",
-            rj,
-            "/api/v1/limit-proposals/nope/reject",
-            Some(ADMIN),
-            None
-        )
-        .await
-        .0,
-        404
-    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", rj, &rurl, Some(ADMIN), None, 200),
+        ("post", rj, &rurl, Some(ADMIN), None, 409),
+        ("post", rj, "/api/v1/limit-proposals/nope/reject", Some(ADMIN), None, 404),
+    ];
+    a.expect_all(rows).await;
     let ap = "/api/v1/limit-proposals/{id}/approve";
     let aurl = format!("/api/v1/limit-proposals/{}/approve", proposals[1]);
     let (s, v3) = a.call("post", ap, &aurl, Some(ADMIN), None).await;
     assert_eq!((s, v3["version"].as_i64()), (201, Some(3)), "{v3}");
-    assert_eq!(a.call("post", ap, &aurl, Some(ADMIN), None).await.0, 409);
+    a.expect("post", ap, &aurl, Some(ADMIN), None, 409).await;
     let aurl0 = format!("/api/v1/limit-proposals/{}/approve", proposals[0]);
-    assert_eq!(a.call("post", ap, &aurl0, Some(ADMIN), None).await.0, 409);
-    assert_eq!(
-        a.call(
-            "post",
-            ap,
-            "/api/v1/limit-proposals/nope/approve",
-            Some(ADMIN),
-            None
-        )
-        .await
-        .0,
-        404
-    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", ap, &aurl0, Some(ADMIN), None, 409),
+        ("post", ap, "/api/v1/limit-proposals/nope/approve", Some(ADMIN), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // SPC (JSON and CSV).
     let sp = "/api/v1/recipes/{name}/spc";
     let spc = a.get(sp, &format!("{rn}/spc?parameter=k0"), 200).await;
     assert_eq!(spc["n"], 5, "{spc}");
-    a.get(sp, &format!("{rn}/spc?parameter=k0&format=csv"), 200)
-        .await;
-    a.get(sp, &format!("{rn}/spc"), 422).await;
-    a.get(sp, "/api/v1/recipes/nope/spc?parameter=k0", 404)
-        .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", sp, &format!("{rn}/spc?parameter=k0&format=csv"), Some(VIEWER), None, 200),
+        ("get", sp, &format!("{rn}/spc"), Some(VIEWER), None, 422),
+        ("get", sp, "/api/v1/recipes/nope/spc?parameter=k0", Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // MES outbox: the receiver is down, so every message is pending.
     let ob = a
@@ -880,12 +768,15 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(s, 200, "{r}");
-    assert_eq!(
-        a.call("post", rt, "/api/v1/outbox/999999/retry", Some(ADMIN), None)
-            .await
-            .0,
-        404
-    );
+    a.expect(
+        "post",
+        rt,
+        "/api/v1/outbox/999999/retry",
+        Some(ADMIN),
+        None,
+        404,
+    )
+    .await;
     let dr = "/api/v1/outbox/{id}";
     let (s, r) = a
         .call(
@@ -897,54 +788,21 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!((s, r["state"].as_str()), (200, Some("dropped")));
-    assert_eq!(
-        a.call(
-            "delete",
-            dr,
-            &format!("/api/v1/outbox/{first}"),
-            Some(ADMIN),
-            None
-        )
-        .await
-        .0,
-        409
-    );
-    assert_eq!(
-        a.call(
-            "post",
-            rt,
-            &format!("/api/v1/outbox/{first}/retry"),
-            Some(ADMIN),
-            None
-        )
-        .await
-        .0,
-        409
-    );
-    assert_eq!(
-        a.call("delete", dr, "/api/v1/outbox/nope", Some(ADMIN), None)
-            .await
-            .0,
-        404
-    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("delete", dr, &format!("/api/v1/outbox/{first}"), Some(ADMIN), None, 409),
+        ("post", rt, &format!("/api/v1/outbox/{first}/retry"), Some(ADMIN), None, 409),
+        ("delete", dr, "/api/v1/outbox/nope", Some(ADMIN), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // Retiring the recipe last (jobs above still name it).
-    let (s, _) = a
-        .call("delete", "/api/v1/recipes/{name}", rn, Some(ADMIN), None)
-        .await;
-    assert_eq!(s, 204);
-    assert_eq!(
-        a.call(
-            "delete",
-            "/api/v1/recipes/{name}",
-            "/api/v1/recipes/nope",
-            Some(ADMIN),
-            None
-        )
-        .await
-        .0,
-        404
-    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("delete", "/api/v1/recipes/{name}", rn, Some(ADMIN), None, 204),
+        ("delete", "/api/v1/recipes/{name}", "/api/v1/recipes/nope", Some(ADMIN), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     // A level series (issue 12): the joint fit in the document of each
     // level, Keff at the target beside the measured one, both validated.
@@ -1087,8 +945,12 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!(listed["items"][0]["id"], study["id"]);
     let one = "/api/v1/gauge-studies/{id}";
     let id = study["id"].as_str().unwrap();
-    a.get(one, &format!("{gs}/{id}"), 200).await;
-    a.get(one, &format!("{gs}/nope"), 404).await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", one, &format!("{gs}/{id}"), Some(VIEWER), None, 200),
+        ("get", one, &format!("{gs}/nope"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     // Bench calibration (issue 21): three golden units measured under the
     // recipe on both benches; virtual-2 against virtual-1 (201), listed; an
     // unknown bench names its field.
@@ -1190,13 +1052,19 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!(v["state"]["failure"]["limit"], "k0_change_percent", "{v}");
     a.get(one, &format!("{lt}/nope"), 404).await;
     let csv = "/api/v1/long-term-tests/{id}/series.csv";
-    a.get(csv, &format!("{lt}/{ltid}/series.csv"), 200).await;
-    a.get(csv, &format!("{lt}/nope/series.csv"), 404).await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", csv, &format!("{lt}/{ltid}/series.csv"), Some(VIEWER), None, 200),
+        ("get", csv, &format!("{lt}/nope/series.csv"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     let wav = "/api/v1/long-term-tests/{id}/last-signals.wav";
-    a.get(wav, &format!("{lt}/{ltid}/last-signals.wav"), 200)
-        .await;
-    a.get(wav, &format!("{lt}/nope/last-signals.wav"), 404)
-        .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", wav, &format!("{lt}/{ltid}/last-signals.wav"), Some(VIEWER), None, 200),
+        ("get", wav, &format!("{lt}/nope/last-signals.wav"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
 
     let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
     let mut missing = vec![];

@@ -9,11 +9,17 @@
 
 use crate::common;
 
-use common::{client, send, Daemon};
+use common::{Api, Daemon};
+use reqwest::Method;
 use serde_json::{json, Value};
 use springbench::physics::production::{part, Spread};
 use springbench::qc::grr;
 use std::time::{Duration, Instant};
+
+/// The API as the station (jobs, reads).
+fn station(d: &Daemon) -> Api {
+    Api::with(d, OPERATOR)
+}
 
 const OPERATOR: &str = "station-secret-0123456789";
 const ADMIN: &str = "engineer-secret-0123456789";
@@ -30,18 +36,11 @@ fn k_at(k: &[f64], x: f64) -> f64 {
     k.iter().rev().fold(0.0, |acc, c| acc * x + c)
 }
 
-/// GET as the station; the body of a 200.
-async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
-    let (s, v) = send(c, d, reqwest::Method::GET, path, OPERATOR, None).await;
-    assert_eq!(s, 200, "{path}: {v}");
-    v
-}
-
 /// The study's document once every run has ended.
-async fn study_done(c: &reqwest::Client, d: &Daemon, id: &str, within: Duration) -> Value {
+async fn study_done(d: &Daemon, id: &str, within: Duration) -> Value {
     let t = Instant::now();
     loop {
-        let v = get(c, d, &format!("/api/v1/gauge-studies/{id}")).await;
+        let v = station(d).get(&format!("/api/v1/gauge-studies/{id}")).await;
         if v["state"] == "done" {
             return v;
         }
@@ -57,7 +56,6 @@ async fn gauge_study_on_two_virtual_benches() {
         "{}[[benches]]\nid = \"virtual-off\"\nseed = 4001\n[benches.virtual]\nlaser_gain_error = 0.02\n",
         config()
     ));
-    let c = client();
     let nominal = springbench::physics::preset("spider_4in").unwrap();
     let k0 = nominal.k_coeffs_si[0];
     let k4 = k_at(&nominal.k_coeffs_si, 0.004);
@@ -72,15 +70,9 @@ async fn gauge_study_on_two_virtual_benches() {
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     });
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        ADMIN,
-        Some(recipe),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ADMIN)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&recipe))
+        .await;
     assert_eq!(s, 201, "{v}");
 
     // Bad requests: one field named each.
@@ -88,17 +80,10 @@ async fn gauge_study_on_two_virtual_benches() {
         .map(|i| json!({"serial": format!("G-{i}"), "production": {"preset": "spider_4in", "seed": 700 + i}}))
         .collect();
     let post = |body: Value| {
-        let (c, d) = (&c, &d);
+        let api = station(&d);
         async move {
-            send(
-                c,
-                d,
-                reqwest::Method::POST,
-                "/api/v1/gauge-studies",
-                OPERATOR,
-                Some(body),
-            )
-            .await
+            api.exchange(Method::POST, "/api/v1/gauge-studies", Some(&body))
+                .await
         }
     };
     for (body, field) in [
@@ -141,15 +126,9 @@ async fn gauge_study_on_two_virtual_benches() {
             || v.to_string().contains(&format!("\"{field}\""));
         assert!(named, "{field} not named: {v}");
     }
-    let (s, _) = send(
-        &c,
-        &d,
-        reqwest::Method::GET,
-        "/api/v1/gauge-studies/nope",
-        OPERATOR,
-        None,
-    )
-    .await;
+    let (s, _) = Api::with(&d, OPERATOR)
+        .exchange(Method::GET, "/api/v1/gauge-studies/nope", None)
+        .await;
     assert_eq!(s, 404);
 
     // The study.
@@ -160,7 +139,7 @@ async fn gauge_study_on_two_virtual_benches() {
     assert_eq!(study["runs_total"], 12);
     assert_eq!(study["benches"], json!(["virtual-1", "virtual-2"]));
     let id = study["id"].as_str().unwrap().to_string();
-    let study = study_done(&c, &d, &id, Duration::from_secs(900)).await;
+    let study = study_done(&d, &id, Duration::from_secs(900)).await;
     assert_eq!(study["not_computed"], json!([]), "{study}");
 
     // Independent values: each run's job verdict through the public API.
@@ -169,7 +148,9 @@ async fn gauge_study_on_two_virtual_benches() {
     let mut values = std::collections::HashMap::<String, Vec<Vec<Vec<f64>>>>::new();
     for run in study["runs"].as_array().unwrap() {
         let job = run["job_id"].as_str().unwrap();
-        let v = get(&c, &d, &format!("/api/v1/jobs/{job}/verdict")).await;
+        let v = station(&d)
+            .get(&format!("/api/v1/jobs/{job}/verdict"))
+            .await;
         let p = run["part_index"].as_u64().unwrap() as usize;
         let b = benches.iter().position(|x| *x == run["bench_id"]).unwrap();
         let r = run["repeat"].as_u64().unwrap() as usize;
@@ -285,7 +266,7 @@ async fn gauge_study_on_two_virtual_benches() {
         }
     }
 
-    bench_calibration_from_the_study_parts(&c, &d).await;
+    bench_calibration_from_the_study_parts(&d).await;
 }
 
 /// Bench calibration (decision 0049) from the study's 3 parts as golden
@@ -294,7 +275,7 @@ async fn gauge_study_on_two_virtual_benches() {
 /// bound: out of calibration, and a part measured there is `invalid`, never
 /// corrected silently. Every verdict names the calibration it was judged
 /// with, or that there is none.
-async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon) {
+async fn bench_calibration_from_the_study_parts(d: &Daemon) {
     let serials: Vec<String> = (0..3).map(|i| format!("G-{i}")).collect();
     let job = |serial: &str, seed: u64, bench: &str| {
         json!({"part": {"serial": serial}, "recipe": "spider-4in", "bench": bench,
@@ -322,15 +303,13 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
             "serials",
         ),
     ] {
-        let (s, v) = send(
-            c,
-            d,
-            reqwest::Method::POST,
-            "/api/v1/recipes/spider-4in/bench-calibrations",
-            ADMIN,
-            Some(body),
-        )
-        .await;
+        let (s, v) = Api::with(&d, ADMIN)
+            .exchange(
+                Method::POST,
+                "/api/v1/recipes/spider-4in/bench-calibrations",
+                Some(&body),
+            )
+            .await;
         assert_eq!(s, 422, "{field}: {v}");
         assert!(
             v.to_string().contains(&format!("\"{field}\"")),
@@ -338,18 +317,18 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
         );
     }
     // The operator may not change how a bench is judged.
-    let (s, _) = send(
-        c,
-        d,
-        reqwest::Method::POST,
-        "/api/v1/recipes/spider-4in/bench-calibrations",
-        OPERATOR,
-        Some(json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials})),
-    )
-    .await;
+    let (s, _) = Api::with(&d, OPERATOR)
+        .exchange(
+            Method::POST,
+            "/api/v1/recipes/spider-4in/bench-calibrations",
+            Some(
+                &json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": serials}),
+            ),
+        )
+        .await;
     assert_eq!(s, 403);
 
-    let cal = calibrate(c, d, "virtual-2", "virtual-1", &serials, None).await;
+    let cal = calibrate(d, "virtual-2", "virtual-1", &serials, None).await;
     let k = &cal["calibration"];
     eprintln!("virtual-2: {k}");
     assert_eq!(cal["state"], "in_calibration", "{cal}");
@@ -359,14 +338,13 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     assert!(k["clamp_mass_kg"].as_f64().unwrap().abs() < 2.5e-6, "{k}");
 
     run_jobs(
-        c,
         d,
         (0..3)
             .map(|i| job(&serials[i], 700 + i as u64, "virtual-off"))
             .collect(),
     )
     .await;
-    let off = calibrate(c, d, "virtual-off", "virtual-1", &serials, None).await;
+    let off = calibrate(d, "virtual-off", "virtual-1", &serials, None).await;
     let e = off["calibration"]["laser_gain_error"].as_f64().unwrap();
     eprintln!(
         "virtual-off: laser {:+.4} %, problems {}",
@@ -385,7 +363,6 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
 
     // One more measurement on each bench: its verdict's traceability.
     let ids = run_jobs(
-        c,
         d,
         ["virtual-1", "virtual-2", "virtual-off"]
             .iter()
@@ -394,7 +371,7 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     )
     .await;
     let verdict =
-        |id: String| async move { get(c, d, &format!("/api/v1/jobs/{id}/verdict")).await };
+        |id: String| async move { station(d).get(&format!("/api/v1/jobs/{id}/verdict")).await };
     let v1 = verdict(ids[0].clone()).await;
     assert_eq!(
         v1["measurements"][0]["traceability"]["bench_calibration"]["state"], "none",
@@ -413,34 +390,29 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
     );
     assert_eq!(v3["verdict"], "invalid", "{v3}");
     assert!(v3.to_string().contains("bench_out_of_calibration"), "{v3}");
-    let list = get(c, d, "/api/v1/recipes/spider-4in/bench-calibrations").await;
+    let list = station(d)
+        .get("/api/v1/recipes/spider-4in/bench-calibrations")
+        .await;
     assert_eq!(list["items"].as_array().unwrap().len(), 2, "{list}");
 
     // Golden units measured with repeats calibrate with every repeat: each
     // unit's estimate is the mean over its (reference, bench) result pairs
     // (before, only the first repeat's result was read, the others unseen).
     // A job takes its repeats from the recipe: a version with 2.
-    let mut r = get(c, d, "/api/v1/recipes/spider-4in").await["recipe"].clone();
+    let mut r = station(d).get("/api/v1/recipes/spider-4in").await["recipe"].clone();
     r["procedure"]["repeats"] = json!(2);
-    let (s, v) = send(
-        c,
-        d,
-        reqwest::Method::PUT,
-        "/api/v1/recipes/spider-4in",
-        ADMIN,
-        Some(r),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ADMIN)
+        .exchange(Method::PUT, "/api/v1/recipes/spider-4in", Some(&r))
+        .await;
     assert!(s == 200 || s == 201, "{s} {v}");
     run_jobs(
-        c,
         d,
         (0..3)
             .map(|i| job(&serials[i], 700 + i as u64, "virtual-2"))
             .collect(),
     )
     .await;
-    let cal = calibrate(c, d, "virtual-2", "virtual-1", &serials, None).await;
+    let cal = calibrate(d, "virtual-2", "virtual-1", &serials, None).await;
     assert_eq!(cal["state"], "in_calibration", "{cal}");
     let units = cal["calibration"]["units"].as_array().unwrap();
     assert_eq!(units.len(), 3, "{cal}");
@@ -455,25 +427,19 @@ async fn bench_calibration_from_the_study_parts(c: &reqwest::Client, d: &Daemon)
 }
 
 /// Submits `bodies` as jobs and waits until each has succeeded.
-async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: Vec<Value>) -> Vec<String> {
+async fn run_jobs(d: &Daemon, bodies: Vec<Value>) -> Vec<String> {
     let mut ids = vec![];
     for body in bodies {
-        let (s, v) = send(
-            c,
-            d,
-            reqwest::Method::POST,
-            "/api/v1/jobs",
-            OPERATOR,
-            Some(body),
-        )
-        .await;
+        let (s, v) = Api::with(&d, OPERATOR)
+            .exchange(Method::POST, "/api/v1/jobs", Some(&body))
+            .await;
         assert_eq!(s, 202, "{v}");
         ids.push(v["id"].as_str().unwrap().to_string());
     }
     for id in &ids {
         let t = Instant::now();
         loop {
-            let j = get(c, d, &format!("/api/v1/jobs/{id}")).await;
+            let j = station(d).get(&format!("/api/v1/jobs/{id}")).await;
             if common::terminal(j["state"].as_str().unwrap()) {
                 assert_eq!(j["state"], "succeeded", "{j}");
                 break;
@@ -488,7 +454,6 @@ async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: Vec<Value>) -> Vec<St
 /// Calibrates `bench` against `reference` from the golden units `serials`
 /// (as the QC engineer); the stored calibration.
 async fn calibrate(
-    c: &reqwest::Client,
     d: &Daemon,
     bench: &str,
     reference: &str,
@@ -499,15 +464,13 @@ async fn calibrate(
     if let Some(p) = procedure {
         body["procedure"] = json!(p);
     }
-    let (s, v) = send(
-        c,
-        d,
-        reqwest::Method::POST,
-        "/api/v1/recipes/spider-4in/bench-calibrations",
-        ADMIN,
-        Some(body),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ADMIN)
+        .exchange(
+            Method::POST,
+            "/api/v1/recipes/spider-4in/bench-calibrations",
+            Some(&body),
+        )
+        .await;
     assert_eq!(s, 201, "{v}");
     v
 }
@@ -532,7 +495,6 @@ async fn acceptance_study_full_against_production() {
         -CLAMP_KG
     );
     let d = Daemon::start(&cfg);
-    let c = client();
     let recipe = json!({
         "name": "spider-4in",
         "part_kind": "spider",
@@ -543,15 +505,9 @@ async fn acceptance_study_full_against_production() {
             {"name": "k_at_4mm", "quantity": "k_at_x", "x_m": 0.004}
         ]
     });
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        ADMIN,
-        Some(recipe),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ADMIN)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&recipe))
+        .await;
     assert_eq!(s, 201, "{v}");
 
     // Golden units on virtual-1 (no reference yet: the full procedure),
@@ -562,23 +518,23 @@ async fn acceptance_study_full_against_production() {
                             "procedure": procedure, "production": {"preset": "spider_4in", "seed": 100 + i}}))
             .collect()
     };
-    run_jobs(&c, &d, golden("virtual-1", "full")).await;
+    run_jobs(&d, golden("virtual-1", "full")).await;
     let serials: Vec<String> = (0..5).map(|i| format!("GU-{i}")).collect();
-    let (s, p) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes/spider-4in/limit-proposals",
-        OPERATOR,
-        Some(json!({"serials": serials, "method": "tolerance", "tolerance_percent": 10.0})),
-    )
-    .await;
+    let (s, p) = Api::with(&d, OPERATOR)
+        .exchange(
+            Method::POST,
+            "/api/v1/recipes/spider-4in/limit-proposals",
+            Some(&json!({"serials": serials, "method": "tolerance", "tolerance_percent": 10.0})),
+        )
+        .await;
     assert_eq!(s, 201, "{p}");
     let path = format!(
         "/api/v1/limit-proposals/{}/approve",
         p["id"].as_str().unwrap()
     );
-    let (s, v) = send(&c, &d, reqwest::Method::POST, &path, ADMIN, None).await;
+    let (s, v) = Api::with(&d, ADMIN)
+        .exchange(Method::POST, &path, None)
+        .await;
     assert_eq!(s, 201, "{v}");
 
     // Bench calibration (decision 0049): the same golden units on every
@@ -592,7 +548,7 @@ async fn acceptance_study_full_against_production() {
     for b in ["virtual-1", "virtual-2", "virtual-3", "virtual-4"] {
         golden_jobs.extend(golden(b, "production"));
     }
-    run_jobs(&c, &d, golden_jobs).await;
+    run_jobs(&d, golden_jobs).await;
     // Truth: the bench reads (1 + e) x; its clamp adds dm.
     for (procedure, (bench, e, dm)) in [
         ("virtual-1", 0.0, 0.0),
@@ -603,7 +559,7 @@ async fn acceptance_study_full_against_production() {
     .iter()
     .flat_map(|b| ["full", "production"].map(|p| (p, *b)))
     {
-        let cal = calibrate(&c, &d, bench, "virtual-1", &serials, Some(procedure)).await;
+        let cal = calibrate(&d, bench, "virtual-1", &serials, Some(procedure)).await;
         let k = &cal["calibration"];
         let (ge, gdm) = (
             k["laser_gain_error"].as_f64().unwrap(),
@@ -657,15 +613,9 @@ async fn acceptance_study_full_against_production() {
     for (_, benches, procedure) in &cases {
         let body = json!({"recipe": "spider-4in", "parts": parts, "repeats": 3,
                           "benches": benches, "job": {"procedure": procedure}});
-        let (s, v) = send(
-            &c,
-            &d,
-            reqwest::Method::POST,
-            "/api/v1/gauge-studies",
-            OPERATOR,
-            Some(body),
-        )
-        .await;
+        let (s, v) = Api::with(&d, OPERATOR)
+            .exchange(Method::POST, "/api/v1/gauge-studies", Some(&body))
+            .await;
         assert_eq!(s, 201, "{v}");
         assert_eq!(v["runs_total"], 60);
         studies.push(v["id"].as_str().unwrap().to_string());
@@ -673,7 +623,7 @@ async fn acceptance_study_full_against_production() {
     let t = Instant::now();
     let mut results = vec![];
     for id in &studies {
-        results.push(study_done(&c, &d, id, Duration::from_secs(3600)).await);
+        results.push(study_done(&d, id, Duration::from_secs(3600)).await);
     }
     eprintln!("studies done after {:.0} s", t.elapsed().as_secs_f64());
 
@@ -712,7 +662,7 @@ async fn acceptance_study_full_against_production() {
         for run in r["runs"].as_array().unwrap() {
             assert_eq!(run["state"], "succeeded", "{run}");
             let job = run["job_id"].as_str().unwrap();
-            let j = get(&c, &d, &format!("/api/v1/jobs/{job}")).await;
+            let j = station(&d).get(&format!("/api/v1/jobs/{job}")).await;
             assert_eq!(j["warnings"], json!([]), "{job} fell back: {j}");
             let log = j["log"].to_string();
             assert!(
@@ -723,7 +673,9 @@ async fn acceptance_study_full_against_production() {
                 .entry(procedure)
                 .or_default()
                 .push(j["bench_time_s"].as_f64().unwrap());
-            let v = get(&c, &d, &format!("/api/v1/jobs/{job}/verdict")).await;
+            let v = station(&d)
+                .get(&format!("/api/v1/jobs/{job}/verdict"))
+                .await;
             // Traceability: the bench's calibration the values were judged with.
             let t = &v["measurements"][0]["traceability"]["bench_calibration"];
             assert_eq!(t["state"], "in_calibration", "{v}");

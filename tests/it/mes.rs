@@ -255,16 +255,7 @@ async fn qc_lot(c: &reqwest::Client, d: &Daemon) -> Vec<(String, String, &'stati
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     });
-    let (s, r) = common::send(
-        c,
-        d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        "",
-        Some(recipe),
-    )
-    .await;
-    assert_eq!(s, 201, "{r}");
+    common::Api::new(d).create_recipe(&recipe).await;
     let job = |serial: &str, seed: u64, defect: Option<&str>| {
         let mut production = json!({"preset": "spider_4in", "seed": seed});
         if let Some(x) = defect {

@@ -12,13 +12,19 @@
 use crate::cfx_sdk;
 use crate::common;
 
-use common::{client, send, Daemon};
+use common::{client, Api, Daemon};
 use hmac::{Hmac, Mac};
+use reqwest::Method;
 use serde_json::{json, Value};
 use sha2::Sha256;
 use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+
+/// The API as the station (jobs, reads).
+fn station(d: &Daemon) -> Api {
+    Api::with(d, STATION)
+}
 
 const STATION: &str = "station-secret-0123456789";
 const ENGINEER: &str = "engineer-secret-0123456789";
@@ -30,12 +36,6 @@ fn tokens() -> &'static str {
 
 fn benches() -> &'static str {
     "[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n"
-}
-
-async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
-    let (s, v) = send(c, d, reqwest::Method::GET, path, STATION, None).await;
-    assert_eq!(s, 200, "{path}: {v}");
-    v
 }
 
 fn recipe() -> Value {
@@ -57,18 +57,12 @@ fn recipe() -> Value {
 }
 
 /// Submits jobs and waits for all of them; returns the job documents in order.
-async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Value> {
+async fn run_jobs(d: &Daemon, bodies: &[Value]) -> Vec<Value> {
     let mut ids = vec![];
     for b in bodies {
-        let (s, v) = send(
-            c,
-            d,
-            reqwest::Method::POST,
-            "/api/v1/jobs",
-            STATION,
-            Some(b.clone()),
-        )
-        .await;
+        let (s, v) = Api::with(&d, STATION)
+            .exchange(Method::POST, "/api/v1/jobs", Some(&b.clone()))
+            .await;
         assert_eq!(s, 202, "{v}");
         ids.push(v["id"].as_str().unwrap().to_string());
     }
@@ -76,7 +70,7 @@ async fn run_jobs(c: &reqwest::Client, d: &Daemon, bodies: &[Value]) -> Vec<Valu
     for id in ids {
         let t = Instant::now();
         loop {
-            let j = get(c, d, &format!("/api/v1/jobs/{id}")).await;
+            let j = station(d).get(&format!("/api/v1/jobs/{id}")).await;
             if common::terminal(j["state"].as_str().unwrap()) {
                 out.push(j);
                 break;
@@ -113,25 +107,13 @@ async fn golden_units_limits_and_production_verdicts() {
     let c = client();
 
     // Recipe: only an admin creates it; the station (operator) may not.
-    let (s, _) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        STATION,
-        Some(recipe()),
-    )
-    .await;
+    let (s, _) = Api::with(&d, STATION)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&recipe()))
+        .await;
     assert_eq!(s, 403);
-    let (s, r) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        ENGINEER,
-        Some(recipe()),
-    )
-    .await;
+    let (s, r) = Api::with(&d, ENGINEER)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&recipe()))
+        .await;
     assert_eq!(s, 201, "{r}");
     assert_eq!(r["version"], 1);
     assert_eq!(r["created_by"], "qc-engineer");
@@ -145,21 +127,19 @@ async fn golden_units_limits_and_production_verdicts() {
     let golden: Vec<Value> = (0..n_golden)
         .map(|i| job(&format!("G-{i:02}"), 100 + i as u64, None))
         .collect();
-    let done = run_jobs(&c, &d, &golden).await;
+    let done = run_jobs(&d, &golden).await;
     for j in &done {
         assert_eq!(j["state"], "succeeded", "{j}");
         assert_eq!(j["verdict"], "pass", "{}", j["id"]);
     }
     let serials: Vec<String> = (0..n_golden).map(|i| format!("G-{i:02}")).collect();
-    let (s, p) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes/spider-4in/limit-proposals",
-        STATION,
-        Some(json!({"serials": serials, "method": "k_sigma", "k": 6.0})),
-    )
-    .await;
+    let (s, p) = Api::with(&d, STATION)
+        .exchange(
+            Method::POST,
+            "/api/v1/recipes/spider-4in/limit-proposals",
+            Some(&json!({"serials": serials, "method": "k_sigma", "k": 6.0})),
+        )
+        .await;
     assert_eq!(s, 201, "{p}");
     assert_eq!(p["state"], "proposed");
     let pid = p["id"].as_str().unwrap().to_string();
@@ -183,39 +163,47 @@ async fn golden_units_limits_and_production_verdicts() {
     assert!((k0["upper"].as_f64().unwrap() - (m + 6.0 * sd)).abs() < 1e-9 * m);
     // Only an admin approves; approval is recorded and makes version 2.
     let path = format!("/api/v1/limit-proposals/{pid}/approve");
-    let (s, _) = send(&c, &d, reqwest::Method::POST, &path, STATION, None).await;
+    let (s, _) = Api::with(&d, STATION)
+        .exchange(Method::POST, &path, None)
+        .await;
     assert_eq!(s, 403);
-    let (s, v2) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
+    let (s, v2) = Api::with(&d, ENGINEER)
+        .exchange(Method::POST, &path, None)
+        .await;
     assert_eq!(s, 201, "{v2}");
     assert_eq!(
         (v2["version"].as_i64(), v2["origin"].as_str()),
         (Some(2), Some("limits_approved"))
     );
     assert!(v2["has_limits"].as_bool().unwrap());
-    let p = get(&c, &d, &format!("/api/v1/limit-proposals/{pid}")).await;
+    let p = station(&d)
+        .get(&format!("/api/v1/limit-proposals/{pid}"))
+        .await;
     assert_eq!(
         (p["state"].as_str(), p["decided_by"].as_str()),
         (Some("approved"), Some("qc-engineer"))
     );
-    let (s, _) = send(&c, &d, reqwest::Method::POST, &path, ENGINEER, None).await;
+    let (s, _) = Api::with(&d, ENGINEER)
+        .exchange(Method::POST, &path, None)
+        .await;
     assert_eq!(s, 409, "approved twice");
     // The recipe's proposals, newest first (what the QC view lists).
-    let list = get(&c, &d, "/api/v1/recipes/spider-4in/limit-proposals").await;
+    let list = station(&d)
+        .get("/api/v1/recipes/spider-4in/limit-proposals")
+        .await;
     let items = list["items"].as_array().unwrap();
     assert_eq!(items.len(), 1, "{list}");
     assert_eq!(
         (items[0]["id"].as_str(), items[0]["state"].as_str()),
         (Some(pid.as_str()), Some("approved"))
     );
-    let (s, _) = send(
-        &c,
-        &d,
-        reqwest::Method::GET,
-        "/api/v1/recipes/no-such-recipe/limit-proposals",
-        STATION,
-        None,
-    )
-    .await;
+    let (s, _) = Api::with(&d, STATION)
+        .exchange(
+            Method::GET,
+            "/api/v1/recipes/no-such-recipe/limit-proposals",
+            None,
+        )
+        .await;
     assert_eq!(s, 404);
 
     // Production: (serial, body, expected verdict, expected failing parameter or invalid reason).
@@ -257,10 +245,12 @@ async fn golden_units_limits_and_production_verdicts() {
     ));
 
     let bodies: Vec<Value> = lot.iter().map(|l| l.1.clone()).collect();
-    let done = run_jobs(&c, &d, &bodies).await;
+    let done = run_jobs(&d, &bodies).await;
     let mut wrong = vec![];
     for ((serial, _, want, why), j) in lot.iter().zip(&done) {
-        let v = get(&c, &d, &format!("/api/v1/parts/{serial}/verdict")).await;
+        let v = station(&d)
+            .get(&format!("/api/v1/parts/{serial}/verdict"))
+            .await;
         let got = v["verdict"].as_str().unwrap().to_string();
         let detail = &v["detail"];
         let ok = got == *want
@@ -324,22 +314,21 @@ async fn golden_units_limits_and_production_verdicts() {
 
     // The measurement carries its verdict too.
     let mid = done[0]["measurement_ids"][0].as_str().unwrap();
-    let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+    let m = station(&d)
+        .get(&format!("/api/v1/measurements/{mid}"))
+        .await;
     assert_eq!(m["measurement"]["verdict"]["verdict"], "pass");
 
     // SPC of k0 over the window: Cpk and Ppk equal an independent computation
     // on the stored k0 of the same measurements.
-    let spc = get(
-        &c,
-        &d,
-        "/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000",
-    )
-    .await;
+    let spc = station(&d)
+        .get("/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000")
+        .await;
     let pts = spc["points"].as_array().unwrap();
     let mut values = vec![];
     for p in pts {
         let id = p["measurement_id"].as_str().unwrap();
-        let m = get(&c, &d, &format!("/api/v1/measurements/{id}")).await;
+        let m = station(&d).get(&format!("/api/v1/measurements/{id}")).await;
         values.push(m["small_signal"]["k0_n_per_m"].as_f64().unwrap());
     }
     // Golden units (no_limits) and production (pass/fail); the invalid ones have no value.
@@ -527,10 +516,10 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
     let bodies: Vec<Value> = (0..10)
         .map(|i| json!({"part": {"serial": format!("M-{}", i % 5)}, "preset": "spider_4in", "target_xpeak_m": 0.006}))
         .collect();
-    let done = run_jobs(&c, &d, &bodies).await;
+    let done = run_jobs(&d, &bodies).await;
     assert!(done.iter().all(|j| j["state"] == "succeeded"));
     // Every bench measurement was announced on the event stream.
-    let ob = get(&c, &d, "/api/v1/outbox?limit=500").await;
+    let ob = station(&d).get("/api/v1/outbox?limit=500").await;
     assert_eq!(ob["pending"], 30, "{ob}");
     let expected: Vec<(String, String)> = ob["items"]
         .as_array()
@@ -623,7 +612,7 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
     // marks the last one delivered a moment after it was seen: wait for it.
     let t = Instant::now();
     let ob = loop {
-        let ob = get(&c, &d2, "/api/v1/outbox").await;
+        let ob = station(&d2).get("/api/v1/outbox").await;
         if ob["pending"] == 0 || t.elapsed() > Duration::from_secs(30) {
             break ob;
         }
@@ -649,7 +638,6 @@ async fn mes_outbox_survives_receiver_outage_and_kill_9() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
     let d = Daemon::start(tokens());
-    let c = client();
     // k0 inside wide limits (it would pass), K(6 mm) with a limit it would fail.
     let r = json!({
         "name": "never-judged",
@@ -660,20 +648,14 @@ async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
             {"name": "k_at_6mm", "quantity": "k_at_x", "x_m": 0.006, "upper": 1.0}
         ]
     });
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        ENGINEER,
-        Some(r),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ENGINEER)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&r))
+        .await;
     assert_eq!(s, 201, "{v}");
     // 20 V cannot drive a spider to 8 mm: target not reached, invalid.
     let body = json!({"part": {"serial": "SN-INV", "kind": "spider"}, "recipe": "never-judged",
                       "limits": {"max_drive_v": 20.0}});
-    let job = run_jobs(&c, &d, &[body]).await.remove(0);
+    let job = run_jobs(&d, &[body]).await.remove(0);
     assert_eq!(job["verdict"], "invalid", "{job}");
     let id = job["id"].as_str().unwrap().to_string();
     let check = |what: &str, v: &Value| {
@@ -707,12 +689,12 @@ async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
             .unwrap()
             .to_string()
     };
-    let jobv = get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    let jobv = station(&d).get(&format!("/api/v1/jobs/{id}/verdict")).await;
     let m = mid(&jobv);
     check_all(
-        get(&c, &d, "/api/v1/parts/SN-INV/verdict").await,
+        station(&d).get("/api/v1/parts/SN-INV/verdict").await,
         jobv,
-        get(&c, &d, &format!("/api/v1/measurements/{m}")).await,
+        station(&d).get(&format!("/api/v1/measurements/{m}")).await,
     );
     // As an older version stored it: k0 `pass`, K(6 mm) `fail`, a failure.
     {
@@ -733,11 +715,11 @@ async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
         .unwrap();
         assert!(r.rows_affected() >= 2);
     }
-    let jobv = get(&c, &d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    let jobv = station(&d).get(&format!("/api/v1/jobs/{id}/verdict")).await;
     check_all(
-        get(&c, &d, "/api/v1/parts/SN-INV/verdict").await,
+        station(&d).get("/api/v1/parts/SN-INV/verdict").await,
         jobv,
-        get(&c, &d, &format!("/api/v1/measurements/{m}")).await,
+        station(&d).get(&format!("/api/v1/measurements/{m}")).await,
     );
 }
 
@@ -769,8 +751,7 @@ async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
         .unwrap();
     }
     let d = Daemon::start_in(tmp.path(), &cfg);
-    let c = client();
-    let benches = get(&c, &d, "/api/v1/benches").await;
+    let benches = station(&d).get("/api/v1/benches").await;
     let b2 = benches["items"]
         .as_array()
         .or(benches.as_array())
@@ -781,15 +762,13 @@ async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
         .unwrap();
     assert_eq!(b2["state"], "faulted", "{benches}");
     let body = |bench: &str, serial: &str| json!({"part": {"serial": serial, "kind": "spider"}, "target_xpeak_m": 0.004, "bench": bench});
-    let (s, p) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/jobs",
-        STATION,
-        Some(body("virtual-2", "SN-F2")),
-    )
-    .await;
+    let (s, p) = Api::with(&d, STATION)
+        .exchange(
+            Method::POST,
+            "/api/v1/jobs",
+            Some(&body("virtual-2", "SN-F2")),
+        )
+        .await;
     assert_eq!(s, 409, "{p}");
     assert_eq!(p["type"], "/problems/bench-faulted", "{p}");
     let detail = p["detail"].as_str().unwrap();
@@ -803,20 +782,18 @@ async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
         p["fault"]["detail"], "laser signal lost: 0 valid frames in 0.5 s",
         "{p}"
     );
-    let jobs = get(&c, &d, "/api/v1/jobs?limit=50").await;
+    let jobs = station(&d).get("/api/v1/jobs?limit=50").await;
     assert!(
         !jobs.to_string().contains("SN-F2"),
         "nothing queued: {jobs}"
     );
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/jobs",
-        STATION,
-        Some(body("virtual-1", "SN-F1")),
-    )
-    .await;
+    let (s, v) = Api::with(&d, STATION)
+        .exchange(
+            Method::POST,
+            "/api/v1/jobs",
+            Some(&body("virtual-1", "SN-F1")),
+        )
+        .await;
     assert_eq!(s, 202, "{v}");
     drop(d);
     drop(tmp);
@@ -943,7 +920,6 @@ fn cfx_messages_are_read_by_the_reference_sdk() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn spc_and_yield_count_production_parts_only() {
     let d = Daemon::start(&format!("{}{}", tokens(), benches()));
-    let c = client();
     let k0 = springbench::physics::preset("spider_4in")
         .unwrap()
         .k_coeffs_si[0];
@@ -956,15 +932,9 @@ async fn spc_and_yield_count_production_parts_only() {
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     });
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/recipes",
-        ENGINEER,
-        Some(recipe),
-    )
-    .await;
+    let (s, v) = Api::with(&d, ENGINEER)
+        .exchange(Method::POST, "/api/v1/recipes", Some(&recipe))
+        .await;
     assert_eq!(s, 201, "{v}");
     let part = |serial: &str, seed: u64, defect: Option<&str>, purpose: Option<&str>| {
         let mut production = json!({"preset": "spider_4in", "seed": seed});
@@ -993,30 +963,25 @@ async fn spc_and_yield_count_production_parts_only() {
         part("G-2", 22, Some("soft"), Some("golden_unit")),
     ];
     let bodies: Vec<Value> = production.iter().chain(&golden).cloned().collect();
-    let done = run_jobs(&c, &d, &bodies).await;
+    let done = run_jobs(&d, &bodies).await;
     for (j, b) in done.iter().zip(&bodies) {
         assert_eq!(j["state"], "succeeded", "{j}");
         let want = b["purpose"].as_str().unwrap_or("production");
         assert_eq!(j["request"]["purpose"], want, "{}", b["part"]["serial"]);
     }
     // A gauge study of two soft parts, twice each on one bench: four runs.
-    let (s, study) = send(
-        &c,
-        &d,
-        reqwest::Method::POST,
-        "/api/v1/gauge-studies",
-        STATION,
-        Some(json!({"recipe": "pools", "repeats": 2, "benches": ["virtual-1"], "parts": [
+    let (s, study) = Api::with(&d, STATION).exchange(Method::POST, "/api/v1/gauge-studies", Some(&json!({"recipe": "pools", "repeats": 2, "benches": ["virtual-1"], "parts": [
             {"serial": "S-1", "production": {"preset": "spider_4in", "seed": 31, "defect": "soft"}},
             {"serial": "S-2", "production": {"preset": "spider_4in", "seed": 32, "defect": "soft"}}
-        ]})),
-    )
+        ]})))
     .await;
     assert_eq!(s, 201, "{study}");
     let sid = study["id"].as_str().unwrap();
     let t = Instant::now();
     let study = loop {
-        let v = get(&c, &d, &format!("/api/v1/gauge-studies/{sid}")).await;
+        let v = station(&d)
+            .get(&format!("/api/v1/gauge-studies/{sid}"))
+            .await;
         if v["state"] == "done" {
             break v;
         }
@@ -1027,12 +992,9 @@ async fn spc_and_yield_count_production_parts_only() {
     let runs = study["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 4);
     for r in runs {
-        let j = get(
-            &c,
-            &d,
-            &format!("/api/v1/jobs/{}", r["job_id"].as_str().unwrap()),
-        )
-        .await;
+        let j = station(&d)
+            .get(&format!("/api/v1/jobs/{}", r["job_id"].as_str().unwrap()))
+            .await;
         assert_eq!(j["request"]["purpose"], "gauge_study", "{j}");
     }
     assert!(
@@ -1044,10 +1006,14 @@ async fn spc_and_yield_count_production_parts_only() {
     let mut values = vec![];
     for j in &done[..production.len()] {
         let mid = j["measurement_ids"][0].as_str().unwrap();
-        let m = get(&c, &d, &format!("/api/v1/measurements/{mid}")).await;
+        let m = station(&d)
+            .get(&format!("/api/v1/measurements/{mid}"))
+            .await;
         values.push(m["small_signal"]["k0_n_per_m"].as_f64().unwrap());
     }
-    let spc = get(&c, &d, "/api/v1/recipes/pools/spc?parameter=k0&last=1000").await;
+    let spc = station(&d)
+        .get("/api/v1/recipes/pools/spc?parameter=k0&last=1000")
+        .await;
     assert_eq!(spc["purpose"], "production");
     assert_eq!(
         (spc["n"].as_u64(), spc["invalid"].as_u64()),
@@ -1092,35 +1058,29 @@ async fn spc_and_yield_count_production_parts_only() {
         ("gauge_study", 4),
         ("engineering", 0),
     ] {
-        let s = get(
-            &c,
-            &d,
-            &format!("/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose={purpose}"),
-        )
-        .await;
+        let s = station(&d)
+            .get(&format!(
+                "/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose={purpose}"
+            ))
+            .await;
         // (a gauge run may be invalid: counted apart, without a value)
         let counted = s["n"].as_u64().unwrap() + s["invalid"].as_u64().unwrap();
         assert_eq!(counted, n, "{purpose}: {s}");
         assert_eq!(s["purpose"], purpose);
     }
-    let (s, v) = send(
-        &c,
-        &d,
-        reqwest::Method::GET,
-        "/api/v1/recipes/pools/spc?parameter=k0&purpose=scrap",
-        STATION,
-        None,
-    )
-    .await;
+    let (s, v) = Api::with(&d, STATION)
+        .exchange(
+            Method::GET,
+            "/api/v1/recipes/pools/spc?parameter=k0&purpose=scrap",
+            None,
+        )
+        .await;
     assert_eq!(s, 422, "{v}");
     assert!(v.to_string().contains("purpose"), "{v}");
     println!(
         "pools: production k0 mean {mean:.1} N/m, Cpk {cpk:.3}; all pools n 11, mean {}",
-        get(
-            &c,
-            &d,
-            "/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose=all"
-        )
-        .await["mean"]
+        station(&d)
+            .get("/api/v1/recipes/pools/spc?parameter=k0&last=1000&purpose=all")
+            .await["mean"]
     );
 }

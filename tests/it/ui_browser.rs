@@ -14,8 +14,9 @@ use crate::browser;
 use crate::common;
 
 use browser::Browser;
-use common::Daemon;
+use common::{Api, Config, Daemon};
 use serde_json::{json, Value};
+use springbench::config::Role;
 use std::time::Duration;
 
 const VIEWER: &str = "viewer-token-0000000001";
@@ -23,79 +24,39 @@ const OPERATOR: &str = "operator-token-00000001";
 const ADMIN: &str = "admin-token-00000000001";
 
 fn tokens() -> String {
-    format!(
-        "[[auth.tokens]]\nname = \"viewer-1\"\ntoken = \"{VIEWER}\"\nrole = \"viewer\"\n\
-         [[auth.tokens]]\nname = \"station-1\"\ntoken = \"{OPERATOR}\"\nrole = \"operator\"\n\
-         [[auth.tokens]]\nname = \"admin-1\"\ntoken = \"{ADMIN}\"\nrole = \"admin\"\n"
-    )
+    Config::new()
+        .token("viewer-1", VIEWER, Role::Viewer)
+        .token("station-1", OPERATOR, Role::Operator)
+        .token("admin-1", ADMIN, Role::Admin)
+        .text()
+}
+
+/// The API as the admin (what the tests read back).
+fn admin(d: &Daemon) -> Api {
+    Api::with(d, ADMIN)
+}
+
+/// The API as the station (jobs, imports, fits).
+fn station(d: &Daemon) -> Api {
+    Api::with(d, OPERATOR)
 }
 
 const LONG: Duration = Duration::from_secs(120);
 const SHORT: Duration = Duration::from_secs(20);
-
-fn reference(name: &str) -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/reference-recordings")
-        .join(name)
-}
-
-/// Imports a reference recording set over the API; returns the measurement id.
-async fn import(d: &Daemon, name: &str, serial: &str) -> String {
-    let dir = reference(name);
-    let part = |f: &str| {
-        reqwest::multipart::Part::bytes(std::fs::read(dir.join(f)).expect("reference file"))
-            .file_name(f.to_string())
-    };
-    let form = reqwest::multipart::Form::new()
-        .part("meta", part("meta.json"))
-        .part("pre", part("pre.wav"))
-        .part("main", part("main.wav"))
-        .text("serial", serial.to_string())
-        .text("kind", "spider");
-    let r = common::client()
-        .post(d.url("/api/v1/measurements"))
-        .bearer_auth(OPERATOR)
-        .multipart(form)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201, "import {name}");
-    let v: Value = r.json().await.unwrap();
-    v["measurement"]["id"].as_str().unwrap().to_string()
-}
-
-async fn get(d: &Daemon, path: &str) -> Value {
-    common::client()
-        .get(d.url(path))
-        .bearer_auth(ADMIN)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap()
-}
 
 /// Operator: login, submit from the form (Enter in the serial field), the
 /// progress updates live, cancel asks first, the verdict panel shows the
 /// part, the result page plots K(x) with its valid range.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn operator_submits_watches_cancels_and_opens_the_result() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
     b.login(&d.base, OPERATOR, "operator").await;
     // First view: the operator screen, serial field focused (a scanner types into it).
     // Reloaded with the token in the session, as a station opens it.
-    b.js("location.reload(); return true;", vec![]).await;
-    b.wait_js(
-        "document.activeElement && document.activeElement.id === 'serial' && document.querySelector('#bench-virtual-1')",
-        SHORT,
-        "the serial field focused and the bench shown",
-    )
-    .await;
+    b.run("location.reload();").await;
+    b.wait("the serial field focused and the bench shown", "document.activeElement && document.activeElement.id === 'serial' && document.querySelector('#bench-virtual-1')").await;
     let first = b
         .js(
             "const m = performance.getEntriesByName('springbench-first-view'); return m.length ? m[0].startTime : null;",
@@ -105,21 +66,16 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
     eprintln!("first view interactive after {first} ms (navigation start to the operator view with benches, jobs and the focused serial field)");
 
     // Record every progress value and live-plot size the page shows, as it shows them.
-    b.js(
-        "window.__seen = []; window.__live = 0; setInterval(() => {
+    b.run("window.__seen = []; window.__live = 0; setInterval(() => {
             const p = document.querySelector('progress.job-progress');
             if (p) window.__seen.push(p.value);
             const l = document.querySelector('#live-plot');
             if (l && l.dataset.points) window.__live = Math.max(window.__live, Number(l.dataset.points));
-         }, 10); return true;",
-        vec![],
-    )
-    .await;
+         }, 10);").await;
     b.type_into("#serial", "SN-UI-0001\n").await;
-    b.wait_js(
-        "document.querySelector('#submit-msg').textContent.startsWith('Queued')",
-        SHORT,
+    b.wait(
         "the job queued message",
+        "document.querySelector('#submit-msg').textContent.startsWith('Queued')",
     )
     .await;
     // The form is ready for the next part at once.
@@ -130,19 +86,13 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
         )
         .await;
     assert_eq!(focused, json!("serial|"));
-    b.wait_js(
-        "window.__seen.some(v => v > 0.2 && v < 0.9)",
-        LONG,
+    b.wait_long(
         "progress between 20 % and 90 %",
+        "window.__seen.some(v => v > 0.2 && v < 0.9)",
     )
     .await;
     b.screenshot("operator-running").await;
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.verdict === 'measured' && document.querySelector('#verdict .verdict-part').textContent.includes('SN-UI-0001')",
-        LONG,
-        "the verdict of SN-UI-0001",
-    )
-    .await;
+    b.wait_long("the verdict of SN-UI-0001", "document.querySelector('#verdict').dataset.verdict === 'measured' && document.querySelector('#verdict .verdict-part').textContent.includes('SN-UI-0001')").await;
     let seen: Vec<f64> =
         serde_json::from_value(b.js("return window.__seen;", vec![]).await).unwrap();
     let mut distinct: Vec<f64> = seen
@@ -168,79 +118,56 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
     let verdict = b.text("#verdict").await;
     assert!(verdict.contains("MEASURED"), "{verdict}");
     assert!(verdict.contains("N/mm"), "{verdict}");
-    let jobs = get(&d, "/api/v1/jobs?part=SN-UI-0001").await;
+    let jobs = admin(&d).get("/api/v1/jobs?part=SN-UI-0001").await;
     assert_eq!(jobs["items"][0]["state"], "succeeded");
     b.screenshot("operator-verdict").await;
     b.assert_no_console_errors("on the operator view").await;
 
     // Cancel asks first; "keep running" keeps it, "yes" cancels.
-    let long = common::client()
-        .post(d.url("/api/v1/jobs"))
-        .bearer_auth(OPERATOR)
-        .json(&json!({"part": {"serial": "SN-UI-LONG"}, "levels_m": [0.002, 0.004, 0.006, 0.008], "repeats": 3}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(long.status(), 202);
-    let long: Value = long.json().await.unwrap();
-    let id = long["id"].as_str().unwrap().to_string();
+    let long = json!({"part": {"serial": "SN-UI-LONG"}, "levels_m": [0.002, 0.004, 0.006, 0.008], "repeats": 3});
+    let id = station(&d).submit(&long).await;
     let btn = format!("#cancel-{id}");
-    b.wait_js(
-        &format!("document.querySelector('{btn}')"),
-        LONG,
+    b.wait_long(
         "the cancel button of the long job",
+        &format!("document.querySelector('{btn}')"),
     )
     .await;
     b.click(&btn).await;
-    b.wait_js(
-        "document.querySelector('#confirm').open",
-        SHORT,
+    b.wait(
         "the confirmation",
+        "document.querySelector('#confirm').open",
     )
     .await;
     b.screenshot("operator-cancel-confirm").await;
     b.click("#confirm-no").await;
-    b.wait_js(
-        "!document.querySelector('#confirm').open",
-        SHORT,
+    b.wait(
         "the dialog closed",
+        "!document.querySelector('#confirm').open",
     )
     .await;
-    let j = get(&d, &format!("/api/v1/jobs/{id}")).await;
+    let j = admin(&d).get(&format!("/api/v1/jobs/{id}")).await;
     assert!(
         ["queued", "running"].contains(&j["state"].as_str().unwrap()),
         "'keep running' must not cancel: {}",
         j["state"]
     );
-    b.wait_js(
-        &format!("document.querySelector('{btn}')"),
-        LONG,
+    b.wait_long(
         "the cancel button again",
+        &format!("document.querySelector('{btn}')"),
     )
     .await;
     b.click(&btn).await;
-    b.wait_js(
-        "document.querySelector('#confirm').open",
-        SHORT,
-        "the confirmation",
-    )
-    .await;
-    b.click("#confirm-yes").await;
+    b.confirm(true).await;
     let t = std::time::Instant::now();
     let j = loop {
-        let j = get(&d, &format!("/api/v1/jobs/{id}")).await;
+        let j = admin(&d).get(&format!("/api/v1/jobs/{id}")).await;
         if common::terminal(j["state"].as_str().unwrap_or("")) || t.elapsed() > LONG {
             break j;
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     };
     assert_eq!(j["state"], "cancelled", "{j}");
-    b.wait_js(
-        &format!("[...document.querySelectorAll('#recent tr')].some(r => r.dataset.job === '{id}' && r.dataset.state === 'cancelled')"),
-        LONG,
-        "the cancelled job in the recent list",
-    )
-    .await;
+    b.wait_long("the cancelled job in the recent list", &format!("[...document.querySelectorAll('#recent tr')].some(r => r.dataset.job === '{id}' && r.dataset.state === 'cancelled')")).await;
     b.assert_no_console_errors("after cancelling").await;
 
     // The result of SN-UI-0001: K(x) with its valid range.
@@ -248,15 +175,8 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
         .as_str()
         .unwrap()
         .to_string();
-    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
-    let vr = b
-        .wait_js(
-            "document.querySelector('#plot-kx canvas') && document.querySelector('#plot-kx').dataset.validRange",
-            LONG,
-            "K(x) plotted",
-        )
-        .await;
-    let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+    let vr = b.visit(&format!("#/measurement/{mid}"), LONG, "K(x) plotted", "document.querySelector('#plot-kx canvas') && document.querySelector('#plot-kx').dataset.validRange").await;
+    let m = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
     let want: Vec<f64> = m["stiffness"]["valid_range_m"]
         .as_array()
         .unwrap()
@@ -296,13 +216,7 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
         },
     );
     b.c.perform_actions(actions).await.expect("hover");
-    let legend = b
-        .wait_js(
-            "(() => { const t = document.querySelector('#plot-kx .u-legend').textContent; return /[0-9] mm/.test(t) && /[0-9] N\\/mm/.test(t) ? t : null; })()",
-            SHORT,
-            "hover values with units in the K(x) legend",
-        )
-        .await;
+    let legend = b.wait("hover values with units in the K(x) legend", "(() => { const t = document.querySelector('#plot-kx .u-legend').textContent; return /[0-9] mm/.test(t) && /[0-9] N\\/mm/.test(t) ? t : null; })()").await;
     eprintln!("K(x) legend on hover: {legend}");
     for id in ["#plot-cx", "#plot-fx", "#plot-levels"] {
         b.wait_js(&format!("document.querySelector('{id} canvas')"), SHORT, id)
@@ -312,47 +226,21 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
     b.assert_no_console_errors("on the measurement view").await;
 
     // A level series: the joint fit over its levels and Keff at the target.
-    let r = common::client()
-        .post(d.url("/api/v1/jobs"))
-        .bearer_auth(OPERATOR)
-        .json(&json!({"part": {"serial": "SN-UI-SERIES"}, "levels_m": [0.004, 0.007]}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 202);
-    let sid = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let t = std::time::Instant::now();
-    let sj = loop {
-        let j = get(&d, &format!("/api/v1/jobs/{sid}")).await;
-        if common::terminal(j["state"].as_str().unwrap_or("")) || t.elapsed() > LONG {
-            break j;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    };
+    let series = json!({"part": {"serial": "SN-UI-SERIES"}, "levels_m": [0.004, 0.007]});
+    let sid = station(&d).submit(&series).await;
+    let sj = admin(&d).finished_within(&sid, LONG).await;
     assert_eq!(sj["state"], "succeeded", "{sj}");
     let smid = sj["measurement_ids"][1].as_str().unwrap().to_string();
-    b.goto(&format!("{}/#/measurement/{smid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#series-levels tbody tr') && document.querySelector('#keff-at-target') && document.querySelector('#plot-kx canvas')",
-        LONG,
-        "the level series' joint fit and Keff at the target",
-    )
-    .await;
+    b.visit(&format!("#/measurement/{smid}"), LONG, "the level series' joint fit and Keff at the target", "document.querySelector('#series-levels tbody tr') && document.querySelector('#keff-at-target') && document.querySelector('#plot-kx canvas')").await;
     let rows = b
-        .wait_js(
-            "document.querySelectorAll('#series-levels tbody tr').length",
-            SHORT,
+        .wait(
             "level rows",
+            "document.querySelectorAll('#series-levels tbody tr').length",
         )
         .await;
     assert_eq!(rows, json!(2));
     b.screenshot("measurement-series").await;
-    b.assert_no_console_errors("on a level series' measurement")
-        .await;
-    b.quit().await;
+    b.finish("on a level series' measurement").await;
 }
 
 /// Diagnostics workspace on the reference recording with hidden dry
@@ -360,20 +248,14 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
 /// error falls and the ladder grows by one step.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let mid = import(&d, "p2_spider_friction", "P2-FRICTION").await;
+    let mid = station(&d)
+        .import("p2_spider_friction", "P2-FRICTION")
+        .await;
     b.login(&d.base, OPERATOR, "operator").await;
-    b.goto(&format!("{}/#/diagnostics/{mid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '1'",
-        LONG,
-        "the base model's ladder",
-    )
-    .await;
+    b.visit(&format!("#/diagnostics/{mid}"), LONG, "the base model's ladder", "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '1'").await;
     // The proposal: the significant candidate with the largest error reduction.
     let top = b
         .js(
@@ -409,13 +291,7 @@ async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
         .parse()
         .unwrap();
     b.click("#add-coulomb_friction").await;
-    let errors = b
-        .wait_js(
-            "document.querySelector('#ladder').dataset.steps === '2' && document.querySelector('#ladder').dataset.errors",
-            LONG,
-            "the ladder's second step",
-        )
-        .await;
+    let errors = b.wait_long("the ladder's second step", "document.querySelector('#ladder').dataset.steps === '2' && document.querySelector('#ladder').dataset.errors").await;
     let e: Vec<f64> = errors
         .as_str()
         .unwrap()
@@ -443,23 +319,24 @@ async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
     let effects = b.text("#model-effects").await;
     assert!(effects.contains("friction"), "{effects}");
     // The fit is stored (POST .../fits).
-    let fits = get(&d, &format!("/api/v1/measurements/{mid}/fits")).await;
+    let fits = admin(&d)
+        .get(&format!("/api/v1/measurements/{mid}/fits"))
+        .await;
     assert_eq!(fits["items"].as_array().map(|a| a.len()), Some(1));
-    b.js("window.scrollTo(0, 0); return true;", vec![]).await;
+    b.run("window.scrollTo(0, 0);").await;
     b.screenshot("diagnostics-after-friction").await;
     for (css, name) in [
         ("#diag-time", "diagnostics-time"),
         ("#diag-spectra", "diagnostics-spectra"),
         ("#diag-residuals", "diagnostics-residuals"),
     ] {
-        b.js(
-            &format!("document.querySelector('{css}').scrollIntoView(); return true;"),
-            vec![],
-        )
+        b.run(&format!(
+            "document.querySelector('{css}').scrollIntoView();"
+        ))
         .await;
         b.screenshot_sizes(name).await;
     }
-    b.js("window.scrollTo(0, 0); return true;", vec![]).await;
+    b.run("window.scrollTo(0, 0);").await;
     b.screenshot_element("#diag-candidates", "diagnostics-candidates")
         .await;
     b.screenshot_element("#diag-time", "diagnostics-model-and-residual")
@@ -468,30 +345,29 @@ async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
         .await;
     b.screenshot_element("#diag-spectra", "diagnostics-spectrum-small-signal")
         .await;
-    b.assert_no_console_errors("in the diagnostics workspace")
-        .await;
-    b.quit().await;
+    b.finish("in the diagnostics workspace").await;
 }
 
 /// Each role sees every view it may see, with the controls its role allows;
 /// an unknown token gets a clear message.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let mid = import(&d, "p1_spider", "P1-SPIDER").await;
+    let mid = station(&d).import("p1_spider", "P1-SPIDER").await;
     // Unknown token: a message, no page.
-    b.goto(&format!("{}/", d.base)).await;
-    b.wait_js("document.querySelector('#token')", SHORT, "the login form")
-        .await;
-    b.type_into("#token", "not-a-known-token-123\n").await;
-    b.wait_js(
-        "document.querySelector('#login-error').textContent.includes('not known')",
+    b.visit(
+        "",
         SHORT,
+        "the login form",
+        "document.querySelector('#token')",
+    )
+    .await;
+    b.type_into("#token", "not-a-known-token-123\n").await;
+    b.wait(
         "the unknown-token message",
+        "document.querySelector('#login-error').textContent.includes('not known')",
     )
     .await;
     b.assert_no_console_errors("after a wrong token").await;
@@ -499,7 +375,7 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
     let c_hash = format!("#/compare?ids={mid}");
     let d_hash = format!("#/diagnostics/{mid}");
     for (tok, role) in [(VIEWER, "viewer"), (OPERATOR, "operator"), (ADMIN, "admin")] {
-        b.js("sessionStorage.clear(); return true;", vec![]).await;
+        b.run("sessionStorage.clear();").await;
         b.login(&d.base, tok, role).await;
         let views = [
             ("#/operator", "#benches .bench"),
@@ -514,15 +390,11 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
             ("#/qc", "#recipes"),
         ];
         for (hash, ready) in views {
-            b.goto(&format!("{}/{hash}", d.base)).await;
-            b.wait_js(
-                &format!(
-                    "document.querySelector('{ready}') || document.querySelector('#view-error')"
-                ),
-                LONG,
-                &format!("{hash} as {role}"),
-            )
-            .await;
+            let ready = format!(
+                "document.querySelector('{ready}') || document.querySelector('#view-error')"
+            );
+            b.visit(hash, LONG, &format!("{hash} as {role}"), &ready)
+                .await;
             assert!(
                 !b.exists("#view-error").await,
                 "{hash} as {role}: {}",
@@ -551,14 +423,8 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
             }
             if name == "compare" && role == "viewer" {
                 // Keff against Xpeak beside K(x): the measurement's point as the API gives it.
-                let drawn = b
-                    .wait_js(
-                        "(() => { const e = document.querySelector('#plot-compare-keff'); return e && e.uplot && e.dataset.kind === 'Keff(Xpeak)' ? e.uplot.data : null; })()",
-                        SHORT,
-                        "Keff against Xpeak in the comparison",
-                    )
-                    .await;
-                let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+                let drawn = b.wait("Keff against Xpeak in the comparison", "(() => { const e = document.querySelector('#plot-compare-keff'); return e && e.uplot && e.dataset.kind === 'Keff(Xpeak)' ? e.uplot.data : null; })()").await;
+                let m = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
                 let (x, k) = (
                     m["large_signal"]["xpeak_m"].as_f64().unwrap() * 1e3,
                     m["large_signal"]["keff_n_per_m"].as_f64().unwrap() * 1e-3,
@@ -569,7 +435,7 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
                 // p1_spider's residual is within its noise floor, so its
                 // model error is 0: the page says why, with both figures,
                 // rather than a bare "0 %" that reads as a perfect model.
-                let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+                let m = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
                 let model = &m["model"];
                 assert_eq!(model["model_error_percent"], json!(0.0), "{model}");
                 let sig4 =
@@ -591,12 +457,7 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
         }
         b.assert_no_console_errors(&format!("as {role}")).await;
         b.click("#logout").await;
-        b.wait_js(
-            "document.querySelector('#token')",
-            SHORT,
-            "the login form after logout",
-        )
-        .await;
+        b.wait_for("#token").await;
     }
     b.quit().await;
 }
@@ -605,27 +466,14 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
 /// and keeps what it showed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_clear_message_when_the_daemon_is_unreachable() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, mut d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let mut d = Daemon::start(&tokens());
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#benches .bench')",
-        SHORT,
-        "operator view",
-    )
-    .await;
+    b.wait_for("#benches .bench").await;
     b.assert_no_console_errors("before the daemon stops").await;
     d.kill9();
-    let banner = b
-        .wait_js(
-            "!document.querySelector('#banner').hidden && document.querySelector('#banner').textContent",
-            LONG,
-            "the unreachable banner",
-        )
-        .await;
+    let banner = b.wait_long("the unreachable banner", "!document.querySelector('#banner').hidden && document.querySelector('#banner').textContent").await;
     assert!(
         banner.as_str().unwrap().contains("does not answer"),
         "{banner}"
@@ -653,15 +501,12 @@ async fn a_clear_message_when_the_daemon_is_unreachable() {
 /// parameters), then the SPC of k0 with its capability figures and chart.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn qc_recipe_limits_verdicts_and_spc() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
-        return;
-    };
-    let d = Daemon::start(&format!(
+    let Some((mut b, d)) = Browser::open(&format!(
         "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
         tokens()
-    ));
-    let c = common::client();
+    )).await else {
+        return;
+    };
     let recipe = json!({
         "name": "spider-4in",
         "part_kind": "spider",
@@ -673,104 +518,55 @@ async fn qc_recipe_limits_verdicts_and_spc() {
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     });
-    let r = c
-        .post(d.url("/api/v1/recipes"))
-        .bearer_auth(ADMIN)
-        .json(&recipe)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
+    admin(&d).create_recipe(&recipe).await;
     // Five golden units (production spread, no defect), on two benches.
-    let mut ids = vec![];
-    for i in 1..=5 {
-        let body = json!({"part": {"serial": format!("G-{i:02}"), "kind": "spider"},
-                          "recipe": "spider-4in", "production": {"preset": "spider_4in", "seed": i}});
-        let r = c
-            .post(d.url("/api/v1/jobs"))
-            .bearer_auth(OPERATOR)
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status(), 202);
-        ids.push(
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_string(),
-        );
-    }
-    for id in &ids {
-        let t = std::time::Instant::now();
-        loop {
-            let j = get(&d, &format!("/api/v1/jobs/{id}")).await;
-            if common::terminal(j["state"].as_str().unwrap_or("")) {
-                assert_eq!(j["state"], "succeeded", "{j}");
-                // Only model_error has a limit yet (5 %): a good unit passes it.
-                assert_eq!(j["verdict"], "pass", "{j}");
-                break;
-            }
-            assert!(t.elapsed() < Duration::from_secs(600), "golden job {id}");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
+    let golden: Vec<Value> = (1..=5)
+        .map(|i| json!({"part": {"serial": format!("G-{i:02}"), "kind": "spider"},
+                          "recipe": "spider-4in", "production": {"preset": "spider_4in", "seed": i}}))
+        .collect();
+    for j in station(&d).run_all(&golden).await {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        // Only model_error has a limit yet (5 %): a good unit passes it.
+        assert_eq!(j["verdict"], "pass", "{j}");
     }
 
     // The QC view as admin: the recipe, then a proposal from the golden units, approved.
     b.login(&d.base, ADMIN, "admin").await;
-    b.goto(&format!("{}/#/qc", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#recipes tr[data-recipe=\"spider-4in\"]')",
+    b.visit(
+        "#/qc",
         SHORT,
         "the recipe list",
+        "document.querySelector('#recipes tr[data-recipe=\"spider-4in\"]')",
     )
     .await;
     b.screenshot_sizes("qc-recipes").await;
-    b.goto(&format!("{}/#/qc/spider-4in", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#golden-serials')",
+    b.visit(
+        "#/qc/spider-4in",
         SHORT,
         "the proposal form",
+        "document.querySelector('#golden-serials')",
     )
     .await;
     b.type_into("#golden-serials", "G-01, G-02, G-03, G-04, G-05")
         .await;
     b.click("#propose").await;
-    let pid = b
-        .wait_js(
-            "(() => { const p = document.querySelector('#proposals .proposal[data-state=\"proposed\"]'); return p ? p.dataset.proposal : null; })()",
-            LONG,
-            "the proposal",
-        )
-        .await;
+    let pid = b.wait_long("the proposal", "(() => { const p = document.querySelector('#proposals .proposal[data-state=\"proposed\"]'); return p ? p.dataset.proposal : null; })()").await;
     let pid = pid.as_str().unwrap().to_string();
     b.screenshot_element("#recipe", "qc-recipe").await;
-    b.js(
-        "document.querySelector('#proposals').scrollIntoView(); return true;",
-        vec![],
-    )
-    .await;
+    b.run("document.querySelector('#proposals').scrollIntoView();")
+        .await;
     b.screenshot_element("#proposals", "qc-proposal").await;
     // The recipe page with its proposal, at the station and office screen sizes.
     b.screenshot_sizes("qc-recipe-proposal").await;
     b.click(&format!("#approve-{pid}")).await;
-    b.wait_js(
-        "document.querySelector('#confirm').open",
-        SHORT,
-        "the confirmation",
-    )
-    .await;
-    b.click("#confirm-yes").await;
-    b.wait_js(
-        "document.querySelector('#recipe h1') && document.querySelector('#recipe h1').textContent.includes('version 2')",
-        SHORT,
-        "recipe version 2 with the approved limits",
-    )
-    .await;
-    let p = get(&d, &format!("/api/v1/limit-proposals/{pid}")).await;
+    b.confirm(true).await;
+    b.wait("recipe version 2 with the approved limits", "document.querySelector('#recipe h1') && document.querySelector('#recipe h1').textContent.includes('version 2')").await;
+    let p = admin(&d)
+        .get(&format!("/api/v1/limit-proposals/{pid}"))
+        .await;
     assert_eq!(p["state"], "approved", "{p}");
     assert_eq!(p["decided_by"], "admin-1", "the approver is recorded");
-    let v2 = get(&d, "/api/v1/recipes/spider-4in").await;
+    let v2 = admin(&d).get("/api/v1/recipes/spider-4in").await;
     assert_eq!(v2["version"], 2);
     let k0 = v2["recipe"]["parameters"]
         .as_array()
@@ -783,18 +579,14 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     b.assert_no_console_errors("in the QC view").await;
 
     // The station: a good part from the operator form under the recipe: PASS.
-    b.goto(&format!("{}/#/operator", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#recipe option[value=\"spider-4in\"]')",
+    b.visit(
+        "#/operator",
         SHORT,
         "the recipe in the submit form",
+        "document.querySelector('#recipe option[value=\"spider-4in\"]')",
     )
     .await;
-    b.js(
-        "const s = document.querySelector('#recipe'); s.value = 'spider-4in'; s.dispatchEvent(new Event('change')); return true;",
-        vec![],
-    )
-    .await;
+    b.run("const s = document.querySelector('#recipe'); s.value = 'spider-4in'; s.dispatchEvent(new Event('change'));").await;
     b.type_into("#serial", "SN-QC-GOOD\n").await;
     b.wait_js(
         // Two benches: one verdict panel each; the part's is the one with its serial.
@@ -803,12 +595,9 @@ async fn qc_recipe_limits_verdicts_and_spc() {
         "PASS for SN-QC-GOOD",
     )
     .await;
-    let jobs = get(&d, "/api/v1/jobs?part=SN-QC-GOOD").await;
-    let good = get(
-        &d,
-        &format!("/api/v1/jobs/{}", jobs["items"][0]["id"].as_str().unwrap()),
-    )
-    .await;
+    let jobs = admin(&d).get("/api/v1/jobs?part=SN-QC-GOOD").await;
+    let good_id = jobs["items"][0]["id"].as_str().unwrap();
+    let good = admin(&d).get(&format!("/api/v1/jobs/{good_id}")).await;
     assert_eq!(good["verdict"], "pass", "{good}");
     assert_eq!(good["request"]["recipe"]["version"], 2, "{good}");
     assert_eq!(
@@ -818,23 +607,10 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     );
     b.screenshot_sizes("operator-verdict-pass").await;
     // A stiff defective part (posted by the line): FAIL with the failing parameters.
-    let r = c
-        .post(d.url("/api/v1/jobs"))
-        .bearer_auth(OPERATOR)
-        .json(
-            &json!({"part": {"serial": "SN-QC-STIFF", "kind": "spider"}, "recipe": "spider-4in",
-                      "production": {"preset": "spider_4in", "seed": 77, "defect": "stiff"}}),
-        )
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 202);
-    b.wait_js(
-        "(() => { const p = document.querySelector('section.verdict[data-serial=\"SN-QC-STIFF\"]'); return p && p.dataset.verdict === 'fail'; })()",
-        LONG,
-        "FAIL for SN-QC-STIFF",
-    )
-    .await;
+    let stiff = json!({"part": {"serial": "SN-QC-STIFF", "kind": "spider"}, "recipe": "spider-4in",
+                      "production": {"preset": "spider_4in", "seed": 77, "defect": "stiff"}});
+    station(&d).submit(&stiff).await;
+    b.wait_long("FAIL for SN-QC-STIFF", "(() => { const p = document.querySelector('section.verdict[data-serial=\"SN-QC-STIFF\"]'); return p && p.dataset.verdict === 'fail'; })()").await;
     let failing = b
         .text("section.verdict[data-serial=\"SN-QC-STIFF\"] .failing")
         .await;
@@ -851,19 +627,12 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     // golden units' band (smallest to largest K of the five golden units,
     // from the approved proposal): the band as the API gives it, inside the
     // mask, and the stiff part above both at x = 0.
-    let stiff = get(&d, "/api/v1/jobs?part=SN-QC-STIFF").await;
+    let stiff = admin(&d).get("/api/v1/jobs?part=SN-QC-STIFF").await;
     let smid = stiff["items"][0]["measurement_ids"][0]
         .as_str()
         .unwrap()
         .to_string();
-    b.goto(&format!("{}/#/measurement/{smid}", d.base)).await;
-    let golden = b
-        .wait_js(
-            "document.querySelector('#plot-kx canvas') && document.querySelector('#plot-kx').dataset.golden",
-            LONG,
-            "the golden units' band on K(x)",
-        )
-        .await;
+    let golden = b.visit(&format!("#/measurement/{smid}"), LONG, "the golden units' band on K(x)", "document.querySelector('#plot-kx canvas') && document.querySelector('#plot-kx').dataset.golden").await;
     assert_eq!(
         golden,
         json!(format!("5,2,{pid}")),
@@ -947,22 +716,13 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     );
     eprintln!("golden band: {inside} points, worst relative difference to the API {worst:e}; at x = {} mm K {:.4} N/mm, golden {:.4}..{:.4}, mask {:.4}..{:.4}",
         xs[i0], k[i0].unwrap(), lo[i0].unwrap(), hi[i0].unwrap(), mlo_s[i0].unwrap(), mhi_s[i0].unwrap());
-    b.js(
-        "document.querySelector('#plot-kx').scrollIntoView(); return true;",
-        vec![],
-    )
-    .await;
+    b.run("document.querySelector('#plot-kx').scrollIntoView();")
+        .await;
     b.screenshot_sizes("measurement-golden-band").await;
     b.screenshot_element("#plot-kx", "kx-golden-band-and-mask")
         .await;
     // Its printable report, with the verdict, the mask and the band, still on two A4 pages.
-    b.goto(&format!("{}/#/report/{smid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true' && document.querySelector('#report-kx').dataset.golden",
-        LONG,
-        "the judged part's report with the golden band",
-    )
-    .await;
+    b.visit(&format!("#/report/{smid}"), LONG, "the judged part's report with the golden band", "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true' && document.querySelector('#report-kx').dataset.golden").await;
     let pdf = b.print_pdf(false).await;
     let pages = browser::pdf_pages(&pdf);
     std::fs::write(browser::artifacts_dir().join("report-judged-a4.pdf"), &pdf).unwrap();
@@ -988,14 +748,10 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     // SPC of k0 over the recipe: the figures the API gives, and the chart.
     b.goto(&format!("{}/#/qc/spider-4in?parameter=k0", d.base))
         .await;
-    let n = b
-        .wait_js(
-            "document.querySelector('#spc-plot canvas') && document.querySelector('#spc-stats').dataset.n",
-            LONG,
-            "the SPC chart of k0",
-        )
+    let n = b.wait_long("the SPC chart of k0", "document.querySelector('#spc-plot canvas') && document.querySelector('#spc-stats').dataset.n").await;
+    let spc = admin(&d)
+        .get("/api/v1/recipes/spider-4in/spc?parameter=k0")
         .await;
-    let spc = get(&d, "/api/v1/recipes/spider-4in/spc?parameter=k0").await;
     assert_eq!(n, json!(spc["n"].as_u64().unwrap().to_string()));
     assert!(spc["n"].as_u64().unwrap() >= 7, "{spc}");
     let stats = b.text("#spc-stats").await;
@@ -1031,59 +787,14 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     assert_eq!(shown, json!(changes.to_string()));
     let note = b.text("#spc-note").await;
     assert!(note.contains("hours since"), "{note}");
-    b.js(
-        "document.querySelector('#spc').scrollIntoView(); return true;",
-        vec![],
-    )
-    .await;
+    b.run("document.querySelector('#spc').scrollIntoView();")
+        .await;
     b.screenshot_element("#spc", "qc-spc").await;
     b.screenshot_sizes("qc-spc").await;
-    b.assert_no_console_errors("in the SPC view").await;
-    b.quit().await;
+    b.finish("in the SPC view").await;
 }
 
 // ---- issue 23: a verdict that cannot be misread, results on every page, exports, report ----
-
-/// Creates a recipe (admin).
-async fn create_recipe(d: &Daemon, body: Value) {
-    let r = common::client()
-        .post(d.url("/api/v1/recipes"))
-        .bearer_auth(ADMIN)
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201, "{}", r.text().await.unwrap_or_default());
-}
-
-/// Posts a job (operator); returns its id.
-async fn post_job(d: &Daemon, body: Value) -> String {
-    let r = common::client()
-        .post(d.url("/api/v1/jobs"))
-        .bearer_auth(OPERATOR)
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 202, "{}", r.text().await.unwrap_or_default());
-    r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string()
-}
-
-/// Waits until the job has finished; returns it.
-async fn finished(d: &Daemon, id: &str) -> Value {
-    let t = std::time::Instant::now();
-    loop {
-        let j = get(d, &format!("/api/v1/jobs/{id}")).await;
-        if common::terminal(j["state"].as_str().unwrap_or("")) {
-            return j;
-        }
-        assert!(t.elapsed() < Duration::from_secs(600), "job {id}: {j}");
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-}
 
 /// A recipe every spider of the virtual bench fails: k0 above 0.1 N/mm
 /// (one-sided), and the model error at most 5 %.
@@ -1104,46 +815,29 @@ fn strict_recipe() -> Value {
 /// the recent jobs show each part's verdict, not "succeeded".
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    create_recipe(&d, strict_recipe()).await;
-    let first = post_job(
-        &d,
-        json!({"part": {"serial": "SN-FIRST"}, "recipe": "spider-strict"}),
-    )
-    .await;
-    assert_eq!(finished(&d, &first).await["verdict"], "fail");
+    admin(&d).create_recipe(&strict_recipe()).await;
+    let first = station(&d)
+        .submit(&json!({"part": {"serial": "SN-FIRST"}, "recipe": "spider-strict"}))
+        .await;
+    assert_eq!(admin(&d).finished(&first).await["verdict"], "fail");
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-FIRST'",
-        LONG,
-        "the first part's FAIL",
-    )
-    .await;
+    b.wait_long("the first part's FAIL", "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-FIRST'").await;
     b.screenshot_sizes("station-verdict-fail").await;
     // Everything the panel shows from now on, as it shows it.
-    b.js(
+    b.run(
         "window.__panel = []; setInterval(() => { const v = document.querySelector('#verdict');
-           if (v) window.__panel.push(v.dataset.verdict + '|' + (v.dataset.serial || '')); }, 10); return true;",
-        vec![],
+           if (v) window.__panel.push(v.dataset.verdict + '|' + (v.dataset.serial || '')); }, 10);",
     )
     .await;
-    let second = post_job(
-        &d,
-        json!({"part": {"serial": "SN-SECOND"}, "recipe": "spider-strict"}),
-    )
-    .await;
+    let second = station(&d)
+        .submit(&json!({"part": {"serial": "SN-SECOND"}, "recipe": "spider-strict"}))
+        .await;
     // The job runs: the panel names the part on the bench.
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.verdict === 'running' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND' && document.querySelector('#verdict-serial').textContent === 'SN-SECOND'",
-        LONG,
-        "the panel showing SN-SECOND while it runs",
-    )
-    .await;
-    let j = get(&d, &format!("/api/v1/jobs/{second}")).await;
+    b.wait_long("the panel showing SN-SECOND while it runs", "document.querySelector('#verdict').dataset.verdict === 'running' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND' && document.querySelector('#verdict-serial').textContent === 'SN-SECOND'").await;
+    let j = admin(&d).get(&format!("/api/v1/jobs/{second}")).await;
     assert_eq!(
         j["state"], "running",
         "the panel showed the part while it ran: {j}"
@@ -1151,13 +845,8 @@ async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict()
     let big = b.text("#verdict-big").await;
     assert!(big.starts_with("MEASURING"), "{big}");
     b.screenshot_sizes("station-measuring").await;
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND'",
-        LONG,
-        "the second part's FAIL",
-    )
-    .await;
-    assert_eq!(finished(&d, &second).await["verdict"], "fail");
+    b.wait_long("the second part's FAIL", "document.querySelector('#verdict').dataset.verdict === 'fail' && document.querySelector('#verdict').dataset.serial === 'SN-SECOND'").await;
+    assert_eq!(admin(&d).finished(&second).await["verdict"], "fail");
     // From the second part's start on, the panel never showed the first part's verdict.
     let panel: Vec<String> =
         serde_json::from_value(b.js("return window.__panel;", vec![]).await).unwrap();
@@ -1174,52 +863,28 @@ async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict()
             .collect::<Vec<_>>()
     );
     // Recent jobs: the verdict, not the job state.
-    b.wait_js(
-        &format!("(() => {{ const r = document.querySelector('#recent tr[data-job=\"{second}\"]'); return r && r.dataset.verdict === 'fail' && r.textContent.includes('FAIL') && !r.textContent.includes('succeeded'); }})()"),
-        LONG,
-        "FAIL in the recent jobs",
-    )
-    .await;
+    b.wait_long("FAIL in the recent jobs", &format!("(() => {{ const r = document.querySelector('#recent tr[data-job=\"{second}\"]'); return r && r.dataset.verdict === 'fail' && r.textContent.includes('FAIL') && !r.textContent.includes('succeeded'); }})()")).await;
     let failing = b.text("#failing").await;
     assert!(
         failing.contains("k0") && failing.contains("\u{2264} 0.1 N/mm"),
         "the recipe's name and a one-sided limit as '\u{2264} 0.1 N/mm': {failing}"
     );
-    b.assert_no_console_errors("on the station with a running part")
-        .await;
-    b.quit().await;
+    b.finish("on the station with a running part").await;
 }
 
 /// Station: the QC recipe chosen in the form survives a reload (the next
 /// part gets a verdict, not MEASURED).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_recipe_choice_survives_a_reload() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    create_recipe(&d, strict_recipe()).await;
+    admin(&d).create_recipe(&strict_recipe()).await;
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#recipe option[value=\"spider-strict\"]')",
-        SHORT,
-        "the recipe in the form",
-    )
-    .await;
-    b.js(
-        "const s = document.querySelector('#recipe'); s.value = 'spider-strict'; s.dispatchEvent(new Event('change')); return true;",
-        vec![],
-    )
-    .await;
-    b.js("location.reload(); return true;", vec![]).await;
-    let v = b
-        .wait_js(
-            "document.querySelector('#recipe option[value=\"spider-strict\"]') && document.querySelector('#recipe').value",
-            SHORT,
-            "the recipe choice after the reload",
-        )
-        .await;
+    b.wait_for("#recipe option[value=\"spider-strict\"]").await;
+    b.run("const s = document.querySelector('#recipe'); s.value = 'spider-strict'; s.dispatchEvent(new Event('change'));").await;
+    b.run("location.reload();").await;
+    let v = b.wait("the recipe choice after the reload", "document.querySelector('#recipe option[value=\"spider-strict\"]') && document.querySelector('#recipe').value").await;
     assert_eq!(v, json!("spider-strict"));
     // The recipe names the part kind; the level is the recipe's.
     let (kind, level_off) = (
@@ -1234,8 +899,7 @@ async fn station_recipe_choice_survives_a_reload() {
     assert_eq!(kind, json!("spider"));
     assert_eq!(level_off, json!(true));
     b.screenshot("station-recipe-after-reload").await;
-    b.assert_no_console_errors("after the reload").await;
-    b.quit().await;
+    b.finish("after the reload").await;
 }
 
 /// Station: an INVALID verdict at the drive limit (20 V allowed, about 50 V
@@ -1244,33 +908,22 @@ async fn station_recipe_choice_survives_a_reload() {
 /// are folded away.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_action() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
     let mut r = strict_recipe();
     r["procedure"]["levels_m"] = json!([0.008]);
     r["parameters"] = json!([
         {"name": "k0", "quantity": "k0", "lower": 1000.0, "upper": 8000.0},
         {"name": "k_at_6mm", "quantity": "k_at_x", "x_m": 0.006, "lower": 1000.0, "upper": 90000.0}
     ]);
-    create_recipe(&d, r).await;
+    admin(&d).create_recipe(&r).await;
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#verdict')",
-        SHORT,
-        "the verdict panel",
-    )
-    .await;
-    let id = post_job(
-        &d,
-        json!({"part": {"serial": "SN-DRIVE"}, "recipe": "spider-strict", "limits": {"max_drive_v": 20.0}}),
-    )
-    .await;
-    let j = finished(&d, &id).await;
+    b.wait_for("#verdict").await;
+    let id = station(&d).submit(&json!({"part": {"serial": "SN-DRIVE"}, "recipe": "spider-strict", "limits": {"max_drive_v": 20.0}})).await;
+    let j = admin(&d).finished(&id).await;
     assert_eq!(j["verdict"], "invalid", "{j}");
-    let v = get(&d, &format!("/api/v1/jobs/{id}/verdict")).await;
+    let v = admin(&d).get(&format!("/api/v1/jobs/{id}/verdict")).await;
     let codes: Vec<String> = v["detail"]["invalid_reasons"]
         .as_array()
         .unwrap()
@@ -1281,12 +934,7 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
         codes.len() >= 2 && codes.contains(&"target_not_reached".to_string()),
         "the drive limit and its consequences: {codes:?}"
     );
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.verdict === 'invalid' && document.querySelector('#verdict').dataset.serial === 'SN-DRIVE'",
-        LONG,
-        "INVALID for SN-DRIVE",
-    )
-    .await;
+    b.wait_long("INVALID for SN-DRIVE", "document.querySelector('#verdict').dataset.verdict === 'invalid' && document.querySelector('#verdict').dataset.serial === 'SN-DRIVE'").await;
     let primary = b
         .js(
             "return [...document.querySelectorAll('#invalid-primary')].map(e => e.dataset.code);",
@@ -1310,7 +958,7 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
     // Issue 35: an INVALID part is never judged, not even per parameter:
     // on its part page and its measurement page each value is shown as
     // measured and marked, and no parameter reads pass or fail.
-    let mid = finished(&d, &id).await["measurement_ids"][0]
+    let mid = admin(&d).finished(&id).await["measurement_ids"][0]
         .as_str()
         .unwrap()
         .to_string();
@@ -1318,11 +966,11 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
         ("part/SN-DRIVE".to_string(), "part-verdict"),
         (format!("measurement/{mid}"), "measurement-verdict"),
     ] {
-        b.goto(&format!("{}/#/{page}", d.base)).await;
-        b.wait_js(
-            &format!("document.querySelector('#{card}-parameters tbody tr')"),
+        b.visit(
+            &format!("#/{page}"),
             LONG,
             "the INVALID verdict's parameters",
+            &format!("document.querySelector('#{card}-parameters tbody tr')"),
         )
         .await;
         let rows = b
@@ -1350,8 +998,7 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
         b.screenshot_sizes(&format!("invalid-unjudged-{}", card))
             .await;
     }
-    b.assert_no_console_errors("with an INVALID verdict").await;
-    b.quit().await;
+    b.finish("with an INVALID verdict").await;
 }
 
 /// Results on every page: the part page of a FAIL part shows FAIL, its
@@ -1360,35 +1007,25 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
 /// verdict; the measurement page shows the verdict too.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    create_recipe(&d, strict_recipe()).await;
-    let id = post_job(
-        &d,
-        json!({"part": {"serial": "SN-BAD"}, "recipe": "spider-strict"}),
-    )
-    .await;
-    let j = finished(&d, &id).await;
+    admin(&d).create_recipe(&strict_recipe()).await;
+    let id = station(&d)
+        .submit(&json!({"part": {"serial": "SN-BAD"}, "recipe": "spider-strict"}))
+        .await;
+    let j = admin(&d).finished(&id).await;
     assert_eq!(j["verdict"], "fail", "{j}");
-    let ok = import(&d, "p1_spider", "SN-IMPORTED").await;
+    let ok = station(&d).import("p1_spider", "SN-IMPORTED").await;
     b.login(&d.base, VIEWER, "viewer").await;
-    b.goto(&format!("{}/#/part/SN-BAD", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#part-verdict') && document.querySelector('#part-verdict').dataset.verdict",
-        LONG,
-        "the part's verdict",
-    )
-    .await;
+    b.visit("#/part/SN-BAD", LONG, "the part's verdict", "document.querySelector('#part-verdict') && document.querySelector('#part-verdict').dataset.verdict").await;
     assert_eq!(b.text("#part-verdict-word").await, "FAIL");
     let failing = b.text("#part-verdict-failing").await;
     assert!(
         failing.contains("k0") && failing.contains("\u{2264} 0.1 N/mm"),
         "{failing}"
     );
-    let v = get(&d, "/api/v1/parts/SN-BAD/verdict").await;
+    let v = admin(&d).get("/api/v1/parts/SN-BAD/verdict").await;
     let trace = b.text("#traceability").await;
     assert!(
         trace.contains(v["recipe_sha256"].as_str().unwrap())
@@ -1404,13 +1041,7 @@ async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
     );
     b.screenshot_sizes("part-fail").await;
     // The parts list: filter by verdict.
-    b.goto(&format!("{}/#/parts?verdict=fail", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#parts tr[data-serial]') || document.querySelector('#parts td.muted')",
-        SHORT,
-        "the filtered parts",
-    )
-    .await;
+    b.visit("#/parts?verdict=fail", SHORT, "the filtered parts", "document.querySelector('#parts tr[data-serial]') || document.querySelector('#parts td.muted')").await;
     let shown = b
         .js(
             "return [...document.querySelectorAll('#parts tr[data-serial]')].map(r => r.dataset.serial);",
@@ -1421,18 +1052,10 @@ async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
     b.screenshot_sizes("parts-filtered").await;
     // The measurement page of the job shows the verdict as well.
     let mid = j["measurement_ids"][0].as_str().unwrap();
-    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#measurement-verdict') && document.querySelector('#plot-kx canvas')",
-        LONG,
-        "the measurement's verdict",
-    )
-    .await;
+    b.visit(&format!("#/measurement/{mid}"), LONG, "the measurement's verdict", "document.querySelector('#measurement-verdict') && document.querySelector('#plot-kx canvas')").await;
     assert_eq!(b.text("#measurement-verdict-word").await, "FAIL");
     b.screenshot_sizes("measurement-fail").await;
-    b.assert_no_console_errors("on the part and measurement pages")
-        .await;
-    b.quit().await;
+    b.finish("on the part and measurement pages").await;
 }
 
 /// Stored fits are first-class: the same effect asked twice is stored once;
@@ -1440,47 +1063,29 @@ async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
 /// it is recorded) and the workspace opens on it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stored_fit_becomes_the_measurement_pages_headline() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let mid = import(&d, "p2_spider_friction", "P2-HEADLINE").await;
-    let c = common::client();
-    let post = || async {
-        c.post(d.url(&format!("/api/v1/measurements/{mid}/fits")))
-            .bearer_auth(OPERATOR)
-            .json(&json!({"effects": ["coulomb_friction"]}))
-            .send()
-            .await
-            .unwrap()
-    };
-    let r1 = post().await;
-    assert_eq!(r1.status(), 201);
-    let fit: Value = r1.json().await.unwrap();
-    let r2 = post().await;
-    assert_eq!(r2.status(), 200, "the same model again: the stored fit");
-    assert_eq!(r2.json::<Value>().await.unwrap()["id"], fit["id"]);
-    let fits = get(&d, &format!("/api/v1/measurements/{mid}/fits")).await;
+    let mid = station(&d)
+        .import("p2_spider_friction", "P2-HEADLINE")
+        .await;
+    let fits_path = format!("/api/v1/measurements/{mid}/fits");
+    let friction = json!({"effects": ["coulomb_friction"]});
+    let fit = station(&d).post(&fits_path, &friction).await.expect(201);
+    let r2 = station(&d).post(&fits_path, &friction).await;
+    assert_eq!(r2.status, 200, "the same model again: the stored fit");
+    assert_eq!(r2.body["id"], fit["id"]);
+    let fits = admin(&d)
+        .get(&format!("/api/v1/measurements/{mid}/fits"))
+        .await;
     assert_eq!(fits["items"].as_array().unwrap().len(), 1, "no copy stored");
     let fid = fit["id"].as_str().unwrap().to_string();
     b.login(&d.base, OPERATOR, "operator").await;
-    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
-    b.wait_js(
-        &format!("document.querySelector('#headline-{fid}') && document.querySelector('#plot-kx canvas')"),
-        LONG,
-        "the stored fit listed with its choice",
-    )
-    .await;
+    b.visit(&format!("#/measurement/{mid}"), LONG, "the stored fit listed with its choice", &format!("document.querySelector('#headline-{fid}') && document.querySelector('#plot-kx canvas')")).await;
     let before = b.text("#fig-model-error").await;
     b.click(&format!("#headline-{fid}")).await;
-    b.wait_js(
-        &format!("document.querySelector('#headline-source') && document.querySelector('#headline-source').dataset.fit === '{fid}' && document.querySelector('#plot-kx canvas')"),
-        LONG,
-        "the fit as the headline",
-    )
-    .await;
-    let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+    b.wait_long("the fit as the headline", &format!("document.querySelector('#headline-source') && document.querySelector('#headline-source').dataset.fit === '{fid}' && document.querySelector('#plot-kx canvas')")).await;
+    let m = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
     assert_eq!(m["measurement"]["headline"]["fit_id"], json!(fid));
     assert_eq!(m["measurement"]["headline"]["chosen_by"], "station-1");
     let want = fit["result"]["model"]["model_error_percent"]
@@ -1497,48 +1102,34 @@ async fn a_stored_fit_becomes_the_measurement_pages_headline() {
     assert!(effects.contains("friction force"), "{effects}");
     b.screenshot_sizes("measurement-headline-fit").await;
     // The workspace opens on the chosen fit.
-    b.goto(&format!("{}/#/diagnostics/{mid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '2'",
-        LONG,
-        "the workspace on the chosen fit",
-    )
-    .await;
+    b.visit(&format!("#/diagnostics/{mid}"), LONG, "the workspace on the chosen fit", "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '2'").await;
     let model = b.text("#model-effects").await;
     assert!(model.contains("friction"), "{model}");
     b.screenshot_sizes("diagnostics-opened-on-fit").await;
-    b.assert_no_console_errors("with a headline fit").await;
-    b.quit().await;
+    b.finish("with a headline fit").await;
 }
 
 /// Exports: the CSV of K(x), C(x), F(x) holds the API's coefficients
 /// evaluated on its own grid (inside the valid range) to 1e-9 relative.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn csv_download_of_kx_matches_the_api_coefficients() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let mid = import(&d, "p1_spider", "P1-CSV").await;
+    let mid = station(&d).import("p1_spider", "P1-CSV").await;
     b.login(&d.base, VIEWER, "viewer").await;
-    b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#export-curves-csv') && document.querySelector('#plot-kx canvas')",
+    b.visit(
+        &format!("#/measurement/{mid}"),
         LONG,
         "the export buttons",
+        "document.querySelector('#export-curves-csv') && document.querySelector('#plot-kx canvas')",
     )
     .await;
     // What the page hands the browser to save.
-    b.js(
-        "window.__saved = []; const o = URL.createObjectURL;
+    b.run("window.__saved = []; const o = URL.createObjectURL;
          URL.createObjectURL = (blob) => { window.__saved.push(blob); return o.call(URL, blob); };
          const c = HTMLAnchorElement.prototype.click;
-         HTMLAnchorElement.prototype.click = function () { if (this.download) { window.__names = (window.__names || []).concat(this.download); return; } return c.call(this); };
-         return true;",
-        vec![],
-    )
-    .await;
+         HTMLAnchorElement.prototype.click = function () { if (this.download) { window.__names = (window.__names || []).concat(this.download); return; } return c.call(this); };").await;
     b.click("#export-curves-csv").await;
     let csv = b
         .js(
@@ -1552,7 +1143,7 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
         names[0].as_str().unwrap().ends_with("-curves.csv"),
         "{names}"
     );
-    let m = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+    let m = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
     let k: Vec<f64> =
         serde_json::from_value(m["stiffness"]["coefficients_n_per_m_pow_i_plus_1"].clone())
             .unwrap();
@@ -1619,13 +1210,7 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
     // |K(-x)/K(x) - 1| over |x| inside the valid range on both sides, and
     // the symmetry point x_sym at the amplitude a the page names, solved
     // here by bisection: K(x_sym - a) = K(x_sym + a).
-    let f = b
-        .wait_js(
-            "(() => { const e = document.querySelector('#symmetry-figures'); return e && document.querySelector('#plot-symmetry-point canvas') ? {...e.dataset} : null; })()",
-            SHORT,
-            "the symmetry figures",
-        )
-        .await;
+    let f = b.wait("the symmetry figures", "(() => { const e = document.querySelector('#symmetry-figures'); return e && document.querySelector('#plot-symmetry-point canvas') ? {...e.dataset} : null; })()").await;
     let num = |k: &str| -> f64 { f[k].as_str().unwrap().parse().unwrap() };
     let kx = |x: f64| k.iter().rev().fold(0.0, |acc, c| acc * x + c);
     let xm = (-vr[0]).min(vr[1]);
@@ -1685,23 +1270,18 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
 /// two A4 pages (and two Letter pages).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let mid = import(&d, "p1_spider", "P1-REPORT").await;
-    let mid2 = import(&d, "p2_spider_friction", "P2-REPORT").await;
+    let mid = station(&d).import("p1_spider", "P1-REPORT").await;
+    let mid2 = station(&d).import("p2_spider_friction", "P2-REPORT").await;
     b.login(&d.base, VIEWER, "viewer").await;
     for (hash, name) in [
         (format!("#/report/{mid}"), "report-measurement"),
         (format!("#/report?ids={mid},{mid2}"), "report-comparison"),
     ] {
-        b.goto(&format!("{}/{hash}", d.base)).await;
-        b.wait_js(
+        b.visit(&hash, LONG, name,
             "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true'",
-            LONG,
-            name,
         )
         .await;
         // The plots are vector (SVG), with a legend naming every curve
@@ -1826,18 +1406,12 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
     }
     // The report a station fetches over the API (for a traveller document):
     // one self-contained HTML page, printed by Chromium on at most 2 pages.
-    let r = common::client()
-        .get(d.url(&format!("/api/v1/measurements/{mid}/report")))
-        .bearer_auth(VIEWER)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 200);
-    assert!(r.headers()["content-type"]
-        .to_str()
-        .unwrap()
-        .starts_with("text/html"));
-    let html = r.text().await.unwrap();
+    let r = Api::with(&d, VIEWER)
+        .get_reply(&format!("/api/v1/measurements/{mid}/report"))
+        .await;
+    assert_eq!(r.status, 200);
+    assert!(r.header("content-type").starts_with("text/html"));
+    let html = r.text;
     assert_eq!(
         html.matches("<svg").count(),
         4,
@@ -1847,12 +1421,7 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
     let file = browser::artifacts_dir().join("report-api.html");
     std::fs::write(&file, &html).unwrap();
     b.goto(&format!("file://{}", file.display())).await;
-    b.wait_js(
-        "document.querySelector('#plots svg')",
-        SHORT,
-        "the API's report",
-    )
-    .await;
+    b.wait_for("#plots svg").await;
     b.screenshot("report-api").await;
     for letter in [false, true] {
         let pdf = b.print_pdf(letter).await;
@@ -1871,18 +1440,11 @@ async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
     }
     b.assert_no_console_errors("on the API's report").await;
     // The measurement's report: its identity, the parameters with units.
-    b.goto(&format!("{}/#/report/{mid}", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true'",
-        LONG,
-        "the report again",
-    )
-    .await;
+    b.visit(&format!("#/report/{mid}"), LONG, "the report again", "document.querySelector('#report') && document.querySelector('#report').dataset.ready === 'true'").await;
     let text = b.text("#report").await;
     assert!(text.contains("P1-REPORT") && text.contains(&mid), "{text}");
     assert!(text.contains("N/mm") && text.contains("\u{00b1}"), "{text}");
-    b.assert_no_console_errors("on the reports").await;
-    b.quit().await;
+    b.finish("on the reports").await;
 }
 
 /// The headline values of a result document and the element that shows
@@ -1939,11 +1501,9 @@ fn at<'a>(v: &'a Value, path: &str) -> &'a Value {
 /// `not_determined` shows no number. (Before: plain numbers, "valid".)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_parts_show_the_state_of_every_headline_value() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
     b.login(&d.base, VIEWER, "viewer").await;
     let parts = [
         // The 8 mm target of spider_4in takes about 50 V: 0.5 V is 1 %.
@@ -1957,11 +1517,11 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
         ),
     ];
     for (serial, body) in parts {
-        let id = post_job(&d, body).await;
-        let j = finished(&d, &id).await;
+        let id = station(&d).submit(&body).await;
+        let j = admin(&d).finished(&id).await;
         assert_eq!(j["state"], "succeeded", "{j}");
         let mid = j["measurement_ids"][0].as_str().unwrap().to_string();
-        let doc = get(&d, &format!("/api/v1/measurements/{mid}")).await;
+        let doc = admin(&d).get(&format!("/api/v1/measurements/{mid}")).await;
         // The document's states: at least one value is not valid (else this
         // test would check nothing), and Keff at the target has a state.
         let states: Vec<(&str, String, String)> = HEADLINE
@@ -1981,11 +1541,11 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
             states.iter().any(|(e, _, _)| *e == "keff-at-target"),
             "{serial}: {doc}"
         );
-        b.goto(&format!("{}/#/measurement/{mid}", d.base)).await;
-        b.wait_js(
-            "document.querySelector('#figures #fig-keff')",
+        b.visit(
+            &format!("#/measurement/{mid}"),
             LONG,
             "the figures",
+            "document.querySelector('#figures #fig-keff')",
         )
         .await;
         for (el, state, reason) in &states {
@@ -2068,11 +1628,11 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
             .await;
         // The printable report (UI) and the exported parameters: the
         // validity column says the same.
-        b.goto(&format!("{}/#/report/{mid}", d.base)).await;
-        b.wait_js(
-            "document.querySelector('#report-parameters tbody tr')",
+        b.visit(
+            &format!("#/report/{mid}"),
             LONG,
             "the report's parameters",
+            "document.querySelector('#report-parameters tbody tr')",
         )
         .await;
         let rows = b
@@ -2081,15 +1641,9 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
                 vec![],
             )
             .await;
-        let html = common::client()
-            .get(d.url(&format!("/api/v1/measurements/{mid}/report")))
-            .bearer_auth(VIEWER)
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let html = Api::with(&d, VIEWER)
+            .text(&format!("/api/v1/measurements/{mid}/report"))
+            .await;
         for (field, vpath, _) in HEADLINE.iter().filter(|(f, _, _)| *f != "stiffness.k_of_x") {
             let v = at(&doc, vpath);
             let Some(state) = v["state"].as_str() else {
@@ -2140,42 +1694,28 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
 /// its AIAG class, and the AIAG thresholds.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
-        return;
-    };
-    let d = Daemon::start(&format!(
+    let Some((mut b, d)) = Browser::open(&format!(
         "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
         tokens()
-    ));
+    )).await else {
+        return;
+    };
     let nominal = springbench::physics::preset("spider_4in").unwrap();
     let k0 = nominal.k_coeffs_si[0];
-    create_recipe(
-        &d,
-        json!({"name": "spider-4in", "part_kind": "spider",
+    admin(&d).create_recipe(&json!({"name": "spider-4in", "part_kind": "spider",
                "procedure": {"levels_m": [0.008], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
                "parameters": [{"name": "k0", "quantity": "k0", "lower": 0.9 * k0, "upper": 1.1 * k0},
-                              {"name": "keff", "quantity": "keff"}]}),
-    )
+                              {"name": "keff", "quantity": "keff"}]}))
     .await;
     let parts: Vec<Value> = (0..2u64)
         .map(|i| json!({"serial": format!("MSA-{i}"), "production": {"preset": "spider_4in", "seed": 40 + i}}))
         .collect();
-    let r = common::client()
-        .post(d.url("/api/v1/gauge-studies"))
-        .bearer_auth(OPERATOR)
-        .json(&json!({"recipe": "spider-4in", "parts": parts, "repeats": 2}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let study = json!({"recipe": "spider-4in", "parts": parts, "repeats": 2});
+    let r = station(&d).post("/api/v1/gauge-studies", &study).await;
+    let id = r.expect(201)["id"].as_str().unwrap().to_string();
     let t = std::time::Instant::now();
     let study = loop {
-        let s = get(&d, &format!("/api/v1/gauge-studies/{id}")).await;
+        let s = admin(&d).get(&format!("/api/v1/gauge-studies/{id}")).await;
         if s["state"] == "done" {
             break s;
         }
@@ -2183,18 +1723,15 @@ async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
         tokio::time::sleep(Duration::from_millis(300)).await;
     };
     b.login(&d.base, VIEWER, "viewer").await;
-    b.goto(&format!("{}/#/qc/spider-4in", d.base)).await;
-    b.wait_js(
-        "document.querySelector('#gauge tr[data-quantity=\"k0\"]')",
+    b.visit(
+        "#/qc/spider-4in",
         LONG,
         "the gauge study's k0 row",
+        "document.querySelector('#gauge tr[data-quantity=\"k0\"]')",
     )
     .await;
-    b.js(
-        "document.querySelector('#gauge').scrollIntoView(); return true;",
-        vec![],
-    )
-    .await;
+    b.run("document.querySelector('#gauge').scrollIntoView();")
+        .await;
     b.screenshot_element("#gauge", "qc-gauge").await;
     b.screenshot_sizes("qc-gauge").await;
     let legend = b.text("#gauge-legend").await;
@@ -2256,8 +1793,7 @@ async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
         warn.contains("2 parts") && warn.contains("at least 10"),
         "{warn}"
     );
-    b.assert_no_console_errors("in the gauge panel").await;
-    b.quit().await;
+    b.finish("in the gauge panel").await;
 }
 
 /// `x` to 3 significant digits as the UI writes it (JavaScript's
@@ -2316,12 +1852,7 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
     }
     let d = Daemon::start_in(tmp.path(), &cfg);
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#bench-virtual-2') && document.querySelector('#bench-virtual-2').dataset.state === 'faulted' && document.querySelector('#fault-virtual-2')",
-        SHORT,
-        "the faulted bench's card",
-    )
-    .await;
+    b.wait("the faulted bench's card", "document.querySelector('#bench-virtual-2') && document.querySelector('#bench-virtual-2').dataset.state === 'faulted' && document.querySelector('#fault-virtual-2')").await;
     let card = b.text("#bench-virtual-2").await;
     assert!(
         card.contains("laser signal lost: 0 valid frames in 0.5 s") && !card.contains("[object"),
@@ -2352,26 +1883,16 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
     b.screenshot_sizes("station-bench-faulted").await;
     b.assert_no_console_errors("with a faulted bench").await;
     // Forced onto it (as a stale page or a script would): the daemon refuses, naming the fault.
-    b.js(
-        "const s = document.querySelector('#bench'); s.options[1].disabled = false; s.value = 'virtual-2'; \
+    b.run("const s = document.querySelector('#bench'); s.options[1].disabled = false; s.value = 'virtual-2'; \
          document.querySelector('#serial').value = 'SN-ON-FAULTED'; \
-         document.querySelector('#submit-form').requestSubmit(); return true;",
-        vec![],
-    )
-    .await;
-    let msg = b
-        .wait_js(
-            "(() => { const m = document.querySelector('#submit-msg'); return m && m.className === 'error' && m.textContent; })()",
-            SHORT,
-            "the refusal",
-        )
-        .await;
+         document.querySelector('#submit-form').requestSubmit();").await;
+    let msg = b.wait("the refusal", "(() => { const m = document.querySelector('#submit-msg'); return m && m.className === 'error' && m.textContent; })()").await;
     let msg = msg.as_str().unwrap_or_default().to_string();
     assert!(
         msg.contains("faulted") && msg.contains("laser signal lost"),
         "{msg}"
     );
-    let jobs = get(&d, "/api/v1/jobs?limit=50").await;
+    let jobs = admin(&d).get("/api/v1/jobs?limit=50").await;
     assert!(!jobs.to_string().contains("SN-ON-FAULTED"), "{jobs}");
     b.screenshot_sizes("station-bench-faulted-refused").await;
     // The one console error is the refusal's own 409 (Chromium logs every
@@ -2392,29 +1913,19 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
 /// screen) and the serial was dropped without a word.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn full_screen_then_a_scan_starts_the_part() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
+    let Some((mut b, d)) = Browser::open(&tokens()).await else {
         return;
     };
-    let d = Daemon::start(&tokens());
-    let first = post_job(
-        &d,
-        json!({"part": {"serial": "SN-FS0", "kind": "spider"}, "target_xpeak_m": 0.004}),
-    )
-    .await;
-    finished(&d, &first).await;
+    let first = station(&d)
+        .submit(&json!({"part": {"serial": "SN-FS0", "kind": "spider"}, "target_xpeak_m": 0.004}))
+        .await;
+    admin(&d).finished(&first).await;
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.serial === 'SN-FS0' && document.querySelector('#verdict-full')",
-        LONG,
-        "the verdict panel with its full-screen button",
-    )
-    .await;
+    b.wait_long("the verdict panel with its full-screen button", "document.querySelector('#verdict').dataset.serial === 'SN-FS0' && document.querySelector('#verdict-full')").await;
     b.click("#verdict-full").await;
-    b.wait_js(
-        "document.fullscreenElement && document.fullscreenElement.id === 'verdict'",
-        SHORT,
+    b.wait(
         "full screen",
+        "document.fullscreenElement && document.fullscreenElement.id === 'verdict'",
     )
     .await;
     b.screenshot("station-full-screen").await;
@@ -2423,7 +1934,7 @@ async fn full_screen_then_a_scan_starts_the_part() {
     el.send_keys("SN-FS1\u{E007}").await.expect("scan");
     let t = std::time::Instant::now();
     loop {
-        let jobs = get(&d, "/api/v1/jobs?limit=50").await;
+        let jobs = admin(&d).get("/api/v1/jobs?limit=50").await;
         if jobs.to_string().contains("SN-FS1") {
             break;
         }
@@ -2436,14 +1947,12 @@ async fn full_screen_then_a_scan_starts_the_part() {
     }
     let still = b.js("return !!document.fullscreenElement;", vec![]).await;
     assert_eq!(still, json!(true), "the scan did not leave full screen");
-    b.wait_js(
-        "document.querySelector('#verdict').dataset.serial === 'SN-FS1'",
-        LONG,
+    b.wait_long(
         "the scanned part on the panel",
+        "document.querySelector('#verdict').dataset.serial === 'SN-FS1'",
     )
     .await;
-    b.assert_no_console_errors("full screen and a scan").await;
-    b.quit().await;
+    b.finish("full screen and a scan").await;
 }
 
 /// One verdict panel per bench (issue 35): SN-A on bench 1 (two repeats)
@@ -2453,51 +1962,35 @@ async fn full_screen_then_a_scan_starts_the_part() {
 /// list the newest finished first; the shift counters count both parts.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
-    let _one = browser::ONE_AT_A_TIME.lock().await;
-    let Some(mut b) = Browser::start().await else {
-        return;
-    };
-    let d = Daemon::start(&format!(
+    let Some((mut b, d)) = Browser::open(&format!(
         "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
         tokens()
-    ));
-    create_recipe(&d, strict_recipe()).await;
+    )).await else {
+        return;
+    };
+    admin(&d).create_recipe(&strict_recipe()).await;
     // The same limits measured twice: SN-A, started first, takes about twice
     // as long (the job's own `repeats` may not override a recipe's).
     let mut twice = strict_recipe();
     twice["name"] = json!("spider-strict-x2");
     twice["procedure"]["repeats"] = json!(2);
-    create_recipe(&d, twice).await;
+    admin(&d).create_recipe(&twice).await;
     b.login(&d.base, OPERATOR, "operator").await;
-    b.wait_js(
-        "document.querySelector('#verdict-virtual-1') && document.querySelector('#verdict-virtual-2')",
-        SHORT,
-        "a verdict panel per bench",
-    )
-    .await;
-    let a = post_job(
-        &d,
-        json!({"part": {"serial": "SN-A"}, "recipe": "spider-strict-x2", "bench": "virtual-1"}),
-    )
-    .await;
-    let bj = post_job(
-        &d,
-        json!({"part": {"serial": "SN-B"}, "recipe": "spider-strict", "bench": "virtual-2"}),
-    )
-    .await;
-    let (ja, jb) = (finished(&d, &a).await, finished(&d, &bj).await);
+    b.wait("a verdict panel per bench", "document.querySelector('#verdict-virtual-1') && document.querySelector('#verdict-virtual-2')").await;
+    let a = station(&d).submit(&json!({"part": {"serial": "SN-A"}, "recipe": "spider-strict-x2", "bench": "virtual-1"})).await;
+    let bj = station(&d)
+        .submit(
+            &json!({"part": {"serial": "SN-B"}, "recipe": "spider-strict", "bench": "virtual-2"}),
+        )
+        .await;
+    let (ja, jb) = (admin(&d).finished(&a).await, admin(&d).finished(&bj).await);
     assert!(
         ja["finished_at"].as_str().unwrap() > jb["finished_at"].as_str().unwrap(),
         "SN-A (started first) finished after SN-B: {ja} {jb}"
     );
-    let both = b
-        .wait_js(
-            "(() => { const p1 = document.querySelector('#verdict-virtual-1'), p2 = document.querySelector('#verdict-virtual-2');
+    let both = b.wait_long("both verdicts, each on its bench's panel", "(() => { const p1 = document.querySelector('#verdict-virtual-1'), p2 = document.querySelector('#verdict-virtual-2');
                return p1.dataset.serial === 'SN-A' && p1.dataset.verdict === 'fail' && p2.dataset.serial === 'SN-B' && p2.dataset.verdict === 'fail'
-                 && [p1, p2].map(p => p.textContent.includes('FAIL')); })()",
-            LONG,
-            "both verdicts, each on its bench's panel",
-        )
+                 && [p1, p2].map(p => p.textContent.includes('FAIL')); })()")
         .await;
     assert_eq!(both, json!([true, true]));
     // Both are on screen at once (neither hidden behind the other).
@@ -2510,28 +2003,15 @@ async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
     assert_eq!(vis, json!([true, true]));
     b.screenshot_sizes("station-two-benches").await;
     // Recent jobs: the bench named, newest finished first.
-    let rows = b
-        .wait_js(
-            "(() => { const r = [...document.querySelectorAll('#recent tr[data-job]')].map(r => [r.cells[1].textContent, r.cells[2].textContent]); return r.length >= 2 && r; })()",
-            SHORT,
-            "the recent jobs",
-        )
-        .await;
+    let rows = b.wait("the recent jobs", "(() => { const r = [...document.querySelectorAll('#recent tr[data-job]')].map(r => [r.cells[1].textContent, r.cells[2].textContent]); return r.length >= 2 && r; })()").await;
     assert_eq!(rows, json!([["SN-A", "virtual-1"], ["SN-B", "virtual-2"]]));
     // Shift counters: 2 tested, 2 fail, yield 0 %.
-    let counts = b
-        .wait_js(
-            "(() => { const n = (id) => document.querySelector('#shift-' + id) && document.querySelector('#shift-' + id).dataset.n; return n('tested') === '2' && [n('tested'), n('pass'), n('fail'), n('invalid'), document.querySelector('#shift-yield').textContent]; })()",
-            SHORT,
-            "the shift counters",
-        )
-        .await;
+    let counts = b.wait("the shift counters", "(() => { const n = (id) => document.querySelector('#shift-' + id) && document.querySelector('#shift-' + id).dataset.n; return n('tested') === '2' && [n('tested'), n('pass'), n('fail'), n('invalid'), document.querySelector('#shift-yield').textContent]; })()").await;
     assert_eq!(counts[0], "2");
     assert_eq!(
         (counts[1].clone(), counts[2].clone(), counts[3].clone()),
         (json!("0"), json!("2"), json!("0"))
     );
     assert!(counts[4].as_str().unwrap().starts_with("0.0 %"), "{counts}");
-    b.assert_no_console_errors("with two benches").await;
-    b.quit().await;
+    b.finish("with two benches").await;
 }

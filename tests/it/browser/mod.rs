@@ -82,6 +82,10 @@ pub struct Browser {
     _profile: tempfile::TempDir,
     /// Every console message seen so far (level, source, message).
     pub log: Vec<Value>,
+    /// [`ONE_AT_A_TIME`], held by a browser from [`Browser::open`].
+    _one: Option<tokio::sync::MutexGuard<'static, ()>>,
+    /// The daemon of [`Browser::open`] (`http://127.0.0.1:PORT`), for [`Browser::visit`].
+    pub base: String,
 }
 
 impl Browser {
@@ -167,7 +171,68 @@ impl Browser {
             driver,
             _profile: profile,
             log: vec![],
+            _one: None,
+            base: String::new(),
         })
+    }
+
+    /// A browser test's start: waits for the other browser tests
+    /// ([`ONE_AT_A_TIME`], held until this browser is dropped), starts the
+    /// browser, then the daemon with `config`; None (the test passes, having
+    /// said why) without chromedriver.
+    pub async fn open(config: &str) -> Option<(Browser, crate::common::Daemon)> {
+        let one = ONE_AT_A_TIME.lock().await;
+        let mut b = Browser::start().await?;
+        let d = crate::common::Daemon::start(config);
+        b._one = Some(one);
+        b.base = d.base.clone();
+        Some((b, d))
+    }
+
+    /// A browser test's end: no console error `when`, then the browser quits.
+    pub async fn finish(mut self, when: &str) {
+        self.assert_no_console_errors(when).await;
+        self.quit().await;
+    }
+
+    /// Opens the page `hash` (`#/qc`) of the daemon and waits up to
+    /// `timeout` for `expr` (see [`Browser::wait_js`]).
+    pub async fn visit(&self, hash: &str, timeout: Duration, what: &str, expr: &str) -> Value {
+        self.goto(&format!("{}/{hash}", self.base)).await;
+        self.wait_js(expr, timeout, what).await
+    }
+
+    /// [`Browser::wait_js`] with 20 s.
+    pub async fn wait(&self, what: &str, expr: &str) -> Value {
+        self.wait_js(expr, Duration::from_secs(20), what).await
+    }
+
+    /// [`Browser::wait_js`] with 120 s (a measurement, a fit).
+    pub async fn wait_long(&self, what: &str, expr: &str) -> Value {
+        self.wait_js(expr, Duration::from_secs(120), what).await
+    }
+
+    /// Waits for the element `css` (20 s).
+    pub async fn wait_for(&self, css: &str) -> Value {
+        let expr = format!("document.querySelector('{}')", css.replace('\'', "\\'"));
+        self.wait_js(&expr, Duration::from_secs(20), css).await
+    }
+
+    /// Waits for the confirmation dialog (20 s) and answers it.
+    pub async fn confirm(&self, yes: bool) {
+        self.wait_js(
+            "document.querySelector('#confirm').open",
+            Duration::from_secs(20),
+            "the confirmation",
+        )
+        .await;
+        self.click(if yes { "#confirm-yes" } else { "#confirm-no" })
+            .await;
+    }
+
+    /// Runs `script` for its effect (it returns true).
+    pub async fn run(&self, script: &str) {
+        self.js(&format!("{script} return true;"), vec![]).await;
     }
 
     /// Collects the console messages since the last call into `self.log`; returns the new ones.

@@ -2,6 +2,11 @@
 //! temporary data directory, driven over real HTTP and websocket.
 #![allow(dead_code)]
 
+pub mod api;
+pub mod config;
+pub use api::Api;
+pub use config::Config;
+
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
