@@ -294,38 +294,21 @@ async fn every_route_answers_as_its_schema_says() {
     }
 
     // Recipes.
-    let (s, r) = a
-        .call(
+    let r = a
+        .expect(
             "post",
             "/api/v1/recipes",
             "/api/v1/recipes",
             Some(ADMIN),
             Some(recipe()),
+            201,
         )
         .await;
-    assert_eq!(s, 201, "{r}");
     assert_eq!(r["version"], 1);
-    a.expect(
-        "post",
-        "/api/v1/recipes",
-        "/api/v1/recipes",
-        Some(ADMIN),
-        Some(recipe()),
-        409,
-    )
-    .await;
-    let (s, p) = a
-        .call(
-            "post",
-            "/api/v1/recipes",
-            "/api/v1/recipes",
-            Some(ADMIN),
-            Some(json!({"name": "x", "procedure": {"levels_m": [-1.0]}, "parameters": []})),
-        )
-        .await;
-    assert_eq!(s, 422, "{p}");
     #[rustfmt::skip]
     let rows: &[Row] = &[
+        ("post", "/api/v1/recipes", "/api/v1/recipes", Some(ADMIN), Some(recipe()), 409),
+        ("post", "/api/v1/recipes", "/api/v1/recipes", Some(ADMIN), Some(json!({"name": "x", "procedure": {"levels_m": [-1.0]}, "parameters": []})), 422),
         ("post", "/api/v1/recipes", "/api/v1/recipes", Some(OPERATOR), Some(recipe()), 403),
         ("get", "/api/v1/recipes", "/api/v1/recipes", Some(VIEWER), None, 200),
     ];
@@ -337,16 +320,16 @@ async fn every_route_answers_as_its_schema_says() {
         ("get", "/api/v1/recipes/{name}", "/api/v1/recipes/nope", Some(VIEWER), None, 404),
     ];
     a.expect_all(rows).await;
-    let (s, _) = a
-        .call(
+    let _ = a
+        .expect(
             "put",
             "/api/v1/recipes/{name}",
             rn,
             Some(ADMIN),
             Some(recipe()),
+            200,
         )
         .await;
-    assert_eq!(s, 200, "unchanged");
     let mut r2 = recipe();
     r2["description"] = json!("golden-unit limits to come");
     let (s, v2) = a
@@ -388,16 +371,7 @@ async fn every_route_answers_as_its_schema_says() {
         ids.push(a.submit(body).await);
     }
     // A queued job cancelled (or stopping, if its bench took it already).
-    let (s, q) = a
-        .call(
-            "post",
-            "/api/v1/jobs",
-            "/api/v1/jobs",
-            Some(OPERATOR),
-            Some(json!({"part": {"serial": "C-1"}, "preset": "spider_4in", "target_xpeak_m": 0.006, "priority": -5})),
-        )
-        .await;
-    assert_eq!(s, 202, "{q}");
+    let q = a.expect("post", "/api/v1/jobs", "/api/v1/jobs", Some(OPERATOR), Some(json!({"part": {"serial": "C-1"}, "preset": "spider_4in", "target_xpeak_m": 0.006, "priority": -5})), 202).await;
     let qid = q["id"].as_str().unwrap().to_string();
     let (s, _) = a
         .call(
@@ -438,16 +412,16 @@ async fn every_route_answers_as_its_schema_says() {
         None,
     )
     .await;
-    let (s, p) = a
-        .call(
+    let p = a
+        .expect(
             "post",
             "/api/v1/jobs",
             "/api/v1/jobs",
             Some(OPERATOR),
             Some(json!({"part": {"serial": ""}, "target_xpeak_m": -1, "colour": "red"})),
+            422,
         )
         .await;
-    assert_eq!(s, 422, "{p}");
     assert!(p["errors"].as_array().unwrap().len() >= 2, "{p}");
     let r = c
         .post(d.url("/api/v1/jobs"))
@@ -501,9 +475,12 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert_eq!(v["measurements"].as_array().unwrap().len(), 1, "{v}");
-    a.get(
+    a.expect(
+        "get",
         "/api/v1/jobs/{id}/verdict",
         "/api/v1/jobs/nope/verdict",
+        Some(VIEWER),
+        None,
         404,
     )
     .await;
@@ -531,9 +508,12 @@ async fn every_route_answers_as_its_schema_says() {
         .get("/api/v1/measurements", "/api/v1/measurements?part=G-0", 200)
         .await;
     assert_eq!(ms["items"][0]["id"], mid.as_str());
-    a.get(
+    a.expect(
+        "get",
         "/api/v1/measurements",
         "/api/v1/measurements?since=yesterday",
+        Some(VIEWER),
+        None,
         422,
     )
     .await;
@@ -545,9 +525,12 @@ async fn every_route_answers_as_its_schema_says() {
         )
         .await;
     assert!(m["measurement"]["verdict"].is_object(), "{}", short(&m));
-    a.get(
+    a.expect(
+        "get",
         "/api/v1/measurements/{id}",
         "/api/v1/measurements/nope",
+        Some(VIEWER),
+        None,
         404,
     )
     .await;
@@ -575,16 +558,16 @@ async fn every_route_answers_as_its_schema_says() {
     a.expect_all(rows).await;
     let fp = "/api/v1/measurements/{id}/fits";
     let furl = format!("/api/v1/measurements/{mid}/fits");
-    let (s, f) = a
-        .call(
+    let f = a
+        .expect(
             "post",
             fp,
             &furl,
             Some(OPERATOR),
             Some(json!({"effects": ["coulomb_friction"], "order": 4})),
+            201,
         )
         .await;
-    assert_eq!(s, 201, "{}", short(&f));
     #[rustfmt::skip]
     let rows: &[Row] = &[
         ("post", fp, &furl, Some(OPERATOR), Some(json!({"effects": ["nope"]})), 422),
@@ -592,16 +575,16 @@ async fn every_route_answers_as_its_schema_says() {
     ];
     a.expect_all(rows).await;
     // The same model again: the stored fit (200), no copy.
-    let (s, again) = a
-        .call(
+    let again = a
+        .expect(
             "post",
             fp,
             &furl,
             Some(OPERATOR),
             Some(json!({"effects": ["coulomb_friction"], "order": 4})),
+            200,
         )
         .await;
-    assert_eq!(s, 200, "{}", short(&again));
     assert_eq!(again["id"], f["id"]);
     let fl = a.get(fp, &furl, 200).await;
     assert_eq!(fl["items"].as_array().unwrap().len(), 1);
@@ -609,16 +592,16 @@ async fn every_route_answers_as_its_schema_says() {
     // The fit chosen as the headline (who chose it recorded).
     let hp = "/api/v1/measurements/{id}/headline";
     let hurl = format!("/api/v1/measurements/{mid}/headline");
-    let (s, hc) = a
-        .call(
+    let hc = a
+        .expect(
             "put",
             hp,
             &hurl,
             Some(OPERATOR),
             Some(json!({"fit_id": f["id"]})),
+            200,
         )
         .await;
-    assert_eq!(s, 200, "{}", short(&hc));
     assert_eq!(hc["fit_id"], f["id"]);
     #[rustfmt::skip]
     let rows: &[Row] = &[
@@ -698,10 +681,9 @@ async fn every_route_answers_as_its_schema_says() {
     let pbody = json!({"serials": serials, "method": "k_sigma", "k": 6});
     let mut proposals = vec![];
     for _ in 0..2 {
-        let (s, p) = a
-            .call("post", lp, &lurl, Some(OPERATOR), Some(pbody.clone()))
+        let p = a
+            .expect("post", lp, &lurl, Some(OPERATOR), Some(pbody.clone()), 201)
             .await;
-        assert_eq!(s, 201, "{}", short(&p));
         proposals.push(p["id"].as_str().unwrap().to_string());
     }
     #[rustfmt::skip]
@@ -758,25 +740,12 @@ async fn every_route_answers_as_its_schema_says() {
         .await;
     let first = ob["items"][0]["id"].as_i64().unwrap();
     let rt = "/api/v1/outbox/{id}/retry";
-    let (s, r) = a
-        .call(
-            "post",
-            rt,
-            &format!("/api/v1/outbox/{first}/retry"),
-            Some(ADMIN),
-            None,
-        )
-        .await;
-    assert_eq!(s, 200, "{r}");
-    a.expect(
-        "post",
-        rt,
-        "/api/v1/outbox/999999/retry",
-        Some(ADMIN),
-        None,
-        404,
-    )
-    .await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", rt, &format!("/api/v1/outbox/{first}/retry"), Some(ADMIN), None, 200),
+        ("post", rt, "/api/v1/outbox/999999/retry", Some(ADMIN), None, 404),
+    ];
+    a.expect_all(rows).await;
     let dr = "/api/v1/outbox/{id}";
     let (s, r) = a
         .call(
@@ -806,16 +775,7 @@ async fn every_route_answers_as_its_schema_says() {
 
     // A level series (issue 12): the joint fit in the document of each
     // level, Keff at the target beside the measured one, both validated.
-    let (s, sj) = a
-        .call(
-            "post",
-            "/api/v1/jobs",
-            "/api/v1/jobs",
-            Some(OPERATOR),
-            Some(json!({"part": {"serial": "S-1"}, "preset": "spider_4in", "levels_m": [0.004, 0.007]})),
-        )
-        .await;
-    assert_eq!(s, 202, "{sj}");
+    let sj = a.expect("post", "/api/v1/jobs", "/api/v1/jobs", Some(OPERATOR), Some(json!({"part": {"serial": "S-1"}, "preset": "spider_4in", "levels_m": [0.004, 0.007]})), 202).await;
     let sj = a.wait_job(sj["id"].as_str().unwrap()).await;
     assert_eq!(sj["state"], "succeeded", "{sj}");
     for id in sj["measurement_ids"].as_array().unwrap() {
@@ -916,31 +876,21 @@ async fn every_route_answers_as_its_schema_says() {
     let gs = "/api/v1/gauge-studies";
     let mut gauge_recipe = recipe();
     gauge_recipe["name"] = json!("contract-gauge");
-    let (s, v) = a
-        .call(
-            "post",
-            "/api/v1/recipes",
-            "/api/v1/recipes",
-            Some(ADMIN),
-            Some(gauge_recipe),
-        )
-        .await;
-    assert_eq!(s, 201, "{v}");
+    a.expect(
+        "post",
+        "/api/v1/recipes",
+        "/api/v1/recipes",
+        Some(ADMIN),
+        Some(gauge_recipe),
+        201,
+    )
+    .await;
     let body = json!({"recipe": "contract-gauge", "repeats": 2,
         "parts": [{"serial": "GS-1"}, {"serial": "GS-2"}]});
-    let (s, study) = a.call("post", gs, gs, Some(OPERATOR), Some(body)).await;
-    assert_eq!(s, 201, "{study}");
-    let (s, v) = a
-        .call(
-            "post",
-            gs,
-            gs,
-            Some(OPERATOR),
-            Some(json!({"recipe": "contract-gauge", "repeats": 1,
-            "parts": [{"serial": "GS-1"}, {"serial": "GS-2"}]})),
-        )
+    let study = a
+        .expect("post", gs, gs, Some(OPERATOR), Some(body), 201)
         .await;
-    assert_eq!(s, 422, "{v}");
+    a.expect("post", gs, gs, Some(OPERATOR), Some(json!({"recipe": "contract-gauge", "repeats": 1, "parts": [{"serial": "GS-1"}, {"serial": "GS-2"}]})), 422).await;
     let listed = a.get(gs, gs, 200).await;
     assert_eq!(listed["items"][0]["id"], study["id"]);
     let one = "/api/v1/gauge-studies/{id}";
@@ -969,18 +919,17 @@ async fn every_route_answers_as_its_schema_says() {
         let j = a.wait_job(id).await;
         assert_eq!(j["state"], "succeeded", "{j}");
     }
-    let (s, v) = a
-        .call(
-            "post",
-            bc,
-            &bcurl,
-            Some(ADMIN),
-            Some(json!({"bench": "nope", "reference_bench": "virtual-1", "serials": bserials})),
-        )
-        .await;
-    assert_eq!(s, 422, "{v}");
-    let (s, cal) = a
-        .call(
+    a.expect(
+        "post",
+        bc,
+        &bcurl,
+        Some(ADMIN),
+        Some(json!({"bench": "nope", "reference_bench": "virtual-1", "serials": bserials})),
+        422,
+    )
+    .await;
+    let cal = a
+        .expect(
             "post",
             bc,
             &bcurl,
@@ -988,35 +937,21 @@ async fn every_route_answers_as_its_schema_says() {
             Some(
                 json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": bserials}),
             ),
+            201,
         )
         .await;
-    assert_eq!(s, 201, "{cal}");
     let listed = a.get(bc, &bcurl, 200).await;
     assert_eq!(listed["items"][0]["id"], cal["id"], "{listed}");
 
     // Corrections (issue 20): a part's serial corrected by an admin (201),
     // the audit log lists it; a body without a reason names the field.
     let co = "/api/v1/corrections";
-    let (s, v) = a
-        .call(
-            "post",
-            co,
-            co,
-            Some(ADMIN),
-            Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B"})),
-        )
-        .await;
-    assert_eq!(s, 422, "{v}");
-    let (s, corr) = a
-        .call(
-            "post",
-            co,
-            co,
-            Some(ADMIN),
-            Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B", "reason": "label misread"})),
-        )
-        .await;
-    assert_eq!(s, 201, "{corr}");
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", co, co, Some(ADMIN), Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B"})), 422),
+        ("post", co, co, Some(ADMIN), Some(json!({"kind": "part_serial", "part_serial": "BC-2", "new_value": "BC-2B", "reason": "label misread"})), 201),
+    ];
+    a.expect_all(rows).await;
     let log = a.get(co, co, 200).await;
     assert_eq!(
         (&log["items"][0]["part_serial"], &log["items"][0]["reason"]),
@@ -1032,19 +967,10 @@ async fn every_route_answers_as_its_schema_says() {
         "preset": "spider_3in", "target_xpeak_m": 0.006},
         "duration_s": 3600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053},
         "failure_limits": {"k0_change_percent": 5.0}});
-    let (s, v) = a
-        .call(
-            "post",
-            lt,
-            lt,
-            Some(OPERATOR),
-            Some(json!({"measurement": {"part": {"serial": "LT-C"}},
-            "duration_s": 600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.005}})),
-        )
+    a.expect("post", lt, lt, Some(OPERATOR), Some(json!({"measurement": {"part": {"serial": "LT-C"}}, "duration_s": 600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.005}})), 422).await;
+    let ltj = a
+        .expect("post", lt, lt, Some(OPERATOR), Some(lt_body), 202)
         .await;
-    assert_eq!(s, 422, "{v}");
-    let (s, ltj) = a.call("post", lt, lt, Some(OPERATOR), Some(lt_body)).await;
-    assert_eq!(s, 202, "{ltj}");
     let ltid = ltj["id"].as_str().unwrap().to_string();
     a.wait_job(&ltid).await;
     let one = "/api/v1/long-term-tests/{id}";

@@ -173,6 +173,16 @@ fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> 
 }
 
 /// The recipe with limits and golden reference from 5 golden units.
+/// The first line (spider_4in) as the measurements below use it: the line,
+/// its approved recipe, the recipe's golden reference and the nominal part.
+fn first_line() -> (Line, Recipe, GoldenReference, PartSpec) {
+    let l = lines().swap_remove(0);
+    let rec = approved_recipe(&l);
+    let g = rec.procedure.golden.clone().unwrap();
+    let nominal = preset(l.preset).unwrap();
+    (l, rec, g, nominal)
+}
+
 fn approved_recipe(l: &Line) -> Recipe {
     let nominal = preset(l.preset).unwrap();
     let rec = recipe(l);
@@ -474,10 +484,7 @@ fn a_part_25_percent_stiffer_falls_back_and_says_so() {
 #[test]
 #[ignore = "open defect: the short sweeps do not reveal friction on every part, nor hold the small-signal model with it; docs/qc.md, Effect sizes"]
 fn effect_sizes_agree_with_the_full_procedure() {
-    let l = &lines()[0];
-    let rec = approved_recipe(l);
-    let g = rec.procedure.golden.clone().unwrap();
-    let nominal = preset(l.preset).unwrap();
+    let (l, _, g, nominal) = &first_line();
     let (n_friction, n_good): (u64, u64) = (env_or("FRICTION_PARTS", 5), env_or("GOOD_PARTS", 3));
     let parts: Vec<(u64, Option<Defect>)> = (0..n_friction)
         .map(|i| (950 + i, Some(Defect::Friction)))
@@ -572,10 +579,7 @@ fn effect_sizes_agree_with_the_full_procedure() {
 #[ignore = "a benchmark: minutes of real-time bench; figures in docs/performance.md"]
 fn throughput_on_the_paced_virtual_bench() {
     use springbench::bench::procedure::pace::Paced;
-    let l = &lines()[0];
-    let rec = approved_recipe(l);
-    let g = rec.procedure.golden.clone().unwrap();
-    let nominal = preset(l.preset).unwrap();
+    let (l, rec, g, nominal) = &first_line();
     let n: u64 = env_or("SPRINGBENCH_THROUGHPUT_PARTS", 10);
     for (name, golden, parts) in [("full", None, n.div_ceil(3)), ("production", Some(&g), n)] {
         let (mut bench_s, mut analysis_s) = (0.0, 0.0);
@@ -970,10 +974,7 @@ mod explore {
     fn explore_designs() {
         use rand::SeedableRng;
         use rand_distr::Distribution;
-        let l = &lines()[0];
-        let rec = approved_recipe(l);
-        let g = rec.procedure.golden.clone().unwrap();
-        let nominal = preset(l.preset).unwrap();
+        let (_, _, g, nominal) = &first_line();
         let pseed: u64 = env_or("PART", 800);
         let p = part(&nominal, &Spread::default(), pseed, None);
         let n: u64 = env_or("N", 24);
@@ -1121,10 +1122,7 @@ mod explore {
     #[test]
     #[ignore = "a measurement: prints figures for decision 0059"]
     fn explore_grr() {
-        let l = &lines()[0];
-        let rec = approved_recipe(l);
-        let g = rec.procedure.golden.clone().unwrap();
-        let nominal = preset(l.preset).unwrap();
+        let (_, _, g, nominal) = &first_line();
         let p = part(&nominal, &Spread::default(), 800, None);
         let n: u64 = env_or("N", 12);
         let seeds: Vec<u64> = (0..n).map(|i| 3000 + i).collect();

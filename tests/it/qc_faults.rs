@@ -7,7 +7,8 @@
 
 use crate::common;
 
-use common::{client, Daemon};
+use common::{client, Api, Daemon};
+use reqwest::Method;
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -324,31 +325,12 @@ fn tokens() -> String {
     .collect()
 }
 
-async fn send(
-    c: &reqwest::Client,
-    d: &Daemon,
-    method: reqwest::Method,
-    path: &str,
-    token: Option<&str>,
-    body: Option<&Value>,
-    headers: &[(&str, &str)],
-) -> (u16, reqwest::header::HeaderMap, Value) {
-    let mut r = c
-        .request(method, d.url(path))
-        .header("content-type", "application/json");
-    if let Some(t) = token {
-        r = r.bearer_auth(t);
+/// The API with `token`, or without one.
+fn api(d: &Daemon, token: Option<&str>) -> Api {
+    match token {
+        Some(t) => Api::with(d, t),
+        None => Api::new(d),
     }
-    for (k, v) in headers {
-        r = r.header(*k, *v);
-    }
-    if let Some(b) = body {
-        r = r.body(b.to_string());
-    }
-    let r = r.send().await.unwrap();
-    let s = r.status().as_u16();
-    let h = r.headers().clone();
-    (s, h, r.json().await.unwrap_or(Value::Null))
 }
 
 /// The role each (method, route template) needs, written down here from the
@@ -438,7 +420,7 @@ async fn every_route_checks_the_role_of_its_matched_template() {
                     (3, Some(ADMIN)),
                 ] {
                     let m = reqwest::Method::from_bytes(method.to_uppercase().as_bytes()).unwrap();
-                    let (s, _, _) = send(&c, &d, m, path, token, Some(&json!({})), &[]).await;
+                    let (s, _) = api(&d, token).exchange(m, path, Some(&json!({}))).await;
                     let expect_refused = match need {
                         None => None,
                         Some(_) if level == 0 => Some(401),
@@ -471,39 +453,18 @@ async fn every_route_checks_the_role_of_its_matched_template() {
     for name in ["limit-proposals", "spc", "versions"] {
         let body = recipe(name);
         let path = format!("/api/v1/recipes/{name}");
-        let (s, _, v) = send(
-            &c,
-            &d,
-            reqwest::Method::PUT,
-            &path,
-            Some(OPERATOR),
-            Some(&body),
-            &[],
-        )
-        .await;
+        let (s, v) = api(&d, Some(OPERATOR))
+            .exchange(Method::PUT, &path, Some(&body))
+            .await;
         assert_eq!(s, 403, "operator PUT {path}: {v}");
-        let (s, _, v) = send(
-            &c,
-            &d,
-            reqwest::Method::PUT,
-            &path,
-            Some(ADMIN),
-            Some(&body),
-            &[],
-        )
-        .await;
+        let (s, v) = api(&d, Some(ADMIN))
+            .exchange(Method::PUT, &path, Some(&body))
+            .await;
         assert_eq!(s, 201, "admin PUT {path}: {v}");
         assert_eq!(v["created_by"], "engineer");
-        let (s, _, _) = send(
-            &c,
-            &d,
-            reqwest::Method::DELETE,
-            &path,
-            Some(OPERATOR),
-            None,
-            &[],
-        )
-        .await;
+        let (s, _) = api(&d, Some(OPERATOR))
+            .exchange(Method::DELETE, &path, None)
+            .await;
         assert_eq!(s, 403, "operator DELETE {path}");
     }
 }
@@ -576,31 +537,23 @@ async fn stale_and_retired_approvals_are_refused() {
         .as_array_mut()
         .unwrap()
         .push(json!({"name": "f0", "quantity": "f0"}));
-    let (s, h, r2) = send(
-        &c,
-        &d,
-        reqwest::Method::PUT,
-        "/api/v1/recipes/appr",
-        None,
-        Some(&v2),
-        &[("if-match", &etag1)],
-    )
-    .await;
+    let put_v1 = |body: &Value| {
+        let api = Api::new(&d);
+        let r = api
+            .builder(Method::PUT, "/api/v1/recipes/appr")
+            .header("if-match", etag1.as_str())
+            .json(body);
+        async move { api.send(r).await }
+    };
+    let r2 = put_v1(&v2).await;
+    let (s, h, r2) = (r2.status, r2.headers, r2.body);
     assert_eq!(s, 201, "{r2}");
     assert_eq!(r2["version"], 2);
     assert_ne!(h["etag"].to_str().unwrap(), etag1);
     let mut v3 = v2.clone();
     v3["description"] = json!("made on version 1");
-    let (s, _, r) = send(
-        &c,
-        &d,
-        reqwest::Method::PUT,
-        "/api/v1/recipes/appr",
-        None,
-        Some(&v3),
-        &[("if-match", &etag1)],
-    )
-    .await;
+    let r = put_v1(&v3).await;
+    let (s, r) = (r.status, r.body);
     assert_eq!(s, 412, "{r}");
 
     // The proposal made on v1 is stale now: 409, the recipe stays at v2.
@@ -621,16 +574,9 @@ async fn stale_and_retired_approvals_are_refused() {
     let (s, p2) = post(&c, &d, "/api/v1/recipes/appr/limit-proposals", &propose).await;
     assert_eq!(s, 201, "{p2}");
     assert_eq!(p2["recipe_version"], 2);
-    let (s, _, r) = send(
-        &c,
-        &d,
-        reqwest::Method::DELETE,
-        "/api/v1/recipes/appr",
-        None,
-        None,
-        &[],
-    )
-    .await;
+    let (s, r) = api(&d, None)
+        .exchange(Method::DELETE, "/api/v1/recipes/appr", None)
+        .await;
     assert_eq!(s, 204, "{r}");
     let (s, r) = post(&c, &d, &approve(p2["id"].as_str().unwrap()), &json!({})).await;
     assert_eq!(s, 409, "{r}");
@@ -639,16 +585,9 @@ async fn stale_and_retired_approvals_are_refused() {
     assert_eq!(cur["retired"], true);
 
     // Revived (v3): a proposal on v3 is approved (v4 with its limits).
-    let (s, _, r) = send(
-        &c,
-        &d,
-        reqwest::Method::PUT,
-        "/api/v1/recipes/appr",
-        None,
-        Some(&v3),
-        &[],
-    )
-    .await;
+    let (s, r) = api(&d, None)
+        .exchange(Method::PUT, "/api/v1/recipes/appr", Some(&v3))
+        .await;
     assert_eq!(s, 201, "{r}");
     assert_eq!(r["version"], 3);
     let (s, p3) = post(&c, &d, "/api/v1/recipes/appr/limit-proposals", &propose).await;

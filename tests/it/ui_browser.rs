@@ -13,7 +13,7 @@
 use crate::browser;
 use crate::common;
 
-use browser::Browser;
+use browser::{open_browser, Browser};
 use common::{Api, Config, Daemon};
 use serde_json::{json, Value};
 use springbench::config::Role;
@@ -23,12 +23,20 @@ const VIEWER: &str = "viewer-token-0000000001";
 const OPERATOR: &str = "operator-token-00000001";
 const ADMIN: &str = "admin-token-00000000001";
 
-fn tokens() -> String {
+fn roles() -> Config {
     Config::new()
         .token("viewer-1", VIEWER, Role::Viewer)
         .token("station-1", OPERATOR, Role::Operator)
         .token("admin-1", ADMIN, Role::Admin)
-        .text()
+}
+
+fn tokens() -> String {
+    roles().text()
+}
+
+/// The tokens and two virtual benches (virtual-1 and virtual-2).
+fn tokens_two_benches() -> String {
+    roles().two_benches().text()
 }
 
 /// The API as the admin (what the tests read back).
@@ -49,9 +57,7 @@ const SHORT: Duration = Duration::from_secs(20);
 /// part, the result page plots K(x) with its valid range.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn operator_submits_watches_cancels_and_opens_the_result() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     b.login(&d.base, OPERATOR, "operator").await;
     // First view: the operator screen, serial field focused (a scanner types into it).
     // Reloaded with the token in the session, as a station opens it.
@@ -248,9 +254,7 @@ async fn operator_submits_watches_cancels_and_opens_the_result() {
 /// error falls and the ladder grows by one step.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mid = station(&d)
         .import("p2_spider_friction", "P2-FRICTION")
         .await;
@@ -352,9 +356,7 @@ async fn diagnostics_workspace_adds_the_proposed_effect_and_the_error_falls() {
 /// an unknown token gets a clear message.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mid = station(&d).import("p1_spider", "P1-SPIDER").await;
     // Unknown token: a message, no page.
     b.visit(
@@ -466,9 +468,7 @@ async fn every_view_works_for_viewer_operator_and_admin_as_roles_allow() {
 /// and keeps what it showed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_clear_message_when_the_daemon_is_unreachable() {
-    let Some((mut b, mut d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, mut d) = open_browser!(&tokens());
     b.login(&d.base, OPERATOR, "operator").await;
     b.wait_for("#benches .bench").await;
     b.assert_no_console_errors("before the daemon stops").await;
@@ -501,12 +501,7 @@ async fn a_clear_message_when_the_daemon_is_unreachable() {
 /// parameters), then the SPC of k0 with its capability figures and chart.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn qc_recipe_limits_verdicts_and_spc() {
-    let Some((mut b, d)) = Browser::open(&format!(
-        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
-        tokens()
-    )).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens_two_benches());
     let recipe = json!({
         "name": "spider-4in",
         "part_kind": "spider",
@@ -815,9 +810,7 @@ fn strict_recipe() -> Value {
 /// the recent jobs show each part's verdict, not "succeeded".
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     admin(&d).create_recipe(&strict_recipe()).await;
     let first = station(&d)
         .submit(&json!({"part": {"serial": "SN-FIRST"}, "recipe": "spider-strict"}))
@@ -876,9 +869,7 @@ async fn station_verdict_panel_shows_the_running_part_not_the_previous_verdict()
 /// part gets a verdict, not MEASURED).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_recipe_choice_survives_a_reload() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     admin(&d).create_recipe(&strict_recipe()).await;
     b.login(&d.base, OPERATOR, "operator").await;
     b.wait_for("#recipe option[value=\"spider-strict\"]").await;
@@ -908,9 +899,7 @@ async fn station_recipe_choice_survives_a_reload() {
 /// are folded away.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_action() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mut r = strict_recipe();
     r["procedure"]["levels_m"] = json!([0.008]);
     r["parameters"] = json!([
@@ -1007,9 +996,7 @@ async fn station_invalid_at_the_drive_limit_shows_one_primary_reason_with_its_ac
 /// verdict; the measurement page shows the verdict too.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     admin(&d).create_recipe(&strict_recipe()).await;
     let id = station(&d)
         .submit(&json!({"part": {"serial": "SN-BAD"}, "recipe": "spider-strict"}))
@@ -1063,9 +1050,7 @@ async fn part_page_of_a_fail_part_shows_fail_and_its_failing_parameters() {
 /// it is recorded) and the workspace opens on it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stored_fit_becomes_the_measurement_pages_headline() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mid = station(&d)
         .import("p2_spider_friction", "P2-HEADLINE")
         .await;
@@ -1113,9 +1098,7 @@ async fn a_stored_fit_becomes_the_measurement_pages_headline() {
 /// evaluated on its own grid (inside the valid range) to 1e-9 relative.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn csv_download_of_kx_matches_the_api_coefficients() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mid = station(&d).import("p1_spider", "P1-CSV").await;
     b.login(&d.base, VIEWER, "viewer").await;
     b.visit(
@@ -1270,9 +1253,7 @@ async fn csv_download_of_kx_matches_the_api_coefficients() {
 /// two A4 pages (and two Letter pages).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn printed_report_has_the_parameters_and_four_plots_on_two_a4_pages() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let mid = station(&d).import("p1_spider", "P1-REPORT").await;
     let mid2 = station(&d).import("p2_spider_friction", "P2-REPORT").await;
     b.login(&d.base, VIEWER, "viewer").await;
@@ -1501,9 +1482,7 @@ fn at<'a>(v: &'a Value, path: &str) -> &'a Value {
 /// `not_determined` shows no number. (Before: plain numbers, "valid".)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_parts_show_the_state_of_every_headline_value() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     b.login(&d.base, VIEWER, "viewer").await;
     let parts = [
         // The 8 mm target of spider_4in takes about 50 V: 0.5 V is 1 %.
@@ -1694,12 +1673,7 @@ async fn bad_parts_show_the_state_of_every_headline_value() {
 /// its AIAG class, and the AIAG thresholds.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn qc_view_shows_a_gauge_study_with_grr_ndc_and_the_aiag_classes() {
-    let Some((mut b, d)) = Browser::open(&format!(
-        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
-        tokens()
-    )).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens_two_benches());
     let nominal = springbench::physics::preset("spider_4in").unwrap();
     let k0 = nominal.k_coeffs_si[0];
     admin(&d).create_recipe(&json!({"name": "spider-4in", "part_kind": "spider",
@@ -1827,10 +1801,7 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
     let Some(mut b) = Browser::start().await else {
         return;
     };
-    let cfg = format!(
-        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
-        tokens()
-    );
+    let cfg = tokens_two_benches();
     let mut d = Daemon::start(&cfg);
     let tmp = d.take_dir().unwrap();
     d.terminate();
@@ -1913,9 +1884,7 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
 /// screen) and the serial was dropped without a word.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn full_screen_then_a_scan_starts_the_part() {
-    let Some((mut b, d)) = Browser::open(&tokens()).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens());
     let first = station(&d)
         .submit(&json!({"part": {"serial": "SN-FS0", "kind": "spider"}, "target_xpeak_m": 0.004}))
         .await;
@@ -1962,12 +1931,7 @@ async fn full_screen_then_a_scan_starts_the_part() {
 /// list the newest finished first; the shift counters count both parts.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
-    let Some((mut b, d)) = Browser::open(&format!(
-        "{}[[benches]]\nid = \"virtual-1\"\nseed = 1\n[[benches]]\nid = \"virtual-2\"\nseed = 1001\n",
-        tokens()
-    )).await else {
-        return;
-    };
+    let (mut b, d) = open_browser!(&tokens_two_benches());
     admin(&d).create_recipe(&strict_recipe()).await;
     // The same limits measured twice: SN-A, started first, takes about twice
     // as long (the job's own `repeats` may not override a recipe's).

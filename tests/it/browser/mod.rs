@@ -12,6 +12,20 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// Browser tests run one at a time (2 cores: one Chromium is load enough).
+/// The browser-test macro: `let (mut b, d) = open_browser!(&config);` is
+/// [`Browser::open`], and a test without chromedriver returns there (it
+/// passes, having said why; `SPRINGBENCH_BROWSER_TESTS=require` makes that a
+/// failure instead).
+macro_rules! open_browser {
+    ($config:expr) => {
+        match $crate::browser::Browser::open($config).await {
+            Some(open) => open,
+            None => return,
+        }
+    };
+}
+pub(crate) use open_browser;
+
 pub static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 fn which(name: &str) -> Option<PathBuf> {
