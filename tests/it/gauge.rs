@@ -303,7 +303,7 @@ async fn bench_calibration_from_the_study_parts(d: &Daemon) {
             "serials",
         ),
     ] {
-        let (s, v) = Api::with(&d, ADMIN)
+        let (s, v) = Api::with(d, ADMIN)
             .exchange(
                 Method::POST,
                 "/api/v1/recipes/spider-4in/bench-calibrations",
@@ -317,7 +317,7 @@ async fn bench_calibration_from_the_study_parts(d: &Daemon) {
         );
     }
     // The operator may not change how a bench is judged.
-    let (s, _) = Api::with(&d, OPERATOR)
+    let (s, _) = Api::with(d, OPERATOR)
         .exchange(
             Method::POST,
             "/api/v1/recipes/spider-4in/bench-calibrations",
@@ -401,7 +401,7 @@ async fn bench_calibration_from_the_study_parts(d: &Daemon) {
     // A job takes its repeats from the recipe: a version with 2.
     let mut r = station(d).get("/api/v1/recipes/spider-4in").await["recipe"].clone();
     r["procedure"]["repeats"] = json!(2);
-    let (s, v) = Api::with(&d, ADMIN)
+    let (s, v) = Api::with(d, ADMIN)
         .exchange(Method::PUT, "/api/v1/recipes/spider-4in", Some(&r))
         .await;
     assert!(s == 200 || s == 201, "{s} {v}");
@@ -430,7 +430,7 @@ async fn bench_calibration_from_the_study_parts(d: &Daemon) {
 async fn run_jobs(d: &Daemon, bodies: Vec<Value>) -> Vec<String> {
     let mut ids = vec![];
     for body in bodies {
-        let (s, v) = Api::with(&d, OPERATOR)
+        let (s, v) = Api::with(d, OPERATOR)
             .exchange(Method::POST, "/api/v1/jobs", Some(&body))
             .await;
         assert_eq!(s, 202, "{v}");
@@ -464,7 +464,7 @@ async fn calibrate(
     if let Some(p) = procedure {
         body["procedure"] = json!(p);
     }
-    let (s, v) = Api::with(&d, ADMIN)
+    let (s, v) = Api::with(d, ADMIN)
         .exchange(
             Method::POST,
             "/api/v1/recipes/spider-4in/bench-calibrations",

@@ -529,8 +529,8 @@ fn effect_sizes_agree_with_the_full_procedure() {
         serde_json::to_value(d.report.model.effects).unwrap()
     };
     let results = par_map(&parts, |&(seed, defect)| {
-        let p = part(&nominal, &Spread::default(), seed, defect);
-        (effects(&p, seed, None), effects(&p, seed, Some(Some(&g))))
+        let p = part(nominal, &Spread::default(), seed, defect);
+        (effects(&p, seed, None), effects(&p, seed, Some(Some(g))))
     });
     let mut worst = 0.0f64;
     let mut differ = vec![];
@@ -585,7 +585,7 @@ fn throughput_on_the_paced_virtual_bench() {
         let (mut bench_s, mut analysis_s) = (0.0, 0.0);
         let t0 = std::time::Instant::now();
         for i in 0..parts {
-            let p = part(&nominal, &Spread::default(), 500 + i, None);
+            let p = part(nominal, &Spread::default(), 500 + i, None);
             let mut vb = Paced::new(VirtualBench::new(p.clone(), 500 + i));
             let cfg = ProcedureConfig {
                 moving_mass_kg: p.moving_mass_kg,
@@ -603,7 +603,7 @@ fn throughput_on_the_paced_virtual_bench() {
             let mut r = identify::analyze(&set, &OPTS).unwrap();
             qc::set_keff_at_target(&mut r, Some(l.level_m));
             let v = qc::judge(
-                &rec,
+                rec,
                 &RunFacts {
                     report: Some(r),
                     target_xpeak_m: Some(l.level_m),
@@ -976,11 +976,11 @@ mod explore {
         use rand_distr::Distribution;
         let (_, _, g, nominal) = &first_line();
         let pseed: u64 = env_or("PART", 800);
-        let p = part(&nominal, &Spread::default(), pseed, None);
+        let p = part(nominal, &Spread::default(), pseed, None);
         let n: u64 = env_or("N", 24);
         let target: f64 = env_or("XT", 7.7e-3);
         let seeds: Vec<u64> = (0..n).map(|i| 5000 + i).collect();
-        let q0 = measure(&p, 1, DEFAULT_LIMITS, 0.008, Some(Some(&g))).outcome;
+        let q0 = measure(&p, 1, DEFAULT_LIMITS, 0.008, Some(Some(g))).outcome;
         let nw = &q0.narrow[0];
         let (fa, fb, fr) = (nw.f_start_hz, nw.f_end_hz, nw.resonance_hz);
         let fs = 48000.0;
@@ -1123,13 +1123,13 @@ mod explore {
     #[ignore = "a measurement: prints figures for decision 0059"]
     fn explore_grr() {
         let (_, _, g, nominal) = &first_line();
-        let p = part(&nominal, &Spread::default(), 800, None);
+        let p = part(nominal, &Spread::default(), 800, None);
         let n: u64 = env_or("N", 12);
         let seeds: Vec<u64> = (0..n).map(|i| 3000 + i).collect();
         // 1. Full and production as they are; their time split.
         let runs = par_map(&seeds, |&s| {
             let f = measure(&p, s, DEFAULT_LIMITS, 0.008, None);
-            let q = measure(&p, s, DEFAULT_LIMITS, 0.008, Some(Some(&g)));
+            let q = measure(&p, s, DEFAULT_LIMITS, 0.008, Some(Some(g)));
             (f, q)
         });
         let q0 = &runs[0].1.outcome;
@@ -1175,7 +1175,7 @@ mod explore {
                 let mut vb = VirtualBench::new(p.clone(), s).with_bench(b);
                 let f = procedure::run(&mut vb, &cfg, &mut Quiet).unwrap();
                 let mut vb = VirtualBench::new(p.clone(), s).with_bench(b);
-                let q = procedure::run_production(&mut vb, &cfg, Some(&g), &mut Quiet).unwrap();
+                let q = procedure::run_production(&mut vb, &cfg, Some(g), &mut Quiet).unwrap();
                 (
                     figures(&p, &f.pre, &f.narrow[0].signals).unwrap(),
                     figures(&p, &q.pre, &q.narrow[0].signals).unwrap(),

@@ -60,7 +60,7 @@ fn recipe() -> Value {
 async fn run_jobs(d: &Daemon, bodies: &[Value]) -> Vec<Value> {
     let mut ids = vec![];
     for b in bodies {
-        let (s, v) = Api::with(&d, STATION)
+        let (s, v) = Api::with(d, STATION)
             .exchange(Method::POST, "/api/v1/jobs", Some(&b.clone()))
             .await;
         assert_eq!(s, 202, "{v}");
