@@ -4,7 +4,10 @@
 
 pub mod api;
 pub mod config;
+// The hardware binaries include this module and use neither.
+#[allow(unused_imports)]
 pub use api::Api;
+#[allow(unused_imports)]
 pub use config::Config;
 
 use serde_json::Value;
