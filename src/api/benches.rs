@@ -3,7 +3,7 @@
 use super::problem::{ApiResult, Problem};
 use super::AppState;
 use crate::bench::settings::BenchKind;
-use crate::runner::{hardware, new_id};
+use crate::runner::{hardware, new_id, JobEvent};
 use crate::store::Inserted;
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
@@ -85,9 +85,14 @@ pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> A
     st.runner
         .events()
         .publish(
-            "job.state",
             Some(&j.id),
-            json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id, "type": "self_check"}),
+            &JobEvent::Queued {
+                state: crate::store::JobState::Queued,
+                part_serial: j.part_serial.clone(),
+                bench_id: j.bench_id.clone(),
+                kind: None,
+                type_: Some("self_check"),
+            },
         )
         .await?;
     st.runner.wake(&j.bench_id);

@@ -450,9 +450,12 @@ pub async fn import(
         .runner
         .events()
         .publish(
-            "measurement.created",
             None,
-            json!({"measurement_id": id, "part_serial": serial, "source": "import"}),
+            &crate::runner::JobEvent::MeasurementCreated {
+                measurement_id: id.clone(),
+                part_serial: serial.clone(),
+                source: "import",
+            },
         )
         .await;
     document_response(&st, &id, StatusCode::CREATED, false).await

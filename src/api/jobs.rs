@@ -3,7 +3,7 @@
 use super::problem::{ApiResult, Problem};
 use super::reads::Reads;
 use super::{page_limit, parse_cursor, AppState, JsonBody, Q};
-use crate::runner::{job, new_id, CancelOutcome};
+use crate::runner::{job, new_id, CancelOutcome, JobEvent};
 use crate::store::PartReads;
 use crate::store::{Inserted, Job, JobState};
 use axum::extract::{Path, State};
@@ -133,9 +133,8 @@ pub(crate) async fn enqueue(
         st.runner
             .events()
             .publish(
-                "job.state",
                 Some(&j.id),
-                json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id}),
+                &JobEvent::queued(&j.part_serial, &j.bench_id),
             )
             .await?;
         st.runner.wake(&j.bench_id);

@@ -7,7 +7,7 @@ use super::problem::{ApiResult, Problem};
 use super::{AppState, JsonBody};
 use crate::config::BenchKind;
 use crate::job::{FieldError, LongTermRequest, LongTermSpec, StoredRequest};
-use crate::runner::{job, new_id};
+use crate::runner::{job, new_id, JobEvent};
 use crate::store::{Inserted, MeasurementReads};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
@@ -113,9 +113,14 @@ pub async fn submit(
     st.runner
         .events()
         .publish(
-            "job.state",
             Some(&j.id),
-            json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id, "kind": "long_term"}),
+            &JobEvent::Queued {
+                state: crate::store::JobState::Queued,
+                part_serial: j.part_serial.clone(),
+                bench_id: j.bench_id.clone(),
+                kind: Some("long_term"),
+                type_: None,
+            },
         )
         .await?;
     st.runner.wake(&j.bench_id);

@@ -33,7 +33,7 @@ pub(super) enum Msg {
         progress: f64,
         eta_s: f64,
     },
-    Samples(Value),
+    Samples(super::JobEvent),
     /// A finished level's recordings and measurement, to be stored now (a
     /// cancel, a failure or a crash later keeps them; the job holds only
     /// their light results), or a finished repeat's completed documents;
@@ -150,10 +150,13 @@ impl JobObserver {
             return;
         }
         let dt = self.decim as f64 / self.sample_rate_hz;
-        let data = json!({"step": step_name(self.buf_step), "t0_s": self.buf_t0, "dt_s": dt,
-                          "x_m": self.buf_x, "microphone_v": self.buf_p});
-        self.buf_x.clear();
-        self.buf_p.clear();
+        let data = super::JobEvent::Samples {
+            step: step_name(self.buf_step),
+            t0_s: self.buf_t0,
+            dt_s: dt,
+            x_m: std::mem::take(&mut self.buf_x),
+            microphone_v: std::mem::take(&mut self.buf_p),
+        };
         let _ = self.tx.send(Msg::Samples(data));
     }
 }

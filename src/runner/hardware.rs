@@ -126,9 +126,11 @@ impl Runner {
         tracing::error!(bench = %slot.cfg.id, job = %job_id, "bench faulted: {detail}");
         self.events
             .publish(
-                "bench.faulted",
                 Some(job_id),
-                json!({"bench_id": slot.cfg.id, "detail": detail}),
+                &super::JobEvent::BenchFaulted {
+                    bench_id: slot.cfg.id.clone(),
+                    detail,
+                },
             )
             .await?;
         Ok(())
@@ -227,9 +229,11 @@ impl Runner {
                 tracing::info!(job = %job.id, bench = %slot.cfg.id, wall_s = started.elapsed().as_secs_f64(), "self-check passed");
                 self.events
                     .publish(
-                        "job.state",
                         Some(&job.id),
-                        json!({"state": "succeeded", "calibration_id": rec.id}),
+                        &super::JobEvent::SelfCheckPassed {
+                            state: JobState::Succeeded,
+                            calibration_id: rec.id.clone(),
+                        },
                     )
                     .await?;
                 Ok(())

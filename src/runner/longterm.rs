@@ -16,7 +16,7 @@
 //! A failure limit (a change of K(0) beyond its bound, no resonance found)
 //! stops the test, names the limit and stores the last 10 s of the signals.
 
-use super::{new_id, Runner, Slot, Stop, CANCEL, COMMIT};
+use super::{new_id, JobEvent, Runner, Slot, Stop, CANCEL, COMMIT};
 use crate::ageing::series::{self, AgeingDocument};
 use crate::bench::virtual_bench::VirtualBench;
 use crate::config::{BenchConfig, BenchKind};
@@ -119,9 +119,11 @@ impl Runner {
         if resumed_at > 0 {
             self.events
                 .publish(
-                    "longterm.resumed",
                     Some(&job.id),
-                    json!({"intervals_done": resumed_at, "load_j": resume.load_j}),
+                    &JobEvent::LongTermResumed {
+                        intervals_done: resumed_at,
+                        load_j: resume.load_j,
+                    },
                 )
                 .await?;
         }
@@ -189,9 +191,12 @@ impl Runner {
             .unwrap_or_default();
         self.events
             .publish(
-                "job.state",
                 Some(&job.id),
-                json!({"state": state.as_str(), "problem": problem, "measurement_ids": measurement_ids}),
+                &JobEvent::LongTermEnded {
+                    state,
+                    problem,
+                    measurement_ids,
+                },
             )
             .await?;
         Ok(())
@@ -252,9 +257,12 @@ impl Runner {
                 let _ = self
                     .events
                     .publish(
-                        "job.progress",
                         Some(job_id),
-                        json!({"step": "long_term", "progress": progress, "eta_s": eta_s}),
+                        &JobEvent::Progress {
+                            step: "long_term",
+                            progress,
+                            eta_s,
+                        },
                     )
                     .await;
             }
@@ -270,9 +278,13 @@ impl Runner {
                     let _ = self
                         .events
                         .publish(
-                            "longterm.interval",
                             Some(job_id),
-                            json!({"index": index, "measurement_id": mid, "elapsed_s": elapsed_s, "load_j": load_j}),
+                            &JobEvent::LongTermInterval {
+                                index,
+                                measurement_id: mid,
+                                elapsed_s,
+                                load_j,
+                            },
                         )
                         .await;
                 }

@@ -31,7 +31,7 @@ use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError, Step};
 use crate::recording::{Meta, RecordingSet};
 use crate::store::RecipeReads;
 use crate::store::{Job, JobState, NewMeasurement, NewRecording, Store, StoreResult};
-pub use events::EventBus;
+pub use events::{EventBus, JobEvent};
 use execute::*;
 pub use job::{FieldError, JobSpec};
 use serde::Serialize;
@@ -139,9 +139,11 @@ impl Runner {
             let problem = store.get_job(&id).await?.and_then(|j| j.problem);
             events
                 .publish(
-                    "job.state",
                     Some(&id),
-                    json!({"state": "failed", "problem": problem}),
+                    &JobEvent::Failed {
+                        state: JobState::Failed,
+                        problem,
+                    },
                 )
                 .await?;
             tracing::warn!(job = %id, "queued job of a bench no longer configured: failed");
@@ -253,7 +255,12 @@ impl Runner {
     pub async fn cancel(&self, id: &str) -> StoreResult<CancelOutcome> {
         if self.store.cancel_queued(id).await? {
             self.events
-                .publish("job.state", Some(id), json!({"state": "cancelled"}))
+                .publish(
+                    Some(id),
+                    &JobEvent::State {
+                        state: JobState::Cancelled,
+                    },
+                )
                 .await?;
             return Ok(match self.store.get_job(id).await? {
                 Some(j) => CancelOutcome::Cancelled(j),
@@ -409,7 +416,12 @@ impl Runner {
             st.job_id = Some(job.id.clone());
         }
         self.events
-            .publish("job.state", Some(&job.id), json!({"state": "running"}))
+            .publish(
+                Some(&job.id),
+                &JobEvent::State {
+                    state: JobState::Running,
+                },
+            )
             .await?;
         tracing::info!(job = %job.id, bench = %slot.cfg.id, part = %job.part_serial, "job started");
 
@@ -631,18 +643,26 @@ impl Runner {
         for id in &new_measurements {
             self.events
                 .publish(
-                    "measurement.created",
                     Some(&job.id),
-                    json!({"measurement_id": id, "part_serial": job.part_serial, "source": "bench"}),
+                    &JobEvent::MeasurementCreated {
+                        measurement_id: id.clone(),
+                        part_serial: job.part_serial.clone(),
+                        source: "bench",
+                    },
                 )
                 .await?;
         }
         self.events
             .publish(
-                "job.state",
                 Some(&job.id),
-                json!({"state": state.as_str(), "problem": prob, "bench_time_s": bench_time,
-                       "measurement_ids": measurement_ids, "warnings": warnings, "verdict": job_verdict}),
+                &JobEvent::Finished {
+                    state,
+                    problem: prob,
+                    bench_time_s: bench_time,
+                    measurement_ids,
+                    warnings,
+                    verdict: job_verdict,
+                },
             )
             .await?;
         Ok(())
@@ -662,9 +682,12 @@ impl Runner {
                 if let Err(e) = self
                     .events
                     .publish(
-                        "job.progress",
                         Some(job_id),
-                        json!({"step": step, "progress": progress, "eta_s": eta_s}),
+                        &JobEvent::Progress {
+                            step,
+                            progress,
+                            eta_s,
+                        },
                     )
                     .await
                 {
@@ -673,7 +696,7 @@ impl Runner {
             }
             Msg::Samples(data) => {
                 self.events
-                    .publish_live("job.samples", Some(job_id), data)
+                    .publish_live(Some(job_id), &data)
                     .await
             }
             Msg::Store(batch, reply) => {

@@ -240,9 +240,11 @@ impl Runner {
             let _ = self
                 .events
                 .publish(
-                    "job.state",
                     Some(&job.id),
-                    json!({"state": "failed", "problem": p}),
+                    &JobEvent::Failed {
+                        state: JobState::Failed,
+                        problem: Some(p.clone()),
+                    },
                 )
                 .await
                 .map_err(|e| tracing::warn!(job = %job.id, "job.state event not stored: {e}"));
@@ -318,8 +320,17 @@ impl Runner {
                 .iter()
                 .find(|b| b.id == job.bench_id)
                 .cloned()
-                .or_else(|| serde_json::from_value(json!({"id": job.bench_id})).ok());
-            let Some(bench) = bench else { continue };
+                // A bench no longer configured: its id, the defaults of the rest.
+                .unwrap_or_else(|| BenchConfig {
+                    id: job.bench_id.clone(),
+                    kind: BenchKind::Virtual,
+                    preset: crate::bench::settings::default_preset(),
+                    seed: 0,
+                    limits: crate::bench::settings::default_limits(),
+                    hardware: None,
+                    emulator: None,
+                    virtual_: None,
+                });
             let spec = job.request.measure();
             let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);
             let state = JobState::Interrupted;
@@ -352,9 +363,12 @@ impl Runner {
                 .map(|v| v.verdict);
             self.events
                 .publish(
-                    "job.state",
                     Some(&job.id),
-                    json!({"state": "interrupted", "problem": p, "verdict": verdict}),
+                    &JobEvent::Interrupted {
+                        state: JobState::Interrupted,
+                        problem: p.clone(),
+                        verdict,
+                    },
                 )
                 .await?;
             tracing::warn!(job = %job.id, "job was running when the daemon stopped: marked interrupted");
