@@ -92,6 +92,7 @@ pub async fn self_check(State(st): State<AppState>, Path(id): Path<String>) -> A
                 bench_id: j.bench_id.clone(),
                 kind: None,
                 type_: Some("self_check"),
+                study: None,
             },
         )
         .await?;

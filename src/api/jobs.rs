@@ -132,10 +132,7 @@ pub(crate) async fn enqueue(
     if let Inserted::New(j) = &inserted {
         st.runner
             .events()
-            .publish(
-                Some(&j.id),
-                &JobEvent::queued(&j.part_serial, &j.bench_id),
-            )
+            .publish(Some(&j.id), &JobEvent::queued(&j.part_serial, &j.bench_id))
             .await?;
         st.runner.wake(&j.bench_id);
     }

@@ -14,7 +14,7 @@ use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 
 /// `GET /api/v1/long-term-tests/{id}`.
 #[derive(Serialize, utoipa::ToSchema)]
@@ -120,6 +120,7 @@ pub async fn submit(
                 bench_id: j.bench_id.clone(),
                 kind: Some("long_term"),
                 type_: None,
+                study: None,
             },
         )
         .await?;

@@ -7,14 +7,14 @@ use super::problem::{ApiResult, Problem};
 use super::{AppState, JsonBody};
 use crate::diagnose::studies::{Study, StudyResult, StudyState};
 use crate::job::{FieldError, JobProblem, StoredRequest};
-use crate::runner::new_id;
+use crate::runner::events::StudyStep;
+use crate::runner::{new_id, JobEvent};
 use crate::store::{Inserted, JobState};
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
-use serde_json::json;
 use sha2::{Digest, Sha256};
 
 /// A study as the API shows it.
@@ -133,9 +133,15 @@ pub async fn submit(State(st): State<AppState>, JsonBody(body): JsonBody) -> Api
     st.runner
         .events()
         .publish(
-            "job.state",
             Some(&j.id),
-            json!({"state": "queued", "part_serial": j.part_serial, "bench_id": j.bench_id, "study": study.kind()}),
+            &JobEvent::Queued {
+                state: JobState::Queued,
+                part_serial: j.part_serial.clone(),
+                bench_id: j.bench_id.clone(),
+                kind: None,
+                type_: None,
+                study: Some(study.kind()),
+            },
         )
         .await?;
     st.runner.wake(&j.bench_id);
@@ -189,9 +195,11 @@ pub async fn confirm(
     st.runner
         .events()
         .publish(
-            "study.state",
             Some(&id),
-            json!({"state": "confirmed", "by": caller.0}),
+            &JobEvent::StudyConfirmed {
+                state: StudyStep::Confirmed,
+                by: caller.0.clone(),
+            },
         )
         .await?;
     Ok(Json(view(&st, &id).await?))

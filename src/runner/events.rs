@@ -26,6 +26,9 @@ pub enum JobEvent {
         kind: Option<&'static str>,
         #[serde(rename = "type", skip_serializing_if = "Option::is_none")]
         type_: Option<&'static str>,
+        /// A study job's kind (`added_mass`, `recovery`).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        study: Option<&'static str>,
     },
     /// `job.state` with the state alone (running, cancelled).
     State { state: JobState },
@@ -60,6 +63,23 @@ pub enum JobEvent {
     SelfCheckPassed {
         state: JobState,
         calibration_id: String,
+    },
+    /// `job.state`: a study done, with its kind.
+    StudySucceeded {
+        state: JobState,
+        study: &'static str,
+    },
+    /// `study.state`: a study's step alone (the runner saw the confirmation).
+    StudyStep { state: StudyStep },
+    /// `study.state`: the study waits for the operator, who is told what to do.
+    StudyAwaitingOperator {
+        state: StudyStep,
+        instruction: String,
+    },
+    /// `study.state`: the operator confirmed (`by`: the token's name, if any).
+    StudyConfirmed {
+        state: StudyStep,
+        by: Option<String>,
     },
     /// `job.progress`.
     Progress {
@@ -104,7 +124,11 @@ impl JobEvent {
             | JobEvent::Interrupted { .. }
             | JobEvent::Finished { .. }
             | JobEvent::LongTermEnded { .. }
-            | JobEvent::SelfCheckPassed { .. } => "job.state",
+            | JobEvent::SelfCheckPassed { .. }
+            | JobEvent::StudySucceeded { .. } => "job.state",
+            JobEvent::StudyStep { .. }
+            | JobEvent::StudyAwaitingOperator { .. }
+            | JobEvent::StudyConfirmed { .. } => "study.state",
             JobEvent::Progress { .. } => "job.progress",
             JobEvent::Samples { .. } => "job.samples",
             JobEvent::MeasurementCreated { .. } => "measurement.created",
@@ -122,6 +146,7 @@ impl JobEvent {
             bench_id: bench_id.to_string(),
             kind: None,
             type_: None,
+            study: None,
         }
     }
 
@@ -129,6 +154,14 @@ impl JobEvent {
     fn data(&self) -> serde_json::Value {
         serde_json::to_value(self).unwrap_or_default()
     }
+}
+
+/// A study's step in its `study.state` events.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StudyStep {
+    AwaitingOperator,
+    Confirmed,
 }
 
 /// What subscribers receive.
@@ -218,6 +251,7 @@ mod tests {
                     bench_id: "hw-1".into(),
                     kind: None,
                     type_: Some("self_check"),
+                    study: None,
                 },
                 "job.state",
                 json!({"state": "queued", "part_serial": "SN-1", "bench_id": "hw-1", "type": "self_check"}),

@@ -35,7 +35,7 @@ pub use events::{EventBus, JobEvent};
 use execute::*;
 pub use job::{FieldError, JobSpec};
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
@@ -694,11 +694,7 @@ impl Runner {
                     tracing::warn!(job = %job_id, "progress event not stored: {e}");
                 }
             }
-            Msg::Samples(data) => {
-                self.events
-                    .publish_live(Some(job_id), &data)
-                    .await
-            }
+            Msg::Samples(data) => self.events.publish_live(Some(job_id), &data).await,
             Msg::Store(batch, reply) => {
                 let mut r = Ok(vec![]);
                 if !batch.recordings.is_empty() || !batch.measurements.is_empty() {

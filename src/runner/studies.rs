@@ -6,14 +6,14 @@
 //! (`diagnose::studies`, `diagnose::memory`); this is the shell: the bench
 //! thread, the wait, the store.
 
+use super::events::StudyStep;
 use super::execute::make_bench;
-use super::{Runner, Slot, CANCEL};
+use super::{JobEvent, Runner, Slot, CANCEL};
 use crate::diagnose::studies::{
     analyze_added_mass, MassRun, Study, StudyPlan, StudyResult, StudyState,
 };
 use crate::job::{JobProblem, ProblemKind};
 use crate::store::{Job, JobState, StoreResult};
-use serde_json::json;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -141,9 +141,11 @@ impl Runner {
                 tracing::info!(job = %job.id, bench = %slot.cfg.id, wall_s = started.elapsed().as_secs_f64(), "{kind} study done");
                 self.events
                     .publish(
-                        "job.state",
                         Some(&job.id),
-                        json!({"state": "succeeded", "study": kind}),
+                        &JobEvent::StudySucceeded {
+                            state: JobState::Succeeded,
+                            study: kind,
+                        },
                     )
                     .await?;
                 Ok(())
@@ -261,9 +263,11 @@ impl Runner {
                     .await?;
                 self.events
                     .publish(
-                        "study.state",
                         Some(&job.id),
-                        json!({"state": "awaiting_operator", "instruction": instruction}),
+                        &JobEvent::StudyAwaitingOperator {
+                            state: StudyStep::AwaitingOperator,
+                            instruction: instruction.clone(),
+                        },
                     )
                     .await?;
                 // The wait: the operator's confirmation, a cancel or the shutdown.
@@ -287,7 +291,12 @@ impl Runner {
                     .set_progress(&job.id, "added_mass", 0.5, 0.0)
                     .await?;
                 self.events
-                    .publish("study.state", Some(&job.id), json!({"state": "confirmed"}))
+                    .publish(
+                        Some(&job.id),
+                        &JobEvent::StudyStep {
+                            state: StudyStep::Confirmed,
+                        },
+                    )
                     .await?;
                 // On a virtual bench the mass is added to the simulated
                 // slide; on hardware the operator has mounted it.
