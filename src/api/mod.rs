@@ -247,6 +247,11 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/recipes/{name}/spc",
         get(qc::spc::<AppState>),
     )
+    .add(
+        "get",
+        "/api/v1/recipes/{name}/lot.csv",
+        get(qc::lot_csv::<AppState>),
+    )
     .add("get", "/api/v1/limit-proposals/{id}", get(qc::get_proposal))
     .add(
         "post",

@@ -61,6 +61,7 @@ use utoipa::{Modify, OpenApi};
         super::qc::propose,
         super::qc::list_proposals,
         super::qc::spc,
+        super::qc::lot_csv,
         super::qc::get_proposal,
         super::qc::approve,
         super::qc::reject,

@@ -723,11 +723,16 @@ async fn every_route_answers_as_its_schema_says() {
     let sp = "/api/v1/recipes/{name}/spc";
     let spc = a.get(sp, &format!("{rn}/spc?parameter=k0"), 200).await;
     assert_eq!(spc["n"], 5, "{spc}");
+    let lp = "/api/v1/recipes/{name}/lot.csv";
     #[rustfmt::skip]
     let rows: &[Row] = &[
         ("get", sp, &format!("{rn}/spc?parameter=k0&format=csv"), Some(VIEWER), None, 200),
         ("get", sp, &format!("{rn}/spc"), Some(VIEWER), None, 422),
         ("get", sp, "/api/v1/recipes/nope/spc?parameter=k0", Some(VIEWER), None, 404),
+        // The lot export (CSV), its bad window and an unknown recipe.
+        ("get", lp, &format!("{rn}/lot.csv?purpose=all"), Some(VIEWER), None, 200),
+        ("get", lp, &format!("{rn}/lot.csv?until=soon"), Some(VIEWER), None, 422),
+        ("get", lp, "/api/v1/recipes/nope/lot.csv", Some(VIEWER), None, 404),
     ];
     a.expect_all(rows).await;
 

@@ -917,6 +917,29 @@ fn cfx_messages_are_read_by_the_reference_sdk() {
 /// `purpose=all` and each other pool count their own, and the gauge study
 /// keeps its figures. Before pools, the gauge study's four soft runs and the
 /// golden units were SPC points (n 11 instead of 5).
+/// `GET /api/v1/recipes/pools/lot.csv{query}` as rows by column name.
+async fn lot_csv(c: &reqwest::Client, d: &Daemon, query: &str) -> Vec<HashMap<String, String>> {
+    let r = c
+        .get(d.url(&format!("/api/v1/recipes/pools/lot.csv{query}")))
+        .bearer_auth(STATION)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200, "lot.csv{query}");
+    assert_eq!(r.headers()["content-type"], "text/csv; charset=utf-8");
+    let text = r.text().await.unwrap();
+    let mut rd = csv::Reader::from_reader(text.as_bytes());
+    let h: Vec<String> = rd.headers().unwrap().iter().map(String::from).collect();
+    rd.records()
+        .map(|rec| {
+            h.iter()
+                .cloned()
+                .zip(rec.unwrap().iter().map(String::from))
+                .collect()
+        })
+        .collect()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn spc_and_yield_count_production_parts_only() {
     let d = Daemon::start(&format!("{}{}", tokens(), benches()));
@@ -1077,6 +1100,64 @@ async fn spc_and_yield_count_production_parts_only() {
         .await;
     assert_eq!(s, 422, "{v}");
     assert!(v.to_string().contains("purpose"), "{v}");
+    // The lot export: a row per production measurement, each value and
+    // result as the API's verdict shows it (to 1e-9), with its trace.
+    let rows = lot_csv(&c, &d, "").await;
+    assert_eq!(rows.len(), production.len());
+    for j in &done[..production.len()] {
+        let jid = j["id"].as_str().unwrap();
+        let jv = get(&c, &d, &format!("/api/v1/jobs/{jid}/verdict")).await;
+        for m in jv["measurements"].as_array().unwrap() {
+            let mid = m["measurement_id"].as_str().unwrap();
+            let row = rows
+                .iter()
+                .find(|r| r["measurement_id"] == mid)
+                .unwrap_or_else(|| panic!("measurement {mid} not in the lot"));
+            assert_eq!(row["part_serial"], m["part_serial"].as_str().unwrap());
+            assert_eq!(row["job_id"], jid);
+            assert_eq!(row["verdict"], m["verdict"].as_str().unwrap());
+            assert_eq!(row["recipe_version"], "1");
+            assert_eq!(row["purpose"], "production");
+            assert_eq!(
+                row["bench_id"],
+                m["traceability"]["bench_id"].as_str().unwrap()
+            );
+            let params = m["detail"]["parameters"].as_array().unwrap();
+            assert!(!params.is_empty(), "{m}");
+            for p in params {
+                let (name, unit) = (p["name"].as_str().unwrap(), p["unit"].as_str().unwrap());
+                let want = p["value"].as_f64().unwrap();
+                let got: f64 = row[&format!("{name} [{unit}]")].parse().unwrap();
+                assert!(
+                    (got - want).abs() <= 1e-9 * want.abs(),
+                    "{name}: {got} vs {want}"
+                );
+                assert_eq!(
+                    row[&format!("{name} result")],
+                    p["result"].as_str().unwrap()
+                );
+            }
+        }
+    }
+    let all = lot_csv(&c, &d, "?purpose=all").await;
+    let count = |p: &str| all.iter().filter(|r| r["purpose"] == p).count();
+    assert_eq!(
+        (
+            all.len(),
+            count("production"),
+            count("golden_unit"),
+            count("gauge_study")
+        ),
+        (11, 5, 2, 4)
+    );
+    let r = c
+        .get(d.url("/api/v1/recipes/pools/lot.csv?since=yesterday"))
+        .bearer_auth(STATION)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 422);
+    assert!(r.text().await.unwrap().contains("since"));
     println!(
         "pools: production k0 mean {mean:.1} N/m, Cpk {cpk:.3}; all pools n 11, mean {}",
         station(&d)

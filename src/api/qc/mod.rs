@@ -5,14 +5,17 @@
 //! - `recipes.rs`: recipes, their versions and retirement, the recipe a job names;
 //! - `limits.rs`: limit proposals from golden units, approval, rejection;
 //! - `verdicts.rs`: a part's and a job's verdict, SPC of a recipe;
+//! - `lot.rs`: the lot export (CSV, the table is `crate::qc::lot`);
 //! - `outbox.rs`: the MES outbox (list, retry, drop).
 
 mod limits;
+mod lot;
 mod outbox;
 mod recipes;
 mod verdicts;
 
 pub use limits::*;
+pub use lot::*;
 pub use outbox::*;
 pub use recipes::*;
 pub use verdicts::*;

@@ -17,6 +17,7 @@ pub mod bench_cal;
 pub mod cfx;
 pub mod grr;
 pub mod limits;
+pub mod lot;
 pub mod production;
 mod recipe;
 pub mod spc;
