@@ -910,18 +910,13 @@ fn cfx_messages_are_read_by_the_reference_sdk() {
     );
 }
 
-/// Pools (issue 35, decision 0100): SPC and yield count production only.
-/// Production parts, golden units and a gauge study's runs of known parts
-/// under one recipe: the SPC figures of the recipe are those of the
-/// production parts alone (computed here from their stored k0), while
-/// `purpose=all` and each other pool count their own, and the gauge study
-/// keeps its figures. Before pools, the gauge study's four soft runs and the
-/// golden units were SPC points (n 11 instead of 5).
 /// `GET /api/v1/recipes/pools/lot.csv{query}` as rows by column name.
-async fn lot_csv(c: &reqwest::Client, d: &Daemon, query: &str) -> Vec<HashMap<String, String>> {
-    let r = c
-        .get(d.url(&format!("/api/v1/recipes/pools/lot.csv{query}")))
-        .bearer_auth(STATION)
+async fn lot_csv(d: &Daemon, query: &str) -> Vec<HashMap<String, String>> {
+    let r = station(d)
+        .builder(
+            Method::GET,
+            &format!("/api/v1/recipes/pools/lot.csv{query}"),
+        )
         .send()
         .await
         .unwrap();
@@ -940,6 +935,13 @@ async fn lot_csv(c: &reqwest::Client, d: &Daemon, query: &str) -> Vec<HashMap<St
         .collect()
 }
 
+/// Pools (issue 35, decision 0100): SPC and yield count production only.
+/// Production parts, golden units and a gauge study's runs of known parts
+/// under one recipe: the SPC figures of the recipe are those of the
+/// production parts alone (computed here from their stored k0), while
+/// `purpose=all` and each other pool count their own, and the gauge study
+/// keeps its figures. Before pools, the gauge study's four soft runs and the
+/// golden units were SPC points (n 11 instead of 5).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn spc_and_yield_count_production_parts_only() {
     let d = Daemon::start(&format!("{}{}", tokens(), benches()));
@@ -1102,11 +1104,13 @@ async fn spc_and_yield_count_production_parts_only() {
     assert!(v.to_string().contains("purpose"), "{v}");
     // The lot export: a row per production measurement, each value and
     // result as the API's verdict shows it (to 1e-9), with its trace.
-    let rows = lot_csv(&c, &d, "").await;
+    let rows = lot_csv(&d, "").await;
     assert_eq!(rows.len(), production.len());
     for j in &done[..production.len()] {
         let jid = j["id"].as_str().unwrap();
-        let jv = get(&c, &d, &format!("/api/v1/jobs/{jid}/verdict")).await;
+        let jv = station(&d)
+            .get(&format!("/api/v1/jobs/{jid}/verdict"))
+            .await;
         for m in jv["measurements"].as_array().unwrap() {
             let mid = m["measurement_id"].as_str().unwrap();
             let row = rows
@@ -1139,7 +1143,7 @@ async fn spc_and_yield_count_production_parts_only() {
             }
         }
     }
-    let all = lot_csv(&c, &d, "?purpose=all").await;
+    let all = lot_csv(&d, "?purpose=all").await;
     let count = |p: &str| all.iter().filter(|r| r["purpose"] == p).count();
     assert_eq!(
         (
@@ -1150,14 +1154,15 @@ async fn spc_and_yield_count_production_parts_only() {
         ),
         (11, 5, 2, 4)
     );
-    let r = c
-        .get(d.url("/api/v1/recipes/pools/lot.csv?since=yesterday"))
-        .bearer_auth(STATION)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 422);
-    assert!(r.text().await.unwrap().contains("since"));
+    let (s, v) = station(&d)
+        .exchange(
+            Method::GET,
+            "/api/v1/recipes/pools/lot.csv?since=yesterday",
+            None,
+        )
+        .await;
+    assert_eq!(s, 422, "{v}");
+    assert!(v.to_string().contains("since"), "{v}");
     println!(
         "pools: production k0 mean {mean:.1} N/m, Cpk {cpk:.3}; all pools n 11, mean {}",
         station(&d)
