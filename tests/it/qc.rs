@@ -731,26 +731,7 @@ async fn get_of_an_invalid_verdict_has_no_per_parameter_result() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_job_on_a_faulted_bench_is_refused_with_a_problem_naming_the_fault() {
     let cfg = format!("{}{}", tokens(), benches());
-    let mut d = Daemon::start(&cfg);
-    let tmp = d.take_dir().unwrap();
-    d.terminate();
-    drop(d);
-    {
-        use sqlx::ConnectOptions;
-        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(tmp.path().join("data").join("springbench.db"))
-            .connect()
-            .await
-            .unwrap();
-        sqlx::query(
-            "INSERT INTO bench_faults (bench_id, job_id, detail, created_at) \
-             VALUES ('virtual-2', NULL, 'laser signal lost: 0 valid frames in 0.5 s', '2026-11-28T08:00:00.000Z')",
-        )
-        .execute(&mut db)
-        .await
-        .unwrap();
-    }
-    let d = Daemon::start_in(tmp.path(), &cfg);
+    let (d, tmp) = common::with_bench_fault(&cfg, "virtual-2", common::LASER_LOST).await;
     let benches = station(&d).get("/api/v1/benches").await;
     let b2 = benches["items"]
         .as_array()

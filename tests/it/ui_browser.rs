@@ -1802,26 +1802,7 @@ async fn a_faulted_bench_shows_its_reason_and_takes_no_part() {
         return;
     };
     let cfg = tokens_two_benches();
-    let mut d = Daemon::start(&cfg);
-    let tmp = d.take_dir().unwrap();
-    d.terminate();
-    drop(d);
-    {
-        use sqlx::ConnectOptions;
-        let mut db = sqlx::sqlite::SqliteConnectOptions::new()
-            .filename(tmp.path().join("data").join("springbench.db"))
-            .connect()
-            .await
-            .unwrap();
-        sqlx::query(
-            "INSERT INTO bench_faults (bench_id, job_id, detail, created_at) \
-             VALUES ('virtual-2', NULL, 'laser signal lost: 0 valid frames in 0.5 s', '2026-11-28T08:00:00.000Z')",
-        )
-        .execute(&mut db)
-        .await
-        .unwrap();
-    }
-    let d = Daemon::start_in(tmp.path(), &cfg);
+    let (d, tmp) = common::with_bench_fault(&cfg, "virtual-2", common::LASER_LOST).await;
     b.login(&d.base, OPERATOR, "operator").await;
     b.wait("the faulted bench's card", "document.querySelector('#bench-virtual-2') && document.querySelector('#bench-virtual-2').dataset.state === 'faulted' && document.querySelector('#fault-virtual-2')").await;
     let card = b.text("#bench-virtual-2").await;

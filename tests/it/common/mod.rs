@@ -279,6 +279,42 @@ pub async fn get_text(c: &reqwest::Client, d: &Daemon, path: &str) -> String {
         .unwrap()
 }
 
+/// A daemon with `config` whose bench `bench` carries a stored fault
+/// `detail`, as a hardware bench stores it when its laser fails (a
+/// `bench_faults` row; it outlives a restart): started once to create its
+/// database, stopped, the row written, started again. The directory holds
+/// its data.
+pub async fn with_bench_fault(
+    config: &str,
+    bench: &str,
+    detail: &str,
+) -> (Daemon, tempfile::TempDir) {
+    use sqlx::ConnectOptions;
+    let mut d = Daemon::start(config);
+    let tmp = d.take_dir().unwrap();
+    d.terminate();
+    drop(d);
+    let mut db = sqlx::sqlite::SqliteConnectOptions::new()
+        .filename(tmp.path().join("data").join("springbench.db"))
+        .connect()
+        .await
+        .unwrap();
+    sqlx::query(
+        "INSERT INTO bench_faults (bench_id, job_id, detail, created_at) \
+         VALUES (?, NULL, ?, '2026-11-28T08:00:00.000Z')",
+    )
+    .bind(bench)
+    .bind(detail)
+    .execute(&mut db)
+    .await
+    .unwrap();
+    drop(db);
+    (Daemon::start_in(tmp.path(), config), tmp)
+}
+
+/// The fault a hardware bench stores when its laser fails.
+pub const LASER_LOST: &str = "laser signal lost: 0 valid frames in 0.5 s";
+
 /// Resident memory of a process (VmRSS from /proc/PID/status), kB.
 pub fn rss_kb(pid: u32) -> u64 {
     let s = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("/proc status");
