@@ -46,6 +46,11 @@ fn keep_freed_memory() {
         // 32 MiB is glibc's upper limit for the mmap threshold.
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+        // One arena for every thread: rayon's workers (where the decoding
+        // and the analysis run) otherwise allocate from arenas of their own,
+        // outside the huge-page heap below, and fault their ~60 MB in 4 kB
+        // pages: 14 300 page faults a run instead of 1 800 (decision 0091).
+        libc::mallopt(libc::M_ARENA_MAX, 1);
     }
     huge_page_heap();
 }
