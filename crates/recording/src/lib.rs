@@ -338,13 +338,54 @@ fn decode_into<const B: usize>(
     gain: f64,
     conv: impl Fn([u8; B]) -> f64,
 ) -> bool {
+    // The usual frames (2-4 channels of 2-4 bytes) with their size known to
+    // the compiler: the per-frame slicing and bounds checks fold away
+    // (the generic loop took ~20 instructions a sample, a fifth of `analyze`).
+    match frame {
+        4 => decode_frames::<B, 4>(out, buf, off, gain, conv),
+        6 => decode_frames::<B, 6>(out, buf, off, gain, conv),
+        8 => decode_frames::<B, 8>(out, buf, off, gain, conv),
+        9 => decode_frames::<B, 9>(out, buf, off, gain, conv),
+        12 => decode_frames::<B, 12>(out, buf, off, gain, conv),
+        16 => decode_frames::<B, 16>(out, buf, off, gain, conv),
+        _ => {
+            let mut ok = true;
+            out.extend(buf.chunks_exact(frame).map(|f| {
+                let b: [u8; B] = f[off..off + B].try_into().expect("B bytes");
+                let v = conv(b) * gain;
+                ok &= v.is_finite();
+                v
+            }));
+            ok
+        }
+    }
+}
+
+/// [`decode_into`] for frames of `F` bytes: the same conversion, sample for
+/// sample.
+fn decode_frames<const B: usize, const F: usize>(
+    out: &mut Vec<f64>,
+    buf: &[u8],
+    off: usize,
+    gain: f64,
+    conv: impl Fn([u8; B]) -> f64,
+) -> bool {
+    assert!(off + B <= F, "a sample inside its frame");
+    let n = buf.len() / F;
+    out.reserve(n);
     let mut ok = true;
-    out.extend(buf.chunks_exact(frame).map(|f| {
+    for (o, f) in out.spare_capacity_mut()[..n]
+        .iter_mut()
+        .zip(buf.chunks_exact(F))
+    {
         let b: [u8; B] = f[off..off + B].try_into().expect("B bytes");
         let v = conv(b) * gain;
         ok &= v.is_finite();
-        v
-    }));
+        o.write(v);
+    }
+    // SAFETY: the loop wrote the first n values of the spare capacity
+    // (chunks_exact gives n frames).
+    unsafe { out.set_len(out.len() + n) };
     ok
 }
 
