@@ -112,7 +112,8 @@ impl<'a> Sweeps<'a> {
 /// [`analyze`] of borrowed sweeps.
 pub fn analyze_sweeps(s: Sweeps<'_>, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
     let (p, fitted) = prepare_and_fit(s);
-    let (mut r, creep) = analyze_prepared(s.pre, &p?, opts, fitted)?;
+    let (p, excursion) = p?;
+    let (mut r, creep) = analyze_prepared(excursion, &p, opts, fitted)?;
     validity::judge_plain(&mut r, creep.as_deref());
     Ok(r)
 }
@@ -120,16 +121,22 @@ pub fn analyze_sweeps(s: Sweeps<'_>, opts: &AnalyzeOptions) -> Result<Report, An
 /// The main sweep's preparation and the small-signal fit of the
 /// pre-measurement: independent of each other and about equal in cost, so
 /// they run side by side on the two cores (rayon's pool, whose threads keep
-/// their FFT plans between calls). The same arithmetic as one after the
-/// other: the numbers are bit for bit the same.
+/// their FFT plans between calls). The pre-measurement's excursion
+/// ([`pre_excursion`]) is read beside the fit too (on the preparation's
+/// side, the shorter one) instead of after the K(x) fit. The same
+/// arithmetic as one after the other: the numbers are bit for bit the same.
+#[allow(clippy::type_complexity)]
 fn prepare_and_fit(
     s: Sweeps<'_>,
 ) -> (
-    Result<prep::Prepared, AnalyzeError>,
+    Result<(prep::Prepared, Option<(f64, f64)>), AnalyzeError>,
     Result<small::SmallFit, AnalyzeError>,
 ) {
     rayon::join(
-        || prep::prepare_sweep(s.main, s.moving_mass_kg, "main"),
+        || {
+            let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
+            Ok((p, pre_excursion(&s.pre.displacement_m)))
+        },
         || small::fit(s.pre, s.moving_mass_kg),
     )
 }
@@ -149,8 +156,8 @@ pub fn analyze_sweeps_with_force_balance(
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
     let (p, fitted) = prepare_and_fit(s);
-    let p = p?;
-    let (mut report, creep) = analyze_prepared(s.pre, &p, opts, fitted)?;
+    let (p, excursion) = p?;
+    let (mut report, creep) = analyze_prepared(excursion, &p, opts, fitted)?;
     validity::judge_plain(&mut report, creep.as_deref());
     Ok((report, force_balance_of(&p, false)))
 }
@@ -194,22 +201,23 @@ pub fn analyze_for_diagnosis(
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData, PreSpectra), AnalyzeError> {
     let (p, pre_spectra) = rayon::join(
-        || prep::prepare(set),
+        || prep::prepare(set).map(|p| (p, pre_excursion(&set.pre.displacement_m))),
         || small::check(&set.pre).map(|()| prep::spectra(&set.pre)),
     );
-    let p = p?;
+    let (p, excursion) = p?;
     let (sx, sm) = pre_spectra?;
     // The diagnostics fit creep themselves: the plain analysis's mark for it
     // is not theirs.
     let fitted = small::fit_spectra(&set.pre, p.mass_kg, &sx, &sm);
-    let (report, _) = analyze_prepared(&set.pre, &p, opts, fitted)?;
+    let (report, _) = analyze_prepared(excursion, &p, opts, fitted)?;
     Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
 /// The report of a prepared main sweep and the small-signal fit of its
-/// pre-measurement.
+/// pre-measurement (`pre_excursion`: the pre-measurement's, by
+/// [`pre_excursion`]).
 fn analyze_prepared(
-    pre: &crate::recording::Signals,
+    pre_excursion: Option<(f64, f64)>,
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
     fitted: Result<small::SmallFit, AnalyzeError>,
@@ -255,7 +263,7 @@ fn analyze_prepared(
     }
     let large_signal = large_signal(p, &kf, &mut warnings)?;
     if let Some(ss) = small_signal.as_mut() {
-        mark_pre_level_bend(ss, &pre.displacement_m, &kf.k);
+        mark_pre_level_bend(ss, pre_excursion, &kf.k);
     }
     let (xlo, xhi) = extremes(&p.x[span.0..span.1]);
     let k0 = kf.k_of_x(0.0);
@@ -340,10 +348,8 @@ pub const PRE_LEVEL_BEND_LIMIT: f64 = 0.03;
 /// pre-measurement's level already bends the stiffness by more than
 /// [`PRE_LEVEL_BEND_LIMIT`]: the linear resonator then measures Keff at that
 /// level, not k0 (a strongly hardening spider at 1.5 mm: +3.3 %, issue 22).
-fn mark_pre_level_bend(ss: &mut SmallSignal, pre_x_m: &[f64], k: &[f64]) {
-    // The excursion from the 0.1 % and 99.9 % quantiles: a laser's noise
-    // spikes do not widen it (the resonance holds the peak for many periods).
-    let Some((lo, hi)) = crate::dsp::quantile_pair(pre_x_m, 0.001, 0.999, 1000) else {
+fn mark_pre_level_bend(ss: &mut SmallSignal, pre_excursion: Option<(f64, f64)>, k: &[f64]) {
+    let Some((lo, hi)) = pre_excursion else {
         return;
     };
     let k0 = k.first().copied().unwrap_or(f64::NAN);
@@ -362,6 +368,14 @@ fn mark_pre_level_bend(ss: &mut SmallSignal, pre_x_m: &[f64], k: &[f64]) {
         .k0_n_per_m
         .mark(validity::State::Unreliable, &why);
     ss.validity.f0_hz.mark(validity::State::Unreliable, &why);
+}
+
+/// The pre-measurement's excursion (m) that [`mark_pre_level_bend`] judges:
+/// its 0.1 % and 99.9 % quantiles, so that a laser's noise spikes do not
+/// widen it (the resonance holds the peak for many periods). None for fewer
+/// than 1000 finite samples.
+fn pre_excursion(pre_x_m: &[f64]) -> Option<(f64, f64)> {
+    crate::dsp::quantile_pair(pre_x_m, 0.001, 0.999, 1000)
 }
 
 /// Prepares the force-balance data of the main sweep of `set` (band limiting,
