@@ -19,6 +19,13 @@ use realfft::RealFftPlanner;
 use rustfft::FftPlanner;
 use std::cell::RefCell;
 
+/// Complex plans of [`Spectrum::bands`], shared by all threads: the plans
+/// are immutable once made, and the two spectra of a sweep are transformed
+/// on two threads at once, which planned the same 2^16-point FFT twice
+/// (~10 M instructions each). The same plan, so the same numbers.
+static CPLANNER: std::sync::LazyLock<std::sync::Mutex<FftPlanner<f64>>> =
+    std::sync::LazyLock::new(|| std::sync::Mutex::new(FftPlanner::new()));
+
 thread_local! {
     /// FFT plans of this thread: planning a 2^20 FFT (twiddles) costs about as
     /// much as running it, and `analyze` is called repeatedly on records of the
@@ -27,9 +34,7 @@ thread_local! {
     /// Reused scratch and input buffers of the FFTs (multi-megabyte buffers
     /// allocated afresh cost page faults on every call).
     static SCRATCH: RefCell<(Vec<f64>, Vec<Complex64>)> = const { RefCell::new((Vec::new(), Vec::new())) };
-    /// Complex plans of [`Spectrum::bands`] and its reused sub-FFT and
-    /// scratch buffers.
-    static CPLANNER: RefCell<FftPlanner<f64>> = RefCell::new(FftPlanner::new());
+    /// The reused sub-FFT and scratch buffers of [`Spectrum::bands`].
     static CBUF: RefCell<[Vec<Complex64>; 2]> = const { RefCell::new([Vec::new(), Vec::new()]) };
 }
 
@@ -40,7 +45,8 @@ thread_local! {
 pub fn release_thread_buffers() {
     PLANNER.with(|p| *p.borrow_mut() = RealFftPlanner::new());
     SCRATCH.with(|s| *s.borrow_mut() = (Vec::new(), Vec::new()));
-    CPLANNER.with(|p| *p.borrow_mut() = FftPlanner::new());
+    // (the shared complex plans: the 2^16 point one and its twiddles, ~3 MB)
+    *CPLANNER.lock().unwrap_or_else(|e| e.into_inner()) = FftPlanner::new();
     CBUF.with(|b| *b.borrow_mut() = [Vec::new(), Vec::new()]);
 }
 
@@ -88,7 +94,10 @@ fn sub_ffts<R>(
     fill: impl FnOnce(&mut [Complex64]),
     read: impl FnOnce(&[Complex64]) -> R,
 ) -> R {
-    let fft = CPLANNER.with(|p| p.borrow_mut().plan_fft_forward(l));
+    let fft = CPLANNER
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .plan_fft_forward(l);
     CBUF.with(|b| {
         let [input, scratch] = &mut *b.borrow_mut();
         let zero = Complex64::new(0.0, 0.0);
