@@ -33,7 +33,11 @@ pub fn required_role(method: &Method, route: &str) -> Option<Role> {
         r if crate::ui::is_public(r) => None,
         "/api/v1/config" => Some(Role::Admin),
         // QC engineering: recipes and the approval of limits.
-        "/api/v1/recipes" | "/api/v1/recipes/{name}" if !read => Some(Role::Admin),
+        "/api/v1/recipes" | "/api/v1/recipes/{name}" | "/api/v1/recipes/{name}/publish"
+            if !read =>
+        {
+            Some(Role::Admin)
+        }
         // A bench calibration changes how the bench's measurements are judged.
         "/api/v1/recipes/{name}/bench-calibrations" if !read => Some(Role::Admin),
         "/api/v1/limit-proposals/{id}/approve" | "/api/v1/limit-proposals/{id}/reject" => {

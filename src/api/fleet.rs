@@ -37,7 +37,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 mod ingest;
+mod recipes;
 pub use ingest::{ItemsRequest, ITEM_REFUSED};
+pub use recipes::*;
 
 #[derive(Clone)]
 pub struct FleetState {
@@ -62,6 +64,48 @@ impl FleetState {
 /// center to 6.3 GB).
 pub const VERDICTS_MAX: i64 = 10_000;
 
+/// The fleet role's routes that write: recipes authored at the center
+/// (decision 0106), each with its role ([`recipes::authorised`]).
+fn authoring() -> Vec<(&'static str, &'static str, MethodRouter<FleetState>)> {
+    use axum::routing::post;
+    vec![
+        (
+            "post",
+            "/api/v1/fleet/recipe-proposals",
+            post(recipes::propose),
+        ),
+        (
+            "post",
+            "/api/v1/fleet/recipe-proposals/{id}/approve",
+            post(recipes::approve),
+        ),
+        (
+            "post",
+            "/api/v1/fleet/recipe-proposals/{id}/reject",
+            post(recipes::reject),
+        ),
+        (
+            "post",
+            "/api/v1/fleet/recipes/{name}/retire",
+            post(recipes::retire),
+        ),
+    ]
+}
+
+/// (method, path) of the fleet role's writing routes.
+pub fn write_paths() -> Vec<(&'static str, &'static str)> {
+    authoring().into_iter().map(|(m, p, _)| (m, p)).collect()
+}
+
+/// True for a path of [`authoring`] (a POST there is not the readers' 405).
+fn is_authoring(path: &str) -> bool {
+    let rest = |p: &str| path.strip_prefix(p);
+    path == "/api/v1/fleet/recipe-proposals"
+        || rest("/api/v1/fleet/recipe-proposals/")
+            .is_some_and(|r| r.ends_with("/approve") || r.ends_with("/reject"))
+        || rest("/api/v1/fleet/recipes/").is_some_and(|r| r.ends_with("/retire"))
+}
+
 /// The fleet role's API routes, every one a GET (the OpenAPI document
 /// describes these; its test compares them with the document).
 fn table() -> Vec<(&'static str, MethodRouter<FleetState>)> {
@@ -77,6 +121,8 @@ fn table() -> Vec<(&'static str, MethodRouter<FleetState>)> {
         ("/api/v1/fleet/recipes/{name}/yield", get(yield_per_day)),
         ("/api/v1/fleet/audit", get(audit)),
         ("/api/v1/fleet/refusals", get(refusals)),
+        ("/api/v1/fleet/recipe-proposals", get(recipes::list)),
+        ("/api/v1/fleet/recipe-proposals/{id}", get(recipes::get_one)),
     ]
 }
 
@@ -190,7 +236,19 @@ pub fn router(state: FleetState) -> Router {
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
         .route("/metrics", get(metrics));
-    for (path, h) in table().into_iter().chain(station_reads()) {
+    // One MethodRouter per path: a proposal list's GET and POST are one.
+    let mut routes: Vec<(&'static str, MethodRouter<FleetState>)> = vec![];
+    for (path, h) in table()
+        .into_iter()
+        .chain(station_reads())
+        .chain(authoring().into_iter().map(|(_, p, h)| (p, h)))
+    {
+        match routes.iter_mut().find(|(p, _)| *p == path) {
+            Some((_, m)) => *m = std::mem::take(m).merge(h),
+            None => routes.push((path, h)),
+        }
+    }
+    for (path, h) in routes {
         r = r.route(path, h);
     }
     r.merge(ingest::routes(state.cfg.max_ingest_bytes))
@@ -225,12 +283,17 @@ async fn viewer(State(st): State<FleetState>, req: Request, next: Next) -> Respo
         // A station's routes: its own token, checked by the handlers.
         return next.run(req).await;
     }
-    if req.method() != axum::http::Method::GET && req.method() != axum::http::Method::HEAD {
+    let read = req.method() == axum::http::Method::GET || req.method() == axum::http::Method::HEAD;
+    if !read && is_authoring(req.uri().path()) {
+        // Recipes authored at the center: each handler checks its role.
+        return next.run(req).await;
+    }
+    if !read {
         return Problem::new(
             StatusCode::METHOD_NOT_ALLOWED,
             "method-not-allowed",
             "Method not allowed",
-            "the fleet role's API is read-only",
+            "the fleet role's API is read-only but for recipes authored at the center (/api/v1/fleet/recipe-proposals)",
         )
         .into_response();
     }

@@ -223,6 +223,11 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
     )
     .add("delete", "/api/v1/recipes/{name}", delete(qc::retire))
     .add(
+        "post",
+        "/api/v1/recipes/{name}/publish",
+        post(qc::publish).layer(json_limit),
+    )
+    .add(
         "get",
         "/api/v1/recipes/{name}/versions",
         get(qc::versions::<AppState>),

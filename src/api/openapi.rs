@@ -92,6 +92,13 @@ use utoipa::{Modify, OpenApi};
         super::fleet::audit,
         super::fleet::refusals,
         super::fleet::station_link,
+        super::fleet::propose,
+        super::fleet::list,
+        super::fleet::get_one,
+        super::fleet::approve,
+        super::fleet::reject,
+        super::fleet::retire,
+        super::qc::publish,
     ),
     components(schemas(Problem, MeasurementDocumentSchema)),
     modifiers(&Conventions),
@@ -300,10 +307,15 @@ mod tests {
             .iter()
             .map(|(m, p)| (m.to_string(), p.to_string()))
             .chain(fleet.iter().map(|p| ("get".to_string(), p.to_string())))
+            .chain(
+                super::super::fleet::write_paths()
+                    .iter()
+                    .map(|(m, p)| (m.to_string(), p.to_string())),
+            )
             .collect();
         assert_eq!(
             served.len(),
-            list.len() + fleet.len(),
+            list.len() + fleet.len() + super::super::fleet::write_paths().len(),
             "a route is registered twice"
         );
         // The station's reads the fleet role serves too are a station's GET

@@ -27,6 +27,20 @@ pub struct ItemsRequest {
     pub items: Vec<crate::store::fleet::ReplicationItem>,
 }
 
+/// A station's publication of its local recipe (`POST
+/// /api/v1/fleet/ingest/recipe-proposals`): a proposal at the center, which
+/// an approver there makes the center's version (decision 0106).
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PublishRequest {
+    pub station_id: String,
+    pub recipe: crate::qc::Recipe,
+    /// The station's version of it.
+    pub version: i64,
+    #[serde(default)]
+    pub note: Option<String>,
+}
+
 /// The problem `type` of a refused item (the station parks it).
 pub const ITEM_REFUSED: &str = "item-refused";
 
@@ -68,12 +82,50 @@ impl HttpCenter {
         })
     }
 
+    /// Publishes a local recipe: the center's status and body as they are
+    /// (201 and the proposal, or its problem); Err when it did not answer.
+    pub async fn publish_recipe(&self, req: &PublishRequest) -> StoreResult<(u16, Vec<u8>)> {
+        let body = serde_json::to_vec(req).map_err(|e| StoreError::Invalid(e.to_string()))?;
+        self.send(
+            hyper::Method::POST,
+            "/api/v1/fleet/ingest/recipe-proposals",
+            Some(body),
+        )
+        .await
+    }
+
     async fn call(
         &self,
         method: hyper::Method,
         path: &str,
         body: Option<Vec<u8>>,
     ) -> StoreResult<Vec<u8>> {
+        let (status, bytes) = self.send(method, path, body).await?;
+        let unreachable = |e: String| StoreError::Corrupt(format!("center {}: {e}", self.base));
+        match status {
+            200 => Ok(bytes),
+            413 => Err(StoreError::Invalid(
+                "the batch is larger than the center takes (its max_ingest_bytes)".into(),
+            )),
+            s => {
+                let p: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
+                let detail = p["detail"].as_str().unwrap_or("").to_string();
+                let kind = p["type"].as_str().unwrap_or("");
+                if s == 422 && kind.ends_with(ITEM_REFUSED) {
+                    return Err(StoreError::Invalid(detail));
+                }
+                Err(unreachable(format!("{s}: {detail}")))
+            }
+        }
+    }
+
+    /// One request: the status and the body, whatever the status.
+    async fn send(
+        &self,
+        method: hyper::Method,
+        path: &str,
+        body: Option<Vec<u8>>,
+    ) -> StoreResult<(u16, Vec<u8>)> {
         let req = hyper::Request::builder()
             .method(method)
             .uri(format!("{}{path}", self.base))
@@ -101,21 +153,7 @@ impl HttpCenter {
         .map_err(|e| unreachable(format!("answer: {e}")))?
         .to_bytes()
         .to_vec();
-        match status {
-            200 => Ok(bytes),
-            413 => Err(StoreError::Invalid(
-                "the batch is larger than the center takes (its max_ingest_bytes)".into(),
-            )),
-            s => {
-                let p: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
-                let detail = p["detail"].as_str().unwrap_or("").to_string();
-                let kind = p["type"].as_str().unwrap_or("");
-                if s == 422 && kind.ends_with(ITEM_REFUSED) {
-                    return Err(StoreError::Invalid(detail));
-                }
-                Err(unreachable(format!("{s}: {detail}")))
-            }
-        }
+        Ok((status, bytes))
     }
 
     fn decode<T: serde::de::DeserializeOwned>(&self, bytes: &[u8]) -> StoreResult<T> {

@@ -381,6 +381,8 @@ async fn recipes_come_from_the_center_with_their_retirements() {
         retired,
         created_by: Some("qe".into()),
         created_at: "2026-11-26T10:00:00.000Z".into(),
+        source: crate::job::RecipeSource::Center,
+        approved_by: Some("approver".into()),
     };
     *center.recipes.lock().unwrap() = vec![row(1, false), row(2, false)];
     let (link, stop, task) = spawn(&store, &center);

@@ -344,6 +344,7 @@ fn job(
             name: "spider-4in".into(),
             version: 3,
             sha256: SHA.into(),
+            origin: None,
         }),
         job_verdict: v,
         operator: Some("station-1".into()),

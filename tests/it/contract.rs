@@ -869,10 +869,12 @@ async fn every_route_answers_as_its_schema_says() {
     // except where a success needs a hardware bench (feature `hardware`),
     // and where it needs a fleet center (the station's link: its 200 is
     // tested in fleet.rs, a station with a center).
-    const SUCCESS_ELSEWHERE: [&str; 3] = [
+    const SUCCESS_ELSEWHERE: [&str; 4] = [
         "post /api/v1/benches/{id}/self-check",
         "get /api/v1/calibrations/{id}",
         "get /api/v1/fleet/link",
+        // needs a center: fleet::a_recipe_authored_at_the_center_...
+        "post /api/v1/recipes/{name}/publish",
     ];
     // A station without [fleet] has no link: 404, a problem.
     a.get("/api/v1/fleet/link", "/api/v1/fleet/link", 404).await;
@@ -888,6 +890,17 @@ async fn every_route_answers_as_its_schema_says() {
         Some(ADMIN),
         Some(gauge_recipe),
         201,
+    )
+    .await;
+    // A station without [fleet] has nowhere to publish a recipe to: 404.
+    let publish = "/api/v1/recipes/{name}/publish";
+    a.expect(
+        "post",
+        publish,
+        "/api/v1/recipes/contract-gauge/publish",
+        Some(ADMIN),
+        Some(json!({})),
+        404,
     )
     .await;
     let body = json!({"recipe": "contract-gauge", "repeats": 2,

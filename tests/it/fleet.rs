@@ -1259,6 +1259,42 @@ async fn fleet_role_contract(o: &OneStation) {
     let (m1, m2, j1) = (&o.mids[0][0], &o.mids[1][0], &o.jobs[0]);
     let r = RECIPE;
     let f = "/api/v1/fleet";
+    // Recipes authored at the center (decision 0106): a proposal of new
+    // limits and its rejection, validated as the document says.
+    let mut tighter = recipe();
+    tighter["parameters"][1]["upper"] = json!(4.0);
+    let mut posted = vec![];
+    for (route, url, body) in [
+        (
+            "/api/v1/fleet/recipe-proposals",
+            format!("{f}/recipe-proposals"),
+            json!({"recipe": tighter, "base_version": 1, "note": "tighter"}),
+        ),
+        (
+            "/api/v1/fleet/recipe-proposals",
+            format!("{f}/recipe-proposals"),
+            json!({"recipe": {"name": r}}),
+        ),
+    ] {
+        let resp = c.post(o.fleet.url(&url)).json(&body).send().await.unwrap();
+        let got = resp.status().as_u16();
+        let ct = resp
+            .headers()
+            .get("content-type")
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default();
+        let b = resp.bytes().await.unwrap();
+        posted.push((got, k.check("post", route, got, &ct, &b)));
+    }
+    assert_eq!(posted[0].0, 201, "{}", posted[0].1);
+    assert_eq!(posted[0].1["kind"], "limits", "{}", posted[0].1);
+    assert_eq!(posted[1].0, 422, "{}", posted[1].1);
+    assert_eq!(
+        posted[1].1["errors"][0]["field"], "recipe",
+        "{}",
+        posted[1].1
+    );
+    let pid = posted[0].1["id"].as_str().unwrap().to_string();
     #[rustfmt::skip]
     let cases: Vec<(&str, String, u16, Option<&str>)> = vec![
         ("/healthz", "/healthz".into(), 200, None),
@@ -1279,6 +1315,12 @@ async fn fleet_role_contract(o: &OneStation) {
         ("/api/v1/fleet/recipes", format!("{f}/recipes?x=1"), 422, Some("x")),
         ("/api/v1/fleet/recipes/{name}/verdicts", format!("{f}/recipes/{r}/verdicts"), 200, None),
         ("/api/v1/fleet/recipes/{name}/verdicts", format!("{f}/recipes/{r}/verdicts?last=0"), 422, Some("last")),
+        ("/api/v1/fleet/recipe-proposals", format!("{f}/recipe-proposals?recipe={r}&state=proposed"), 200, None),
+        ("/api/v1/fleet/recipe-proposals", format!("{f}/recipe-proposals?state=maybe"), 422, Some("state")),
+        ("/api/v1/fleet/recipe-proposals/{id}", format!("{f}/recipe-proposals/{pid}"), 200, None),
+        ("/api/v1/fleet/recipe-proposals/{id}", format!("{f}/recipe-proposals/nope"), 404, None),
+        // Issue 36: last=1000000 took the center to 6.3 GB; capped at 10 000.
+        ("/api/v1/fleet/recipes/{name}/verdicts", format!("{f}/recipes/{r}/verdicts?last=1000000"), 422, Some("last")),
         ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/{r}/spc?parameter=keff"), 200, None),
         ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/{r}/spc"), 422, Some("parameter")),
         ("/api/v1/fleet/recipes/{name}/spc", format!("{f}/recipes/nope/spc?parameter=keff"), 404, None),
@@ -1662,6 +1704,10 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
     let fleet = Daemon::start(&format!(
         "database = \"{url}\"\nbenches = []\n{}",
         center_stations(&["line-a", "line-b"])
+            + &format!(
+                "\n[[stations]]\nstation_id = \"line-r\"\ntoken = \"{}\"\nretired = true\n",
+                station_token("line-r")
+            )
     ));
     let station = |id: &str, seed: u32| {
         let cfg = format!(
@@ -1746,6 +1792,30 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
     )
     .await;
     assert_eq!(s, 401);
+    // A retired station's token: refused, with its history kept and the
+    // attempt listed.
+    let r_hello = json!({"station_id": "line-r", "software_version": "x", "bench_states": [],
+        "backlog_items": 0, "sent_at": "2026-11-28T00:00:00.000Z"});
+    let (s, p) = post_ingest(&c, &fleet, "hello", &station_token("line-r"), &r_hello).await;
+    assert_eq!(
+        (
+            s,
+            p["type"]
+                .as_str()
+                .unwrap_or("")
+                .ends_with("station-retired")
+        ),
+        (403, true),
+        "{p}"
+    );
+    let retired = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-r").await;
+    assert!(
+        retired["items"][0]["reason"]
+            .as_str()
+            .unwrap_or("")
+            .contains("retired"),
+        "{retired}"
+    );
     let refusals = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-a").await;
     let by_b: Vec<&Value> = refusals["items"]
         .as_array()
@@ -1917,4 +1987,429 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
         .unwrap();
     let p = common::problem(r, 422).await;
     assert!(p.to_string().contains("new_value"), "{p}");
+}
+
+/// The center's readers (decision 0106): a viewer, a recipe author
+/// (operator), two approvers (admin).
+const CENTER_TOKENS: &str = r#"
+[[auth.tokens]]
+name = "mes"
+token = "center-viewer-0123456789"
+role = "viewer"
+[[auth.tokens]]
+name = "qe-author"
+token = "center-author-0123456789"
+role = "operator"
+[[auth.tokens]]
+name = "qe-approver"
+token = "center-approver-0123456789"
+role = "admin"
+[[auth.tokens]]
+name = "qe-lead"
+token = "center-lead-0123456789"
+role = "admin"
+"#;
+
+/// POSTs `body` to the center with `token`: status and body.
+async fn post_center(
+    c: &reqwest::Client,
+    fleet: &Daemon,
+    path: &str,
+    token: Option<&str>,
+    body: &Value,
+) -> (u16, Value) {
+    let mut r = c.post(fleet.url(path)).json(body);
+    if let Some(t) = token {
+        r = r.bearer_auth(t);
+    }
+    let r = r.send().await.unwrap();
+    let s = r.status().as_u16();
+    (s, r.json().await.unwrap_or(Value::Null))
+}
+
+/// Waits until station `d` holds version `version` of recipe `name` as
+/// `check` wants it; that row.
+async fn station_recipe(
+    c: &reqwest::Client,
+    d: &Daemon,
+    name: &str,
+    version: i64,
+    check: impl Fn(&Value) -> bool,
+) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let r = c
+            .get(d.url(&format!("/api/v1/recipes/{name}/versions/{version}")))
+            .send()
+            .await
+            .unwrap();
+        if r.status().as_u16() == 200 {
+            let v: Value = r.json().await.unwrap();
+            if check(&v) {
+                return v;
+            }
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{} never held {name} version {version} as expected",
+            d.base
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+/// Issue 36's "recipes authored at the center" (decision 0106): an author
+/// proposes a recipe at the center, an approver (not the author) approves
+/// it; three stations take it, judge a job each with it, and each verdict's
+/// traceability names the center's version, its hash and its approver, at
+/// the station and at the center. Roles and bad input are refused with
+/// the field named; new limits are a proposal of their own; a retirement
+/// reaches the stations; a station's local recipe is marked local, is
+/// published to the center and comes back as the center's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
+    if !can_start_private("center recipes test") {
+        return;
+    }
+    const NAME: &str = "spider-center";
+    const AUTHOR: &str = "center-author-0123456789";
+    const APPROVER: &str = "center-approver-0123456789";
+    const LEAD: &str = "center-lead-0123456789";
+    const VIEWER: &str = "center-viewer-0123456789";
+    let pg = TestServer::start(55476).expect("a private PostgreSQL server");
+    let ids = ["line-1", "line-2", "line-3"];
+    let fleet = Daemon::start(&format!(
+        "database = \"{}\"\nbenches = []\n{CENTER_TOKENS}{}",
+        pg.url(),
+        center_stations(&ids)
+    ));
+    let stations: Vec<Daemon> = ids
+        .iter()
+        .enumerate()
+        .map(|(i, id)| {
+            Daemon::start(&format!(
+                "[fleet]\ncenter = \"{}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"reference\"\n\
+                 retry_max_s = 2\nrecipe_poll_s = 5\n[[benches]]\nid = \"virtual-1\"\nseed = {}\n",
+                fleet.base,
+                station_token(id),
+                21 + i
+            ))
+        })
+        .collect();
+    let c = client();
+    let mut body = recipe();
+    body["name"] = json!(NAME);
+    let proposal = json!({"recipe": body, "note": "the 4-inch spider, line release"});
+    let path = "/api/v1/fleet/recipe-proposals";
+
+    // Roles: nobody without a token, not a viewer; bad fields are named.
+    let (s, _) = post_center(&c, &fleet, path, None, &proposal).await;
+    assert_eq!(s, 401);
+    let (s, p) = post_center(&c, &fleet, path, Some(VIEWER), &proposal).await;
+    assert_eq!(s, 403, "{p}");
+    let mut bad = proposal.clone();
+    bad["recipe"]["parameters"][1]["upper"] = json!("five");
+    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
+    assert_eq!(s, 422, "{p}");
+    assert_eq!(p["errors"][0]["field"], "recipe.parameters[1].upper", "{p}");
+    let mut bad = proposal.clone();
+    bad["recipe"]["parameters"][1]["lower"] = json!(9.0);
+    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
+    assert_eq!(s, 422, "{p}");
+    assert!(
+        p["errors"][0]["field"]
+            .as_str()
+            .unwrap()
+            .starts_with("recipe.parameters[1]"),
+        "{p}"
+    );
+    let mut bad = proposal.clone();
+    bad["note"] = json!("a\u{0}b");
+    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
+    assert_eq!((s, p["errors"][0]["field"].clone()), (422, json!("note")));
+
+    // The author proposes; nothing reaches the stations until approved.
+    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &proposal).await;
+    assert_eq!(s, 201, "{p}");
+    assert_eq!(
+        (
+            &p["state"],
+            &p["kind"],
+            &p["proposed_by"],
+            &p["base_version"]
+        ),
+        (
+            &json!("proposed"),
+            &json!("create"),
+            &json!("qe-author"),
+            &Value::Null
+        ),
+        "{p}"
+    );
+    let id = p["id"].as_str().unwrap().to_string();
+    let listed: Value = c
+        .get(fleet.url(&format!(
+            "/api/v1/fleet/recipe-proposals?recipe={NAME}&state=proposed"
+        )))
+        .bearer_auth(VIEWER)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(listed["items"][0]["id"], json!(id), "{listed}");
+    let held = c
+        .get(fleet.url("/api/v1/fleet/ingest/recipes"))
+        .bearer_auth(station_token("line-1"))
+        .send()
+        .await
+        .unwrap()
+        .json::<Vec<Value>>()
+        .await
+        .unwrap();
+    assert!(held.iter().all(|r| r["name"] != NAME), "{held:?}");
+
+    // The author may not approve (an approver's role), nor reject.
+    let approve = format!("{path}/{id}/approve");
+    let (s, p) = post_center(&c, &fleet, &approve, Some(AUTHOR), &json!({})).await;
+    assert_eq!(s, 403, "{p}");
+    let (s, p) = post_center(&c, &fleet, &approve, Some(APPROVER), &json!({})).await;
+    assert_eq!(s, 201, "{p}");
+    let sha = p["sha256"].as_str().unwrap().to_string();
+    assert_eq!(
+        (
+            &p["version"],
+            &p["origin"],
+            &p["approved_by"],
+            &p["created_by"]
+        ),
+        (
+            &json!(1),
+            &json!("created"),
+            &json!("qe-approver"),
+            &json!("qe-author")
+        ),
+        "{p}"
+    );
+    let (s, p) = post_center(&c, &fleet, &approve, Some(LEAD), &json!({})).await;
+    assert_eq!(
+        (s, p["type"].as_str().unwrap().ends_with("proposal-decided")),
+        (409, true),
+        "{p}"
+    );
+
+    // Each station takes it as the center's and judges a job with it.
+    for d in &stations {
+        let v = station_recipe(&c, d, NAME, 1, |_| true).await;
+        assert_eq!(
+            (&v["source"], &v["approved_by"], &v["sha256"]),
+            (&json!("center"), &json!("qe-approver"), &json!(sha)),
+            "{v}"
+        );
+    }
+    let jobs = futures_util::future::join_all(stations.iter().enumerate().map(|(i, d)| {
+        let c = c.clone();
+        async move {
+            let body =
+                json!({"part": {"serial": format!("C-{i}"), "kind": "spider"}, "recipe": NAME});
+            let id = common::submit(&c, d, body).await;
+            let j = common::wait_job(&c, d, &id, Duration::from_secs(300), common::terminal).await;
+            assert_eq!(j["state"], "succeeded", "{j}");
+            id
+        }
+    }))
+    .await;
+    let want_recipe = |t: &Value| {
+        assert_eq!(t["recipe"]["name"], NAME, "{t}");
+        assert_eq!(t["recipe"]["version"], 1, "{t}");
+        assert_eq!(t["recipe"]["sha256"], json!(sha), "{t}");
+        assert_eq!(t["recipe"]["origin"]["source"], "center", "{t}");
+        assert_eq!(t["recipe"]["origin"]["approved_by"], "qe-approver", "{t}");
+        assert_eq!(t["recipe"]["origin"]["proposal_id"], json!(id), "{t}");
+    };
+    for (d, job) in stations.iter().zip(&jobs) {
+        let v = get(&c, &d.base, &format!("/api/v1/jobs/{job}/verdict")).await;
+        assert!(
+            ["pass", "fail"].contains(&v["verdict"].as_str().unwrap()),
+            "{v}"
+        );
+        want_recipe(&v["traceability"]);
+        for m in v["measurements"].as_array().unwrap() {
+            want_recipe(&m["traceability"]);
+        }
+    }
+    // At the center: every station's verdicts, each naming the version.
+    let t0 = Instant::now();
+    let at_center = loop {
+        let r = c
+            .get(fleet.url(&format!("/api/v1/fleet/recipes/{NAME}/verdicts?last=100")))
+            .bearer_auth(VIEWER)
+            .send()
+            .await
+            .unwrap();
+        let v: Value = r.json().await.unwrap();
+        let items = v["items"].as_array().cloned().unwrap_or_default();
+        let lines: BTreeSet<String> = items
+            .iter()
+            .filter_map(|x| x["station_id"].as_str().map(str::to_string))
+            .collect();
+        if lines.len() == 3 {
+            break items;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60), "{v}");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    for v in &at_center {
+        want_recipe(&v["traceability"]);
+    }
+
+    // New limits are a proposal of their own: kind limits, approved by
+    // another approver than its author (an approver who proposed it is
+    // refused: four eyes).
+    let mut tighter = body.clone();
+    tighter["parameters"][1]["upper"] = json!(3.0);
+    let lim = json!({"recipe": tighter, "base_version": 1});
+    let (s, p) = post_center(&c, &fleet, path, Some(APPROVER), &lim).await;
+    assert_eq!((s, &p["kind"]), (201, &json!("limits")), "{p}");
+    let lim_id = p["id"].as_str().unwrap().to_string();
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("{path}/{lim_id}/approve"),
+        Some(APPROVER),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(
+        (s, p["type"].as_str().unwrap().ends_with("own-proposal")),
+        (403, true),
+        "{p}"
+    );
+    // A stale base and a rejection without a reason are refused.
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        path,
+        Some(AUTHOR),
+        &json!({"recipe": body, "base_version": 7}),
+    )
+    .await;
+    assert_eq!(s, 409, "{p}");
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("{path}/{lim_id}/reject"),
+        Some(LEAD),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(
+        (s, p["errors"][0]["field"].clone()),
+        (422, json!("reason")),
+        "{p}"
+    );
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("{path}/{lim_id}/approve"),
+        Some(LEAD),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(
+        (s, &p["version"], &p["origin"], &p["approved_by"]),
+        (201, &json!(2), &json!("limits_approved"), &json!("qe-lead")),
+        "{p}"
+    );
+    for d in &stations {
+        let v = station_recipe(&c, d, NAME, 2, |_| true).await;
+        assert_eq!(v["recipe"]["parameters"][1]["upper"], 3.0, "{v}");
+    }
+
+    // A station's own recipe is local; published, it is a proposal at the
+    // center by that station; approved there, it comes back as the center's.
+    let l1 = &stations[0];
+    let mut local = recipe();
+    local["name"] = json!("spider-line1");
+    let r = c
+        .post(l1.url("/api/v1/recipes"))
+        .json(&local)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let v = station_recipe(&c, l1, "spider-line1", 1, |_| true).await;
+    assert_eq!(v["source"], "local", "{v}");
+    let r = c
+        .post(l1.url(&format!("/api/v1/recipes/{NAME}/publish")))
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap();
+    let p = common::problem(r, 409).await;
+    assert!(
+        p["type"].as_str().unwrap().ends_with("recipe-not-local"),
+        "{p}"
+    );
+    let r = c
+        .post(l1.url("/api/v1/recipes/spider-line1/publish"))
+        .json(&json!({"note": "tried on line 1"}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+    let p: Value = r.json().await.unwrap();
+    assert_eq!(
+        (
+            &p["proposed_by"],
+            &p["station_id"],
+            &p["station_version"],
+            &p["kind"]
+        ),
+        (
+            &json!("station:line-1"),
+            &json!("line-1"),
+            &json!(1),
+            &json!("create")
+        ),
+        "{p}"
+    );
+    let pid = p["id"].as_str().unwrap();
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("{path}/{pid}/approve"),
+        Some(APPROVER),
+        &json!({}),
+    )
+    .await;
+    assert_eq!((s, &p["version"]), (201, &json!(1)), "{p}");
+    station_recipe(&c, l1, "spider-line1", 1, |v| v["source"] == "center").await;
+    for d in &stations[1..] {
+        station_recipe(&c, d, "spider-line1", 1, |v| v["source"] == "center").await;
+    }
+
+    // Retired at the center: retired at every station.
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("/api/v1/fleet/recipes/{NAME}/retire"),
+        Some(AUTHOR),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(s, 403, "{p}");
+    let (s, p) = post_center(
+        &c,
+        &fleet,
+        &format!("/api/v1/fleet/recipes/{NAME}/retire"),
+        Some(APPROVER),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(s, 204, "{p}");
+    for d in &stations {
+        station_recipe(&c, d, NAME, 2, |v| v["retired"] == true).await;
+    }
 }

@@ -16,11 +16,15 @@
 mod center;
 mod ingest;
 mod reads;
+mod recipes;
 pub mod test_server;
 
 pub use center::{SpcGroup, SpcQuery, YieldDay};
 pub use ingest::{Refusal, StationRegistration};
 pub use reads::CenterRecording;
+pub use recipes::{
+    Decided, NewRecipeProposal, ProposalKind, ProposalState, Proposed, RecipeProposal,
+};
 pub use springbench_store::corrections::{AuditEntry, Corrections};
 
 use springbench_store::{StoreError, StoreResult};

@@ -116,12 +116,14 @@ pub(crate) fn recipe_from_row(r: &PgRow) -> StoreResult<RecipeRow> {
         retired: r.get("retired"),
         created_by: r.get("created_by"),
         created_at: r.get("created_at"),
+        source: springbench_core::job::RecipeSource::Center,
+        approved_by: r.get("approved_by"),
     })
 }
 
 macro_rules! recipe_cols {
     () => {
-        "name, version, sha256, body_json::text AS body_json, origin, proposal_id, retired, created_by, created_at"
+        "name, version, sha256, body_json::text AS body_json, origin, proposal_id, retired, created_by, created_at, approved_by"
     };
 }
 pub(crate) use recipe_cols;

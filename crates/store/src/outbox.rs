@@ -411,6 +411,8 @@ pub struct RecipeSync {
     pub added: u64,
     /// Versions the center has retired that the station now holds retired.
     pub retired: u64,
+    /// Local versions the center holds with the same content (now `center`).
+    pub confirmed: u64,
     /// Versions the station holds with another content than the center's
     /// (same name and version, another hash): left as they are, named here.
     pub conflicts: Vec<String>,
@@ -426,8 +428,8 @@ impl Store {
         let mut out = RecipeSync::default();
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         for r in rows {
-            let held: Option<(String, i64)> = sqlx::query_as(
-                "SELECT sha256, retired FROM qc_recipes WHERE name = ? AND version = ?",
+            let held: Option<(String, i64, String)> = sqlx::query_as(
+                "SELECT sha256, retired, source FROM qc_recipes WHERE name = ? AND version = ?",
             )
             .bind(r.name.clone())
             .bind(r.version)
@@ -436,8 +438,8 @@ impl Store {
             match held {
                 None => {
                     sqlx::query(
-                        "INSERT INTO qc_recipes (name, version, sha256, body_json, origin, proposal_id, retired, created_by, created_at) \
-                         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        "INSERT INTO qc_recipes (name, version, sha256, body_json, origin, proposal_id, retired, created_by, created_at, source, approved_by) \
+                         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, 'center', ?)",
                     )
                     .bind(r.name.clone())
                     .bind(r.version)
@@ -448,25 +450,43 @@ impl Store {
                     .bind(i64::from(r.retired))
                     .bind(r.created_by.clone())
                     .bind(r.created_at.clone())
+                    .bind(r.approved_by.clone())
                     .execute(&mut *tx)
                     .await?;
                     out.added += 1;
                 }
-                Some((sha, _)) if sha != r.sha256 => {
+                Some((sha, _, _)) if sha != r.sha256 => {
                     out.conflicts.push(format!(
                         "recipe '{}' version {}: the station holds sha256 {sha}, the center {}",
                         r.name, r.version, r.sha256
                     ));
                 }
-                Some((_, retired)) if r.retired && retired == 0 => {
-                    sqlx::query("UPDATE qc_recipes SET retired = 1 WHERE name = ? AND version = ?")
+                Some((_, retired, source)) => {
+                    if r.retired && retired == 0 {
+                        sqlx::query(
+                            "UPDATE qc_recipes SET retired = 1 WHERE name = ? AND version = ?",
+                        )
                         .bind(r.name.clone())
                         .bind(r.version)
                         .execute(&mut *tx)
                         .await?;
-                    out.retired += 1;
+                        out.retired += 1;
+                    }
+                    // The same version, the same content at the center: a
+                    // local version the center approved (published), or
+                    // one taken before sources were recorded.
+                    if source != "center" {
+                        sqlx::query(
+                            "UPDATE qc_recipes SET source = 'center', approved_by = ? WHERE name = ? AND version = ?",
+                        )
+                        .bind(r.approved_by.clone())
+                        .bind(r.name.clone())
+                        .bind(r.version)
+                        .execute(&mut *tx)
+                        .await?;
+                        out.confirmed += 1;
+                    }
                 }
-                Some(_) => {}
             }
         }
         tx.commit().await?;

@@ -110,6 +110,11 @@ fn recipe_from_row(r: &SqliteRow) -> StoreResult<RecipeRow> {
         retired: r.get::<i64, _>("retired") != 0,
         created_by: r.get("created_by"),
         created_at: r.get("created_at"),
+        source: match r.get::<String, _>("source").as_str() {
+            "center" => springbench_core::job::RecipeSource::Center,
+            _ => springbench_core::job::RecipeSource::Local,
+        },
+        approved_by: r.get("approved_by"),
     })
 }
 
@@ -718,6 +723,8 @@ async fn insert_recipe_tx(
         retired: false,
         created_by: created_by.map(str::to_string),
         created_at: t,
+        source: springbench_core::job::RecipeSource::Local,
+        approved_by: None,
     })
 }
 

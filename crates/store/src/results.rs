@@ -109,6 +109,25 @@ pub struct RecipeRow {
     pub retired: bool,
     pub created_by: Option<String>,
     pub created_at: String,
+    /// `center`: authored and approved at the fleet's center; `local`: made
+    /// on this station only (decision 0106). A center's rows are all `center`.
+    #[serde(default)]
+    pub source: springbench_core::job::RecipeSource,
+    /// The center's approver of this version, when it came from a proposal.
+    #[serde(default)]
+    pub approved_by: Option<String>,
+}
+
+impl RecipeRow {
+    /// The provenance a job's recipe reference (and so its verdicts' trace)
+    /// records.
+    pub fn origin(&self) -> springbench_core::job::RecipeOrigin {
+        springbench_core::job::RecipeOrigin {
+            source: self.source,
+            approved_by: self.approved_by.clone(),
+            proposal_id: self.proposal_id.clone(),
+        }
+    }
 }
 
 /// A stored verdict.

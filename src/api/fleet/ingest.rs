@@ -13,7 +13,10 @@
 //! - `POST /api/v1/fleet/ingest/items`: `{"station_id", "items": [ReplicationItem]}` →
 //!   an [`IngestReport`]; an item the center refuses: 422 `item-refused`, its reason
 //!   in `detail` (nothing of the batch written);
-//! - `GET /api/v1/fleet/ingest/recipes`: every recipe version ([`RecipeRow`]).
+//! - `GET /api/v1/fleet/ingest/recipes`: every recipe version ([`RecipeRow`]);
+//! - `POST /api/v1/fleet/ingest/recipe-proposals`: a station publishes its
+//!   local recipe ([`PublishRequest`]) as a proposal at the center, by
+//!   `station:<id>` (decision 0106) → 201 and the proposal.
 
 use super::FleetState;
 use crate::api::problem::Problem;
@@ -28,13 +31,14 @@ use axum::{Json, Router};
 
 // The wire types both ends share live with the station's worker (a lower
 // room: `fleet` may not import `api`, tests/it/layers.rs).
-pub use crate::fleet::http::{ItemsRequest, ITEM_REFUSED};
+pub use crate::fleet::http::{ItemsRequest, PublishRequest, ITEM_REFUSED};
 
 pub fn routes(max_body: usize) -> Router<FleetState> {
     Router::new()
         .route("/api/v1/fleet/ingest/hello", post(hello))
         .route("/api/v1/fleet/ingest/items", post(items))
         .route("/api/v1/fleet/ingest/recipes", get(recipes))
+        .route("/api/v1/fleet/ingest/recipe-proposals", post(publish))
         .layer(DefaultBodyLimit::max(max_body))
 }
 
@@ -226,5 +230,51 @@ async fn recipes(State(st): State<FleetState>, headers: HeaderMap) -> Response {
     match st.store.recipes().await {
         Ok(rows) => Json(rows).into_response(),
         Err(e) => store_error(e),
+    }
+}
+
+/// A station's local recipe, published: a proposal at the center by
+/// `station:<id>`, which an approver there decides like any other.
+async fn publish(
+    State(st): State<FleetState>,
+    headers: HeaderMap,
+    bytes: axum::body::Bytes,
+) -> Response {
+    let req: Result<PublishRequest, _> = body(&bytes);
+    let claimed = req.as_ref().ok().map(|r| r.station_id.clone());
+    let cred = match caller(&st, &headers, claimed.as_deref()).await {
+        Ok(c) => c,
+        Err(r) => return r,
+    };
+    let req = match req {
+        Ok(r) => r,
+        Err(r) => return r,
+    };
+    if let Err(r) = bound(&st, cred, &req.station_id).await {
+        return r;
+    }
+    let checked = serde_json::to_value(&req.recipe)
+        .map_err(Problem::internal)
+        .and_then(super::recipes::parse_recipe);
+    let recipe = match checked {
+        Ok(r) => r,
+        Err(p) => return p.into_response(),
+    };
+    let note = req
+        .note
+        .filter(|n| !n.chars().any(char::is_control))
+        .map(|n| n.chars().take(4096).collect());
+    let p = springbench_store_pg::NewRecipeProposal {
+        id: crate::runner::new_id(),
+        recipe,
+        base_version: None,
+        note,
+        proposed_by: Some(format!("station:{}", req.station_id)),
+        station_id: Some(req.station_id.clone()),
+        station_version: Some(req.version),
+    };
+    match super::recipes::store_proposal(&st, p).await {
+        Ok(r) => r,
+        Err(p) => p.into_response(),
     }
 }

@@ -304,13 +304,117 @@ pub async fn recipe_for_job(st: &AppState, name: &str) -> ApiResult<JobRecipe> {
         .ok_or_else(|| {
             Problem::field("recipe", format!("no recipe '{name}' (or it is retired)"))
         })?;
+    // A fleet station's verdicts name where the version comes from.
+    let origin = st.cfg.fleet.is_some().then(|| row.origin());
     let recipe: Recipe = serde_json::from_value(row.recipe).map_err(Problem::internal)?;
     Ok(JobRecipe {
         reference: crate::runner::job::RecipeRef {
             name: name.to_string(),
             version: row.version,
             sha256: row.sha256,
+            origin,
         },
         recipe,
     })
+}
+
+/// The body of a publication (all optional).
+#[derive(serde::Deserialize, Default, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PublishBody {
+    /// The local version to publish; default the newest.
+    #[serde(default)]
+    #[schema(minimum = 1)]
+    pub version: Option<i64>,
+    /// Why (at most 4 096 characters).
+    #[serde(default)]
+    #[schema(max_length = 4096)]
+    pub note: Option<String>,
+}
+
+#[utoipa::path(post, path = "/api/v1/recipes/{name}/publish", tag = "qc",
+    summary = "A fleet station publishes its local recipe version to the center (admin): a proposal there, which the center's approver makes the center's version; the station then takes it back from the center like any other. The center's answer (201 and the proposal, or its problem) is passed on.",
+    params(("name" = String, Path, description = "Recipe name")),
+    request_body(content = PublishBody, content_type = "application/json"),
+    responses(
+        (status = 201, description = "Proposed at the center", body = springbench_store_pg::RecipeProposal),
+        (status = 404, description = "No such recipe (version), or the station has no [fleet]"),
+        (status = 409, description = "The version is the center's already, or the center has this content"),
+        (status = 422, description = "Invalid fields"),
+        (status = 502, description = "The center did not answer")))]
+/// `POST /api/v1/recipes/{name}/publish`: a local version as a proposal
+/// at the center (decision 0106).
+pub async fn publish(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Response> {
+    let b: PublishBody = parse_body(body)?;
+    let note = match b.note {
+        Some(n) if n.chars().any(char::is_control) => {
+            return Err(Problem::field(
+                "note",
+                "holds a control character (NUL, ...)",
+            ))
+        }
+        Some(n) if n.chars().count() > 4096 => {
+            return Err(Problem::field("note", "at most 4096 characters"))
+        }
+        n => n,
+    };
+    let Some(fleet) = st.cfg.fleet.as_ref() else {
+        return Err(Problem::new(
+            StatusCode::NOT_FOUND,
+            "no-fleet",
+            "Not in a fleet",
+            "this station has no [fleet] center to publish to",
+        ));
+    };
+    let row = st
+        .store
+        .get_recipe(&name, b.version)
+        .await?
+        .ok_or_else(|| {
+            Problem::not_found(
+                "recipe",
+                &b.version.map_or(name.clone(), |v| format!("{name}@{v}")),
+            )
+        })?;
+    if row.source == crate::job::RecipeSource::Center {
+        return Err(Problem::new(
+            StatusCode::CONFLICT,
+            "recipe-not-local",
+            "Recipe from the center",
+            format!(
+                "version {} of recipe '{name}' is the center's already",
+                row.version
+            ),
+        ));
+    }
+    let recipe: Recipe = serde_json::from_value(row.recipe).map_err(Problem::internal)?;
+    let center = crate::fleet::http::HttpCenter::new(fleet).map_err(Problem::internal)?;
+    let req = crate::fleet::http::PublishRequest {
+        station_id: fleet.station_id.clone(),
+        recipe,
+        version: row.version,
+        note,
+    };
+    let (status, bytes) = center.publish_recipe(&req).await.map_err(|e| {
+        Problem::new(
+            StatusCode::BAD_GATEWAY,
+            "center-unreachable",
+            "Center unreachable",
+            e.to_string(),
+        )
+    })?;
+    let status = StatusCode::from_u16(status).unwrap_or(StatusCode::BAD_GATEWAY);
+    let mut r = (status, bytes).into_response();
+    let ct = if status.is_success() {
+        "application/json"
+    } else {
+        "application/problem+json"
+    };
+    r.headers_mut()
+        .insert(header::CONTENT_TYPE, HeaderValue::from_static(ct));
+    Ok(r)
 }

@@ -47,6 +47,6 @@ pub use problem::{JobProblem, ProblemKind};
 pub use request::{JobLimits, JobRequest};
 pub use spec::{
     production_part, Admission, BenchOffer, JobPart, JobProduction, JobSpec, Limits, ProcedureMode,
-    Purpose, RecipeRef,
+    Purpose, RecipeOrigin, RecipeRef, RecipeSource,
 };
 pub use stored::{SelfCheck, StoredRequest};

@@ -167,6 +167,36 @@ pub struct RecipeRef {
     pub name: String,
     pub version: i64,
     pub sha256: String,
+    /// Where the version comes from (issue 36): the fleet's center (who
+    /// approved it there) or this station alone. None outside a fleet
+    /// and in jobs stored before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<RecipeOrigin>,
+}
+
+/// Who made a recipe version a job runs (decision 0106).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecipeOrigin {
+    pub source: RecipeSource,
+    /// The center's approver of this version (a center version made from
+    /// a proposal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub approved_by: Option<String>,
+    /// The center's proposal the version was approved from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub proposal_id: Option<String>,
+}
+
+/// Where a recipe version was authored (decision 0106).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum RecipeSource {
+    /// Authored and approved at the fleet's center; a station holds it as
+    /// the center sent it.
+    #[default]
+    Center,
+    /// Made on this station only (not, or not yet, the center's).
+    Local,
 }
 
 /// A bench a job may run on, as the station's configuration offers it.

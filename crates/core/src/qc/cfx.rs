@@ -563,6 +563,7 @@ mod tests {
                 name: "spider".into(),
                 version: 2,
                 sha256: "ab".into(),
+                origin: None,
             }),
             job_verdict: Some(v.clone()),
             operator: Some("station-1".into()),

@@ -153,6 +153,7 @@ mod tests {
                 name: "spider".into(),
                 version: 3,
                 sha256: "ab12".into(),
+                origin: None,
             },
             bench_id: "b1".into(),
             bench_kind: "virtual".into(),
