@@ -361,6 +361,8 @@ fn policy(method: &str, route: &str) -> Option<u8> {
         // issue 20: corrections are an admin's; issue 21: how a bench is judged too
         ("post", "/api/v1/corrections"),
         ("post", "/api/v1/recipes/{name}/bench-calibrations"),
+        // issue 36: publishing a station's local recipe to the center
+        ("post", "/api/v1/recipes/{name}/publish"),
     ];
     Some(if admin_routes.contains(&(method, route)) {
         ADM
