@@ -99,15 +99,7 @@ impl Api<'_> {
     }
 
     async fn take(&mut self, method: &str, path: &str, resp: reqwest::Response) -> (u16, Value) {
-        let status = resp.status().as_u16();
-        let ct = resp
-            .headers()
-            .get("content-type")
-            .map(|v| v.to_str().unwrap().to_string())
-            .unwrap_or_default();
-        let bytes = resp.bytes().await.unwrap();
-        let v = self.k.check(method, path, status, &ct, &bytes);
-        (status, v)
+        self.k.take(method, path, resp).await
     }
 
     /// [`Api::call`], expecting `status`; the answer.

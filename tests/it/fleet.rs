@@ -24,8 +24,10 @@ use crate::common;
 use crate::contract_check;
 
 use browser::Browser;
-use common::{client, Daemon};
+use common::{Api, Config, Daemon};
+use reqwest::Method;
 use serde_json::{json, Value};
+use springbench::config::Role;
 use springbench::qc::spc::{compute, SpcPoint};
 use springbench_store_pg::test_server::{can_start_private, TestServer};
 use springbench_store_pg::PgStore;
@@ -37,6 +39,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::task::AbortHandle;
 
 const JOBS: usize = 20;
+const MINUTE: Duration = Duration::from_secs(60);
 
 /// A station's secret at the center (its `[fleet] token`, the center's
 /// `[[stations]]` entry).
@@ -44,37 +47,32 @@ fn station_token(id: &str) -> String {
     format!("tok-{id}-9f2c71ab04d8e6")
 }
 
-/// The center's `[[stations]]` of `ids`.
-fn center_stations(ids: &[&str]) -> String {
-    ids.iter()
-        .map(|id| {
-            format!(
-                "\n[[stations]]\nstation_id = \"{id}\"\ntoken = \"{}\"\n",
-                station_token(id)
-            )
-        })
-        .collect()
+/// A center (the fleet role) on database `url` that knows the stations
+/// `ids`, with `more` configuration (tokens, other stations).
+fn center(url: &str, ids: &[&str], more: Config) -> Daemon {
+    let mut cfg = more.top(&format!("database = \"{url}\"\nbenches = []"));
+    for id in ids {
+        cfg = cfg.toml(&format!(
+            "[[stations]]\nstation_id = \"{id}\"\ntoken = \"{}\"",
+            station_token(id)
+        ));
+    }
+    Daemon::start(&cfg.text())
 }
 
-/// Every verdict of the recipe at the center, page by page.
-async fn all_center_verdicts(c: &reqwest::Client, fleet: &Daemon) -> Vec<Value> {
-    let mut out = vec![];
-    let mut after: Option<i64> = None;
-    loop {
-        let q = after.map_or(String::new(), |a| format!("&after={a}"));
-        let v = get(
-            c,
-            &fleet.base,
-            &format!("/api/v1/fleet/recipes/{RECIPE}/verdicts?limit=10000{q}"),
-        )
-        .await;
-        out.extend(v["items"].as_array().unwrap().iter().cloned());
-        match v["next_after"].as_i64() {
-            Some(a) => after = Some(a),
-            None => return out,
-        }
-    }
+/// A station `id` of the center at `center_url` (its own token), sending
+/// recordings as `recordings` (`full` or `reference`), with more `[fleet]`
+/// keys `fleet`; its virtual bench's first noise seed is `seed`. The TOML.
+fn station_config(center_url: &str, id: &str, recordings: &str, fleet: &str, seed: u64) -> String {
+    Config::new()
+        .bench("virtual-1", seed)
+        .toml(&format!(
+            "[fleet]\ncenter = \"{center_url}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"{recordings}\"\n{fleet}",
+            station_token(id)
+        ))
+        .text()
 }
+
 const RECIPE: &str = "spider-4in";
 
 fn recipe() -> Value {
@@ -87,6 +85,11 @@ fn recipe() -> Value {
             {"name": "model_error", "quantity": "model_error", "upper": 5.0}
         ]
     })
+}
+
+/// A job of the recipe for part `serial`.
+fn job(serial: &str) -> Value {
+    json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE})
 }
 
 /// The center holds the recipe; the stations pull it.
@@ -107,91 +110,22 @@ async fn center_holds_the_recipe(url: &str) {
     center.close().await;
 }
 
-/// Waits until the station `d` holds the center's recipe.
-async fn recipe_arrived(c: &reqwest::Client, id: &str, d: &Daemon) {
-    let t0 = Instant::now();
-    loop {
-        let r = c
-            .get(d.url(&format!("/api/v1/recipes/{RECIPE}")))
-            .send()
-            .await
-            .unwrap();
-        if r.status().as_u16() == 200 {
-            return;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "{id} never got the recipe"
-        );
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+/// Waits until the station holds version `version` of recipe `name` as
+/// `check` wants it; that row.
+async fn station_recipe(
+    station: &Api,
+    name: &str,
+    version: i64,
+    check: impl Fn(&Value) -> bool,
+) -> Value {
+    let path = format!("/api/v1/recipes/{name}/versions/{version}");
+    station.poll(&path, MINUTE, check).await
 }
 
-async fn get(c: &reqwest::Client, base: &str, path: &str) -> Value {
-    let r = c.get(format!("{base}{path}")).send().await.unwrap();
-    let s = r.status().as_u16();
-    let v: Value = r.json().await.unwrap_or(Value::Null);
-    assert_eq!(s, 200, "{path}: {v}");
-    v
-}
-
-/// A gauge of the station's `/metrics`.
-async fn metric(c: &reqwest::Client, d: &Daemon, line: &str) -> f64 {
-    let text = c
-        .get(d.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    text.lines()
-        .find_map(|l| {
-            l.strip_prefix(line)
-                .map(|v| v.trim().parse::<f64>().unwrap())
-        })
-        .unwrap_or_else(|| panic!("no {line} in /metrics"))
-}
-
-/// Every measurement of a station, oldest first (its storage order).
-async fn station_measurements(c: &reqwest::Client, d: &Daemon) -> Vec<Value> {
-    let mut out = vec![];
-    let mut cursor: Option<String> = None;
-    loop {
-        let q = cursor
-            .as_ref()
-            .map_or(String::new(), |b| format!("&cursor={b}"));
-        let page = get(c, &d.base, &format!("/api/v1/measurements?limit=7{q}")).await;
-        out.extend(page["items"].as_array().unwrap().clone());
-        match page["next_cursor"].as_str() {
-            Some(b) => cursor = Some(b.to_string()),
-            None => break,
-        }
-    }
-    out.reverse();
-    out
-}
-
-/// Every measurement of a station at the center, oldest first.
-async fn center_measurements(c: &reqwest::Client, fleet: &Daemon, station: &str) -> Vec<Value> {
-    let mut out = vec![];
-    let mut cursor: Option<String> = None;
-    loop {
-        let q = cursor
-            .as_ref()
-            .map_or(String::new(), |b| format!("&cursor={b}"));
-        let page = get(
-            c,
-            &fleet.base,
-            &format!("/api/v1/fleet/measurements?station={station}&limit=7{q}"),
-        )
-        .await;
-        out.extend(page["items"].as_array().unwrap().clone());
-        match page["next_cursor"].as_str() {
-            Some(b) => cursor = Some(b.to_string()),
-            None => break,
-        }
-    }
+/// Every listed item of a paged listing (`cursor`), oldest first (the
+/// listings serve the newest first).
+async fn oldest_first(api: &Api, path: &str) -> Vec<Value> {
+    let mut out = api.all_pages(path, "cursor", "next_cursor").await;
     out.reverse();
     out
 }
@@ -263,8 +197,8 @@ impl Drop for Proxy {
 }
 
 /// Items the center holds of each station (`/api/v1/fleet/stations`).
-async fn center_items(c: &reqwest::Client, fleet: &Daemon) -> BTreeMap<String, i64> {
-    let v = get(c, &fleet.base, "/api/v1/fleet/stations").await;
+async fn center_items(fleet: &Api) -> BTreeMap<String, i64> {
+    let v = fleet.get("/api/v1/fleet/stations").await;
     v["items"]
         .as_array()
         .unwrap()
@@ -276,6 +210,11 @@ async fn center_items(c: &reqwest::Client, fleet: &Daemon) -> BTreeMap<String, i
             )
         })
         .collect()
+}
+
+/// The ids of a listing's items.
+fn ids(items: &[Value]) -> Vec<&str> {
+    items.iter().map(|x| x["id"].as_str().unwrap()).collect()
 }
 
 fn close(a: &Value, b: &Value, what: &str) {
@@ -296,10 +235,8 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let pg = TestServer::start(55471).expect("a private PostgreSQL server");
     let url = pg.url();
     center_holds_the_recipe(&url).await;
-    let fleet = Daemon::start(&format!(
-        "database = \"{url}\"\nbenches = []\n{}",
-        center_stations(&["line-1", "line-2", "line-3"])
-    ));
+    let fleet = center(&url, &["line-1", "line-2", "line-3"], Config::new());
+    let fa = Api::new(&fleet);
     let mut proxies = vec![];
     for _ in 0..3 {
         proxies.push(Proxy::start(fleet.addr()).await);
@@ -307,37 +244,32 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let stations: Vec<(String, Daemon)> = (1..=3)
         .map(|i| {
             let id = format!("line-{i}");
-            let center = proxies[i - 1].url();
-            let d = Daemon::start(&format!(
-                "[fleet]\ncenter = \"{center}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"{}\"\nretry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7\n\
-                 [[benches]]\nid = \"virtual-1\"\nseed = {}\n",
-                station_token(&id),
+            let cfg = station_config(
+                &proxies[i - 1].url(),
+                &id,
                 if i == 2 { "reference" } else { "full" },
-                1000 * i
-            ));
-            (id, d)
+                "retry_max_s = 2\nrecipe_poll_s = 5\nbatch_items = 7",
+                1000 * i as u64,
+            );
+            (id, Daemon::start(&cfg))
         })
         .collect();
-    let c = client();
+    let apis: Vec<Api> = stations.iter().map(|(_, d)| Api::new(d)).collect();
     // Each station runs the recipe it pulled from the center.
-    for (id, d) in &stations {
-        recipe_arrived(&c, id, d).await;
+    for a in &apis {
+        a.poll(&format!("/api/v1/recipes/{RECIPE}"), MINUTE, |_| true)
+            .await;
     }
 
     // Concurrent polling while the lots run.
     let polling = Arc::new(AtomicBool::new(true));
     let mut pollers = vec![];
-    for (_, d) in &stations {
-        let (c, base, on) = (c.clone(), d.base.clone(), polling.clone());
+    for a in &apis {
+        let (a, on) = (a.clone(), polling.clone());
         pollers.push(tokio::spawn(async move {
             let mut n = 0u64;
             while on.load(Ordering::SeqCst) {
-                let r = c
-                    .get(format!("{base}/api/v1/jobs?limit=50"))
-                    .send()
-                    .await
-                    .unwrap();
-                assert_eq!(r.status().as_u16(), 200);
+                a.get("/api/v1/jobs?limit=50").await;
                 n += 1;
                 tokio::time::sleep(Duration::from_millis(25)).await;
             }
@@ -347,7 +279,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
 
     // The lots: each job submitted twice with its idempotency key.
     let mut jobs: BTreeMap<String, Vec<String>> = BTreeMap::new();
-    for (id, d) in &stations {
+    for ((id, _), a) in stations.iter().zip(&apis) {
         for k in 0..JOBS {
             let body = json!({
                 "part": {"serial": format!("{id}-P{k:02}"), "kind": "spider"},
@@ -357,20 +289,12 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
             let key = format!("{id}-lot-{k}");
             let mut ids = vec![];
             for expect in [202, 200] {
-                let r = c
-                    .post(d.url("/api/v1/jobs"))
-                    .header("Idempotency-Key", &key)
-                    .json(&body)
-                    .send()
+                let r = a.builder(Method::POST, "/api/v1/jobs");
+                let v = a
+                    .send(r.header("Idempotency-Key", &key).json(&body))
                     .await
-                    .unwrap();
-                assert_eq!(r.status().as_u16(), expect, "{key}");
-                ids.push(
-                    r.json::<Value>().await.unwrap()["id"]
-                        .as_str()
-                        .unwrap()
-                        .to_string(),
-                );
+                    .expect(expect);
+                ids.push(v["id"].as_str().unwrap().to_string());
             }
             assert_eq!(ids[0], ids[1], "a repeated key is the same job");
             jobs.entry(id.clone()).or_default().push(ids[0].clone());
@@ -384,8 +308,8 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     let t0 = Instant::now();
     loop {
         let mut finished = 0;
-        for (_, d) in &stations {
-            let v = get(&c, &d.base, "/api/v1/jobs?state=succeeded&limit=200").await;
+        for a in &apis {
+            let v = a.get("/api/v1/jobs?state=succeeded&limit=200").await;
             finished += v["items"].as_array().unwrap().len();
         }
         if finished >= JOBS {
@@ -399,34 +323,30 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     }
     proxies[CUT].cut();
     let outage = Instant::now();
-    let d_cut = &stations[CUT].1;
+    let a_cut = &apis[CUT];
     let pending = "springbench_fleet_backlog_items{state=\"pending\"}";
-    let backlog_before = metric(&c, d_cut, pending).await;
-    let held_before = center_items(&c, &fleet).await;
+    let backlog_before = a_cut.metric(pending).await;
+    let held_before = center_items(&fa).await;
     while outage.elapsed() < Duration::from_secs(30) {
         tokio::time::sleep(Duration::from_millis(500)).await;
     }
     // The cut station kept measuring: its backlog grew, its link is down,
     // and nothing of it reached the center; the two others stayed
     // connected and kept delivering.
-    let held_after = center_items(&c, &fleet).await;
+    let held_after = center_items(&fa).await;
     assert!(
-        metric(&c, d_cut, pending).await > backlog_before,
+        a_cut.metric(pending).await > backlog_before,
         "{cut_id} measured nothing during the outage"
     );
-    assert_eq!(metric(&c, d_cut, "springbench_fleet_connected").await, 0.0);
+    assert_eq!(a_cut.metric("springbench_fleet_connected").await, 0.0);
     assert_eq!(
         held_after.get(cut_id),
         held_before.get(cut_id),
         "{cut_id}: items reached the center through a cut link"
     );
-    for (i, (id, d)) in stations.iter().enumerate() {
+    for (i, ((id, _), a)) in stations.iter().zip(&apis).enumerate() {
         if i != CUT {
-            assert_eq!(
-                metric(&c, d, "springbench_fleet_connected").await,
-                1.0,
-                "{id}"
-            );
+            assert_eq!(a.metric("springbench_fleet_connected").await, 1.0, "{id}");
             assert!(
                 held_after.get(id) > held_before.get(id),
                 "{id} delivered nothing while {cut_id} was cut off: {held_before:?} -> {held_after:?}"
@@ -436,9 +356,9 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     proxies[CUT].restore();
 
     // Every job ends; every station's outbox drains.
-    for (id, d) in &stations {
+    for ((id, _), a) in stations.iter().zip(&apis) {
         for j in &jobs[id] {
-            let v = common::wait_job(&c, d, j, Duration::from_secs(1800), common::terminal).await;
+            let v = a.finished_within(j, Duration::from_secs(1800)).await;
             assert_eq!(v["state"], "succeeded", "{j}: {v}");
         }
     }
@@ -446,9 +366,9 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     for p in pollers {
         assert!(p.await.unwrap() > 0);
     }
-    for (id, d) in &stations {
+    for ((id, _), a) in stations.iter().zip(&apis) {
         let t0 = Instant::now();
-        while metric(&c, d, "springbench_fleet_backlog_items{state=\"pending\"}").await > 0.0 {
+        while a.metric(pending).await > 0.0 {
             assert!(
                 t0.elapsed() < Duration::from_secs(300),
                 "{id}: the backlog does not drain"
@@ -460,13 +380,16 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     // Exactly once, station by station, in the station's order.
     let center = PgStore::connect(&url).await.unwrap();
     let mut total = 0usize;
-    let all_verdicts = all_center_verdicts(&c, &fleet).await;
-    let ids: BTreeSet<&str> = all_verdicts
-        .iter()
-        .map(|v| v["id"].as_str().unwrap())
-        .collect();
+    let all_verdicts = fa
+        .all_pages(
+            &format!("/api/v1/fleet/recipes/{RECIPE}/verdicts?limit=10000"),
+            "after",
+            "next_after",
+        )
+        .await;
+    let distinct: BTreeSet<&str> = ids(&all_verdicts).into_iter().collect();
     assert_eq!(
-        ids.len(),
+        distinct.len(),
         all_verdicts.len(),
         "a verdict twice at the center"
     );
@@ -490,23 +413,27 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
             assert_eq!(n, 0, "{id} never lost the center, yet judged offline");
         }
     }
-    let st_list = get(&c, &fleet.base, "/api/v1/fleet/stations").await;
-    for (id, d) in &stations {
-        let mine = station_measurements(&c, d).await;
+    let st_list = fa.get("/api/v1/fleet/stations").await;
+    for ((id, _), a) in stations.iter().zip(&apis) {
+        let mine = oldest_first(a, "/api/v1/measurements?limit=7").await;
         assert_eq!(mine.len(), JOBS, "{id}: one measurement per job");
-        let theirs = center_measurements(&c, &fleet, id).await;
-        let a: Vec<&str> = mine.iter().map(|m| m["id"].as_str().unwrap()).collect();
-        let b: Vec<&str> = theirs.iter().map(|m| m["id"].as_str().unwrap()).collect();
+        let theirs = oldest_first(
+            &fa,
+            &format!("/api/v1/fleet/measurements?station={id}&limit=7"),
+        )
+        .await;
+        let b = ids(&theirs);
         assert_eq!(
-            a, b,
+            ids(&mine),
+            b,
             "{id}: the center holds each measurement once, in the station's order"
         );
         assert!(theirs.iter().all(|m| m["station_id"] == json!(id)));
         // line-2 sends references only: its WAV is the station's to serve.
         let wav = format!("/api/v1/measurements/{}/recordings/main.wav", b[0]);
-        let r = c.get(fleet.url(&wav)).send().await.unwrap();
+        let r = fa.get_reply(&wav).await;
         if id == cut_id {
-            let p = common::problem(r, 404).await;
+            let p = r.problem(404);
             assert_eq!(
                 p["type"]
                     .as_str()
@@ -516,7 +443,7 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
             );
             assert!(p["detail"].as_str().unwrap().contains(id.as_str()), "{p}");
         } else {
-            assert_eq!(r.status().as_u16(), 200, "{wav}");
+            assert_eq!(r.status, 200, "{wav}");
         }
         total += b.len();
         // Verdicts: one per measurement of this station, each once.
@@ -528,24 +455,16 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
         // Per-part order: a part's history at the center is the station's.
         for m in mine.iter().take(3) {
             let serial = m["part_serial"].as_str().unwrap();
-            let p = get(&c, &fleet.base, &format!("/api/v1/fleet/parts/{serial}")).await;
-            let hist: Vec<&str> = p["measurements"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x["id"].as_str().unwrap())
-                .collect();
-            let local = get(&c, &d.base, &format!("/api/v1/measurements?part={serial}")).await;
-            let local: Vec<&str> = local["items"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x["id"].as_str().unwrap())
-                .collect();
-            assert_eq!(hist, local, "{serial}");
+            let p = fa.get(&format!("/api/v1/fleet/parts/{serial}")).await;
+            let local = a.get(&format!("/api/v1/measurements?part={serial}")).await;
+            assert_eq!(
+                ids(p["measurements"].as_array().unwrap()),
+                ids(local["items"].as_array().unwrap()),
+                "{serial}"
+            );
         }
         // No gaps: the center holds items 1..=last of the station's sequence.
-        let last = metric(&c, d, "springbench_fleet_last_seq").await as i64;
+        let last = a.metric("springbench_fleet_last_seq").await as i64;
         let s = st_list["items"]
             .as_array()
             .unwrap()
@@ -567,22 +486,20 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     // stations' values pooled (n, mean, sigma, Pp, Ppk and yield do not
     // depend on how the stations interleave; Cp/Cpk are per station).
     for param in ["keff", "model_error"] {
-        let f = get(
-            &c,
-            &fleet.base,
-            &format!("/api/v1/fleet/recipes/{RECIPE}/spc?parameter={param}&last=100000"),
-        )
-        .await;
+        let f = fa
+            .get(&format!(
+                "/api/v1/fleet/recipes/{RECIPE}/spc?parameter={param}&last=100000"
+            ))
+            .await;
         let mut pooled: Vec<SpcPoint> = vec![];
         let mut invalid = 0;
         let (lower, upper) = (None, (param == "model_error").then_some(5.0));
-        for (id, d) in &stations {
-            let own = get(
-                &c,
-                &d.base,
-                &format!("/api/v1/recipes/{RECIPE}/spc?parameter={param}&last=100000"),
-            )
-            .await;
+        for ((id, _), a) in stations.iter().zip(&apis) {
+            let own = a
+                .get(&format!(
+                    "/api/v1/recipes/{RECIPE}/spc?parameter={param}&last=100000"
+                ))
+                .await;
             let g = f["stations"]
                 .as_array()
                 .unwrap()
@@ -623,22 +540,19 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
     }
 
     // Bad query parameters are named.
-    let r = c
-        .get(fleet.url(&format!(
-            "/api/v1/fleet/recipes/{RECIPE}/spc?parameter=keff&last=0"
-        )))
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 422).await;
-    assert_eq!(p["errors"][0]["field"], "last", "{p}");
-    let r = c
-        .get(fleet.url("/api/v1/fleet/measurements?statoin=x"))
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 422).await;
-    assert_eq!(p["errors"][0]["field"], "statoin", "{p}");
+    for (path, field) in [
+        (
+            format!("/api/v1/fleet/recipes/{RECIPE}/spc?parameter=keff&last=0"),
+            "last",
+        ),
+        (
+            "/api/v1/fleet/measurements?statoin=x".to_string(),
+            "statoin",
+        ),
+    ] {
+        let p = fa.get_reply(&path).await.problem(422);
+        assert_eq!(p["errors"][0]["field"], field, "{p}");
+    }
     center.close().await;
 }
 
@@ -649,46 +563,27 @@ async fn three_stations_one_center_outage_nothing_lost_nothing_doubled() {
 /// `Store::apply_center_recipes`; this path needs no PostgreSQL.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn queued_jobs_of_a_retired_recipe_version_are_not_judged_with_it() {
-    let d = Daemon::start("[[benches]]\nid = \"virtual-1\"\nseed = 5\n");
-    let c = client();
-    let r = c
-        .post(d.url("/api/v1/recipes"))
-        .json(&recipe())
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201, "{}", r.text().await.unwrap());
+    let d = Daemon::start(&Config::new().bench("virtual-1", 5).text());
+    let a = Api::new(&d);
+    a.create_recipe(&recipe()).await;
     let mut ids = vec![];
     for k in 0..3u64 {
-        let r = c
-            .post(d.url("/api/v1/jobs"))
-            .json(&json!({
+        ids.push(
+            a.submit(&json!({
                 "part": {"serial": format!("R{k}"), "kind": "spider"},
                 "recipe": RECIPE,
                 "production": {"preset": "spider_4in", "seed": k + 1},
             }))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 202);
-        ids.push(
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_string(),
+            .await,
         );
     }
-    let r = c
-        .delete(d.url(&format!("/api/v1/recipes/{RECIPE}")))
-        .header("content-type", "application/json")
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 204);
+    let r = a.builder(Method::DELETE, &format!("/api/v1/recipes/{RECIPE}"));
+    let r = a.send(r.header("content-type", "application/json")).await;
+    assert_eq!(r.status, 204, "{}", r.text);
     let mut judged_with_v1 = 0;
     for (k, id) in ids.iter().enumerate() {
-        let j = common::wait_job(&c, &d, id, Duration::from_secs(600), common::terminal).await;
-        let v = get(&c, &d.base, &format!("/api/v1/jobs/{id}/verdict")).await;
+        let j = a.finished(id).await;
+        let v = a.get(&format!("/api/v1/jobs/{id}/verdict")).await;
         if j["state"] == "succeeded" {
             // Only the job that had started before the retirement.
             assert_eq!(k, 0, "job {k} judged with a retired version: {v}");
@@ -704,30 +599,10 @@ async fn queued_jobs_of_a_retired_recipe_version_are_not_judged_with_it() {
     }
     assert!(judged_with_v1 <= 1);
     // A job submitted now is refused at once (nothing to judge with).
-    let r = c
-        .post(d.url("/api/v1/jobs"))
-        .json(&json!({"part": {"serial": "R9"}, "recipe": RECIPE}))
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 422).await;
+    let body = json!({"part": {"serial": "R9"}, "recipe": RECIPE});
+    let p = a.post("/api/v1/jobs", &body).await.problem(422);
     assert_eq!(p["errors"][0]["field"], "recipe", "{p}");
 }
-
-const TOKENS: &str = r#"
-[[auth.tokens]]
-name = "mes"
-token = "viewer-token-0123456789"
-role = "viewer"
-[[auth.tokens]]
-name = "qc"
-token = "operator-token-0123456789"
-role = "operator"
-[[auth.tokens]]
-name = "lab"
-token = "admin-token-0123456789"
-role = "admin"
-"#;
 
 /// Corrections over a station's API: admin only, a reason required, bad
 /// fields named; a void keeps the measurement and takes it out of SPC; a
@@ -735,73 +610,33 @@ role = "admin"
 /// in order with who made them, and they wait in the fleet outbox.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn corrections_over_the_api_keep_an_audit_trail() {
-    let d = Daemon::start(&format!(
-        "[[benches]]\nid = \"virtual-1\"\nseed = 3\n{TOKENS}"
-    ));
-    let c = client();
-    let as_ = |tok: &'static str| move |r: reqwest::RequestBuilder| r.bearer_auth(tok);
-    let (admin, operator, viewer) = (
-        as_("admin-token-0123456789"),
-        as_("operator-token-0123456789"),
-        as_("viewer-token-0123456789"),
+    let d = Daemon::start(
+        &Config::new()
+            .token("mes", common::config::VIEWER, Role::Viewer)
+            .token("qc", common::config::OPERATOR, Role::Operator)
+            .token("lab", common::config::ADMIN, Role::Admin)
+            .bench("virtual-1", 3)
+            .text(),
     );
-    let r = admin(c.post(d.url("/api/v1/recipes")))
-        .json(&recipe())
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201, "{}", r.text().await.unwrap());
+    let admin = Api::with(&d, common::config::ADMIN);
+    let (operator, viewer) = (
+        admin.token(common::config::OPERATOR),
+        admin.token(common::config::VIEWER),
+    );
+    admin.create_recipe(&recipe()).await;
     let mut mids = vec![];
     for serial in ["C1", "C2"] {
-        let r = operator(c.post(d.url("/api/v1/jobs")))
-            .json(&json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 202);
-        let id = r.json::<Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_string();
-        let t = Instant::now();
-        let j = loop {
-            let j: Value = c
-                .get(d.url(&format!("/api/v1/jobs/{id}")))
-                .bearer_auth("viewer-token-0123456789")
-                .send()
-                .await
-                .unwrap()
-                .json()
-                .await
-                .unwrap();
-            if common::terminal(j["state"].as_str().unwrap_or(""))
-                || t.elapsed() > Duration::from_secs(600)
-            {
-                break j;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        };
+        let id = operator.submit(&job(serial)).await;
+        let j = viewer.finished(&id).await;
         assert_eq!(j["state"], "succeeded", "{j}");
         mids.push(j["measurement_ids"][0].as_str().unwrap().to_string());
     }
-    let read = |path: String| {
-        let (c, url) = (c.clone(), d.url(&path));
-        async move {
-            let r = c
-                .get(url)
-                .bearer_auth("viewer-token-0123456789")
-                .send()
-                .await
-                .unwrap();
-            assert_eq!(r.status().as_u16(), 200, "{path}");
-            r.json::<Value>().await.unwrap()
-        }
-    };
     let spc_ids = || async {
-        let s = read(format!(
-            "/api/v1/recipes/{RECIPE}/spc?parameter=keff&last=100"
-        ))
-        .await;
+        let s = viewer
+            .get(&format!(
+                "/api/v1/recipes/{RECIPE}/spc?parameter=keff&last=100"
+            ))
+            .await;
         let ids: Vec<String> = s["points"]
             .as_array()
             .unwrap()
@@ -811,16 +646,12 @@ async fn corrections_over_the_api_keep_an_audit_trail() {
         (ids, s["n"].as_u64().unwrap())
     };
     assert_eq!(spc_ids().await, (mids.clone(), 2));
+    let path = "/api/v1/corrections";
     let void = json!({"kind": "void_measurement", "part_serial": "C1", "measurement_id": mids[0],
                       "reason": "clamp was not closed"});
     // Not an admin: refused; the audit log stays empty.
-    for who in [operator, viewer] {
-        let r = who(c.post(d.url("/api/v1/corrections")))
-            .json(&void)
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 403);
+    for who in [&operator, &viewer] {
+        assert_eq!(who.post(path, &void).await.status, 403);
     }
     // Bad fields, named.
     for (body, field) in [
@@ -845,53 +676,39 @@ async fn corrections_over_the_api_keep_an_audit_trail() {
             "new_value",
         ),
     ] {
-        let r = admin(c.post(d.url("/api/v1/corrections")))
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        let p = common::problem(r, 422).await;
+        let p = admin.post(path, &body).await.problem(422);
         assert_eq!(p["errors"][0]["field"], field, "{p}");
     }
-    assert!(read("/api/v1/corrections".into()).await["items"]
+    assert!(viewer.get(path).await["items"]
         .as_array()
         .unwrap()
         .is_empty());
     // The void: the measurement stays, out of SPC; a second void conflicts.
-    let r = admin(c.post(d.url("/api/v1/corrections")))
-        .json(&void)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let v: Value = r.json().await.unwrap();
+    let v = admin.post(path, &void).await.expect(201);
     assert_eq!(
         (v["kind"].as_str(), v["made_by"].as_str()),
         (Some("void_measurement"), Some("lab"))
     );
     // The measurement stays readable and says that (and by which correction) it was voided.
-    let m0 = read(format!("/api/v1/measurements/{}", mids[0])).await;
+    let m0 = viewer
+        .get(&format!("/api/v1/measurements/{}", mids[0]))
+        .await;
     assert_eq!(m0["measurement"]["void_correction_id"], v["id"], "{m0}");
-    let m1 = read(format!("/api/v1/measurements/{}", mids[1])).await;
+    let m1 = viewer
+        .get(&format!("/api/v1/measurements/{}", mids[1]))
+        .await;
     assert_eq!(m1["measurement"]["void_correction_id"], Value::Null);
     assert_eq!(spc_ids().await, (vec![mids[1].clone()], 1));
-    let r = admin(c.post(d.url("/api/v1/corrections")))
-        .json(&void)
-        .send()
-        .await
-        .unwrap();
-    common::problem(r, 409).await;
+    admin.post(path, &void).await.problem(409);
     // C2 was C3: the part and its measurement move, C2 stays (empty).
-    let r = admin(c.post(d.url("/api/v1/corrections")))
-        .json(&json!({"kind": "part_serial", "part_serial": "C2", "new_value": "C3", "reason": "label misread"}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let m = read(format!("/api/v1/measurements/{}", mids[1])).await;
+    let moved = json!({"kind": "part_serial", "part_serial": "C2", "new_value": "C3", "reason": "label misread"});
+    admin.post(path, &moved).await.expect(201);
+    let m = viewer
+        .get(&format!("/api/v1/measurements/{}", mids[1]))
+        .await;
     assert_eq!(m["measurement"]["part_serial"], "C3", "{m}");
     // The audit log: oldest first, by part, in pages.
-    let log = read("/api/v1/corrections".into()).await;
+    let log = viewer.get(path).await;
     let got: Vec<(&str, &str, Option<&str>, &str)> = log["items"]
         .as_array()
         .unwrap()
@@ -912,26 +729,20 @@ async fn corrections_over_the_api_keep_an_audit_trail() {
             ("part_serial", "C2", Some("C2"), "label misread"),
         ]
     );
-    let c3 = read("/api/v1/corrections?part=C3".into()).await;
+    let c3 = viewer.get("/api/v1/corrections?part=C3").await;
     assert_eq!(c3["items"].as_array().unwrap().len(), 1);
     let first = log["items"][0]["seq"].as_i64().unwrap();
-    let page = read(format!("/api/v1/corrections?after={first}&limit=1")).await;
+    let page = viewer
+        .get(&format!("/api/v1/corrections?after={first}&limit=1"))
+        .await;
     assert_eq!(page["items"][0]["kind"], "part_serial");
-    let bad = c
-        .get(d.url("/api/v1/corrections?limit=0"))
-        .bearer_auth("viewer-token-0123456789")
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(
-        common::problem(bad, 422).await["errors"][0]["field"],
-        "limit"
-    );
+    let bad = viewer.get_reply("/api/v1/corrections?limit=0").await;
+    assert_eq!(bad.problem(422)["errors"][0]["field"], "limit");
 }
 
-/// A station (open access, `[fleet]` straight to `pg`) that ran two jobs of
-/// the recipe and voided the measurement of the second, everything at the
-/// center; and the fleet daemon on the same database.
+/// A station (open access) that ran two jobs of the recipe and voided the
+/// measurement of the second, everything at the center; and the fleet
+/// daemon on the same database.
 struct OneStation {
     /// The center's database.
     url: String,
@@ -948,73 +759,43 @@ const STATION: &str = "line-7";
 async fn one_station_at_the_center(pg: &TestServer) -> OneStation {
     let url = pg.url();
     center_holds_the_recipe(&url).await;
-    let fleet = Daemon::start(&format!(
-        "database = \"{url}\"\nbenches = []\n{}",
-        center_stations(&[STATION])
+    let fleet = center(&url, &[STATION], Config::new());
+    let station = Daemon::start(&station_config(
+        &fleet.base,
+        STATION,
+        "full",
+        "retry_max_s = 1",
+        7,
     ));
-    let station = Daemon::start(&format!(
-        "[fleet]\ncenter = \"{}\"\nstation_id = \"{STATION}\"\ntoken = \"{}\"\nrecordings = \"full\"\nretry_max_s = 1\n\
-         [[benches]]\nid = \"virtual-1\"\nseed = 7\n",
-        fleet.base,
-        station_token(STATION)
-    ));
-    let c = client();
-    recipe_arrived(&c, STATION, &station).await;
+    let s = Api::new(&station);
+    s.poll(&format!("/api/v1/recipes/{RECIPE}"), MINUTE, |_| true)
+        .await;
     let (mut jobs, mut mids) = (vec![], vec![]);
     for serial in ["U1", "U2"] {
-        let body = json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE});
-        let id = common::submit(&c, &station, body).await;
-        let j = common::wait_job(
-            &c,
-            &station,
-            &id,
-            Duration::from_secs(300),
-            common::terminal,
-        )
-        .await;
+        let id = s.submit(&job(serial)).await;
+        let j = s.finished(&id).await;
         assert_eq!(j["state"], "succeeded", "{j}");
-        let m = get(&c, &station.base, &format!("/api/v1/measurements?job={id}")).await;
+        let m = s.get(&format!("/api/v1/measurements?job={id}")).await;
         mids.push(
-            m["items"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x["id"].as_str().unwrap().to_string())
+            ids(m["items"].as_array().unwrap())
+                .into_iter()
+                .map(str::to_string)
                 .collect::<Vec<_>>(),
         );
         jobs.push(id);
     }
-    let r = c
-        .post(station.url("/api/v1/corrections"))
-        .json(&json!({"kind": "void_measurement", "part_serial": "U2",
-            "measurement_id": mids[1][0], "reason": "spider torn at the clamp"}))
-        .send()
-        .await
-        .unwrap();
-    let status = r.status().as_u16();
-    let v: Value = r.json().await.unwrap();
-    assert_eq!(status, 201, "{v}");
+    let void = json!({"kind": "void_measurement", "part_serial": "U2",
+        "measurement_id": mids[1][0], "reason": "spider torn at the clamp"});
+    let v = s.post("/api/v1/corrections", &void).await.expect(201);
     let void_id = v["id"].as_str().unwrap().to_string();
     // Replicated: both jobs' verdicts and the void (the station's last item).
-    let t0 = Instant::now();
-    loop {
-        let v = c
-            .get(fleet.url(&format!("/api/v1/measurements/{}", mids[1][0])))
-            .send()
-            .await
-            .unwrap();
-        let done = v.status().as_u16() == 200
-            && v.json::<Value>().await.unwrap()["measurement"]["void_correction_id"]
-                == json!(void_id);
-        if done {
-            break;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the station's items did not reach the center"
-        );
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    Api::new(&fleet)
+        .poll(
+            &format!("/api/v1/measurements/{}", mids[1][0]),
+            MINUTE,
+            |m| m["measurement"]["void_correction_id"] == json!(void_id),
+        )
+        .await;
     OneStation {
         url,
         fleet,
@@ -1073,7 +854,7 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
     }
     let pg = TestServer::start(55472).expect("a private PostgreSQL server");
     let o = one_station_at_the_center(&pg).await;
-    let c = client();
+    let (st, fa) = (Api::new(&o.station), Api::new(&o.fleet));
     let (m1, m2) = (&o.mids[0][0], &o.mids[1][0]);
     let mut paths = vec![
         "/api/v1/parts".to_string(),
@@ -1101,12 +882,11 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
     }
     let mut named = 0;
     for p in &paths {
-        let at = |d: &Daemon| c.get(d.url(p)).send();
-        let (a, b) = (at(&o.station).await.unwrap(), at(&o.fleet).await.unwrap());
-        let status = a.status().as_u16();
-        assert_eq!(status, b.status().as_u16(), "{p}");
-        let mut a: Value = a.json().await.unwrap();
-        let mut b: Value = b.json().await.unwrap();
+        let (a, b) = (st.get_reply(p).await, fa.get_reply(p).await);
+        assert_eq!(a.status, b.status, "{p}");
+        let status = a.status;
+        assert!(!a.body.is_null() && !b.body.is_null(), "{p}: not JSON");
+        let (mut a, mut b) = (a.body, b.body);
         if status >= 400 {
             // The same problem: status, type and the field it names.
             assert_eq!(
@@ -1128,8 +908,11 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
     // The recordings, sent in full: the same WAV, byte for byte.
     for file in ["pre.wav", "main.wav"] {
         let url = format!("/api/v1/measurements/{m1}/recordings/{file}");
-        let wav = |d: &Daemon| c.get(d.url(&url)).send();
-        let (a, b) = (wav(&o.station).await.unwrap(), wav(&o.fleet).await.unwrap());
+        let wav = |a: &Api| {
+            let r = a.builder(Method::GET, &url);
+            async move { r.send().await.unwrap() }
+        };
+        let (a, b) = (wav(&st).await, wav(&fa).await);
         assert_eq!(
             (a.status().as_u16(), b.status().as_u16()),
             (200, 200),
@@ -1151,24 +934,16 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
             .map(|x| x["station_id"].clone())
             .collect()
     };
-    let parts = get(&c, &o.fleet.base, "/api/v1/parts").await;
+    let parts = fa.get("/api/v1/parts").await;
     assert_eq!(rows(&parts, "items"), [json!(STATION), json!(STATION)]);
-    let ms = get(&c, &o.fleet.base, "/api/v1/parts/U1/measurements").await;
+    let ms = fa.get("/api/v1/parts/U1/measurements").await;
     assert_eq!(rows(&ms, "items"), vec![json!(STATION); o.mids[0].len()]);
-    let jv = get(
-        &c,
-        &o.fleet.base,
-        &format!("/api/v1/jobs/{}/verdict", o.jobs[0]),
-    )
-    .await;
+    let jv = fa.get(&format!("/api/v1/jobs/{}/verdict", o.jobs[0])).await;
     assert_eq!(jv["station_id"], STATION);
     assert!(named >= 10, "{named} rows named the station");
     // The figures themselves, at both: K(x), Keff, the verdict and its value.
-    let doc = |d: &Daemon| {
-        let (c, base) = (c.clone(), d.base.clone());
-        async move { get(&c, &base, &format!("/api/v1/measurements/{m1}")).await }
-    };
-    let (a, b) = (doc(&o.station).await, doc(&o.fleet).await);
+    let doc = format!("/api/v1/measurements/{m1}");
+    let (a, b) = (st.get(&doc).await, fa.get(&doc).await);
     let keff = a["large_signal"]["keff_n_per_m"].as_f64().unwrap();
     assert!(keff.is_finite() && keff > 0.0, "{keff}");
     assert_eq!(b["large_signal"]["keff_n_per_m"].as_f64(), Some(keff));
@@ -1189,12 +964,9 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
         .unwrap();
     assert!(judged.is_finite() && judged > 0.0, "{judged}");
     // SPC leaves the voided U2 out at both: one point, the Keff U1 was judged by.
-    let spc = get(
-        &c,
-        &o.fleet.base,
-        &format!("/api/v1/recipes/{RECIPE}/spc?parameter=keff"),
-    )
-    .await;
+    let spc = fa
+        .get(&format!("/api/v1/recipes/{RECIPE}/spc?parameter=keff"))
+        .await;
     assert_eq!(
         (spc["n"].as_i64(), spc["mean"].as_f64()),
         (Some(1), Some(judged)),
@@ -1203,9 +975,8 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
     // A station's chart reads up to 100 000 verdicts, the center's 10 000
     // (docs/fleet.md: 1.5 s for 8 000 there); the center says where to go.
     let wide = format!("/api/v1/recipes/{RECIPE}/spc?parameter=keff&last=10001");
-    assert_eq!(get(&c, &o.station.base, &wide).await["n"], 1);
-    let r = c.get(o.fleet.url(&wide)).send().await.unwrap();
-    let p = common::problem(r, 422).await;
+    assert_eq!(st.get(&wide).await["n"], 1);
+    let p = fa.get_reply(&wide).await.problem(422);
     assert!(
         p["errors"][0]["message"]
             .as_str()
@@ -1213,37 +984,25 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
             .contains("/api/v1/fleet/recipes/"),
         "{p}"
     );
-    let voided = get(&c, &o.fleet.base, &format!("/api/v1/measurements/{m2}")).await;
+    let voided = fa.get(&format!("/api/v1/measurements/{m2}")).await;
     assert_eq!(
         voided["measurement"]["void_correction_id"],
         json!(o.void_id)
     );
     // The center offers no job, bench or write.
-    let session = get(&c, &o.fleet.base, "/api/v1/session").await;
-    assert_eq!(session["daemon"], "center");
-    assert_eq!(
-        get(&c, &o.station.base, "/api/v1/session").await["daemon"],
-        "station"
-    );
+    assert_eq!(fa.get("/api/v1/session").await["daemon"], "center");
+    assert_eq!(st.get("/api/v1/session").await["daemon"], "station");
     for p in [
         "/api/v1/jobs",
         "/api/v1/benches",
         "/api/v1/events",
         "/api/v1/gauge-studies",
     ] {
-        let r = c.get(o.fleet.url(p)).send().await.unwrap();
-        common::problem(r, 404).await;
+        fa.get_reply(p).await.problem(404);
     }
-    let r = c
-        .post(o.fleet.url("/api/v1/jobs"))
-        .json(&json!({"part": {"serial": "U3"}}))
-        .send()
-        .await
-        .unwrap();
-    common::problem(r, 405).await;
-    let ui = c.get(o.fleet.url("/")).send().await.unwrap();
-    assert_eq!(ui.status().as_u16(), 200);
-    assert!(ui.text().await.unwrap().contains("/ui/app.js"));
+    let body = json!({"part": {"serial": "U3"}});
+    fa.post("/api/v1/jobs", &body).await.problem(405);
+    assert!(fa.text("/").await.contains("/ui/app.js"));
     fleet_role_contract(&o).await;
 }
 
@@ -1252,7 +1011,7 @@ async fn the_center_answers_the_stations_reads_with_the_stations_values() {
 /// `tests/it/contract.rs` checks a station's: each answers a validated success
 /// and, where it takes parameters, a 422 naming the bad one.
 async fn fleet_role_contract(o: &OneStation) {
-    let c = client();
+    let fa = Api::new(&o.fleet);
     let mut k = contract_check::Contract::new(
         serde_json::from_str(springbench::api::openapi::json()).unwrap(),
     );
@@ -1263,28 +1022,14 @@ async fn fleet_role_contract(o: &OneStation) {
     // limits and its rejection, validated as the document says.
     let mut tighter = recipe();
     tighter["parameters"][1]["upper"] = json!(4.0);
+    let route = "/api/v1/fleet/recipe-proposals";
     let mut posted = vec![];
-    for (route, url, body) in [
-        (
-            "/api/v1/fleet/recipe-proposals",
-            format!("{f}/recipe-proposals"),
-            json!({"recipe": tighter, "base_version": 1, "note": "tighter"}),
-        ),
-        (
-            "/api/v1/fleet/recipe-proposals",
-            format!("{f}/recipe-proposals"),
-            json!({"recipe": {"name": r}}),
-        ),
+    for body in [
+        json!({"recipe": tighter, "base_version": 1, "note": "tighter"}),
+        json!({"recipe": {"name": r}}),
     ] {
-        let resp = c.post(o.fleet.url(&url)).json(&body).send().await.unwrap();
-        let got = resp.status().as_u16();
-        let ct = resp
-            .headers()
-            .get("content-type")
-            .map(|v| v.to_str().unwrap().to_string())
-            .unwrap_or_default();
-        let b = resp.bytes().await.unwrap();
-        posted.push((got, k.check("post", route, got, &ct, &b)));
+        let resp = fa.builder(Method::POST, route).json(&body).send().await;
+        posted.push(k.take("post", route, resp.unwrap()).await);
     }
     assert_eq!(posted[0].0, 201, "{}", posted[0].1);
     assert_eq!(posted[0].1["kind"], "limits", "{}", posted[0].1);
@@ -1358,26 +1103,30 @@ async fn fleet_role_contract(o: &OneStation) {
     ];
     // The same center with tokens: every route needs one (a viewer's
     // does), but /healthz, /api/v1/session and the UI's pages.
-    let guarded = Daemon::start(&format!("database = \"{}\"\nbenches = []\n{TOKENS}", o.url));
+    let guarded = Daemon::start(
+        &Config::roles()
+            .top(&format!("database = \"{}\"\nbenches = []", o.url))
+            .text(),
+    );
+    let (anyone, viewer) = (
+        Api::new(&guarded),
+        Api::with(&guarded, common::config::VIEWER),
+    );
     for (route, url, status, _) in &cases {
         let open = ["/healthz", "/api/v1/session"].contains(route);
-        let r = c.get(guarded.url(url)).send().await.unwrap();
         assert_eq!(
-            r.status().as_u16(),
+            anyone.get_reply(url).await.status,
             if open { 200 } else { 401 },
             "{url} without a token"
         );
-        let r = c
-            .get(guarded.url(url))
-            .bearer_auth("viewer-token-0123456789")
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), *status, "{url} as a viewer");
+        assert_eq!(
+            viewer.get_reply(url).await.status,
+            *status,
+            "{url} as a viewer"
+        );
     }
     for page in ["/", "/ui/app.js", "/ui/qc.js"] {
-        let r = c.get(guarded.url(page)).send().await.unwrap();
-        assert_eq!(r.status().as_u16(), 200, "{page}");
+        assert_eq!(anyone.get_reply(page).await.status, 200, "{page}");
     }
     // Issue 36: a NUL or another control byte is a 400 without the
     // database's text (it was a 500 carrying it); /readyz and /metrics.
@@ -1387,57 +1136,29 @@ async fn fleet_role_contract(o: &OneStation) {
         "/api/v1/fleet/audit?part=%1b",
         "/api/v1/parts/%ff%fe",
     ] {
-        let r = c.get(o.fleet.url(bad)).send().await.unwrap();
-        let status = r.status().as_u16();
-        let text = r.text().await.unwrap();
-        assert_eq!(status, 400, "{bad}: {text}");
+        let r = fa.get_reply(bad).await;
+        assert_eq!(r.status, 400, "{bad}: {}", r.text);
         assert!(
-            !text.contains("byte sequence") && !text.contains("database"),
-            "{bad}: {text}"
+            !r.text.contains("byte sequence") && !r.text.contains("database"),
+            "{bad}: {}",
+            r.text
         );
     }
-    let r = c.get(o.fleet.url("/readyz")).send().await.unwrap();
-    assert_eq!(r.status().as_u16(), 200);
-    let m = c
-        .get(o.fleet.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    let held = m
-        .lines()
-        .find_map(|l| {
-            l.strip_prefix(&format!(
-                "springbench_center_station_items{{station=\"{STATION}\"}} "
-            ))
-        })
-        .unwrap_or_else(|| panic!("{m}"));
-    assert!(held.parse::<f64>().unwrap() >= 4.0, "{m}");
-    let s = c
-        .get(guarded.url("/api/v1/session"))
-        .bearer_auth("viewer-token-0123456789")
-        .send()
-        .await
-        .unwrap()
-        .json::<Value>()
-        .await
-        .unwrap();
+    assert_eq!(fa.get_reply("/readyz").await.status, 200);
+    let held = fa
+        .metric(&format!(
+            "springbench_center_station_items{{station=\"{STATION}\"}} "
+        ))
+        .await;
+    assert!(held >= 4.0, "{held}");
+    let s = viewer.get("/api/v1/session").await;
     assert_eq!(
         (&s["role"], &s["daemon"]),
         (&json!("viewer"), &json!("center"))
     );
     for (route, url, status, field) in cases {
-        let resp = c.get(o.fleet.url(&url)).send().await.unwrap();
-        let got = resp.status().as_u16();
-        let ct = resp
-            .headers()
-            .get("content-type")
-            .map(|v| v.to_str().unwrap().to_string())
-            .unwrap_or_default();
-        let body = resp.bytes().await.unwrap();
-        let v = k.check("get", route, got, &ct, &body);
+        let resp = fa.builder(Method::GET, &url).send().await.unwrap();
+        let (got, v) = k.take("get", route, resp).await;
         assert_eq!(got, status, "GET {url}: {v}");
         if let Some(field) = field {
             assert_eq!(v["errors"][0]["field"], field, "GET {url}: {v}");
@@ -1632,58 +1353,10 @@ async fn the_ui_on_the_center_shows_the_stations_data() {
     b.quit().await;
 }
 
-/// Runs one job of `serial` on station `d`; its measurements' ids.
-async fn one_job(c: &reqwest::Client, d: &Daemon, serial: &str) -> Vec<String> {
-    let body = json!({"part": {"serial": serial, "kind": "spider"}, "recipe": RECIPE});
-    let id = common::submit(c, d, body).await;
-    let j = common::wait_job(c, d, &id, Duration::from_secs(300), common::terminal).await;
-    assert_eq!(j["state"], "succeeded", "{j}");
-    let m = get(c, &d.base, &format!("/api/v1/measurements?job={id}")).await;
-    m["items"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x["id"].as_str().unwrap().to_string())
-        .collect()
-}
-
 /// Waits until the center holds measurement `id`; its document.
-async fn at_center(c: &reqwest::Client, fleet: &Daemon, id: &str, within: Duration) -> Value {
-    let t0 = Instant::now();
-    loop {
-        let r = c
-            .get(fleet.url(&format!("/api/v1/fleet/measurements/{id}")))
-            .send()
-            .await
-            .unwrap();
-        if r.status().as_u16() == 200 {
-            return r.json().await.unwrap();
-        }
-        assert!(
-            t0.elapsed() < within,
-            "measurement {id} did not reach the center within {within:?}"
-        );
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-}
-
-/// Posts `body` to a center's ingest route with `token`: status and body.
-async fn post_ingest(
-    c: &reqwest::Client,
-    fleet: &Daemon,
-    route: &str,
-    token: &str,
-    body: &Value,
-) -> (u16, Value) {
-    let r = c
-        .post(fleet.url(&format!("/api/v1/fleet/ingest/{route}")))
-        .bearer_auth(token)
-        .json(body)
-        .send()
-        .await
-        .unwrap();
-    let s = r.status().as_u16();
-    (s, r.json().await.unwrap_or(Value::Null))
+async fn at_center(fleet: &Api, id: &str, within: Duration) -> Value {
+    let path = format!("/api/v1/fleet/measurements/{id}");
+    fleet.poll(&path, within, |_| true).await
 }
 
 /// Issue 36's attacks (decision 0105), each of which went through before:
@@ -1701,30 +1374,25 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
     let pg = TestServer::start(55475).expect("a private PostgreSQL server");
     let url = pg.url();
     center_holds_the_recipe(&url).await;
-    let fleet = Daemon::start(&format!(
-        "database = \"{url}\"\nbenches = []\n{}",
-        center_stations(&["line-a", "line-b"])
-            + &format!(
-                "\n[[stations]]\nstation_id = \"line-r\"\ntoken = \"{}\"\nretired = true\n",
-                station_token("line-r")
-            )
-    ));
-    let station = |id: &str, seed: u32| {
-        let cfg = format!(
-            "[fleet]\ncenter = \"{}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"reference\"\nretry_max_s = 2\n\
-             [[benches]]\nid = \"virtual-1\"\nseed = {seed}\n",
-            fleet.base,
-            station_token(id)
-        );
+    let retired = format!(
+        "[[stations]]\nstation_id = \"line-r\"\ntoken = \"{}\"\nretired = true",
+        station_token("line-r")
+    );
+    let fleet = center(&url, &["line-a", "line-b"], Config::new().toml(&retired));
+    let fa = Api::new(&fleet);
+    let station = |id: &str, seed: u64| {
+        let cfg = station_config(&fleet.base, id, "reference", "retry_max_s = 2", seed);
         (Daemon::start(&cfg), cfg)
     };
     let (a, _) = station("line-a", 11);
     let (b, b_cfg) = station("line-b", 12);
-    let c = client();
-    recipe_arrived(&c, "line-a", &a).await;
-    recipe_arrived(&c, "line-b", &b).await;
-    let ma = one_job(&c, &a, "A-1").await;
-    let a_doc = at_center(&c, &fleet, &ma[0], Duration::from_secs(60)).await;
+    let (sa, sb) = (Api::new(&a), Api::new(&b));
+    for s in [&sa, &sb] {
+        s.poll(&format!("/api/v1/recipes/{RECIPE}"), MINUTE, |_| true)
+            .await;
+    }
+    let ma = sa.measured(&job("A-1")).await;
+    let a_doc = at_center(&fa, &ma[0], MINUTE).await;
     assert_eq!(a_doc["measurement"]["station_id"], "line-a");
 
     // B's configuration holds no credential of the center's database: the
@@ -1740,75 +1408,45 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
         "B's center URL opens the database"
     );
     // The readers' API writes nothing, with B's token or any.
-    for m in [
-        reqwest::Method::DELETE,
-        reqwest::Method::PUT,
-        reqwest::Method::PATCH,
-    ] {
-        let r = c
-            .request(
-                m.clone(),
-                fleet.url(&format!("/api/v1/fleet/measurements/{}", ma[0])),
-            )
-            .bearer_auth(station_token("line-b"))
-            .json(&json!({"verdict": "fail"}))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status().as_u16(), 405, "{m}");
+    let as_b = fa.token(&station_token("line-b"));
+    let a_path = format!("/api/v1/fleet/measurements/{}", ma[0]);
+    for m in [Method::DELETE, Method::PUT, Method::PATCH] {
+        let body = json!({"verdict": "fail"});
+        let r = as_b.call(m.clone(), &a_path, Some(&body)).await;
+        assert_eq!(r.status, 405, "{m}");
     }
 
     // B's token claiming A's id: refused, and the readers see it.
-    let hello = json!({"station_id": "line-a", "software_version": "x", "bench_states": [],
-        "backlog_items": 0, "sent_at": "2026-11-28T00:00:00.000Z"});
-    let (s, p) = post_ingest(&c, &fleet, "hello", &station_token("line-b"), &hello).await;
-    assert_eq!(
-        (
-            s,
-            p["type"]
-                .as_str()
-                .unwrap_or("")
-                .ends_with("station-mismatch")
-        ),
-        (403, true),
+    let (hello, items) = ("/api/v1/fleet/ingest/hello", "/api/v1/fleet/ingest/items");
+    let hello_of = |id: &str| {
+        json!({"station_id": id, "software_version": "x", "bench_states": [],
+            "backlog_items": 0, "sent_at": "2026-11-28T00:00:00.000Z"})
+    };
+    let p = as_b.post(hello, &hello_of("line-a")).await.expect(403);
+    assert!(
+        p["type"]
+            .as_str()
+            .unwrap_or("")
+            .ends_with("station-mismatch"),
         "{p}"
     );
-    let (s, p) = post_ingest(
-        &c,
-        &fleet,
-        "items",
-        &station_token("line-b"),
-        &json!({"station_id": "line-a", "items": []}),
-    )
-    .await;
-    assert_eq!(s, 403, "{p}");
+    let none_of_a = json!({"station_id": "line-a", "items": []});
+    as_b.post(items, &none_of_a).await.expect(403);
     // No token, a reader's token: 401.
-    let (s, _) = post_ingest(
-        &c,
-        &fleet,
-        "items",
-        "not-a-station-token-0123",
-        &json!({"station_id": "line-a", "items": []}),
-    )
-    .await;
-    assert_eq!(s, 401);
+    let stranger = fa.token("not-a-station-token-0123");
+    stranger.post(items, &none_of_a).await.expect(401);
     // A retired station's token: refused, with its history kept and the
     // attempt listed.
-    let r_hello = json!({"station_id": "line-r", "software_version": "x", "bench_states": [],
-        "backlog_items": 0, "sent_at": "2026-11-28T00:00:00.000Z"});
-    let (s, p) = post_ingest(&c, &fleet, "hello", &station_token("line-r"), &r_hello).await;
-    assert_eq!(
-        (
-            s,
-            p["type"]
-                .as_str()
-                .unwrap_or("")
-                .ends_with("station-retired")
-        ),
-        (403, true),
+    let as_r = fa.token(&station_token("line-r"));
+    let p = as_r.post(hello, &hello_of("line-r")).await.expect(403);
+    assert!(
+        p["type"]
+            .as_str()
+            .unwrap_or("")
+            .ends_with("station-retired"),
         "{p}"
     );
-    let retired = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-r").await;
+    let retired = fa.get("/api/v1/fleet/refusals?station=line-r").await;
     assert!(
         retired["items"][0]["reason"]
             .as_str()
@@ -1816,7 +1454,7 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
             .contains("retired"),
         "{retired}"
     );
-    let refusals = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-a").await;
+    let refusals = fa.get("/api/v1/fleet/refusals?station=line-a").await;
     let by_b: Vec<&Value> = refusals["items"]
         .as_array()
         .unwrap()
@@ -1828,7 +1466,7 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
         .as_str()
         .unwrap()
         .contains("claims station id 'line-a'"));
-    let stations = get(&c, &fleet.base, "/api/v1/fleet/stations").await;
+    let stations = fa.get("/api/v1/fleet/stations").await;
     let line_a = stations["items"]
         .as_array()
         .unwrap()
@@ -1845,20 +1483,21 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
             "new_value": new, "reason": "forged", "made_by": "intruder",
             "made_at": "2026-11-28T00:00:00.000Z"}]})
     };
+    let own_measurements = "its own measurements only";
     for (id, kind, m, new, why) in [
         (
             "forged-void",
             "void_measurement",
             Some(ma[0].as_str()),
             None,
-            "its own measurements only",
+            own_measurements,
         ),
         (
             "forged-move",
             "part_serial",
             Some(ma[0].as_str()),
             Some("B-STOLEN"),
-            "its own measurements only",
+            own_measurements,
         ),
         (
             "forged-kind",
@@ -1868,26 +1507,14 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
             "its own parts only",
         ),
     ] {
-        let (s, p) = post_ingest(
-            &c,
-            &fleet,
-            "items",
-            &station_token("line-b"),
-            &correction(id, kind, m, new),
-        )
-        .await;
-        assert_eq!(s, 422, "{id}: {p}");
+        let r = as_b.post(items, &correction(id, kind, m, new)).await;
+        let p = r.expect(422);
         assert!(p["detail"].as_str().unwrap().contains(why), "{id}: {p}");
     }
-    let a_now = get(
-        &c,
-        &fleet.base,
-        &format!("/api/v1/fleet/measurements/{}", ma[0]),
-    )
-    .await;
+    let a_now = fa.get(&a_path).await;
     assert_eq!(a_now["void_correction_id"], Value::Null, "{a_now}");
     assert_eq!(a_now["measurement"]["part_serial"], "A-1");
-    let part = get(&c, &fleet.base, "/api/v1/fleet/parts/A-1").await;
+    let part = fa.get("/api/v1/fleet/parts/A-1").await;
     assert_eq!(part["part"]["kind"], "spider", "{part}");
 
     // A void of A's measurement forged in B's own SQLite (as someone with
@@ -1910,41 +1537,48 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
         .await
         .unwrap();
     }
-    let t0 = Instant::now();
-    loop {
-        let r = get(&c, &fleet.base, "/api/v1/fleet/refusals?station=line-b").await;
-        let hit = r["items"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|x| x["item_id"] == "correction:sqlite-forged-void");
-        if let Some(x) = hit {
-            assert!(
-                x["reason"]
-                    .as_str()
+    let forged = "correction:sqlite-forged-void";
+    let r = fa
+        .poll(
+            "/api/v1/fleet/refusals?station=line-b",
+            Duration::from_secs(30),
+            |r| {
+                r["items"]
+                    .as_array()
                     .unwrap()
-                    .contains("made by station line-a"),
-                "{x}"
-            );
-            break;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "the forged void was not refused: {r}"
-        );
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+                    .iter()
+                    .any(|x| x["item_id"] == forged)
+            },
+        )
+        .await;
+    let x = r["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|x| x["item_id"] == forged)
+        .unwrap();
+    assert!(
+        x["reason"]
+            .as_str()
+            .unwrap()
+            .contains("made by station line-a"),
+        "{x}"
+    );
     // Parked at B with its reason; B's next measurement still arrives
     // within 30 s of its end.
     let t0 = Instant::now();
-    while metric(&c, &b, "springbench_fleet_backlog_items{state=\"refused\"}").await < 1.0 {
+    while sb
+        .metric("springbench_fleet_backlog_items{state=\"refused\"}")
+        .await
+        < 1.0
+    {
         assert!(
             t0.elapsed() < Duration::from_secs(30),
             "not parked at the station"
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
-    let link = get(&c, &b.base, "/api/v1/fleet/link").await;
+    let link = sb.get("/api/v1/fleet/link").await;
     let parked = &link["refused"][0];
     assert_eq!(parked["ref_id"], "sqlite-forged-void", "{link}");
     assert!(
@@ -1955,107 +1589,21 @@ async fn a_station_cannot_write_as_another_and_a_refused_item_does_not_stop_it()
         "{link}"
     );
     assert_eq!(link["stuck"], true, "{link}");
-    assert_eq!(metric(&c, &b, "springbench_fleet_stuck").await, 1.0);
-    let mb = one_job(&c, &b, "B-1").await;
-    at_center(&c, &fleet, &mb[0], Duration::from_secs(30)).await;
-    let a_now = get(
-        &c,
-        &fleet.base,
-        &format!("/api/v1/fleet/measurements/{}", ma[0]),
-    )
-    .await;
+    assert_eq!(sb.metric("springbench_fleet_stuck").await, 1.0);
+    let mb = sb.measured(&job("B-1")).await;
+    at_center(&fa, &mb[0], Duration::from_secs(30)).await;
+    let a_now = fa.get(&a_path).await;
     assert_eq!(a_now["void_correction_id"], Value::Null, "{a_now}");
 
     // Text the center could not store is refused at the station, before
     // its 202 / 201: a NUL byte in notes, an 8 000-character serial.
-    let r = c
-        .post(b.url("/api/v1/jobs"))
-        .json(&json!({"part": {"serial": "B-2", "kind": "spider", "notes": "bad\u{0}byte"}, "recipe": RECIPE}))
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 422).await;
+    let nul = json!({"part": {"serial": "B-2", "kind": "spider", "notes": "bad\u{0}byte"}, "recipe": RECIPE});
+    let p = sb.post("/api/v1/jobs", &nul).await.problem(422);
     assert!(p.to_string().contains("part.notes"), "{p}");
-    let r = c
-        .post(b.url("/api/v1/corrections"))
-        .json(
-            &json!({"kind": "part_serial", "part_serial": "B-1", "new_value": "S".repeat(8000),
-            "reason": "label misread"}),
-        )
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 422).await;
+    let long = json!({"kind": "part_serial", "part_serial": "B-1", "new_value": "S".repeat(8000),
+        "reason": "label misread"});
+    let p = sb.post("/api/v1/corrections", &long).await.problem(422);
     assert!(p.to_string().contains("new_value"), "{p}");
-}
-
-/// The center's readers (decision 0106): a viewer, a recipe author
-/// (operator), two approvers (admin).
-const CENTER_TOKENS: &str = r#"
-[[auth.tokens]]
-name = "mes"
-token = "center-viewer-0123456789"
-role = "viewer"
-[[auth.tokens]]
-name = "qe-author"
-token = "center-author-0123456789"
-role = "operator"
-[[auth.tokens]]
-name = "qe-approver"
-token = "center-approver-0123456789"
-role = "admin"
-[[auth.tokens]]
-name = "qe-lead"
-token = "center-lead-0123456789"
-role = "admin"
-"#;
-
-/// POSTs `body` to the center with `token`: status and body.
-async fn post_center(
-    c: &reqwest::Client,
-    fleet: &Daemon,
-    path: &str,
-    token: Option<&str>,
-    body: &Value,
-) -> (u16, Value) {
-    let mut r = c.post(fleet.url(path)).json(body);
-    if let Some(t) = token {
-        r = r.bearer_auth(t);
-    }
-    let r = r.send().await.unwrap();
-    let s = r.status().as_u16();
-    (s, r.json().await.unwrap_or(Value::Null))
-}
-
-/// Waits until station `d` holds version `version` of recipe `name` as
-/// `check` wants it; that row.
-async fn station_recipe(
-    c: &reqwest::Client,
-    d: &Daemon,
-    name: &str,
-    version: i64,
-    check: impl Fn(&Value) -> bool,
-) -> Value {
-    let t0 = Instant::now();
-    loop {
-        let r = c
-            .get(d.url(&format!("/api/v1/recipes/{name}/versions/{version}")))
-            .send()
-            .await
-            .unwrap();
-        if r.status().as_u16() == 200 {
-            let v: Value = r.json().await.unwrap();
-            if check(&v) {
-                return v;
-            }
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "{} never held {name} version {version} as expected",
-            d.base
-        );
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
 }
 
 /// Issue 36's "recipes authored at the center" (decision 0106): an author
@@ -2072,50 +1620,50 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         return;
     }
     const NAME: &str = "spider-center";
-    const AUTHOR: &str = "center-author-0123456789";
-    const APPROVER: &str = "center-approver-0123456789";
-    const LEAD: &str = "center-lead-0123456789";
-    const VIEWER: &str = "center-viewer-0123456789";
     let pg = TestServer::start(55476).expect("a private PostgreSQL server");
     let ids = ["line-1", "line-2", "line-3"];
-    let fleet = Daemon::start(&format!(
-        "database = \"{}\"\nbenches = []\n{CENTER_TOKENS}{}",
-        pg.url(),
-        center_stations(&ids)
-    ));
+    // The center's readers: a viewer, a recipe author (operator), two
+    // approvers (admin).
+    let tokens = Config::new()
+        .token("mes", "center-viewer-0123456789", Role::Viewer)
+        .token("qe-author", "center-author-0123456789", Role::Operator)
+        .token("qe-approver", "center-approver-0123456789", Role::Admin)
+        .token("qe-lead", "center-lead-0123456789", Role::Admin);
+    let fleet = center(&pg.url(), &ids, tokens);
+    let anyone = Api::new(&fleet);
+    let viewer = anyone.token("center-viewer-0123456789");
+    let author = anyone.token("center-author-0123456789");
+    let approver = anyone.token("center-approver-0123456789");
+    let lead = anyone.token("center-lead-0123456789");
     let stations: Vec<Daemon> = ids
         .iter()
         .enumerate()
         .map(|(i, id)| {
-            Daemon::start(&format!(
-                "[fleet]\ncenter = \"{}\"\nstation_id = \"{id}\"\ntoken = \"{}\"\nrecordings = \"reference\"\n\
-                 retry_max_s = 2\nrecipe_poll_s = 5\n[[benches]]\nid = \"virtual-1\"\nseed = {}\n",
-                fleet.base,
-                station_token(id),
-                21 + i
+            Daemon::start(&station_config(
+                &fleet.base,
+                id,
+                "reference",
+                "retry_max_s = 2\nrecipe_poll_s = 5",
+                21 + i as u64,
             ))
         })
         .collect();
-    let c = client();
+    let apis: Vec<Api> = stations.iter().map(Api::new).collect();
     let mut body = recipe();
     body["name"] = json!(NAME);
     let proposal = json!({"recipe": body, "note": "the 4-inch spider, line release"});
     let path = "/api/v1/fleet/recipe-proposals";
 
     // Roles: nobody without a token, not a viewer; bad fields are named.
-    let (s, _) = post_center(&c, &fleet, path, None, &proposal).await;
-    assert_eq!(s, 401);
-    let (s, p) = post_center(&c, &fleet, path, Some(VIEWER), &proposal).await;
-    assert_eq!(s, 403, "{p}");
+    anyone.post(path, &proposal).await.expect(401);
+    viewer.post(path, &proposal).await.expect(403);
     let mut bad = proposal.clone();
     bad["recipe"]["parameters"][1]["upper"] = json!("five");
-    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
-    assert_eq!(s, 422, "{p}");
+    let p = author.post(path, &bad).await.expect(422);
     assert_eq!(p["errors"][0]["field"], "recipe.parameters[1].upper", "{p}");
     let mut bad = proposal.clone();
     bad["recipe"]["parameters"][1]["lower"] = json!(9.0);
-    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
-    assert_eq!(s, 422, "{p}");
+    let p = author.post(path, &bad).await.expect(422);
     assert!(
         p["errors"][0]["field"]
             .as_str()
@@ -2125,12 +1673,11 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
     );
     let mut bad = proposal.clone();
     bad["note"] = json!("a\u{0}b");
-    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &bad).await;
-    assert_eq!((s, p["errors"][0]["field"].clone()), (422, json!("note")));
+    let p = author.post(path, &bad).await.expect(422);
+    assert_eq!(p["errors"][0]["field"], "note", "{p}");
 
     // The author proposes; nothing reaches the stations until approved.
-    let (s, p) = post_center(&c, &fleet, path, Some(AUTHOR), &proposal).await;
-    assert_eq!(s, 201, "{p}");
+    let p = author.post(path, &proposal).await.expect(201);
     assert_eq!(
         (
             &p["state"],
@@ -2147,35 +1694,23 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         "{p}"
     );
     let id = p["id"].as_str().unwrap().to_string();
-    let listed: Value = c
-        .get(fleet.url(&format!(
-            "/api/v1/fleet/recipe-proposals?recipe={NAME}&state=proposed"
-        )))
-        .bearer_auth(VIEWER)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let listed = viewer
+        .get(&format!("{path}?recipe={NAME}&state=proposed"))
+        .await;
     assert_eq!(listed["items"][0]["id"], json!(id), "{listed}");
-    let held = c
-        .get(fleet.url("/api/v1/fleet/ingest/recipes"))
-        .bearer_auth(station_token("line-1"))
-        .send()
-        .await
-        .unwrap()
-        .json::<Vec<Value>>()
-        .await
-        .unwrap();
-    assert!(held.iter().all(|r| r["name"] != NAME), "{held:?}");
+    let held = anyone
+        .token(&station_token("line-1"))
+        .get("/api/v1/fleet/ingest/recipes")
+        .await;
+    assert!(
+        held.as_array().unwrap().iter().all(|r| r["name"] != NAME),
+        "{held}"
+    );
 
     // The author may not approve (an approver's role), nor reject.
     let approve = format!("{path}/{id}/approve");
-    let (s, p) = post_center(&c, &fleet, &approve, Some(AUTHOR), &json!({})).await;
-    assert_eq!(s, 403, "{p}");
-    let (s, p) = post_center(&c, &fleet, &approve, Some(APPROVER), &json!({})).await;
-    assert_eq!(s, 201, "{p}");
+    author.post(&approve, &json!({})).await.expect(403);
+    let p = approver.post(&approve, &json!({})).await.expect(201);
     let sha = p["sha256"].as_str().unwrap().to_string();
     assert_eq!(
         (
@@ -2192,32 +1727,27 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         ),
         "{p}"
     );
-    let (s, p) = post_center(&c, &fleet, &approve, Some(LEAD), &json!({})).await;
-    assert_eq!(
-        (s, p["type"].as_str().unwrap().ends_with("proposal-decided")),
-        (409, true),
+    let p = lead.post(&approve, &json!({})).await.expect(409);
+    assert!(
+        p["type"].as_str().unwrap().ends_with("proposal-decided"),
         "{p}"
     );
 
     // Each station takes it as the center's and judges a job with it.
-    for d in &stations {
-        let v = station_recipe(&c, d, NAME, 1, |_| true).await;
+    for a in &apis {
+        let v = station_recipe(a, NAME, 1, |_| true).await;
         assert_eq!(
             (&v["source"], &v["approved_by"], &v["sha256"]),
             (&json!("center"), &json!("qe-approver"), &json!(sha)),
             "{v}"
         );
     }
-    let jobs = futures_util::future::join_all(stations.iter().enumerate().map(|(i, d)| {
-        let c = c.clone();
-        async move {
-            let body =
-                json!({"part": {"serial": format!("C-{i}"), "kind": "spider"}, "recipe": NAME});
-            let id = common::submit(&c, d, body).await;
-            let j = common::wait_job(&c, d, &id, Duration::from_secs(300), common::terminal).await;
-            assert_eq!(j["state"], "succeeded", "{j}");
-            id
-        }
+    let jobs = futures_util::future::join_all(apis.iter().enumerate().map(|(i, a)| async move {
+        let body = json!({"part": {"serial": format!("C-{i}"), "kind": "spider"}, "recipe": NAME});
+        let id = a.submit(&body).await;
+        let j = a.finished(&id).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        id
     }))
     .await;
     let want_recipe = |t: &Value| {
@@ -2228,8 +1758,8 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         assert_eq!(t["recipe"]["origin"]["approved_by"], "qe-approver", "{t}");
         assert_eq!(t["recipe"]["origin"]["proposal_id"], json!(id), "{t}");
     };
-    for (d, job) in stations.iter().zip(&jobs) {
-        let v = get(&c, &d.base, &format!("/api/v1/jobs/{job}/verdict")).await;
+    for (a, job) in apis.iter().zip(&jobs) {
+        let v = a.get(&format!("/api/v1/jobs/{job}/verdict")).await;
         assert!(
             ["pass", "fail"].contains(&v["verdict"].as_str().unwrap()),
             "{v}"
@@ -2240,27 +1770,21 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         }
     }
     // At the center: every station's verdicts, each naming the version.
-    let t0 = Instant::now();
-    let at_center = loop {
-        let r = c
-            .get(fleet.url(&format!("/api/v1/fleet/recipes/{NAME}/verdicts?last=100")))
-            .bearer_auth(VIEWER)
-            .send()
-            .await
-            .unwrap();
-        let v: Value = r.json().await.unwrap();
-        let items = v["items"].as_array().cloned().unwrap_or_default();
-        let lines: BTreeSet<String> = items
-            .iter()
-            .filter_map(|x| x["station_id"].as_str().map(str::to_string))
-            .collect();
-        if lines.len() == 3 {
-            break items;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(60), "{v}");
-        tokio::time::sleep(Duration::from_millis(300)).await;
-    };
-    for v in &at_center {
+    let v = viewer
+        .poll(
+            &format!("/api/v1/fleet/recipes/{NAME}/verdicts?last=100"),
+            MINUTE,
+            |v| {
+                let items = v["items"].as_array().cloned().unwrap_or_default();
+                let lines: BTreeSet<&str> = items
+                    .iter()
+                    .filter_map(|x| x["station_id"].as_str())
+                    .collect();
+                lines.len() == 3
+            },
+        )
+        .await;
+    for v in v["items"].as_array().unwrap() {
         want_recipe(&v["traceability"]);
     }
 
@@ -2270,96 +1794,49 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
     let mut tighter = body.clone();
     tighter["parameters"][1]["upper"] = json!(3.0);
     let lim = json!({"recipe": tighter, "base_version": 1});
-    let (s, p) = post_center(&c, &fleet, path, Some(APPROVER), &lim).await;
-    assert_eq!((s, &p["kind"]), (201, &json!("limits")), "{p}");
+    let p = approver.post(path, &lim).await.expect(201);
+    assert_eq!(p["kind"], "limits", "{p}");
     let lim_id = p["id"].as_str().unwrap().to_string();
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("{path}/{lim_id}/approve"),
-        Some(APPROVER),
-        &json!({}),
-    )
-    .await;
-    assert_eq!(
-        (s, p["type"].as_str().unwrap().ends_with("own-proposal")),
-        (403, true),
-        "{p}"
-    );
+    let lim_approve = format!("{path}/{lim_id}/approve");
+    let p = approver.post(&lim_approve, &json!({})).await.expect(403);
+    assert!(p["type"].as_str().unwrap().ends_with("own-proposal"), "{p}");
     // A stale base and a rejection without a reason are refused.
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        path,
-        Some(AUTHOR),
-        &json!({"recipe": body, "base_version": 7}),
-    )
-    .await;
-    assert_eq!(s, 409, "{p}");
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("{path}/{lim_id}/reject"),
-        Some(LEAD),
-        &json!({}),
-    )
-    .await;
+    let stale = json!({"recipe": body, "base_version": 7});
+    author.post(path, &stale).await.expect(409);
+    let r = lead
+        .post(&format!("{path}/{lim_id}/reject"), &json!({}))
+        .await;
+    assert_eq!(r.expect(422)["errors"][0]["field"], "reason");
+    let p = lead.post(&lim_approve, &json!({})).await.expect(201);
     assert_eq!(
-        (s, p["errors"][0]["field"].clone()),
-        (422, json!("reason")),
+        (&p["version"], &p["origin"], &p["approved_by"]),
+        (&json!(2), &json!("limits_approved"), &json!("qe-lead")),
         "{p}"
     );
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("{path}/{lim_id}/approve"),
-        Some(LEAD),
-        &json!({}),
-    )
-    .await;
-    assert_eq!(
-        (s, &p["version"], &p["origin"], &p["approved_by"]),
-        (201, &json!(2), &json!("limits_approved"), &json!("qe-lead")),
-        "{p}"
-    );
-    for d in &stations {
-        let v = station_recipe(&c, d, NAME, 2, |_| true).await;
+    for a in &apis {
+        let v = station_recipe(a, NAME, 2, |_| true).await;
         assert_eq!(v["recipe"]["parameters"][1]["upper"], 3.0, "{v}");
     }
 
     // A station's own recipe is local; published, it is a proposal at the
     // center by that station; approved there, it comes back as the center's.
-    let l1 = &stations[0];
+    let l1 = &apis[0];
     let mut local = recipe();
     local["name"] = json!("spider-line1");
-    let r = c
-        .post(l1.url("/api/v1/recipes"))
-        .json(&local)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let v = station_recipe(&c, l1, "spider-line1", 1, |_| true).await;
+    l1.create_recipe(&local).await;
+    let v = station_recipe(l1, "spider-line1", 1, |_| true).await;
     assert_eq!(v["source"], "local", "{v}");
-    let r = c
-        .post(l1.url(&format!("/api/v1/recipes/{NAME}/publish")))
-        .json(&json!({}))
-        .send()
-        .await
-        .unwrap();
-    let p = common::problem(r, 409).await;
+    let r = l1
+        .post(&format!("/api/v1/recipes/{NAME}/publish"), &json!({}))
+        .await;
+    let p = r.problem(409);
     assert!(
         p["type"].as_str().unwrap().ends_with("recipe-not-local"),
         "{p}"
     );
-    let r = c
-        .post(l1.url("/api/v1/recipes/spider-line1/publish"))
-        .json(&json!({"note": "tried on line 1"}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status().as_u16(), 201);
-    let p: Value = r.json().await.unwrap();
+    let note = json!({"note": "tried on line 1"});
+    let r = l1.post("/api/v1/recipes/spider-line1/publish", &note).await;
+    let p = r.expect(201);
     assert_eq!(
         (
             &p["proposed_by"],
@@ -2376,40 +1853,20 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
         "{p}"
     );
     let pid = p["id"].as_str().unwrap();
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("{path}/{pid}/approve"),
-        Some(APPROVER),
-        &json!({}),
-    )
-    .await;
-    assert_eq!((s, &p["version"]), (201, &json!(1)), "{p}");
-    station_recipe(&c, l1, "spider-line1", 1, |v| v["source"] == "center").await;
-    for d in &stations[1..] {
-        station_recipe(&c, d, "spider-line1", 1, |v| v["source"] == "center").await;
+    let p = approver
+        .post(&format!("{path}/{pid}/approve"), &json!({}))
+        .await
+        .expect(201);
+    assert_eq!(p["version"], 1, "{p}");
+    for a in &apis {
+        station_recipe(a, "spider-line1", 1, |v| v["source"] == "center").await;
     }
 
     // Retired at the center: retired at every station.
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("/api/v1/fleet/recipes/{NAME}/retire"),
-        Some(AUTHOR),
-        &json!({}),
-    )
-    .await;
-    assert_eq!(s, 403, "{p}");
-    let (s, p) = post_center(
-        &c,
-        &fleet,
-        &format!("/api/v1/fleet/recipes/{NAME}/retire"),
-        Some(APPROVER),
-        &json!({}),
-    )
-    .await;
-    assert_eq!(s, 204, "{p}");
-    for d in &stations {
-        station_recipe(&c, d, NAME, 2, |v| v["retired"] == true).await;
+    let retire = format!("/api/v1/fleet/recipes/{NAME}/retire");
+    author.post(&retire, &json!({})).await.expect(403);
+    approver.post(&retire, &json!({})).await.expect(204);
+    for a in &apis {
+        station_recipe(a, NAME, 2, |v| v["retired"] == true).await;
     }
 }

@@ -167,6 +167,71 @@ impl Api {
         self.call(Method::PUT, path, Some(body)).await
     }
 
+    /// Polls `GET path` until it answers 200 with a body `done` accepts, at
+    /// most `within` (it fails the test then, with the last answer); that body.
+    pub async fn poll(&self, path: &str, within: Duration, done: impl Fn(&Value) -> bool) -> Value {
+        let t = Instant::now();
+        loop {
+            let r = self.get_reply(path).await;
+            if r.status == 200 && done(&r.body) {
+                return r.body;
+            }
+            assert!(
+                t.elapsed() < within,
+                "GET {path}: not as expected within {within:?}: {} {}",
+                r.status,
+                r.text
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+
+    /// The value of a `/metrics` line that starts with `line` (a name with
+    /// its labels, e.g. `springbench_fleet_stuck`).
+    pub async fn metric(&self, line: &str) -> f64 {
+        let text = self.text("/metrics").await;
+        text.lines()
+            .find_map(|l| {
+                l.strip_prefix(line)
+                    .map(|v| v.trim().parse::<f64>().expect("a number"))
+            })
+            .unwrap_or_else(|| panic!("no {line} in /metrics"))
+    }
+
+    /// Every item of a paged listing: `path` (with its own query) page by
+    /// page, the next page's `param` taken from the answer's `next` field
+    /// (a cursor string or a number), in the order served.
+    pub async fn all_pages(&self, path: &str, param: &str, next: &str) -> Vec<Value> {
+        let mut out = vec![];
+        let mut at: Option<String> = None;
+        loop {
+            let sep = if path.contains('?') { '&' } else { '?' };
+            let q = at.map_or(String::new(), |a| format!("{sep}{param}={a}"));
+            let page = self.get(&format!("{path}{q}")).await;
+            out.extend(page["items"].as_array().expect("items").iter().cloned());
+            at = match &page[next] {
+                Value::String(s) => Some(s.clone()),
+                Value::Number(n) => Some(n.to_string()),
+                _ => return out,
+            };
+        }
+    }
+
+    /// Submits a job and waits for it; asserts it succeeded; the ids of its
+    /// measurements.
+    pub async fn measured(&self, body: &Value) -> Vec<String> {
+        let id = self.submit(body).await;
+        let j = self.finished(&id).await;
+        assert_eq!(j["state"], "succeeded", "{j}");
+        let m = self.get(&format!("/api/v1/measurements?job={id}")).await;
+        m["items"]
+            .as_array()
+            .expect("items")
+            .iter()
+            .map(|x| x["id"].as_str().expect("an id").to_string())
+            .collect()
+    }
+
     /// Submits a job (asserts 202 Accepted); its id.
     pub async fn submit(&self, body: &Value) -> String {
         let v = self.post("/api/v1/jobs", body).await.expect(202);

@@ -212,6 +212,25 @@ impl Contract {
         out
     }
 
+    /// Reads `resp` and checks it as [`Contract::check`] does; its status and
+    /// its body as JSON.
+    pub async fn take(
+        &mut self,
+        method: &str,
+        path: &str,
+        resp: reqwest::Response,
+    ) -> (u16, Value) {
+        let status = resp.status().as_u16();
+        let ct = resp
+            .headers()
+            .get("content-type")
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default();
+        let bytes = resp.bytes().await.unwrap();
+        let v = self.check(method, path, status, &ct, &bytes);
+        (status, v)
+    }
+
     pub fn validate(&self, what: &str, schema: &Value, v: &Value) {
         let errors = self.errors(what, schema, v);
         assert!(
