@@ -26,6 +26,7 @@ mod diagnose_engine;
 mod diagnose_reference;
 mod diagnose_virtual;
 mod fleet;
+mod fleet_limits;
 mod fuzz;
 mod gauge;
 mod hardening;
