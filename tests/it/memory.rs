@@ -505,3 +505,51 @@ async fn added_mass_study_job_derives_the_moving_mass() {
     let r = c.get(d.url("/api/v1/studies/nope")).send().await.unwrap();
     problem(r, 404).await;
 }
+
+/// A study killed (kill -9) while it waits for the operator: after the
+/// restart its job is `interrupted` (never re-run silently), and the study
+/// says so too: `failed`, no instruction left, and a confirmation is a 409
+/// (it was `awaiting_operator` for a job that no longer runs, and a
+/// confirmation was accepted).
+#[tokio::test]
+async fn a_study_killed_while_it_waits_ends_with_its_job() {
+    use crate::common::{Api, Daemon};
+    use serde_json::json;
+    use std::time::Duration;
+    let mut d = Daemon::start("");
+    let tmp = d.take_dir().unwrap();
+    let a = Api::new(&d);
+    let body = json!({"bench": "virtual-1", "part_serial": "SN-K", "preset": "spider_4in",
+        "moving_mass_kg": 0.05, "plan": {"added_mass": {"added_mass_kg": 0.02, "level_m": 0.004}}});
+    let id = a.post("/api/v1/studies", &body).await.expect(202)["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let study = format!("/api/v1/studies/{id}");
+    let waiting = a
+        .poll(&study, Duration::from_secs(300), |s| {
+            s["state"] == "awaiting_operator"
+        })
+        .await;
+    assert_eq!(waiting["job_state"], "running", "{waiting}");
+    d.kill9();
+    drop(d);
+    let d = Daemon::start_in(tmp.path(), "");
+    let a = Api::new(&d);
+    let j = a.get(&format!("/api/v1/jobs/{id}")).await;
+    assert_eq!(j["state"], "interrupted", "{j}");
+    let s = a.get(&study).await;
+    assert_eq!(
+        (&s["state"], &s["job_state"], &s["instruction"]),
+        (&json!("failed"), &json!("interrupted"), &json!(null)),
+        "{s}"
+    );
+    let p = a.post_empty(&format!("{study}/confirm")).await.problem(409);
+    assert!(
+        p["detail"]
+            .as_str()
+            .unwrap()
+            .contains("not awaiting_operator"),
+        "{p}"
+    );
+}

@@ -498,6 +498,17 @@ impl Store {
             return Ok(false);
         }
         qc::insert_job_records(&mut tx, records).await?;
+        // A study job (issue 33) ended here without its own end (a kill -9
+        // while it measured or waited for the operator): the study ends
+        // with it, so that it never waits for a confirmation nobody runs.
+        sqlx::query(
+            "UPDATE studies SET state = 'failed', instruction = NULL, updated_at = ? \
+             WHERE job_id = ? AND state NOT IN ('succeeded', 'failed')",
+        )
+        .bind(now())
+        .bind(id.to_string())
+        .execute(&mut *tx)
+        .await?;
         tx.commit().await?;
         Ok(true)
     }
