@@ -122,15 +122,22 @@ async fn golden_units_limits_and_production_verdicts() {
         "model error and friction have manual limits"
     );
 
-    // Golden units: measured with the recipe; only the manual limits (model error, friction) judge them.
+    // Golden units: measured with the recipe, in their own pool (issue 35:
+    // never counted as production); only the manual limits (model error,
+    // friction) judge them.
     let n_golden = if full { 8 } else { 5 };
     let golden: Vec<Value> = (0..n_golden)
-        .map(|i| job(&format!("G-{i:02}"), 100 + i as u64, None))
+        .map(|i| {
+            let mut b = job(&format!("G-{i:02}"), 100 + i as u64, None);
+            b["purpose"] = json!("golden_unit");
+            b
+        })
         .collect();
     let done = run_jobs(&d, &golden).await;
     for j in &done {
         assert_eq!(j["state"], "succeeded", "{j}");
         assert_eq!(j["verdict"], "pass", "{}", j["id"]);
+        assert_eq!(j["request"]["purpose"], "golden_unit", "{}", j["id"]);
     }
     let serials: Vec<String> = (0..n_golden).map(|i| format!("G-{i:02}")).collect();
     let (s, p) = Api::with(&d, STATION)
@@ -320,10 +327,12 @@ async fn golden_units_limits_and_production_verdicts() {
     assert_eq!(m["measurement"]["verdict"]["verdict"], "pass");
 
     // SPC of k0 over the window: Cpk and Ppk equal an independent computation
-    // on the stored k0 of the same measurements.
+    // on the stored k0 of the same measurements: the production parts' only
+    // (the golden units are their own pool).
     let spc = station(&d)
         .get("/api/v1/recipes/spider-4in/spc?parameter=k0&last=1000")
         .await;
+    assert_eq!(spc["purpose"], "production", "{spc}");
     let pts = spc["points"].as_array().unwrap();
     let mut values = vec![];
     for p in pts {
@@ -331,8 +340,13 @@ async fn golden_units_limits_and_production_verdicts() {
         let m = station(&d).get(&format!("/api/v1/measurements/{id}")).await;
         values.push(m["small_signal"]["k0_n_per_m"].as_f64().unwrap());
     }
-    // Golden units (no_limits) and production (pass/fail); the invalid ones have no value.
-    assert_eq!(values.len(), n_golden + lot.len() - 2);
+    // Production (pass/fail); the invalid ones have no value.
+    assert_eq!(values.len(), lot.len() - 2);
+    let lot_serials: HashSet<&str> = lot.iter().map(|l| l.0.as_str()).collect();
+    for p in pts {
+        let serial = p["part_serial"].as_str().unwrap_or_default();
+        assert!(lot_serials.contains(serial), "not a production part: {p}");
+    }
     assert_eq!(spc["invalid"], 2);
     let (lo, hi) = (
         spc["lower"].as_f64().unwrap(),

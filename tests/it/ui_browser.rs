@@ -514,9 +514,10 @@ async fn qc_recipe_limits_verdicts_and_spc() {
         ]
     });
     admin(&d).create_recipe(&recipe).await;
-    // Five golden units (production spread, no defect), on two benches.
+    // Five golden units (production spread, no defect), on two benches, in
+    // their own pool (never production parts; issue 35).
     let golden: Vec<Value> = (1..=5)
-        .map(|i| json!({"part": {"serial": format!("G-{i:02}"), "kind": "spider"},
+        .map(|i| json!({"part": {"serial": format!("G-{i:02}"), "kind": "spider"}, "purpose": "golden_unit",
                           "recipe": "spider-4in", "production": {"preset": "spider_4in", "seed": i}}))
         .collect();
     for j in station(&d).run_all(&golden).await {
@@ -748,7 +749,14 @@ async fn qc_recipe_limits_verdicts_and_spc() {
         .get("/api/v1/recipes/spider-4in/spc?parameter=k0")
         .await;
     assert_eq!(n, json!(spc["n"].as_u64().unwrap().to_string()));
-    assert!(spc["n"].as_u64().unwrap() >= 7, "{spc}");
+    // The two production parts; the golden units are their own pool.
+    let serials: Vec<&str> = spc["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["part_serial"].as_str().unwrap())
+        .collect();
+    assert_eq!(serials, ["SN-QC-GOOD", "SN-QC-STIFF"], "{spc}");
     let stats = b.text("#spc-stats").await;
     assert!(stats.contains("Cpk") && stats.contains("N/m"), "{stats}");
     // The pool counted, the rules' row, and the recipe version changes the
@@ -787,6 +795,129 @@ async fn qc_recipe_limits_verdicts_and_spc() {
     b.screenshot_element("#spc", "qc-spc").await;
     b.screenshot_sizes("qc-spc").await;
     b.finish("in the SPC view").await;
+}
+
+/// Pools in the QC view (issue 35): production parts, golden units, the
+/// same golden units measured on a second bench for its bench calibration
+/// (calibrated: the second bench's production part is judged corrected), and
+/// a gauge study (2 parts x 2 repeats); the SPC view then counts the
+/// production parts only, n = 3, as the API's production pool does, while
+/// every pool together holds 13 measurements. Before pools (397593a) the
+/// gauge study's runs and the golden units were SPC points.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn qc_spc_counts_production_parts_after_a_gauge_study_and_a_bench_calibration() {
+    let (mut b, d) = open_browser!(&tokens_two_benches());
+    let k0 = springbench::physics::preset("spider_4in")
+        .unwrap()
+        .k_coeffs_si[0];
+    admin(&d)
+        .create_recipe(&json!({"name": "spider-pools", "part_kind": "spider",
+            "procedure": {"levels_m": [0.004], "method": "two-signal", "order": 4, "moving_mass_kg": 0.05},
+            "parameters": [{"name": "k0", "quantity": "k0", "lower": 0.85 * k0, "upper": 1.15 * k0},
+                           {"name": "model_error", "quantity": "model_error", "upper": 5.0}]}))
+        .await;
+    let job = |serial: &str, seed: u64, bench: &str, purpose: &str| {
+        json!({"part": {"serial": serial, "kind": "spider"}, "recipe": "spider-pools", "bench": bench,
+               "purpose": purpose, "production": {"preset": "spider_4in", "seed": seed}})
+    };
+    // Golden units on the reference bench, the same units on virtual-2 for
+    // its calibration, and two production parts on virtual-1.
+    let golden: Vec<String> = (1..=3).map(|i| format!("G-{i}")).collect();
+    let mut bodies = vec![];
+    for (i, g) in golden.iter().enumerate() {
+        bodies.push(job(g, 60 + i as u64, "virtual-1", "golden_unit"));
+        bodies.push(job(g, 60 + i as u64, "virtual-2", "bench_calibration"));
+    }
+    bodies.push(job("P-1", 71, "virtual-1", "production"));
+    bodies.push(job("P-2", 72, "virtual-1", "production"));
+    for (j, body) in station(&d).run_all(&bodies).await.iter().zip(&bodies) {
+        assert_eq!(j["state"], "succeeded", "{j}");
+        assert_eq!(j["request"]["purpose"], body["purpose"], "{j}");
+    }
+    let cal = admin(&d)
+        .post(
+            "/api/v1/recipes/spider-pools/bench-calibrations",
+            &json!({"bench": "virtual-2", "reference_bench": "virtual-1", "serials": golden}),
+        )
+        .await
+        .expect(201);
+    assert_eq!(cal["state"], "in_calibration", "{cal}");
+    // A production part on the calibrated bench, judged with the calibration.
+    let p3 = station(&d)
+        .run_all(&[job("P-3", 73, "virtual-2", "production")])
+        .await;
+    let p3v = admin(&d)
+        .get(&format!(
+            "/api/v1/jobs/{}/verdict",
+            p3[0]["id"].as_str().unwrap()
+        ))
+        .await;
+    assert_eq!(
+        p3v["measurements"][0]["traceability"]["bench_calibration"]["id"], cal["id"],
+        "{p3v}"
+    );
+    // A gauge study: 2 parts x 2 repeats on virtual-1 (4 runs, gauge_study).
+    let study = json!({"recipe": "spider-pools", "repeats": 2, "benches": ["virtual-1"], "parts": [
+        {"serial": "MSA-1", "production": {"preset": "spider_4in", "seed": 81}},
+        {"serial": "MSA-2", "production": {"preset": "spider_4in", "seed": 82}}]});
+    let id = station(&d)
+        .post("/api/v1/gauge-studies", &study)
+        .await
+        .expect(201)["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let t = std::time::Instant::now();
+    loop {
+        let s = admin(&d).get(&format!("/api/v1/gauge-studies/{id}")).await;
+        if s["state"] == "done" {
+            assert_eq!(s["runs"].as_array().unwrap().len(), 4, "{s}");
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(600), "study: {s}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+
+    // The API: production only by default, every pool when asked.
+    let spc = admin(&d)
+        .get("/api/v1/recipes/spider-pools/spc?parameter=k0&last=1000")
+        .await;
+    let serials: Vec<&str> = spc["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["part_serial"].as_str().unwrap())
+        .collect();
+    assert_eq!(serials, ["P-1", "P-2", "P-3"], "{spc}");
+    let all = admin(&d)
+        .get("/api/v1/recipes/spider-pools/spc?parameter=k0&last=1000&purpose=all")
+        .await;
+    assert_eq!(
+        all["n"].as_u64().unwrap() + all["invalid"].as_u64().unwrap(),
+        13,
+        "{all}"
+    );
+
+    // The SPC view: n is the production parts', and says it counts them only.
+    b.login(&d.base, VIEWER, "viewer").await;
+    let n = b
+        .visit(
+            "#/qc/spider-pools?parameter=k0",
+            LONG,
+            "the SPC of k0",
+            "document.querySelector('#spc-plot canvas') && document.querySelector('#spc-stats').dataset.n",
+        )
+        .await;
+    assert_eq!(n, json!("3"), "SPC n in the view");
+    let stats = b.text("#spc-stats").await;
+    assert!(stats.contains("production parts only"), "{stats}");
+    let first_row = b.text("#spc-stats tr:first-child td").await;
+    assert_eq!(first_row, "3", "{stats}");
+    b.run("document.querySelector('#spc').scrollIntoView();")
+        .await;
+    b.screenshot_sizes("qc-spc-pools").await;
+    b.finish("in the SPC view after a gauge study and a bench calibration")
+        .await;
 }
 
 // ---- issue 23: a verdict that cannot be misread, results on every page, exports, report ----
