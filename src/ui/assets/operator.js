@@ -396,6 +396,20 @@ export async function render(main, ctx) {
     );
   }
 
+  // One line per failing value as shown: the repeats of a job that read the
+  // same (at the shown precision) are one line with their count, not the
+  // same line twice (seen at 1280x800, issue 35).
+  const failingLines = (failures) => {
+    const lines = new Map();
+    for (const f of failures || []) {
+      const t = failureText(f);
+      const l = lines.get(t);
+      if (l) l.n += 1;
+      else lines.set(t, { f, n: 1 });
+    }
+    return [...lines.entries()].map(([t, { f, n }]) => h('li', { dataset: { name: f.name } }, n > 1 ? `${t} (${n} repeats)` : t));
+  };
+
   // Full screen never takes the scanner's keys (issue 35): the button takes
   // no focus (a scan's Enter would press it and leave full screen), the
   // serial field gets the focus back, and a key typed anywhere else on the
@@ -487,7 +501,7 @@ export async function render(main, ctx) {
         put(verdictEl, head('pass', 'PASS', recipe, openLink));
       } else if (v.verdict === 'fail') {
         put(verdictEl, head('fail', 'FAIL',
-          h('ul', { class: 'failing', id: vp.id('failing') }, (d.failures || []).map((f) => h('li', { dataset: { name: f.name } }, failureText(f)))),
+          h('ul', { class: 'failing', id: vp.id('failing') }, failingLines(d.failures)),
           recipe, openLink));
       } else if (v.verdict === 'invalid') {
         const [first, ...rest] = rankReasons(d.invalid_reasons);

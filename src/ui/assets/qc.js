@@ -382,17 +382,22 @@ function drawSpc(el, ctx, name, params) {
     // A time axis (issue 35): hours since the window's first point, so that
     // gaps and shifts show; the recipe version changes are named.
     const t0 = pts.length ? Date.parse(pts[0].time) : 0;
+    // The axis unit follows the window's span: a shift's few minutes read
+    // as minutes, not as 5e-5 h (seen at 1280x800, issue 35).
+    const spanMs = pts.length ? Date.parse(pts[pts.length - 1].time) - t0 : 0;
+    const tu = spanMs >= 2 * 3.6e6 ? { name: 'hours', unit: 'h', ms: 3.6e6 }
+      : spanMs >= 2 * 6e4 ? { name: 'minutes', unit: 'min', ms: 6e4 } : { name: 'seconds', unit: 's', ms: 1e3 };
     const changes = pts.filter((p, i) => i > 0 && p.recipe_version !== pts[i - 1].recipe_version)
       .map((p) => `version ${p.recipe_version} from ${p.part_serial} (${new Date(Date.parse(p.time)).toLocaleString()})`);
     note.textContent = pts.length < 2 ? 'The chart needs at least two valid measurements.'
-      : `Individuals chart of the last ${pts.length} valid measurements (x: hours since ${new Date(t0).toLocaleString()}; hover for the part).`
+      : `Individuals chart of the last ${pts.length} valid measurements (x: ${tu.name} since ${new Date(t0).toLocaleString()}; hover for the part).`
         + (changes.length ? ` Recipe version changes: ${changes.join('; ')}.` : ` One recipe version${pts[0].recipe_version ? ` (${pts[0].recipe_version})` : ''}.`);
     note.dataset.versionChanges = String(changes.length);
     if (pts.length < 1) {
       plot.replaceChildren();
       return;
     }
-    const xs = pts.map((p) => (Date.parse(p.time) - t0) / 3.6e6);
+    const xs = pts.map((p) => (Date.parse(p.time) - t0) / tu.ms);
     const sc = (v) => (v === null || v === undefined ? null : v * du.scale);
     const flat = (v) => xs.map(() => sc(v));
     const su = du.unit;
@@ -407,7 +412,7 @@ function drawSpc(el, ctx, name, params) {
     chart(plot, {
       title: `${s.parameter}: individuals chart`,
       kind: 'SPC',
-      x: { label: 'time since the first point', unit: 'h' },
+      x: { label: 'time since the first point', unit: tu.unit },
       y: { label: s.parameter, unit: su },
       series,
       data: [xs, pts.map((p) => sc(p.value)), flat(s.lower), flat(s.upper), flat(s.center_line), flat(s.lcl), flat(s.ucl)],
