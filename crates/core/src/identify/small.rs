@@ -7,6 +7,7 @@ use super::prep::{band_spectra, check_signals, lowpass_for, noise_band};
 use super::{AnalyzeError, SmallSignal, WideBandResonance};
 use crate::dsp::{self, Complex64, Spectrum};
 use crate::recording::Signals;
+use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// Misfit (%) above which the pre-measurement is not taken as a linear resonator.
@@ -202,9 +203,18 @@ pub fn fit_spectra(
     // (A fit already unreliable keeps its reason: a sticking part's misfit
     // is partly "explained" by creep too.)
     let mut creep = None;
-    let whole = reliable
-        .then(|| wide_band_in(pre, drive, mass_kg, sx, sm, false, None))
-        .flatten();
+    // Both checks of the band (the whole band, and below the resonance)
+    // read the fit's transfer function and are independent of each other:
+    // side by side on rayon's pool (the same arithmetic on each).
+    let (whole, below) = if reliable {
+        let below_hz = Some(BELOW_RESONANCE * fpk);
+        rayon::join(
+            || wide_band_on(fs, &tf, &excited, mass_kg, sx, sm, false, None),
+            || wide_band_on(fs, &tf, &excited, mass_kg, sx, sm, false, below_hz),
+        )
+    } else {
+        (None, None)
+    };
     if let Some(wb) = &whole {
         let share = wb.creep_share_percent();
         // (its gain over the left-out bins out of the noise, decision 0073:
@@ -235,12 +245,6 @@ pub fn fit_spectra(
     // and creep with its corner near the band's start shows as a stiffness
     // that rises with frequency. Over the whole band the spider's own
     // harmonics above the resonance hide it (issue 22, decision 0052).
-    let below = reliable
-        .then(|| {
-            let below_hz = Some(BELOW_RESONANCE * fpk);
-            wide_band_in(pre, drive, mass_kg, sx, sm, false, below_hz)
-        })
-        .flatten();
     if let (None, Some(b)) = (&creep, &below) {
         if let Some(why) = b.creep_below_resonance(k0) {
             result
@@ -573,24 +577,26 @@ pub fn wide_band(
     with_resonance: bool,
     below_hz: Option<f64>,
 ) -> Option<WideBand> {
-    let band = drive_band(pre);
-    wide_band_in(pre, band, mass_kg, sx, sm, with_resonance, below_hz)
+    let fs = pre.sample_rate_hz;
+    let tf = dsp::transfer_function(sm, sx, sx.df_hz(), max_hz(fs));
+    let excited = excited_bins(drive_band(pre), sx, &tf);
+    wide_band_on(fs, &tf, &excited, mass_kg, sx, sm, with_resonance, below_hz)
 }
 
-/// [`wide_band`] with the drive's band found already ([`drive_band`]).
-fn wide_band_in(
-    pre: &Signals,
-    drive_band: Option<(f64, f64)>,
+/// [`wide_band`] on the transfer function the small-signal fit takes
+/// (`tf`: bins of the FFT's spacing up to [`max_hz`]) and its excited bins
+/// ([`excited_bins`]), found once for the fit and both of its checks.
+#[allow(clippy::too_many_arguments)]
+fn wide_band_on(
+    fs: f64,
+    tf: &dsp::TransferFunction,
+    excited: &[bool],
     mass_kg: f64,
     sx: &Spectrum,
     sm: &Spectrum,
     with_resonance: bool,
     below_hz: Option<f64>,
 ) -> Option<WideBand> {
-    let fs = pre.sample_rate_hz;
-    let fmax = max_hz(fs);
-    let tf = dsp::transfer_function(sm, sx, sx.df_hz(), fmax);
-    let excited = excited_bins(drive_band, sx, &tf);
     let f_in: Vec<f64> = (0..tf.freq_hz.len())
         .filter(|&k| excited[k] && tf.freq_hz[k] > 1.0)
         .map(|k| tf.freq_hz[k])
@@ -694,9 +700,15 @@ fn wide_band_in(
     };
     let mut creep = (mis_lin, f64::NAN, 0.0, c_lin[0], c_lin[1]);
     let mut creep_se = [f64::NAN; 2];
-    for tau in logspace(0.2 / (2.0 * PI * hi), 5.0 / (2.0 * PI * lo), 24) {
-        let e = creep_column(&ws, tau);
-        if let Some((l, m)) = fit_se(&wgt, Some(&e)) {
+    // The fits of the tau grid are independent: on rayon's pool, the best
+    // then chosen in the grid's order (the same choice as one by one).
+    let taus = logspace(0.2 / (2.0 * PI * hi), 5.0 / (2.0 * PI * lo), 24);
+    let fits: Vec<_> = taus
+        .par_iter()
+        .map(|&tau| fit_se(&wgt, Some(&creep_column(&ws, tau))))
+        .collect();
+    for (tau, fitted) in taus.into_iter().zip(fits) {
+        if let Some((l, m)) = fitted {
             if m < creep.0 {
                 let c = &l.coefficients;
                 creep = (m, tau, c[3], c[0], c[1]);
@@ -715,14 +727,16 @@ fn wide_band_in(
             let u = (ws[i] / ws[0]).ln() / (ws[n - 1] / ws[0]).ln();
             ((u * CREEP_FOLDS as f64) as usize).min(CREEP_FOLDS - 1)
         };
-        (0..CREEP_FOLDS)
-            .filter(|&k| {
-                let fitted = (
-                    solve(&wgt, None, &|i| fold(i) != k),
-                    solve(&wgt, Some(&e), &|i| fold(i) != k),
-                );
-                let (Some(cl), Some(cc)) = fitted else {
-                    return false;
+        // Each fold's two fits on rayon's pool; the gains are kept in the
+        // folds' order.
+        let folds: Vec<Option<(bool, Vec<f64>)>> = (0..CREEP_FOLDS)
+            .into_par_iter()
+            .map(|k| {
+                let (Some(cl), Some(cc)) = rayon::join(
+                    || solve(&wgt, None, &|i| fold(i) != k),
+                    || solve(&wgt, Some(&e), &|i| fold(i) != k),
+                ) else {
+                    return None;
                 };
                 let held = |c: &[f64], x: Option<&[Complex64]>| -> f64 {
                     (0..n)
@@ -730,12 +744,19 @@ fn wide_band_in(
                         .map(|i| err2(c, x, i))
                         .sum()
                 };
-                held_gain.extend(
-                    (0..n)
-                        .filter(|&i| fold(i) == k)
-                        .map(|i| err2(&cl, None, i) - err2(&cc, Some(&e), i)),
-                );
-                held(&cc, Some(&e)) < held(&cl, None)
+                let gain = (0..n)
+                    .filter(|&i| fold(i) == k)
+                    .map(|i| err2(&cl, None, i) - err2(&cc, Some(&e), i))
+                    .collect();
+                Some((held(&cc, Some(&e)) < held(&cl, None), gain))
+            })
+            .collect();
+        folds
+            .into_iter()
+            .flatten()
+            .filter(|(won, gain)| {
+                held_gain.extend(gain);
+                *won
             })
             .count()
     } else {
@@ -751,17 +772,28 @@ fn wide_band_in(
     };
     let mut best: Option<(f64, f64, f64, f64)> = None;
     if with_resonance {
-        for f2 in logspace(lo, 1.5 * hi, 48) {
-            let w2 = 2.0 * PI * f2;
-            for q in [0.7, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 30.0, 50.0] {
+        // The grid's fits on rayon's pool, the best chosen in its order.
+        let grid: Vec<(f64, f64)> = logspace(lo, 1.5 * hi, 48)
+            .into_iter()
+            .flat_map(|f2| {
+                [0.7, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 30.0, 50.0].map(|q| (f2, q))
+            })
+            .collect();
+        let fits: Vec<_> = grid
+            .par_iter()
+            .map(|&(f2, q)| {
+                let w2 = 2.0 * PI * f2;
                 let e: Vec<Complex64> = ws
                     .iter()
                     .map(|&w| -(w.powi(4)) / Complex64::new(w2 * w2 - w * w, w * w2 / q))
                     .collect();
-                if let Some((c, m)) = fit(&wgt, Some(&e)) {
-                    if best.is_none_or(|b| m < b.3) {
-                        best = Some((f2, q, c[3], m));
-                    }
+                fit(&wgt, Some(&e))
+            })
+            .collect();
+        for ((f2, q), fitted) in grid.into_iter().zip(fits) {
+            if let Some((c, m)) = fitted {
+                if best.is_none_or(|b| m < b.3) {
+                    best = Some((f2, q, c[3], m));
                 }
             }
         }

@@ -5,6 +5,7 @@
 use super::prep::Prepared;
 use super::{AnalyzeError, Method};
 use crate::dsp;
+use rayon::prelude::*;
 
 /// Highest order tried when the order is chosen from the data.
 pub const MAX_AUTO_ORDER: usize = 8;
@@ -200,6 +201,28 @@ fn nested(d: &(Vec<f64>, Vec<Vec<f64>>)) -> Result<dsp::lstsq::NestedLstsq, Anal
         .map_err(|e| AnalyzeError::Invalid(format!("stiffness fit failed: {e}")))
 }
 
+/// A least-squares design: the target and its columns.
+type Design = (Vec<f64>, Vec<Vec<f64>>);
+
+/// The plain design (residuals, order choice) and the factorised design
+/// of the coefficients (the whitened one when there is one, else the
+/// plain one): the whitened design and its factorisation are built beside
+/// the plain design on rayon's pool.
+fn designs(
+    p: &Prepared,
+    method: Method,
+    span: (usize, usize),
+    max_order: usize,
+    xs: f64,
+) -> (Design, Result<dsp::lstsq::NestedLstsq, AnalyzeError>) {
+    let (d, whitened) = rayon::join(
+        || design(p, method, span, max_order, xs),
+        || coefficient_design(p, method, span, max_order, xs).map(|c| nested(&c)),
+    );
+    let nl = whitened.unwrap_or_else(|| nested(&d));
+    (d, nl)
+}
+
 /// Fits K(x) over `span`; the order is `order` or chosen by the Bayesian
 /// information criterion on the effective number of independent samples
 /// (the band-limited noise is correlated over fs / (2 f_stop) samples).
@@ -219,26 +242,23 @@ pub fn fit(
                 "--order {n} is too high (at most {MAX_ORDER})"
             )));
         }
-        let d = design(p, method, span, n, xs);
-        let nl = nested(
-            coefficient_design(p, method, span, n, xs)
-                .as_ref()
-                .unwrap_or(&d),
-        )?;
-        return fit_order(p, method, span, n, xs, &d, &nl);
+        let (d, nl) = designs(p, method, span, n, xs);
+        return fit_order(p, method, span, n, xs, &d, &nl?);
     }
     let n = (span.1 - span.0) as f64;
     let n_eff = (n * 2.0 * p.lowpass.stop_hz / p.fs_hz).min(n);
     let mut best: Option<(f64, KFit)> = None;
     let mut bic = Vec::new();
-    let d = design(p, method, span, MAX_AUTO_ORDER, xs);
-    let nl = nested(
-        coefficient_design(p, method, span, MAX_AUTO_ORDER, xs)
-            .as_ref()
-            .unwrap_or(&d),
-    )?;
-    for ord in 1..=MAX_AUTO_ORDER {
-        let f = fit_order(p, method, span, ord, xs, &d, &nl)?;
+    let (d, nl) = designs(p, method, span, MAX_AUTO_ORDER, xs);
+    let (d, nl) = (d, nl?);
+    // The orders' fits (their residuals over the span) are independent:
+    // on rayon's pool, judged below in the orders' sequence.
+    let fits: Vec<Result<KFit, AnalyzeError>> = (1..=MAX_AUTO_ORDER)
+        .into_par_iter()
+        .map(|ord| fit_order(p, method, span, ord, xs, &d, &nl))
+        .collect();
+    for (ord, f) in (1..=MAX_AUTO_ORDER).zip(fits) {
+        let f = f?;
         // Residuals below 1e-5 of the target are numerical (float32 recordings,
         // band limiting), not structure that more terms should chase.
         let rss: f64 =
