@@ -149,6 +149,23 @@ fn body<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, Response> {
     })
 }
 
+/// A station's posted request: its body read, the caller's credential
+/// checked (before a bad body is named: a stranger learns nothing of the
+/// contract) and bound to the station the body claims.
+async fn station_request<T: serde::de::DeserializeOwned>(
+    st: &FleetState,
+    headers: &HeaderMap,
+    bytes: &[u8],
+    station_id: impl Fn(&T) -> &str,
+) -> Result<T, Response> {
+    let req: Result<T, _> = body(bytes);
+    let claimed = req.as_ref().ok().map(|r| station_id(r).to_string());
+    let cred = caller(st, headers, claimed.as_deref()).await?;
+    let req = req?;
+    bound(st, cred, station_id(&req)).await?;
+    Ok(req)
+}
+
 /// The answer to a store error: a refused item is 422 with its reason; an
 /// unavailable database 503 with Retry-After and no internals.
 fn store_error(e: StoreError) -> Response {
@@ -180,19 +197,10 @@ async fn hello(
     headers: HeaderMap,
     bytes: axum::body::Bytes,
 ) -> Response {
-    let h: Result<StationHello, _> = body(&bytes);
-    let claimed = h.as_ref().ok().map(|h| h.station_id.clone());
-    let cred = match caller(&st, &headers, claimed.as_deref()).await {
-        Ok(c) => c,
-        Err(r) => return r,
-    };
-    let h = match h {
+    let h = match station_request(&st, &headers, &bytes, |h: &StationHello| &h.station_id).await {
         Ok(h) => h,
         Err(r) => return r,
     };
-    if let Err(r) = bound(&st, cred, &h.station_id).await {
-        return r;
-    }
     match st.store.hello(&h).await {
         Ok(s) => Json(s).into_response(),
         Err(e) => store_error(e),
@@ -204,19 +212,10 @@ async fn items(
     headers: HeaderMap,
     bytes: axum::body::Bytes,
 ) -> Response {
-    let req: Result<ItemsRequest, _> = body(&bytes);
-    let claimed = req.as_ref().ok().map(|r| r.station_id.clone());
-    let cred = match caller(&st, &headers, claimed.as_deref()).await {
-        Ok(c) => c,
-        Err(r) => return r,
-    };
-    let req = match req {
+    let req = match station_request(&st, &headers, &bytes, |r: &ItemsRequest| &r.station_id).await {
         Ok(r) => r,
         Err(r) => return r,
     };
-    if let Err(r) = bound(&st, cred, &req.station_id).await {
-        return r;
-    }
     match st.store.ingest(&req.station_id, &req.items).await {
         Ok(report) => Json(report).into_response(),
         Err(e) => store_error(e),
@@ -240,19 +239,11 @@ async fn publish(
     headers: HeaderMap,
     bytes: axum::body::Bytes,
 ) -> Response {
-    let req: Result<PublishRequest, _> = body(&bytes);
-    let claimed = req.as_ref().ok().map(|r| r.station_id.clone());
-    let cred = match caller(&st, &headers, claimed.as_deref()).await {
-        Ok(c) => c,
-        Err(r) => return r,
-    };
-    let req = match req {
+    let req = match station_request(&st, &headers, &bytes, |r: &PublishRequest| &r.station_id).await
+    {
         Ok(r) => r,
         Err(r) => return r,
     };
-    if let Err(r) = bound(&st, cred, &req.station_id).await {
-        return r;
-    }
     let checked = serde_json::to_value(&req.recipe)
         .map_err(Problem::internal)
         .and_then(super::recipes::parse_recipe);
