@@ -94,13 +94,19 @@ fn job(serial: &str) -> Value {
 
 /// The center holds the recipe; the stations pull it.
 async fn center_holds_the_recipe(url: &str) {
+    center_holds(url, &recipe()).await;
+}
+
+/// The center at `url` holds `recipe` (version 1, created by `qc-engineer`),
+/// written to its database.
+pub(crate) async fn center_holds(url: &str, recipe: &Value) {
     let center = PgStore::connect(url).await.unwrap();
-    let r: springbench::qc::Recipe = serde_json::from_value(recipe()).unwrap();
+    let r: springbench::qc::Recipe = serde_json::from_value(recipe.clone()).unwrap();
     center
         .write_recipe(
-            RECIPE,
+            &r.name,
             &r.sha256(),
-            &recipe(),
+            recipe,
             "created",
             Some("qc-engineer"),
             springbench::store::qc::RecipeExpect::Absent,

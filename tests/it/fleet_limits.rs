@@ -15,7 +15,6 @@
 use crate::common::{client, problem, Daemon};
 use serde_json::{json, Value};
 use springbench_store_pg::test_server::{can_start_private, TestServer};
-use springbench_store_pg::PgStore;
 use std::time::{Duration, Instant};
 
 const RECIPE: &str = "spider-limits";
@@ -94,20 +93,7 @@ async fn a_client_over_its_spc_limit_gets_429_with_retry_after_and_another_clien
     }
     let pg = TestServer::start(55473).expect("a private PostgreSQL server");
     let url = pg.url();
-    let store = PgStore::connect(&url).await.unwrap();
-    let r: springbench::qc::Recipe = serde_json::from_value(recipe()).unwrap();
-    store
-        .write_recipe(
-            RECIPE,
-            &r.sha256(),
-            &recipe(),
-            "created",
-            Some("qc-engineer"),
-            springbench::store::qc::RecipeExpect::Absent,
-        )
-        .await
-        .unwrap();
-    store.close().await;
+    crate::fleet::center_holds(&url, &recipe()).await;
     let fleet = Daemon::start(&format!(
         "database = \"{url}\"\nbenches = []\nspc_per_client = 2\n\
          [[auth.tokens]]\nname = \"qe-1\"\ntoken = \"{QE_1}\"\nrole = \"viewer\"\n\
