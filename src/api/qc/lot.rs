@@ -1,12 +1,12 @@
 //! `GET /api/v1/recipes/{name}/lot.csv`: the lot export (issue 35). The
 //! table is `crate::qc::lot`; this reads the verdicts and their trace.
 
-use super::verdicts::{parse_purpose, parse_time, shown};
+use super::verdicts::{shown, VerdictWindow};
 use crate::api::problem::{ApiResult, Problem};
 use crate::api::reads::Reads;
 use crate::api::Q;
 use crate::qc::lot::LotRow;
-use crate::store::{RecipeReads, VerdictReads};
+use crate::store::RecipeReads;
 use axum::extract::{Path, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
@@ -46,26 +46,8 @@ pub async fn lot_csv<R: Reads>(
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
-    let since = parse_time("since", q.since.as_deref())?;
-    let until = parse_time("until", q.until.as_deref())?;
-    let purpose = parse_purpose(q.purpose.as_deref())?;
-    let max = R::SPC_WINDOW_MAX;
-    let rows = st
-        .results()
-        .recipe_verdicts(
-            &name,
-            purpose,
-            since.as_deref(),
-            until.as_deref(),
-            Some(max + 1),
-        )
-        .await?;
-    if rows.len() as i64 > max {
-        return Err(Problem::field(
-            "since",
-            format!("the window [since, until) holds more than {max} verdicts: export it in parts"),
-        ));
-    }
+    let w = VerdictWindow::parse(q.since.as_deref(), q.until.as_deref(), q.purpose.as_deref())?;
+    let rows = w.read(&st, &name, None, "export it in parts").await?;
     let lot: Vec<LotRow> = rows
         .into_iter()
         .map(shown)

@@ -134,6 +134,59 @@ pub fn parse_time(field: &str, s: Option<&str>) -> ApiResult<Option<String>> {
     }
 }
 
+/// A window of a recipe's verdicts as the SPC and the lot export name it:
+/// since and until (RFC 3339, normalised; each named when it does not read)
+/// and the pool (`purpose`: production by default, `None` for `all`).
+pub struct VerdictWindow {
+    pub since: Option<String>,
+    pub until: Option<String>,
+    pub purpose: Option<crate::job::Purpose>,
+}
+
+impl VerdictWindow {
+    pub fn parse(
+        since: Option<&str>,
+        until: Option<&str>,
+        purpose: Option<&str>,
+    ) -> ApiResult<VerdictWindow> {
+        Ok(VerdictWindow {
+            since: parse_time("since", since)?,
+            until: parse_time("until", until)?,
+            purpose: parse_purpose(purpose)?,
+        })
+    }
+
+    /// The window's verdicts of recipe `name`, the newest `last` (every one
+    /// when `None`); a 422 naming `since` when the window holds more than
+    /// the reader's SPC maximum (`advice`: what the client does instead).
+    pub async fn read<R: Reads>(
+        &self,
+        st: &R,
+        name: &str,
+        last: Option<i64>,
+        advice: &str,
+    ) -> ApiResult<Vec<crate::store::qc::VerdictRow>> {
+        let max = R::SPC_WINDOW_MAX;
+        let rows = st
+            .results()
+            .recipe_verdicts(
+                name,
+                self.purpose,
+                self.since.as_deref(),
+                self.until.as_deref(),
+                Some(last.unwrap_or(max + 1)),
+            )
+            .await?;
+        if rows.len() as i64 > max {
+            return Err(Problem::field(
+                "since",
+                format!("the window [since, until) holds more than {max} verdicts: {advice}"),
+            ));
+        }
+        Ok(rows)
+    }
+}
+
 /// `GET /api/v1/recipes/{name}/spc?parameter=&last=&since=&until=&format=json|csv`.
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/spc", tag = "qc",
     summary = "SPC of one parameter over a window of valid measurement verdicts of one pool (`purpose`, default production: golden units, bench calibrations, gauge studies, repeats and engineering runs are not counted unless asked), one point per part and job (and level): a job's repeats are averaged into one point. n (points), mean, sigma (overall), sigma_within (average moving range of the points / 1.128), Cp, Cpk (within), Pp, Ppk (overall), yield, individuals-chart data. `format=csv` gives the chart points as CSV.",
@@ -160,12 +213,10 @@ pub async fn spc<R: Reads>(
         Some("csv") => true,
         Some(f) => return Err(Problem::field("format", format!("json or csv, got '{f}'"))),
     };
-    let since = parse_time("since", q.since.as_deref())?;
-    let until = parse_time("until", q.until.as_deref())?;
-    let purpose = parse_purpose(q.purpose.as_deref())?;
+    let w = VerdictWindow::parse(q.since.as_deref(), q.until.as_deref(), q.purpose.as_deref())?;
     let max = R::SPC_WINDOW_MAX;
     let last = match q.last {
-        None if since.is_none() && until.is_none() => Some(100),
+        None if w.since.is_none() && w.until.is_none() => Some(100),
         None => None,
         Some(n) if (1..=max).contains(&n) => Some(n),
         Some(n) => {
@@ -195,25 +246,8 @@ pub async fn spc<R: Reads>(
             format!("recipe '{name}' has no parameter '{pname}'"),
         ));
     };
-    let rows = st
-        .results()
-        .recipe_verdicts(
-            &name,
-            purpose,
-            since.as_deref(),
-            until.as_deref(),
-            Some(last.unwrap_or(max + 1)),
-        )
-        .await?;
-    if rows.len() as i64 > max {
-        return Err(Problem::field(
-            "since",
-            format!(
-                "the window [since, until) holds more than {max} verdicts: narrow it or give last{}",
-                R::SPC_WINDOW_HINT
-            ),
-        ));
-    }
+    let advice = format!("narrow it or give last{}", R::SPC_WINDOW_HINT);
+    let rows = w.read(&st, &name, last, &advice).await?;
     let mut points = Vec::new();
     let mut invalid = 0;
     // A verdict whose stored detail this version cannot read (written by
@@ -278,7 +312,7 @@ pub async fn spc<R: Reads>(
     let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
     doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
     doc["unreadable_verdicts"] = json!(left_out);
-    doc["purpose"] = json!(purpose.map_or("all", |p| p.as_str()));
+    doc["purpose"] = json!(w.purpose.map_or("all", |p| p.as_str()));
     if left_out > 0 {
         // Each part named once (a part's verdicts need not be adjacent).
         unreadable.sort();
