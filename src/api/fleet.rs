@@ -910,8 +910,7 @@ pub async fn spc(
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
-    let recipe: crate::qc::Recipe =
-        serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let recipe = row.recipe;
     let names = || {
         recipe
             .parameters

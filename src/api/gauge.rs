@@ -350,9 +350,7 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
     let mut not_computed = vec![];
     if done {
         let recipe_row = st.store.get_recipe(&req.recipe, version).await?;
-        let recipe: Option<Recipe> = recipe_row
-            .as_ref()
-            .and_then(|r| serde_json::from_value(r.recipe.clone()).ok());
+        let recipe: Option<Recipe> = recipe_row.map(|r| r.recipe);
         for p in recipe.iter().flat_map(|r| r.parameters.iter()) {
             // values[part][bench][repeat]
             let mut grid =

@@ -41,6 +41,17 @@ use serde_json::Value;
 use std::sync::Arc;
 use tokio::sync::watch;
 
+/// A document served with its object keys sorted: the order every document
+/// the API built as a `serde_json::Value` was served in (that map sorts), so
+/// a document now served from its type reads byte for byte as before.
+pub struct Sorted<T>(pub T);
+
+impl<T: serde::Serialize> serde::Serialize for Sorted<T> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        crate::store::sorted(&self.0, s)
+    }
+}
+
 #[derive(Clone)]
 pub struct AppState {
     pub store: Store,

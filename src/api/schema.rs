@@ -185,7 +185,6 @@ pub struct CalibrationList {
 
 /// A recipe version with whether it has limits.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct RecipeDocument {
     #[schema(inline)]
     #[serde(flatten)]
@@ -194,9 +193,17 @@ pub struct RecipeDocument {
     pub has_limits: bool,
 }
 
+impl RecipeDocument {
+    pub fn of(row: &RecipeRow) -> Self {
+        RecipeDocument {
+            has_limits: row.recipe.has_limits(),
+            row: row.clone(),
+        }
+    }
+}
+
 /// A list of recipe versions.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct RecipeList {
     pub items: Vec<RecipeDocument>,
 }

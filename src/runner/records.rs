@@ -10,7 +10,13 @@ impl Runner {
         &self,
         r: &job::RecipeRef,
     ) -> StoreResult<Result<crate::qc::Recipe, String>> {
-        let Some(row) = self.store.get_recipe(&r.name, Some(r.version)).await? else {
+        // A body the recipe type cannot read is this job's failure (named),
+        // not the store's.
+        let row = match self.store.get_recipe(&r.name, Some(r.version)).await {
+            Err(crate::store::StoreError::Corrupt(why)) => return Ok(Err(why)),
+            other => other?,
+        };
+        let Some(row) = row else {
             return Ok(Err(format!(
                 "recipe {} version {} is not stored",
                 r.name, r.version
@@ -25,19 +31,14 @@ impl Runner {
                 r.name, r.version
             )));
         }
-        Ok(
-            match serde_json::from_value::<crate::qc::Recipe>(row.recipe) {
-                Ok(rec) if rec.sha256() == r.sha256 => Ok(rec),
-                Ok(_) => Err(format!(
-                    "recipe {} version {} does not have the hash {} any more",
-                    r.name, r.version, r.sha256
-                )),
-                Err(e) => Err(format!(
-                    "recipe {} version {} unreadable: {e}",
-                    r.name, r.version
-                )),
-            },
-        )
+        Ok(if row.recipe.sha256() == r.sha256 {
+            Ok(row.recipe)
+        } else {
+            Err(format!(
+                "recipe {} version {} does not have the hash {} any more",
+                r.name, r.version, r.sha256
+            ))
+        })
     }
 
     /// Verdicts (per measurement and for the job) with traceability, and the

@@ -106,7 +106,7 @@ pub(crate) async fn center_holds(url: &str, recipe: &Value) {
         .write_recipe(
             &r.name,
             &r.sha256(),
-            recipe,
+            &r,
             "created",
             Some("qc-engineer"),
             springbench::store::qc::RecipeExpect::Absent,

@@ -312,7 +312,7 @@ impl PgStore {
         &self,
         name: &str,
         sha256: &str,
-        body: &serde_json::Value,
+        body: &springbench_core::qc::Recipe,
         origin: &str,
         created_by: Option<&str>,
         expect: RecipeExpect,
@@ -344,7 +344,7 @@ impl PgStore {
         .bind(name)
         .bind(cur.map_or(1, |c| c.0 + 1))
         .bind(sha256)
-        .bind(body.to_string())
+        .bind(springbench_store::recipe_json(body))
         .bind(origin)
         .bind(created_by)
         .bind(now())
@@ -352,7 +352,7 @@ impl PgStore {
         .await?;
         let stored = recipe_from_row(&row)?;
         tx.commit().await?;
-        Ok(RecipeWrite::Stored(stored))
+        Ok(RecipeWrite::Stored(Box::new(stored)))
     }
 
     /// Retires one version of a recipe, or (None) every version: stations

@@ -110,7 +110,11 @@ pub(crate) fn recipe_from_row(r: &PgRow) -> StoreResult<RecipeRow> {
         name: r.get("name"),
         version: r.get("version"),
         sha256: r.get("sha256"),
-        recipe: parse_json(&r.get::<String, _>("body_json"))?,
+        recipe: springbench_store::parse_recipe(
+            &r.get::<String, _>("name"),
+            r.get("version"),
+            &r.get::<String, _>("body_json"),
+        )?,
         origin: r.get("origin"),
         proposal_id: r.get("proposal_id"),
         retired: r.get("retired"),

@@ -199,12 +199,10 @@ impl PgStore {
         let kind = match &cur {
             None => ProposalKind::Create,
             Some(c) if c.sha256 == sha && !c.retired => return Ok(Proposed::Unchanged(c.version)),
-            Some(c) => match serde_json::from_value::<Recipe>(c.recipe.clone()) {
-                Ok(base) if without_limits(&base) == without_limits(&p.recipe) => {
-                    ProposalKind::Limits
-                }
-                _ => ProposalKind::Edit,
-            },
+            Some(c) if without_limits(&c.recipe) == without_limits(&p.recipe) => {
+                ProposalKind::Limits
+            }
+            Some(_) => ProposalKind::Edit,
         };
         let body = serde_json::to_string(&p.recipe)
             .map_err(|e| StoreError::Invalid(format!("recipe: {e}")))?;

@@ -181,3 +181,26 @@ fn parse_config(s: &str) -> StoreResult<springbench_core::job::MeasurementConfig
 fn parse_json(s: &str) -> StoreResult<Value> {
     serde_json::from_str(s).map_err(|e| StoreError::Corrupt(format!("stored JSON unreadable: {e}")))
 }
+
+/// A stored recipe version's document, read into its type at the store's
+/// edge: a body the recipe type does not accept is `Corrupt`, naming the
+/// version, never a half-read recipe.
+pub fn parse_recipe(name: &str, version: i64, body: &str) -> StoreResult<springbench_core::qc::Recipe> {
+    serde_json::from_str(body).map_err(|e| {
+        StoreError::Corrupt(format!("recipe '{name}' version {version} unreadable: {e}"))
+    })
+}
+
+/// The stored text of a recipe document: its keys sorted, as recipes have
+/// always been written (they were `serde_json::Value`s, whose maps sort).
+pub fn recipe_json(r: &springbench_core::qc::Recipe) -> String {
+    serde_json::to_value(r).map(|v| v.to_string()).unwrap_or_default()
+}
+
+/// Serialises a document with its object keys sorted, so that a stored
+/// document served from its type reads byte for byte as it did when it was
+/// served from a `serde_json::Value`.
+pub fn sorted<T: serde::Serialize, S: serde::Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
+    use serde::Serialize;
+    serde_json::to_value(v).map_err(serde::ser::Error::custom)?.serialize(s)
+}

@@ -104,7 +104,11 @@ fn recipe_from_row(r: &SqliteRow) -> StoreResult<RecipeRow> {
         name: r.get("name"),
         version: r.get("version"),
         sha256: r.get("sha256"),
-        recipe: parse_json(&r.get::<String, _>("body_json"))?,
+        recipe: crate::parse_recipe(
+            &r.get::<String, _>("name"),
+            r.get("version"),
+            &r.get::<String, _>("body_json"),
+        )?,
         origin: r.get("origin"),
         proposal_id: r.get("proposal_id"),
         retired: r.get::<i64, _>("retired") != 0,
@@ -276,7 +280,7 @@ impl Store {
         &self,
         name: &str,
         sha256: &str,
-        body: &Value,
+        body: &springbench_core::qc::Recipe,
         origin: &str,
         created_by: Option<&str>,
         expect: RecipeExpect,
@@ -293,7 +297,7 @@ impl Store {
         }
         let row = insert_recipe_tx(&mut tx, name, sha256, body, origin, None, created_by).await?;
         tx.commit().await?;
-        Ok(RecipeWrite::Stored(row))
+        Ok(RecipeWrite::Stored(Box::new(row)))
     }
 
     /// Retires a recipe (every version stays for traceability); false when unknown.
@@ -366,7 +370,7 @@ impl Store {
         &self,
         id: &str,
         sha256: &str,
-        recipe: &Value,
+        recipe: &springbench_core::qc::Recipe,
         by: Option<&str>,
     ) -> StoreResult<Approval> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
@@ -416,7 +420,7 @@ impl Store {
         .execute(&mut *tx)
         .await?;
         tx.commit().await?;
-        Ok(Approval::Approved(row))
+        Ok(Approval::Approved(Box::new(row)))
     }
 
     /// Rejects a proposal; false when it was decided before.
@@ -649,7 +653,7 @@ pub enum RecipeExpect {
 /// The outcome of [`Store::write_recipe`].
 #[derive(Debug, Clone)]
 pub enum RecipeWrite {
-    Stored(RecipeRow),
+    Stored(Box<RecipeRow>),
     /// The expectation did not hold: the newest (version, retired), if any.
     Conflict(Option<(i64, bool)>),
 }
@@ -657,7 +661,7 @@ pub enum RecipeWrite {
 /// The outcome of [`Store::approve_proposal`].
 #[derive(Debug, Clone)]
 pub enum Approval {
-    Approved(RecipeRow),
+    Approved(Box<RecipeRow>),
     /// Approved or rejected before.
     Decided,
     /// Not made on the current version of a live recipe (why).
@@ -693,7 +697,7 @@ async fn insert_recipe_tx(
     tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
     name: &str,
     sha256: &str,
-    body: &Value,
+    body: &springbench_core::qc::Recipe,
     origin: &str,
     proposal_id: Option<&str>,
     created_by: Option<&str>,
@@ -706,7 +710,7 @@ async fn insert_recipe_tx(
     .bind(name.to_string())
     .bind(name.to_string())
     .bind(sha256.to_string())
-    .bind(body.to_string())
+    .bind(crate::recipe_json(body))
     .bind(origin.to_string())
     .bind(proposal_id.map(str::to_string))
     .bind(created_by.map(str::to_string))

@@ -100,9 +100,9 @@ pub struct RecipeRow {
     pub name: String,
     pub version: i64,
     pub sha256: String,
-    /// The recipe document ([`crate::qc::Recipe`]).
-    #[schema(value_type = springbench_core::qc::Recipe)]
-    pub recipe: Value,
+    /// The recipe document, served with its keys sorted as it always was.
+    #[serde(serialize_with = "crate::sorted")]
+    pub recipe: springbench_core::qc::Recipe,
     /// `created`, `edited` or `limits_approved`.
     pub origin: String,
     pub proposal_id: Option<String>,

@@ -355,8 +355,15 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
     }
 }
 
-/// A backend that holds versions 1 and 2 of recipe `name` (body
-/// `{"version": v}`) and, on measurement `m`, fit `fit` chosen as its
+/// Version `v` of recipe R: its description names the version.
+pub fn recipe_v(v: i64) -> springbench_core::qc::Recipe {
+    serde_json::from_value(json!({"name": "R", "description": format!("version {v}"),
+        "procedure": {"levels_m": [0.004]}, "parameters": []}))
+    .unwrap()
+}
+
+/// A backend that holds versions 1 and 2 of recipe `name` (described
+/// "version v") and, on measurement `m`, fit `fit` chosen as its
 /// headline by `who`.
 pub async fn recipe_and_fit_reads<S: RecipeReads + FitReads>(
     s: &S,
@@ -368,10 +375,10 @@ pub async fn recipe_and_fit_reads<S: RecipeReads + FitReads>(
     let newest = s.get_recipe(name, None).await.unwrap().expect("recipe");
     assert_eq!(
         (newest.version, newest.recipe.clone()),
-        (2, json!({"version": 2}))
+        (2, recipe_v(2))
     );
     let v1 = s.get_recipe(name, Some(1)).await.unwrap().expect("v1");
-    assert_eq!(v1.recipe, json!({"version": 1}));
+    assert_eq!(v1.recipe, recipe_v(1));
     assert!(s.get_recipe(name, Some(3)).await.unwrap().is_none());
     let versions: Vec<i64> = s
         .recipe_versions(name)
@@ -402,7 +409,7 @@ macro_rules! seed {
             s.write_recipe(
                 "R",
                 &format!("{v:064}"),
-                &json!({"version": v}),
+                &recipe_v(v),
                 "created",
                 Some("qe"),
                 RecipeExpect::Any,

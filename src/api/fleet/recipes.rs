@@ -351,10 +351,7 @@ pub async fn approve(
 }
 
 fn version_response(row: &RecipeRow) -> Response {
-    let mut doc = serde_json::to_value(row).unwrap_or_default();
-    doc["has_limits"] = serde_json::json!(serde_json::from_value::<Recipe>(row.recipe.clone())
-        .map(|x| x.has_limits())
-        .unwrap_or(false));
+    let doc = crate::api::Sorted(crate::api::schema::RecipeDocument::of(row));
     let mut r = located(
         StatusCode::CREATED,
         &format!("/api/v1/recipes/{}/versions/{}", row.name, row.version),

@@ -86,7 +86,7 @@ pub async fn propose(
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
-    let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let recipe = row.recipe;
     let mut golden = Vec::new();
     let mut errors = Vec::new();
     for (i, s) in b.serials.iter().enumerate() {
@@ -130,7 +130,7 @@ pub async fn propose(
     Ok(located(
         StatusCode::CREATED,
         format!("/api/v1/limit-proposals/{id}"),
-        serde_json::to_value(&row).map_err(Problem::internal)?,
+        crate::api::Sorted(&row),
     ))
 }
 
@@ -204,10 +204,9 @@ pub async fn approve(
         return Err(decided(&p));
     }
     let recipe: &Recipe = &p.proposal.recipe;
-    let body = serde_json::to_value(recipe).map_err(Problem::internal)?;
     match st
         .store
-        .approve_proposal(&id, &recipe.sha256(), &body, caller.0.as_deref())
+        .approve_proposal(&id, &recipe.sha256(), recipe, caller.0.as_deref())
         .await?
     {
         Approval::Approved(row) => Ok(recipe_response(

@@ -5,7 +5,8 @@ use super::parse_body;
 use crate::api::auth::Caller;
 use crate::api::problem::{ApiResult, Problem};
 use crate::api::reads::Reads;
-use crate::api::{AppState, JsonBody};
+use crate::api::schema::{RecipeDocument, RecipeList};
+use crate::api::{AppState, JsonBody, Sorted};
 use crate::qc::Recipe;
 use crate::store::qc::{RecipeExpect, RecipeRow, RecipeWrite};
 use crate::store::RecipeReads;
@@ -32,15 +33,12 @@ fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
     Ok(r)
 }
 
-fn recipe_doc(r: &RecipeRow) -> Value {
-    let mut v = serde_json::to_value(r).unwrap_or(Value::Null);
-    v["has_limits"] = json!(serde_json::from_value::<Recipe>(r.recipe.clone())
-        .map(|x| x.has_limits())
-        .unwrap_or(false));
-    v
+/// A recipe version as served: the row, whether it has limits, keys sorted.
+fn recipe_doc(r: &RecipeRow) -> Sorted<RecipeDocument> {
+    Sorted(RecipeDocument::of(r))
 }
 
-pub(super) fn located(status: StatusCode, loc: String, body: Value) -> Response {
+pub(super) fn located<T: serde::Serialize>(status: StatusCode, loc: String, body: T) -> Response {
     let mut r = (status, Json(body)).into_response();
     if let Ok(v) = HeaderValue::from_str(&loc) {
         r.headers_mut().insert(header::LOCATION, v);
@@ -129,14 +127,13 @@ pub async fn create(
             ),
         )
     };
-    let body = serde_json::to_value(&r).map_err(Problem::internal)?;
     // Checked inside the write: of two concurrent creations one gets 409.
     match st
         .store
         .write_recipe(
             &r.name,
             &r.sha256(),
-            &body,
+            &r,
             "created",
             caller.0.as_deref(),
             RecipeExpect::Absent,
@@ -181,12 +178,11 @@ pub async fn update(
             return Ok(recipe_response(StatusCode::OK, None, c));
         }
     }
-    let body = serde_json::to_value(&r).map_err(Problem::internal)?;
     let origin = if cur.is_some() { "edited" } else { "created" };
     let expect = expect.unwrap_or(RecipeExpect::Any);
     match st
         .store
-        .write_recipe(&name, &sha, &body, origin, caller.0.as_deref(), expect)
+        .write_recipe(&name, &sha, &r, origin, caller.0.as_deref(), expect)
         .await?
     {
         RecipeWrite::Stored(row) => Ok(recipe_response(
@@ -204,15 +200,15 @@ pub async fn update(
 #[utoipa::path(get, path = "/api/v1/recipes", tag = "qc",
     summary = "The newest version of every recipe.",
     responses((status = 200, description = "Recipes", body = crate::api::schema::RecipeList)))]
-pub async fn list<R: Reads>(State(st): State<R>) -> ApiResult<Json<Value>> {
-    let items: Vec<Value> = st
+pub async fn list<R: Reads>(State(st): State<R>) -> ApiResult<Json<Sorted<RecipeList>>> {
+    let items = st
         .results()
         .list_recipes()
         .await?
         .iter()
-        .map(recipe_doc)
+        .map(RecipeDocument::of)
         .collect();
-    Ok(Json(json!({"items": items})))
+    Ok(Json(Sorted(RecipeList { items })))
 }
 
 #[utoipa::path(get, path = "/api/v1/recipes/{name}", tag = "qc",
@@ -243,13 +239,13 @@ pub async fn get_one<R: Reads>(
 pub async fn versions<R: Reads>(
     State(st): State<R>,
     Path(name): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<Sorted<RecipeList>>> {
     let v = st.results().recipe_versions(&name).await?;
     if v.is_empty() {
         return Err(Problem::not_found("recipe", &name));
     }
-    let items: Vec<Value> = v.iter().map(recipe_doc).collect();
-    Ok(Json(json!({"items": items})))
+    let items = v.iter().map(RecipeDocument::of).collect();
+    Ok(Json(Sorted(RecipeList { items })))
 }
 
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/versions/{version}", tag = "qc",
@@ -261,7 +257,7 @@ pub async fn versions<R: Reads>(
 pub async fn version<R: Reads>(
     State(st): State<R>,
     Path((name, version)): Path<(String, i64)>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<Sorted<RecipeDocument>>> {
     let r = st
         .results()
         .get_recipe(&name, Some(version))
@@ -306,7 +302,7 @@ pub async fn recipe_for_job(st: &AppState, name: &str) -> ApiResult<JobRecipe> {
         })?;
     // A fleet station's verdicts name where the version comes from.
     let origin = st.cfg.fleet.is_some().then(|| row.origin());
-    let recipe: Recipe = serde_json::from_value(row.recipe).map_err(Problem::internal)?;
+    let recipe = row.recipe;
     Ok(JobRecipe {
         reference: crate::runner::job::RecipeRef {
             name: name.to_string(),
@@ -391,7 +387,7 @@ pub async fn publish(
             ),
         ));
     }
-    let recipe: Recipe = serde_json::from_value(row.recipe).map_err(Problem::internal)?;
+    let recipe = row.recipe;
     let center = crate::fleet::http::HttpCenter::new(fleet).map_err(Problem::internal)?;
     let req = crate::fleet::http::PublishRequest {
         station_id: fleet.station_id.clone(),

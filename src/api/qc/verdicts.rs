@@ -3,7 +3,6 @@
 use crate::api::problem::{ApiResult, Problem};
 use crate::api::reads::Reads;
 use crate::api::Q;
-use crate::qc::Recipe;
 use crate::store::{RecipeReads, VerdictReads};
 use axum::extract::{Path, State};
 use axum::http::header;
@@ -207,7 +206,7 @@ pub async fn spc<R: Reads>(
         .get_recipe(&name, None)
         .await?
         .ok_or_else(|| Problem::not_found("recipe", &name))?;
-    let recipe: Recipe = serde_json::from_value(row.recipe.clone()).map_err(Problem::internal)?;
+    let recipe = &row.recipe;
     let csv = match q.format.as_deref() {
         None | Some("") | Some("json") => false,
         Some("csv") => true,
