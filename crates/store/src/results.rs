@@ -100,7 +100,7 @@ pub struct RecipeRow {
     pub name: String,
     pub version: i64,
     pub sha256: String,
-    /// The recipe document, served with its keys sorted as it always was.
+    /// The recipe document (its keys in sorted order).
     #[serde(serialize_with = "crate::sorted")]
     pub recipe: springbench_core::qc::Recipe,
     /// `created`, `edited` or `limits_approved`.
