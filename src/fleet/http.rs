@@ -206,7 +206,9 @@ impl CenterIngest for HttpCenter {
             .filter_map(|r| match serde_json::from_str::<RecipeRow>(r.get()) {
                 Ok(row) => Some(row),
                 Err(e) => {
-                    tracing::warn!("fleet: a recipe version from the center is unreadable here, left out: {e}");
+                    tracing::warn!(
+                        "fleet: a recipe version from the center is unreadable here, left out: {e}"
+                    );
                     None
                 }
             })

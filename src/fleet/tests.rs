@@ -375,8 +375,10 @@ async fn recipes_come_from_the_center_with_their_retirements() {
         name: "spider-4in".into(),
         version: v,
         sha256: format!("{v:064}"),
-        recipe: serde_json::from_value(json!({"name": "spider-4in", "description": format!("version {v}"),
-            "procedure": {"levels_m": [0.004]}, "parameters": []}))
+        recipe: serde_json::from_value(
+            json!({"name": "spider-4in", "description": format!("version {v}"),
+            "procedure": {"levels_m": [0.004]}, "parameters": []}),
+        )
         .unwrap(),
         origin: "created".into(),
         proposal_id: None,

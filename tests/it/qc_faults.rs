@@ -153,8 +153,10 @@ async fn a_full_disk_leaves_no_broken_connection_in_the_pool() {
     let Some(fs) = Tmpfs::mount("6m") else { return };
     let store = springbench::store::Store::open(fs.path()).await.unwrap();
     let body = |i: usize| -> springbench::qc::Recipe {
-        serde_json::from_value(json!({"name": "r", "description": format!("{i} {}", "x".repeat(50_000)),
-            "procedure": {"levels_m": [0.004]}, "parameters": []}))
+        serde_json::from_value(
+            json!({"name": "r", "description": format!("{i} {}", "x".repeat(50_000)),
+            "procedure": {"levels_m": [0.004]}, "parameters": []}),
+        )
         .unwrap()
     };
     for i in 0..5 {

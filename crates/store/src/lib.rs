@@ -185,7 +185,11 @@ fn parse_json(s: &str) -> StoreResult<Value> {
 /// A stored recipe version's document, read into its type at the store's
 /// edge: a body the recipe type does not accept is `Corrupt`, naming the
 /// version, never a half-read recipe.
-pub fn parse_recipe(name: &str, version: i64, body: &str) -> StoreResult<springbench_core::qc::Recipe> {
+pub fn parse_recipe(
+    name: &str,
+    version: i64,
+    body: &str,
+) -> StoreResult<springbench_core::qc::Recipe> {
     serde_json::from_str(body).map_err(|e| {
         StoreError::Corrupt(format!("recipe '{name}' version {version} unreadable: {e}"))
     })
@@ -194,7 +198,9 @@ pub fn parse_recipe(name: &str, version: i64, body: &str) -> StoreResult<springb
 /// The stored text of a recipe document: its keys sorted, as recipes have
 /// always been written (they were `serde_json::Value`s, whose maps sort).
 pub fn recipe_json(r: &springbench_core::qc::Recipe) -> String {
-    serde_json::to_value(r).map(|v| v.to_string()).unwrap_or_default()
+    serde_json::to_value(r)
+        .map(|v| v.to_string())
+        .unwrap_or_default()
 }
 
 /// Serialises a document with its object keys sorted, so that a stored
@@ -202,5 +208,7 @@ pub fn recipe_json(r: &springbench_core::qc::Recipe) -> String {
 /// served from a `serde_json::Value`.
 pub fn sorted<T: serde::Serialize, S: serde::Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
     use serde::Serialize;
-    serde_json::to_value(v).map_err(serde::ser::Error::custom)?.serialize(s)
+    serde_json::to_value(v)
+        .map_err(serde::ser::Error::custom)?
+        .serialize(s)
 }

@@ -373,10 +373,7 @@ pub async fn recipe_and_fit_reads<S: RecipeReads + FitReads>(
     who: &str,
 ) {
     let newest = s.get_recipe(name, None).await.unwrap().expect("recipe");
-    assert_eq!(
-        (newest.version, newest.recipe.clone()),
-        (2, recipe_v(2))
-    );
+    assert_eq!((newest.version, newest.recipe.clone()), (2, recipe_v(2)));
     let v1 = s.get_recipe(name, Some(1)).await.unwrap().expect("v1");
     assert_eq!(v1.recipe, recipe_v(1));
     assert!(s.get_recipe(name, Some(3)).await.unwrap().is_none());
