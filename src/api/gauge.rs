@@ -297,7 +297,7 @@ async fn run_values(
             continue;
         }
         version = Some(v.recipe_version);
-        if let Ok(verdict) = serde_json::from_value::<crate::qc::Verdict>(v.detail.clone()) {
+        if let Ok(verdict) = v.verdict_detail() {
             verdicts.push(verdict);
         }
     }

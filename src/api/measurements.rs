@@ -111,9 +111,13 @@ pub async fn get_one<R: Reads>(
         .ok_or_else(|| Problem::not_found("measurement", &id))?;
     let mut doc = document(&info, result, meta);
     // The QC verdict of this measurement (with its traceability), null without a recipe.
-    doc["measurement"]["verdict"] =
-        serde_json::to_value(store.measurement_verdict(&id).await?.map(super::qc::shown))
-            .unwrap_or(Value::Null);
+    doc["measurement"]["verdict"] = serde_json::to_value(
+        store
+            .measurement_verdict(&id)
+            .await?
+            .map(crate::store::qc::VerdictRow::shown),
+    )
+    .unwrap_or(Value::Null);
     // Which stored fit supplies the headline (chosen by a person), null: this result.
     doc["measurement"]["headline"] =
         serde_json::to_value(store.headline_choice(&id).await?).unwrap_or(Value::Null);

@@ -159,6 +159,34 @@ pub struct VerdictRow {
     pub level_index: Option<i64>,
 }
 
+impl VerdictRow {
+    /// The stored detail read into its type; Err says why it does not read
+    /// (written by another software version, or damaged).
+    pub fn verdict_detail(&self) -> Result<springbench_core::qc::Verdict, String> {
+        serde_json::from_value(self.detail.clone()).map_err(|e| e.to_string())
+    }
+
+    /// The stored traceability read into its type.
+    pub fn trace(&self) -> Result<springbench_core::qc::trace::VerdictTrace, String> {
+        serde_json::from_value(self.traceability.clone()).map_err(|e| e.to_string())
+    }
+
+    /// The row as it is shown: an invalid verdict is never judged, not even
+    /// per parameter (values and limits as measured, each `not_judged`, no
+    /// failures; issue 35), also when it was stored before that rule. A
+    /// detail this version cannot read is passed on unchanged.
+    pub fn shown(mut self) -> Self {
+        if self.verdict == springbench_core::qc::VerdictKind::Invalid.as_str() {
+            if let Ok(v) = self.verdict_detail() {
+                if let Ok(d) = serde_json::to_value(springbench_core::qc::never_judge_invalid(v)) {
+                    self.detail = d;
+                }
+            }
+        }
+        self
+    }
+}
+
 /// A new measurement to store.
 #[derive(Debug, Clone)]
 pub struct NewMeasurement {

@@ -1,7 +1,7 @@
 //! `GET /api/v1/recipes/{name}/lot.csv`: the lot export (issue 35). The
 //! table is `crate::qc::lot`; this reads the verdicts and their trace.
 
-use super::verdicts::{shown, VerdictWindow};
+use super::verdicts::VerdictWindow;
 use crate::api::problem::{ApiResult, Problem};
 use crate::api::reads::Reads;
 use crate::api::Q;
@@ -50,11 +50,9 @@ pub async fn lot_csv<R: Reads>(
     let rows = w.read(&st, &name, None, "export it in parts").await?;
     let lot: Vec<LotRow> = rows
         .into_iter()
-        .map(shown)
+        .map(crate::store::qc::VerdictRow::shown)
         .map(|r| {
-            let trace =
-                serde_json::from_value::<crate::qc::trace::VerdictTrace>(r.traceability.clone())
-                    .ok();
+            let trace = r.trace().ok();
             LotRow {
                 time_utc: r.created_at.clone(),
                 part_serial: r.part_serial.clone(),
@@ -66,7 +64,7 @@ pub async fn lot_csv<R: Reads>(
                 recipe_version: r.recipe_version,
                 purpose: trace.as_ref().map(|t| t.purpose),
                 verdict: r.verdict.clone(),
-                detail: serde_json::from_value(r.detail).map_err(|e| e.to_string()),
+                detail: r.verdict_detail(),
             }
         })
         .collect();

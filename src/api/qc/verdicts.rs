@@ -11,21 +11,6 @@ use axum::Json;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-/// A stored verdict as the API shows it: an invalid one is never judged,
-/// not even per parameter (values and limits as measured, each
-/// `not_judged`, no failures; issue 35), also when it was stored before
-/// that rule. A detail this version cannot read is passed on unchanged.
-pub fn shown(mut row: crate::store::qc::VerdictRow) -> crate::store::qc::VerdictRow {
-    if row.verdict == crate::qc::VerdictKind::Invalid.as_str() {
-        if let Ok(v) = serde_json::from_value::<crate::qc::Verdict>(row.detail.clone()) {
-            if let Ok(d) = serde_json::to_value(crate::qc::never_judge_invalid(v)) {
-                row.detail = d;
-            }
-        }
-    }
-    row
-}
-
 /// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
 #[utoipa::path(get, path = "/api/v1/parts/{serial}/verdict", tag = "qc",
     summary = "The newest job verdict of a part (what a station shows).",
@@ -41,7 +26,7 @@ pub async fn part_verdict<R: Reads>(
         .results()
         .part_verdict(&serial)
         .await?
-        .map(shown)
+        .map(crate::store::qc::VerdictRow::shown)
         .ok_or_else(|| Problem::not_found("verdict of part", &serial))?;
     Ok(Json(serde_json::to_value(&v).map_err(Problem::internal)?))
 }
@@ -62,7 +47,7 @@ pub async fn job_verdict<R: Reads>(
         .job_verdicts(&id)
         .await?
         .into_iter()
-        .map(shown)
+        .map(crate::store::qc::VerdictRow::shown)
         .collect();
     let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
         return Err(Problem::not_found("verdict of job", &id));
@@ -254,7 +239,7 @@ pub async fn spc<R: Reads>(
     // counted and named, never dropped without a word.
     let mut unreadable: Vec<String> = Vec::new();
     for r in &rows {
-        let v: crate::qc::Verdict = match serde_json::from_value(r.detail.clone()) {
+        let v: crate::qc::Verdict = match r.verdict_detail() {
             Ok(v) => v,
             Err(e) => {
                 tracing::warn!(

@@ -65,7 +65,7 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
         .store
         .measurement_verdict(id)
         .await?
-        .map(crate::api::qc::shown);
+        .map(crate::store::qc::VerdictRow::shown);
     let part = st.store.get_part(&info.part_serial).await?;
     let mut levels = vec![];
     if let Some(job) = &info.job_id {
@@ -143,25 +143,40 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
                 esc(&v.recipe_name),
                 v.recipe_version
             );
-            for r in v.detail["invalid_reasons"].as_array().into_iter().flatten() {
+            let detail = v.verdict_detail();
+            if let Err(e) = &detail {
+                // Another software version's, or damaged: said, never a
+                // table that looks complete.
+                let _ = write!(
+                    s,
+                    "<p>The verdict's detail does not read here: {}</p>",
+                    esc(e)
+                );
+            }
+            let detail = detail.ok();
+            for r in detail.iter().flat_map(|d| &d.invalid_reasons) {
                 let _ = write!(
                     s,
                     "<p>{}: {}</p>",
-                    esc(r["code"].as_str().unwrap_or("").replace('_', " ").as_str()),
-                    esc(r["detail"].as_str().unwrap_or(""))
+                    esc(r.code.replace('_', " ").as_str()),
+                    esc(&r.detail)
                 );
             }
             s.push_str(
                 "<table><tr><th>parameter</th><th>value</th><th>limits</th><th>result</th></tr>",
             );
-            for p in v.detail["parameters"].as_array().into_iter().flatten() {
-                let unit = p["unit"].as_str().unwrap_or("");
+            for p in detail.iter().flat_map(|d| &d.parameters) {
+                let unit = p.unit.as_str();
                 let (du, k) = display(unit);
-                let name = match (p["name"].as_str(), f(&p["x_m"])) {
-                    (Some("kx_mask"), Some(x)) => format!("K(x) mask at {:.3} mm", x * 1e3),
-                    (n, _) => n.unwrap_or("").to_string(),
+                let name = match (p.name.as_str(), p.x_m) {
+                    ("kx_mask", Some(x)) => format!("K(x) mask at {:.3} mm", x * 1e3),
+                    (n, _) => n.to_string(),
                 };
-                let result = p["result"].as_str().unwrap_or("");
+                let result = match p.result {
+                    crate::qc::ParamResult::Pass => "pass",
+                    crate::qc::ParamResult::Fail => "fail",
+                    crate::qc::ParamResult::NotJudged => "not_judged",
+                };
                 // An invalid measurement is never judged: its values are
                 // shown as measured, marked so (issue 35).
                 let shown = match (v.verdict.as_str(), result) {
@@ -174,9 +189,9 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
                     "<tr class=\"{}\"><td>{}</td><td class=\"num\">{} {}</td><td>{}</td><td>{}</td></tr>",
                     esc(result),
                     esc(&name),
-                    f(&p["value"]).map(|x| sig(x * k, 5)).unwrap_or_default(),
+                    sig(p.value * k, 5),
                     esc(du),
-                    esc(&limits(f(&p["lower"]), f(&p["upper"]), unit)),
+                    esc(&limits(p.lower, p.upper, unit)),
                     esc(shown)
                 );
             }
