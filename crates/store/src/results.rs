@@ -177,13 +177,25 @@ impl VerdictRow {
     /// detail this version cannot read is passed on unchanged.
     pub fn shown(mut self) -> Self {
         if self.verdict == springbench_core::qc::VerdictKind::Invalid.as_str() {
-            if let Ok(v) = self.verdict_detail() {
-                if let Ok(d) = serde_json::to_value(springbench_core::qc::never_judge_invalid(v)) {
+            if let Ok(v) = self.shown_detail() {
+                if let Ok(d) = serde_json::to_value(v) {
                     self.detail = d;
                 }
             }
         }
         self
+    }
+
+    /// The detail as [`VerdictRow::shown`] shows it, typed, read once.
+    pub fn shown_detail(&self) -> Result<springbench_core::qc::Verdict, String> {
+        let v = self.verdict_detail()?;
+        Ok(
+            if self.verdict == springbench_core::qc::VerdictKind::Invalid.as_str() {
+                springbench_core::qc::never_judge_invalid(v)
+            } else {
+                v
+            },
+        )
     }
 }
 

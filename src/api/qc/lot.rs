@@ -50,7 +50,6 @@ pub async fn lot_csv<R: Reads>(
     let rows = w.read(&st, &name, None, "export it in parts").await?;
     let lot: Vec<LotRow> = rows
         .into_iter()
-        .map(crate::store::qc::VerdictRow::shown)
         .map(|r| {
             let trace = r.trace().ok();
             LotRow {
@@ -64,7 +63,7 @@ pub async fn lot_csv<R: Reads>(
                 recipe_version: r.recipe_version,
                 purpose: trace.as_ref().map(|t| t.purpose),
                 verdict: r.verdict.clone(),
-                detail: r.verdict_detail(),
+                detail: r.shown_detail(),
             }
         })
         .collect();
