@@ -210,14 +210,12 @@ pub struct RecipeList {
 
 /// A recipe's limit proposals.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct ProposalList {
     pub items: Vec<crate::store::qc::ProposalRow>,
 }
 
 /// A job's verdict with its measurements' verdicts.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct JobVerdict {
     #[schema(inline)]
     #[serde(flatten)]
@@ -227,7 +225,6 @@ pub struct JobVerdict {
 
 /// The recipe version an SPC window was judged by.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct RecipeVersionRef {
     pub name: String,
     pub version: i64,
@@ -236,7 +233,6 @@ pub struct RecipeVersionRef {
 
 /// SPC of one parameter with the recipe version.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct SpcDocument {
     #[schema(inline)]
     #[serde(flatten)]
@@ -257,7 +253,6 @@ pub struct SpcDocument {
 
 /// The MES outbox: deliveries and totals.
 #[derive(serde::Serialize, ToSchema)]
-#[allow(dead_code)]
 pub struct Outbox {
     pub items: Vec<DeliveryRow>,
     pub pending: i64,

@@ -465,13 +465,19 @@ impl Store {
         .await?;
         let mut out = Vec::new();
         for r in rows {
+            // A result this version cannot read (another version's) is no
+            // result, and says why: the run is then invalid, never judged.
+            let (result, unreadable) = match r.get::<Option<String>, _>(1) {
+                None => (None, None),
+                Some(s) => match serde_json::from_str(&s) {
+                    Ok(rep) => (Some(rep), None),
+                    Err(e) => (None, Some(format!("stored result unreadable here: {e}"))),
+                },
+            };
             out.push(GoldenRow {
                 measurement_id: r.get(0),
-                result: r
-                    .get::<Option<String>, _>(1)
-                    .map(|s| parse_json(&s))
-                    .transpose()?,
-                analysis_error: r.get(2),
+                result,
+                analysis_error: r.get::<Option<String>, _>(2).or(unreadable),
                 target_xpeak_m: r.get(3),
                 level_index: r.get(4),
                 config: crate::parse_config(&r.get::<String, _>(5))?,
@@ -686,7 +692,7 @@ async fn current_version(
 #[derive(Debug, Clone)]
 pub struct GoldenRow {
     pub measurement_id: String,
-    pub result: Option<Value>,
+    pub result: Option<springbench_core::identify::Report>,
     pub analysis_error: Option<String>,
     pub target_xpeak_m: Option<f64>,
     pub level_index: Option<i64>,

@@ -15,7 +15,6 @@ use axum::http::StatusCode;
 use axum::response::Response;
 use axum::{Extension, Json};
 use serde::Deserialize;
-use serde_json::{json, Value};
 
 #[derive(Deserialize, utoipa::ToSchema)]
 pub struct ProposalBody {
@@ -34,10 +33,7 @@ pub struct ProposalBody {
 
 fn run_facts(g: &crate::store::qc::GoldenRow) -> RunFacts {
     RunFacts {
-        report: g
-            .result
-            .clone()
-            .and_then(|r| serde_json::from_value(r).ok()),
+        report: g.result.clone(),
         analysis_error: g.analysis_error.clone(),
         target_xpeak_m: g.target_xpeak_m,
         level_index: g.level_index.unwrap_or(0).max(0) as usize,
@@ -145,12 +141,14 @@ pub async fn propose(
 pub async fn list_proposals(
     State(st): State<AppState>,
     Path(name): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::api::schema::ProposalList>>> {
     if st.store.get_recipe(&name, None).await?.is_none() {
         return Err(Problem::not_found("recipe", &name));
     }
     let items = st.store.recipe_proposals(&name, 50).await?;
-    Ok(Json(json!({"items": items})))
+    Ok(Json(crate::api::Sorted(crate::api::schema::ProposalList {
+        items,
+    })))
 }
 
 #[utoipa::path(get, path = "/api/v1/limit-proposals/{id}", tag = "qc",
@@ -162,13 +160,13 @@ pub async fn list_proposals(
 pub async fn get_proposal(
     State(st): State<AppState>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::store::qc::ProposalRow>>> {
     let p = st
         .store
         .get_proposal(&id)
         .await?
         .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
-    Ok(Json(serde_json::to_value(&p).map_err(Problem::internal)?))
+    Ok(Json(crate::api::Sorted(p)))
 }
 
 fn decided(p: &crate::store::qc::ProposalRow) -> Problem {
@@ -238,7 +236,7 @@ pub async fn reject(
     State(st): State<AppState>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::store::qc::ProposalRow>>> {
     let p = st
         .store
         .get_proposal(&id)
@@ -252,5 +250,5 @@ pub async fn reject(
         .get_proposal(&id)
         .await?
         .ok_or_else(|| Problem::not_found("limit proposal", &id))?;
-    Ok(Json(serde_json::to_value(&p).map_err(Problem::internal)?))
+    Ok(Json(crate::api::Sorted(p)))
 }

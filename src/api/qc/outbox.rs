@@ -6,7 +6,6 @@ use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::Json;
 use serde::Deserialize;
-use serde_json::{json, Value};
 
 #[derive(Deserialize, utoipa::IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -25,7 +24,10 @@ pub struct OutboxQuery {
         (status = 200, description = "Outbox", body = crate::api::schema::Outbox),
         (status = 422, description = "A bad query parameter")))]
 /// `GET /api/v1/outbox?state=`: deliveries (default: pending and failed), oldest first.
-pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResult<Json<Value>> {
+pub async fn outbox(
+    State(st): State<AppState>,
+    Q(q): Q<OutboxQuery>,
+) -> ApiResult<Json<crate::api::Sorted<crate::api::schema::Outbox>>> {
     let state = match q.state.as_deref() {
         None | Some("") => None,
         Some(s @ ("pending" | "failed" | "delivered" | "dropped")) => Some(s),
@@ -39,10 +41,12 @@ pub async fn outbox(State(st): State<AppState>, Q(q): Q<OutboxQuery>) -> ApiResu
     let limit = crate::api::page_limit(q.limit)?;
     let items = st.store.list_outbox(state, limit).await?;
     let (pending, failed, failures) = st.store.outbox_counts().await?;
-    Ok(Json(
-        json!({"items": items, "pending": pending, "failed": failed,
-                   "failed_attempts_total": failures}),
-    ))
+    Ok(Json(crate::api::Sorted(crate::api::schema::Outbox {
+        items,
+        pending,
+        failed,
+        failed_attempts_total: failures,
+    })))
 }
 
 fn delivery_id(id: &str) -> ApiResult<i64> {
@@ -61,7 +65,7 @@ fn delivery_id(id: &str) -> ApiResult<i64> {
 pub async fn outbox_retry(
     State(st): State<AppState>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::store::qc::DeliveryRow>>> {
     change_delivery(&st, &id, DeliveryChange::Retry).await
 }
 
@@ -76,7 +80,7 @@ pub async fn outbox_retry(
 pub async fn outbox_drop(
     State(st): State<AppState>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::store::qc::DeliveryRow>>> {
     change_delivery(&st, &id, DeliveryChange::Drop).await
 }
 
@@ -92,7 +96,7 @@ async fn change_delivery(
     st: &AppState,
     id: &str,
     change: DeliveryChange,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<crate::api::Sorted<crate::store::qc::DeliveryRow>>> {
     let n = delivery_id(id)?;
     let d = st
         .store
@@ -117,5 +121,5 @@ async fn change_delivery(
         .get_delivery(n)
         .await?
         .ok_or_else(|| Problem::not_found("outbox delivery", id))?;
-    Ok(Json(serde_json::to_value(&d).map_err(Problem::internal)?))
+    Ok(Json(crate::api::Sorted(d)))
 }

@@ -2,6 +2,7 @@
 
 use crate::api::problem::{ApiResult, Problem};
 use crate::api::reads::Reads;
+use crate::api::Sorted;
 use crate::api::Q;
 use crate::store::{RecipeReads, VerdictReads};
 use axum::extract::{Path, State};
@@ -9,7 +10,6 @@ use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Deserialize;
-use serde_json::{json, Value};
 
 /// `GET /api/v1/parts/{serial}/verdict`: the newest job verdict of a part.
 #[utoipa::path(get, path = "/api/v1/parts/{serial}/verdict", tag = "qc",
@@ -21,14 +21,14 @@ use serde_json::{json, Value};
 pub async fn part_verdict<R: Reads>(
     State(st): State<R>,
     Path(serial): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<Sorted<crate::store::qc::VerdictRow>>> {
     let v = st
         .results()
         .part_verdict(&serial)
         .await?
         .map(crate::store::qc::VerdictRow::shown)
         .ok_or_else(|| Problem::not_found("verdict of part", &serial))?;
-    Ok(Json(serde_json::to_value(&v).map_err(Problem::internal)?))
+    Ok(Json(Sorted(v)))
 }
 
 /// `GET /api/v1/jobs/{id}/verdict`: the job's verdict and its measurements'.
@@ -41,7 +41,7 @@ pub async fn part_verdict<R: Reads>(
 pub async fn job_verdict<R: Reads>(
     State(st): State<R>,
     Path(id): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<Sorted<crate::api::schema::JobVerdict>>> {
     let v: Vec<_> = st
         .results()
         .job_verdicts(&id)
@@ -52,14 +52,15 @@ pub async fn job_verdict<R: Reads>(
     let Some(job) = v.iter().find(|x| x.measurement_id.is_none()) else {
         return Err(Problem::not_found("verdict of job", &id));
     };
-    let mut doc = serde_json::to_value(job).map_err(Problem::internal)?;
-    doc["measurements"] = serde_json::to_value(
-        v.iter()
+    let doc = crate::api::schema::JobVerdict {
+        verdict: job.clone(),
+        measurements: v
+            .iter()
             .filter(|x| x.measurement_id.is_some())
-            .collect::<Vec<_>>(),
-    )
-    .map_err(Problem::internal)?;
-    Ok(Json(doc))
+            .cloned()
+            .collect(),
+    };
+    Ok(Json(Sorted(doc)))
 }
 
 #[derive(Deserialize, utoipa::IntoParams)]
@@ -293,18 +294,26 @@ pub async fn spc<R: Reads>(
         )
             .into_response());
     }
-    let mut doc = serde_json::to_value(&s).map_err(Problem::internal)?;
-    doc["recipe"] = json!({"name": row.name, "version": row.version, "sha256": row.sha256});
-    doc["unreadable_verdicts"] = json!(left_out);
-    doc["purpose"] = json!(w.purpose.map_or("all", |p| p.as_str()));
+    let mut warnings = vec![];
     if left_out > 0 {
         // Each part named once (a part's verdicts need not be adjacent).
         unreadable.sort();
         unreadable.dedup();
-        doc["warnings"] = json!([format!(
+        warnings.push(format!(
             "{left_out} verdict(s) of the window are left out of these figures: their stored detail does not read in this software version (parts {})",
             unreadable.join(", ")
-        )]);
+        ));
     }
-    Ok(Json(doc).into_response())
+    let doc = crate::api::schema::SpcDocument {
+        spc: s,
+        recipe: crate::api::schema::RecipeVersionRef {
+            name: row.name.clone(),
+            version: row.version,
+            sha256: row.sha256.clone(),
+        },
+        unreadable_verdicts: left_out,
+        purpose: w.purpose.map_or("all", |p| p.as_str()).to_string(),
+        warnings,
+    };
+    Ok(Json(Sorted(doc)).into_response())
 }
