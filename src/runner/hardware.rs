@@ -8,7 +8,7 @@ use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind};
 use crate::job::{JobProblem, ProblemKind};
 use crate::physics::PartSpec;
-use crate::store::hardware::CalibrationRecord;
+use crate::store::hardware::{CalibrationRecord, SelfCheckResult};
 use crate::store::{Job, JobState, StoreResult};
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -83,18 +83,18 @@ fn calibration_json(cfg: &BenchConfig) -> Value {
 
 /// Runs a self-check on its own blocking thread; Ok(result JSON, passed).
 #[cfg(feature = "hardware")]
-fn self_check_blocking(cfg: &BenchConfig, seq: i64) -> Result<(Value, bool), String> {
+fn self_check_blocking(cfg: &BenchConfig, seq: i64) -> Result<SelfCheckResult, String> {
     let part = crate::physics::preset(&cfg.preset)?;
     let seed = cfg.seed.wrapping_add(seq as u64);
     let mut b = crate::bench::hardware::open(cfg, part, seed, seq, cfg.limits)?;
     match b.self_check() {
-        Ok(sc) => Ok((serde_json::to_value(&sc).unwrap_or_default(), sc.passed)),
-        Err(e) => Ok((json!({"passed": false, "failures": [e.to_string()]}), false)),
+        Ok(sc) => Ok(SelfCheckResult::of(&sc)),
+        Err(e) => Ok(SelfCheckResult::failed(e.to_string())),
     }
 }
 
 #[cfg(not(feature = "hardware"))]
-fn self_check_blocking(cfg: &BenchConfig, _seq: i64) -> Result<(Value, bool), String> {
+fn self_check_blocking(cfg: &BenchConfig, _seq: i64) -> Result<SelfCheckResult, String> {
     Err(format!(
         "bench '{}' needs the `hardware` feature, which this build lacks",
         cfg.id
@@ -145,14 +145,12 @@ impl Runner {
         let cfg = slot.cfg.clone();
         let seq = job.seq;
         let res = tokio::task::spawn_blocking(move || self_check_blocking(&cfg, seq)).await;
-        let (result, passed) = match res {
+        let result = match res {
             Ok(Ok(r)) => r,
-            Ok(Err(e)) => (json!({"passed": false, "failures": [e]}), false),
-            Err(e) => (
-                json!({"passed": false, "failures": [format!("self-check crashed: {e}")]}),
-                false,
-            ),
+            Ok(Err(e)) => SelfCheckResult::failed(e),
+            Err(e) => SelfCheckResult::failed(format!("self-check crashed: {e}")),
         };
+        let passed = result.passed;
         let rec = CalibrationRecord {
             id: super::new_id(),
             bench_id: slot.cfg.id.clone(),
@@ -172,14 +170,7 @@ impl Runner {
             }
             return Ok(Ok(rec));
         }
-        let failures: Vec<String> = rec.result["failures"]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .filter_map(|v| v.as_str().map(String::from))
-                    .collect()
-            })
-            .unwrap_or_default();
+        let failures = &rec.result.failures;
         let p = JobProblem::new(
             ProblemKind::BenchFault,
             "Bench self-check failed",
@@ -213,7 +204,10 @@ impl Runner {
             Ok(rec) => {
                 let log = vec![format!(
                     "self-check passed: calibration record {} (latency {} s)",
-                    rec.id, rec.result["latency_s"]
+                    rec.id,
+                    rec.result
+                        .latency_s
+                        .map_or("null".to_string(), |l| l.to_string())
                 )];
                 let commit = self.store.finish_job(
                     &job.id,

@@ -205,7 +205,7 @@ async fn upsert_measurement_tx(
         .bind(c.passed)
         .bind(c.calibration.to_string())
         .bind(c.sensors.to_string())
-        .bind(c.result.to_string())
+        .bind(c.result.to_json())
         .bind(&c.created_at)
         .execute(&mut **tx)
         .await?;

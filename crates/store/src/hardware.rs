@@ -17,8 +17,54 @@ pub struct CalibrationRecord {
     /// Sensor identities (laser model/serial/range, microphone calibration date).
     pub sensors: Value,
     /// What the self-check measured (latency, noise floors, rest readings, failures).
-    pub result: Value,
+    #[serde(serialize_with = "crate::sorted")]
+    #[schema(value_type = Object)]
+    pub result: SelfCheckResult,
     pub created_at: String,
+}
+
+/// What a self-check found: its verdict, failures and loopback latency
+/// typed (the runner reads them); the rest of the bench's report (noise
+/// floors, rest readings, loopback figures) kept as the bench wrote it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct SelfCheckResult {
+    #[serde(default)]
+    pub passed: bool,
+    /// One line per failed check.
+    #[serde(default)]
+    pub failures: Vec<String>,
+    /// Loopback latency (s); absent when the check did not get that far.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub latency_s: Option<f64>,
+    #[serde(flatten)]
+    pub measured: serde_json::Map<String, Value>,
+}
+
+impl SelfCheckResult {
+    /// A self-check that could not run or failed before measuring.
+    pub fn failed(why: impl Into<String>) -> Self {
+        SelfCheckResult {
+            passed: false,
+            failures: vec![why.into()],
+            ..Default::default()
+        }
+    }
+
+    /// The stored text: keys sorted, as the record was always written.
+    pub fn to_json(&self) -> String {
+        serde_json::to_value(self)
+            .map(|v| v.to_string())
+            .unwrap_or_default()
+    }
+
+    /// The bench's own report (`bench::hardware::SelfCheck`), read into the
+    /// typed members; a report that does not serialise as an object is a
+    /// failed check naming why.
+    pub fn of<T: Serialize>(report: &T) -> Self {
+        serde_json::to_value(report)
+            .and_then(serde_json::from_value)
+            .unwrap_or_else(|e| Self::failed(format!("self-check report unreadable: {e}")))
+    }
 }
 
 /// An open (not yet cleared) fault of a bench.
@@ -39,7 +85,9 @@ fn calibration_row(r: &sqlx::sqlite::SqliteRow) -> CalibrationRecord {
         passed: r.get::<i64, _>("passed") == 1,
         calibration: j(r.get("calibration_json")),
         sensors: j(r.get("sensors_json")),
-        result: j(r.get("result_json")),
+        result: serde_json::from_str(&r.get::<String, _>("result_json")).unwrap_or_else(|e| {
+            SelfCheckResult::failed(format!("stored self-check result unreadable: {e}"))
+        }),
         created_at: r.get("created_at"),
     }
 }
@@ -58,7 +106,7 @@ impl Store {
         .bind(i64::from(rec.passed))
         .bind(rec.calibration.to_string())
         .bind(rec.sensors.to_string())
-        .bind(rec.result.to_string())
+        .bind(rec.result.to_json())
         .bind(&rec.created_at)
         .execute(&mut *tx)
         .await?;
