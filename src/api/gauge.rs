@@ -534,7 +534,7 @@ pub async fn create_calibration(
         bench_id: req.bench.clone(),
         procedure: pname.to_string(),
         state: cal.state.as_str().to_string(),
-        calibration: serde_json::to_value(&cal).map_err(Problem::internal)?,
+        calibration: cal,
         created_by: caller.0.clone(),
         created_at: crate::store::now(),
     };

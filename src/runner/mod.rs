@@ -460,21 +460,25 @@ impl Runner {
         // The bench's calibration from golden units under the recipe (decision 0049).
         // The calibration of the procedure the job asks for (a production
         // job that falls back is still judged with it; docs/qc.md).
-        let cal_row = match (recipe.as_ref().and_then(|r| r.as_ref().ok()), spec.as_ref()) {
-            (Some(r), Ok(s)) => {
-                self.store
-                    .latest_bench_calibration(&r.name, &slot.cfg.id, s.procedure.as_str())
-                    .await?
-            }
-            _ => None,
+        // A calibration this version cannot read fails the job, named.
+        let cal_read = match (recipe.as_ref().and_then(|r| r.as_ref().ok()), spec.as_ref()) {
+            (Some(r), Ok(s)) => match self
+                .store
+                .latest_bench_calibration(&r.name, &slot.cfg.id, s.procedure.as_str())
+                .await
+            {
+                Err(crate::store::StoreError::Corrupt(why)) => Err(why),
+                other => Ok(other?),
+            },
+            _ => Ok(None),
         };
-        let bench_cal: Result<Option<crate::qc::BenchCalibration>, String> = cal_row
-            .as_ref()
-            .map(|c| {
-                serde_json::from_value(c.calibration.clone())
-                    .map_err(|e| format!("bench calibration {} unreadable: {e}", c.id))
-            })
-            .transpose();
+        let (cal_row, bench_cal) = match cal_read {
+            Ok(row) => {
+                let cal = row.as_ref().map(|c| c.calibration.clone());
+                (row, Ok(cal))
+            }
+            Err(why) => (None, Err(why)),
+        };
         let cal_trace = recipe.as_ref().is_some_and(|r| r.is_ok()).then(|| {
             records::calibration_trace(
                 cal_row.as_ref(),

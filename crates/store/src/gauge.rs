@@ -101,8 +101,9 @@ pub struct BenchCalibrationRow {
     /// `full` or `production`: the procedure it was measured with and corrects.
     pub procedure: String,
     pub state: String,
-    /// `core::qc::BenchCalibration` as JSON.
-    pub calibration: Value,
+    /// The calibration, read into its type at the store's edge.
+    #[serde(serialize_with = "crate::sorted")]
+    pub calibration: springbench_core::qc::BenchCalibration,
     pub created_by: Option<String>,
     pub created_at: String,
 }
@@ -118,7 +119,7 @@ impl Store {
         .bind(&row.bench_id)
         .bind(&row.procedure)
         .bind(&row.state)
-        .bind(row.calibration.to_string())
+        .bind(crate::json_text(&row.calibration))
         .bind(&row.created_by)
         .bind(&row.created_at)
         .execute(&self.pool)
@@ -219,7 +220,10 @@ fn cal_from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<BenchCalibrationRow>
         procedure: r.try_get("procedure")?,
         state: r.try_get("state")?,
         calibration: serde_json::from_str(&s).map_err(|e| {
-            crate::StoreError::Corrupt(format!("bench_calibrations.calibration: {e}"))
+            crate::StoreError::Corrupt(format!(
+                "bench calibration {} unreadable: {e}",
+                r.get::<String, _>("id")
+            ))
         })?,
         created_by: r.try_get("created_by")?,
         created_at: r.try_get("created_at")?,

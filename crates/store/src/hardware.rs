@@ -52,9 +52,7 @@ impl SelfCheckResult {
 
     /// The stored text: keys sorted, as the record was always written.
     pub fn to_json(&self) -> String {
-        serde_json::to_value(self)
-            .map(|v| v.to_string())
-            .unwrap_or_default()
+        crate::json_text(self)
     }
 
     /// The bench's own report (`bench::hardware::SelfCheck`), read into the
