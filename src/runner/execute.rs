@@ -49,7 +49,7 @@ pub(super) struct Batch {
     pub(super) known: Vec<i64>,
     pub(super) recordings: Vec<NewRecording>,
     pub(super) measurements: Vec<NewMeasurement>,
-    pub(super) updates: Vec<(String, MeasurementConfig, Option<Value>)>,
+    pub(super) updates: Vec<(String, MeasurementConfig, Option<identify::Report>)>,
 }
 
 /// Live samples: about this many per second of signal, in chunks of `CHUNK`.
@@ -456,8 +456,7 @@ pub(super) fn execute(
         {
             m.config.procedure_run = Some(procedure_run.clone());
             // checked finite when fitted (and the series before it was attached)
-            let result = rep.as_ref().and_then(|r| serde_json::to_value(r).ok());
-            updates.push((m.id.clone(), m.config.clone(), result));
+            updates.push((m.id.clone(), m.config.clone(), rep.clone()));
         }
         obs.flush_samples();
         obs.store(Batch {

@@ -540,7 +540,11 @@ impl Store {
     pub async fn update_job_measurements(
         &self,
         job_id: &str,
-        updates: Vec<(String, MeasurementConfig, Option<Value>)>,
+        updates: Vec<(
+            String,
+            MeasurementConfig,
+            Option<springbench_core::identify::Report>,
+        )>,
     ) -> StoreResult<()> {
         let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
         running_job(&mut tx, job_id).await?;
@@ -549,7 +553,11 @@ impl Store {
                 "UPDATE measurements SET config_json = ?, result_json = ? WHERE id = ? AND job_id = ?",
             )
             .bind(config.to_json())
-            .bind(result.map(|v| v.to_string()))
+            .bind(
+                result
+                    .and_then(|r| serde_json::to_value(r).ok())
+                    .map(|v| v.to_string()),
+            )
             .bind(&id)
             .bind(job_id.to_string())
             .execute(&mut *tx)
