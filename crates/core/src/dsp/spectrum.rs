@@ -84,28 +84,46 @@ fn padded(signal: &[f64], n_fft: usize) -> impl Iterator<Item = f64> + '_ {
 /// machine, twiddle memory with it).
 pub const SUB_FFT: usize = 1 << 16;
 
+/// Points of the sub-FFT inputs held at once (4 MiB): a 2^20-point record's
+/// eight subsequences are transformed four at a time, so that each of the
+/// two threads holds 4 MiB instead of 8 (fresh pages cost about as much to
+/// zero as the analysis reads: docs/performance.md, session 20).
+const SUB_GROUP: usize = 1 << 18;
+
 /// Complex FFTs of `subs` sequences of `l` points each, in place on this
-/// thread's plan and buffers: `fill` writes all inputs (sequence `r` at
-/// `[r * l, (r + 1) * l)`, so that the record is read once, in order), then
-/// `read` takes all the spectra, laid out the same way.
-fn sub_ffts<R>(
+/// thread's plan and buffers, in groups of at most [`SUB_GROUP`] points from
+/// the last sequence to the first: for each group `rs` (descending),
+/// `fill(z, rs)` writes the inputs of sequences `rs` (sequence `r` at
+/// `[(r - rs.start) * l, ...)`), then `read(acc, spectra, rs)` takes their
+/// spectra, laid out the same way, and carries `acc` to the next group.
+fn sub_ffts<A>(
     l: usize,
     subs: usize,
-    fill: impl FnOnce(&mut [Complex64]),
-    read: impl FnOnce(&[Complex64]) -> R,
-) -> R {
+    mut fill: impl FnMut(&mut [Complex64], std::ops::Range<usize>),
+    init: A,
+    mut read: impl FnMut(A, &[Complex64], std::ops::Range<usize>) -> A,
+) -> A {
     let fft = CPLANNER
         .lock()
         .unwrap_or_else(|e| e.into_inner())
         .plan_fft_forward(l);
+    let group = (SUB_GROUP / l.max(1)).clamp(1, subs.max(1));
     CBUF.with(|b| {
         let [input, scratch] = &mut *b.borrow_mut();
         let zero = Complex64::new(0.0, 0.0);
-        input.resize(l * subs, zero);
+        input.resize(l * group, zero);
         scratch.resize(fft.get_inplace_scratch_len(), zero);
-        fill(&mut input[..l * subs]);
-        fft.process_with_scratch(&mut input[..l * subs], scratch);
-        read(&input[..l * subs])
+        let mut acc = init;
+        let mut end = subs;
+        while end > 0 {
+            let rs = end.saturating_sub(group)..end;
+            let z = &mut input[..l * rs.len()];
+            fill(z, rs.clone());
+            fft.process_with_scratch(z, scratch);
+            acc = read(acc, z, rs.clone());
+            end = rs.start;
+        }
+        acc
     })
 }
 
@@ -151,29 +169,50 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
     let acc: Vec<Complex64> = sub_ffts(
         l,
         subs,
-        |z| {
-            // z[n] = y[2n] + i y[2n+1] goes to subsequence n % subs, place n / subs.
+        |z, rs| {
+            // z[n] = y[2n] + i y[2n+1] goes to subsequence n % subs, place
+            // n / subs; this group keeps subsequences `rs` (the record is
+            // read once per group, in order).
             let mut y = padded(signal, n);
             for q in 0..l {
                 for r in 0..subs {
                     let re = y.next().unwrap_or(0.0);
-                    z[r * l + q] = Complex64::new(re, y.next().unwrap_or(0.0));
+                    let im = y.next().unwrap_or(0.0);
+                    if rs.contains(&r) {
+                        z[(r - rs.start) * l + q] = Complex64::new(re, im);
+                    }
                 }
             }
         },
-        |spectra| {
-            let mut acc = Vec::with_capacity(2 * ks.len());
-            for (&k, &w) in ks.iter().zip(&step) {
+        Vec::with_capacity(2 * ks.len()),
+        |mut acc, spectra, rs| {
+            // Horner's scheme from the last subsequence to the first, across
+            // the groups: the same operations in the same order as over all
+            // subsequences at once.
+            let first = acc.is_empty();
+            for (b, (&k, &w)) in ks.iter().zip(&step).enumerate() {
                 // Sub-FFT bins (l is a power of two).
                 let (i, j) = ((k % m) & (l - 1), ((m - k % m) % m) & (l - 1));
-                let (wc, last) = (w.conj(), (subs - 1) * l);
-                let (mut a, mut b) = (spectra[last + i], spectra[last + j]);
-                for r in (0..subs - 1).rev() {
-                    a = a * w + spectra[r * l + i];
-                    b = b * wc + spectra[r * l + j];
+                let wc = w.conj();
+                let mut rows = rs.clone().rev();
+                let (mut a, mut c) = if first {
+                    let last = rows.next().map_or(0, |r| (r - rs.start) * l);
+                    (spectra[last + i], spectra[last + j])
+                } else {
+                    (acc[2 * b], acc[2 * b + 1])
+                };
+                for r in rows {
+                    let at = (r - rs.start) * l;
+                    a = a * w + spectra[at + i];
+                    c = c * wc + spectra[at + j];
                 }
-                acc.push(a);
-                acc.push(b);
+                if first {
+                    acc.push(a);
+                    acc.push(c);
+                } else {
+                    acc[2 * b] = a;
+                    acc[2 * b + 1] = c;
+                }
             }
             acc
         },
