@@ -22,9 +22,10 @@ use crate::bench::virtual_bench::VirtualBench;
 use crate::config::{BenchConfig, BenchKind};
 use crate::identify::{self, AnalyzeOptions, Report};
 use crate::job::{
-    Failure, JobProblem, LongTermSpec, MeasurementConfig, PartState, PreSweepSettings, ProblemKind,
-    SweepSettings,
+    Failure, Hold, JobProblem, LongTermSpec, MeasurementConfig, PartState, PreSweepSettings,
+    ProblemKind, SweepSettings,
 };
+use crate::physics::ageing;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
 use crate::store::longterm::NewInterval;
@@ -406,6 +407,13 @@ fn run_blocking(
         };
         let _ = tx.send(Msg::Progress { progress: p, eta_s });
     };
+    // A stimulus held at a drive level keeps the velocity amplitude at the
+    // resonance that `excursion_m` had on the part at the test's start.
+    let held_velocity = (spec.stimulus.hold == Hold::Drive).then(|| {
+        let mut new_part = part.clone();
+        new_part.moving_mass_kg += vcfg.clamp_mass_kg;
+        ageing::velocity_at_excursion_m_per_s(&new_part, 0.0, spec.stimulus.excursion_m)
+    });
     for index in start..n {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -427,11 +435,45 @@ fn run_blocking(
             }
             let step = (t_start - t).min(STIMULUS_STEP_S);
             let on = spec.stimulus.on_time_s(t, t + step);
-            vb.apply_sine_load(spec.stimulus.excursion_m, on);
+            match held_velocity {
+                None => {
+                    vb.apply_sine_load(spec.stimulus.excursion_m, on);
+                }
+                Some(v) => {
+                    vb.apply_sine_load_at_velocity(v, on);
+                }
+            }
             if !spec.accelerated {
                 pace(step, &obs);
             }
             t += step;
+            if let (Some(v), true) = (held_velocity, on > 0.0) {
+                let load = vb.ageing_load_j().unwrap_or(load_j);
+                let x = ageing::excursion_at_velocity_m(&vb.part, load, v);
+                let growth = 100.0 * (x / spec.stimulus.excursion_m - 1.0);
+                let bound = spec.failure_limits.xpeak_runaway_percent;
+                if growth > bound {
+                    let f = Failure {
+                        limit: "xpeak_runaway_percent".into(),
+                        interval: index,
+                        at_s: Some(t),
+                        value: Some(growth),
+                        bound: Some(bound),
+                        detail: format!(
+                            "the stimulus' peak displacement ran away to {:.2} mm at {:.0} s, {growth:+.1} % over its {:.2} mm at the start, beyond +{bound} %",
+                            1e3 * x,
+                            t,
+                            1e3 * spec.stimulus.excursion_m
+                        ),
+                    };
+                    let last = stimulus_signals(&mut vb, load, x, &obs)?;
+                    let secs = last.len() as f64 / last.sample_rate_hz;
+                    let res = crate::bench::Bench::resolution(&vb);
+                    let rec = super::execute::recording("main", &last, res.as_ref())?;
+                    send_and_wait(tx, |r| Msg::Failure(f.clone(), Some((rec, secs)), r))?;
+                    return Err(failure_problem(&f));
+                }
+            }
             let per =
                 (index > start).then(|| started.elapsed().as_secs_f64() / (index - start) as f64);
             progress(index, t, per);
@@ -449,6 +491,7 @@ fn run_blocking(
                 let f = Failure {
                     limit: "no_resonance".into(),
                     interval: index,
+                    at_s: None,
                     value: None,
                     bound: None,
                     detail: format!("the procedure found no resonance: {why}"),
@@ -585,6 +628,7 @@ fn run_blocking(
             Some(Failure {
                 limit: "no_resonance".into(),
                 interval: index,
+                at_s: None,
                 value: None,
                 bound: None,
                 detail: "the measurement determined no small-signal resonance (f0, K(0))".into(),
@@ -597,6 +641,7 @@ fn run_blocking(
                     (change.abs() > bound).then(|| Failure {
                         limit: "k0_change_percent".into(),
                         interval: index,
+                        at_s: None,
                         value: Some(change),
                         bound: Some(bound),
                         detail: format!(
@@ -618,6 +663,75 @@ fn run_blocking(
         progress(index + 1, clock_s.min(spec.duration_s), Some(per));
     }
     Ok(n)
+}
+
+/// The last seconds of a stimulus whose excursion ran away, simulated on the
+/// virtual bench at the part's state then (the accelerated stimulus has no
+/// signals of its own): a sine at the part's resonance at `xpeak_m`
+/// (`physics::ageing::resonance_hz`), its drive levelled by four short
+/// probes within the bench's drive limit. Each run glides up into the
+/// frequency from 70 % of it, as `procedure::break_in` does: a hardening
+/// part then stays on the upper branch of its response, whose excursion
+/// barely follows the drive near the backbone, so the level is approached,
+/// not met (within ~20 % of `xpeak_m`, above it, for the torn spider_3in).
+fn stimulus_signals(
+    vb: &mut VirtualBench,
+    load_j: f64,
+    xpeak_m: f64,
+    obs: &LtObserver<'_>,
+) -> Result<Signals, Stop> {
+    use crate::bench::{Bench, Control};
+    const GLIDE_S: f64 = 1.5;
+    let f_hz = ageing::resonance_hz(&vb.part, load_j, xpeak_m);
+    let fs = vb.bench.sample_rate_hz;
+    let max_v = vb.limits.max_drive_v;
+    // Runs `hold_s` at f_hz after the glide; returns the held part.
+    let mut play = |v: f64, hold_s: f64| {
+        let (ng, nh) = ((GLIDE_S * fs) as usize, (hold_s * fs).round() as usize);
+        let mut phase = 0.0f64;
+        let drive: Vec<f64> = (0..ng + nh)
+            .map(|k| {
+                let (f, g) = if k < ng {
+                    let u = k as f64 / ng as f64;
+                    (f_hz * (0.7 + 0.3 * u), u.min(0.2) / 0.2)
+                } else {
+                    (f_hz, 1.0)
+                };
+                phase += 2.0 * std::f64::consts::PI * f / fs;
+                g * v * phase.sin()
+            })
+            .collect();
+        vb.run(&drive, &mut |_| {
+            if obs.cancelled() {
+                Control::Abort
+            } else {
+                Control::Continue
+            }
+        })
+        .map(|s| tail(&s, hold_s))
+        .map_err(|e| match e {
+            crate::bench::BenchError::Aborted => Stop::Aborted,
+            e => Stop::Failed(JobProblem::new(
+                ProblemKind::Bench,
+                "Last signals not recorded",
+                format!("the stimulus' last seconds on the virtual bench: {e}"),
+            )),
+        })
+    };
+    let peak = |s: &Signals| {
+        let h = s.displacement_m.len() / 2;
+        s.displacement_m[h..]
+            .iter()
+            .fold(0.0f64, |m, x| m.max(x.abs()))
+    };
+    let mut v = 1.0f64;
+    for _ in 0..4 {
+        let x = peak(&play(v, 1.0)?);
+        if x > 0.0 {
+            v = (v * xpeak_m / x).min(max_v);
+        }
+    }
+    play(v, LAST_SIGNALS_S)
 }
 
 /// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.

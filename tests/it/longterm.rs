@@ -390,3 +390,210 @@ async fn kill_9_five_times_during_a_test_loses_and_repeats_no_interval() {
     drop(d);
     drop(tmp);
 }
+
+/// spider_3in with its preset's ageing and a defect: past `onset_load_j`
+/// the spider tears and `fraction` of its stiffness goes over the whole
+/// stroke (`physics::ageing::Collapse`).
+fn torn_part() -> springbench::physics::PartSpec {
+    let mut p = springbench::physics::preset("spider_3in").unwrap();
+    p.ageing.as_mut().unwrap().collapse = Some(springbench::physics::ageing::Collapse {
+        onset_load_j: 12_000.0,
+        load_scale_j: 6_000.0,
+        fraction: 0.7,
+    });
+    p
+}
+
+fn torn_body(serial: &str, intervals: usize, hold: &str, limits: Value) -> Value {
+    let mut body = test_body(serial, intervals);
+    let m = body["measurement"].as_object_mut().unwrap();
+    m.remove("preset");
+    m.insert(
+        "part_spec".into(),
+        serde_json::to_value(torn_part()).unwrap(),
+    );
+    body["stimulus"]["hold"] = json!(hold);
+    body["failure_limits"] = limits;
+    body
+}
+
+/// The last signals of a failed test: (seconds, sample rate, displacement in m).
+async fn last_signals(c: &reqwest::Client, d: &Daemon, v: &Value) -> (f64, f64, Vec<f64>) {
+    let url = v["last_signals"].as_str().expect("last signals stored");
+    let r = c.get(d.url(url)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let wav = r.bytes().await.unwrap();
+    let mut h = hound::WavReader::new(std::io::Cursor::new(wav.to_vec())).unwrap();
+    let spec = h.spec();
+    assert_eq!(spec.sample_format, hound::SampleFormat::Float);
+    let fs = spec.sample_rate as f64;
+    let ch = spec.channels as usize;
+    let x: Vec<f64> = h
+        .samples::<f32>()
+        .step_by(ch)
+        .map(|s| s.unwrap() as f64)
+        .collect();
+    (x.len() as f64 / fs, fs, x)
+}
+
+/// Issue 32, failure: a part that tears during the test (a new defect, not
+/// ageing: its stiffness collapses past a load) stops the test at the
+/// interval whose true K(0) change crosses the bound, naming the limit.
+#[tokio::test]
+async fn a_part_that_collapses_stops_the_test_at_the_interval_its_truth_crosses_the_k0_limit() {
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let bound = 40.0;
+    let id = submit(
+        &c,
+        &d,
+        &torn_body(
+            "LT-TORN",
+            12,
+            "excursion",
+            json!({"k0_change_percent": bound}),
+        ),
+    )
+    .await;
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "failed", "{v}");
+    let f = &v["state"]["failure"];
+    assert_eq!(f["limit"], "k0_change_percent", "{v}");
+    let at = f["interval"].as_u64().unwrap() as usize;
+    assert!(v["job"]["problem"]["detail"]
+        .as_str()
+        .unwrap()
+        .contains(&format!(
+            "failure limit `k0_change_percent` at interval {at}"
+        )));
+    // The truth at each interval's load: the part's law with its tear.
+    let part = torn_part();
+    let a = part.ageing.unwrap();
+    let k0_new = part.k_coeffs_si[0];
+    let e = loads(&v);
+    assert_eq!(e.len(), at + 1, "{v}");
+    let truth: Vec<f64> = e
+        .iter()
+        .map(|&l| 100.0 * (a.k0_n_per_m(k0_new, l) / k0_new - 1.0))
+        .collect();
+    // The tear did it: the sound part's law alone stays far from the bound.
+    let mut sound = a;
+    sound.collapse = None;
+    let sound_change = 100.0 * (sound.k0_n_per_m(k0_new, e[at]) / k0_new - 1.0);
+    assert!(sound_change > -0.5 * bound, "{sound_change}");
+    assert!(a.collapse_fraction(e[at]) > 0.1, "{e:?}");
+    // Stopped at the first interval whose true change is beyond the bound.
+    assert!(truth[at] < -bound, "{truth:?}");
+    assert!(truth[..at].iter().all(|t| *t > -bound), "{truth:?}");
+    // The measured change follows the truth within 3 points.
+    let measured = f["value"].as_f64().unwrap();
+    assert!(
+        (measured - truth[at]).abs() < 3.0,
+        "measured {measured:.1} %, true {:.1} %",
+        truth[at]
+    );
+    assert_eq!(f["bound"], bound);
+    let (secs, _, x) = last_signals(&c, &d, &v).await;
+    assert!((secs - 10.0).abs() < 1e-3, "{secs}");
+    assert!(x.iter().any(|x| x.abs() > 1e-3));
+    println!(
+        "collapse: stopped at interval {at} (load {:.0} J), K(0) {measured:+.1} % measured, {:+.1} % true; true changes {truth:?}",
+        e[at], truth[at]
+    );
+}
+
+/// Issue 32, failure: the same tear under a stimulus held at a drive level:
+/// the excursion runs away; the test stops during the stimulus, names
+/// `xpeak_runaway_percent`, and stores the last 10 s of that stimulus.
+#[tokio::test]
+async fn an_excursion_running_away_under_a_held_drive_stops_the_test_with_its_last_10_s() {
+    use springbench::physics::ageing as law;
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let id = submit(
+        &c,
+        &d,
+        &torn_body("LT-RUN", 12, "drive", json!({"k0_change_percent": 90.0})),
+    )
+    .await;
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "failed", "{v}");
+    let f = &v["state"]["failure"];
+    assert_eq!(f["limit"], "xpeak_runaway_percent", "{v}");
+    let bound = f["bound"].as_f64().unwrap();
+    assert_eq!(bound, 30.0, "the default");
+    let at = f["interval"].as_u64().unwrap() as usize;
+    assert!(v["job"]["problem"]["detail"]
+        .as_str()
+        .unwrap()
+        .contains(&format!(
+            "failure limit `xpeak_runaway_percent` at interval {at}"
+        )));
+    // It stopped in the stimulus before interval `at`: that one was never measured.
+    assert_eq!(v["intervals"].as_array().unwrap().len(), at, "{v}");
+    let at_s = f["at_s"].as_f64().unwrap();
+    assert!(
+        at_s > 900.0 * (at - 1) as f64 && at_s <= 900.0 * at as f64,
+        "{at_s}"
+    );
+    // The truth: the part held at the velocity amplitude 5.3 mm had at its resonance when new,
+    // from the state after the last measurement, in the runner's 60 s steps.
+    let part = torn_part();
+    let x0 = 0.0053;
+    let vel = law::velocity_at_excursion_m_per_s(&part, 0.0, x0);
+    let st = &v["state"];
+    let (mut t, mut e) = (
+        st["clock_s"].as_f64().unwrap(),
+        st["load_j"].as_f64().unwrap(),
+    );
+    let end = 900.0 * at as f64;
+    let mut crossed = None;
+    while t < end {
+        let step = (end - t).min(60.0);
+        e = law::apply_sine_at_velocity(&part, e, vel, step);
+        t += step;
+        let growth = 100.0 * (law::excursion_at_velocity_m(&part, e, vel) / x0 - 1.0);
+        if growth > bound {
+            crossed = Some((t, growth, e));
+            break;
+        }
+    }
+    let (t_true, growth_true, e_true) = crossed.expect("the truth crosses the bound");
+    assert!((at_s - t_true).abs() < 1e-6, "{at_s} {t_true}");
+    let growth = f["value"].as_f64().unwrap();
+    assert!(
+        (growth - growth_true).abs() < 1e-6,
+        "{growth} {growth_true}"
+    );
+    // The tear did it: the sound part at that load would hardly have moved.
+    let mut sound = part.clone();
+    sound.ageing.as_mut().unwrap().collapse = None;
+    let vs = law::velocity_at_excursion_m_per_s(&sound, 0.0, x0);
+    let sound_growth = 100.0 * (law::excursion_at_velocity_m(&sound, e_true, vs) / x0 - 1.0);
+    assert!(sound_growth < 10.0, "{sound_growth}");
+    // The last 10 s: the stimulus then, simulated sample by sample: a sine
+    // at the torn part's resonance at the runaway excursion.
+    let (secs, fs, x) = last_signals(&c, &d, &v).await;
+    assert!((secs - 10.0).abs() < 1e-3, "{secs}");
+    let x_true = x0 * (1.0 + growth_true / 100.0);
+    let tail = &x[x.len() / 2..];
+    let peak = tail.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    // Its drive is levelled by probes on the upper branch, where the
+    // excursion barely follows the drive: within 25 %, and beyond the bound.
+    assert!(
+        (peak / x_true - 1.0).abs() < 0.25,
+        "{peak} against {x_true}"
+    );
+    assert!(peak > (1.0 + bound / 100.0) * x0, "{peak}");
+    let ups = tail
+        .windows(2)
+        .filter(|w| w[0] < 0.0 && w[1] >= 0.0)
+        .count();
+    let f_meas = ups as f64 / (tail.len() as f64 / fs);
+    let f_true = law::resonance_hz(&part, e_true, x_true);
+    assert!((f_meas / f_true - 1.0).abs() < 0.02, "{f_meas} {f_true}");
+    println!(
+        "runaway: stopped at {at_s} s before interval {at}, excursion {:+.1} % ({:.2} mm; sound part {sound_growth:+.1} %), last 10 s peak {:.2} mm at {f_meas:.1} Hz (true {f_true:.1} Hz)",
+        growth, 1e3 * x_true, 1e3 * peak
+    );
+}

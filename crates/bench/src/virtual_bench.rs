@@ -93,6 +93,23 @@ impl VirtualBench {
         e1 - e0
     }
 
+    /// As [`Self::apply_sine_load`], the sine held at a drive level: its
+    /// velocity amplitude at the resonance, `velocity_m_per_s`
+    /// (`physics::ageing::apply_sine_at_velocity`). Returns the load added (J).
+    pub fn apply_sine_load_at_velocity(&mut self, velocity_m_per_s: f64, duration_s: f64) -> f64 {
+        let Some(e0) = self.ageing_load_j else {
+            return 0.0;
+        };
+        let e1 = springbench_core::physics::ageing::apply_sine_at_velocity(
+            &self.part,
+            e0,
+            velocity_m_per_s,
+            duration_s,
+        );
+        self.ageing_load_j = Some(e1);
+        e1 - e0
+    }
+
     /// This bench's differences from its neighbours (`[benches.virtual]`):
     /// the laser's sensitivity error, the inner clamp's extra mass (added
     /// to the mounted part's moving mass). Pacing is the caller's
@@ -229,6 +246,7 @@ impl Bench for VirtualBench {
         let mut load_j = self.ageing_load_j.unwrap_or(0.0);
         if let Some((a, _)) = ageing {
             sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
+            sim.model.set_ageing_collapse(a.collapse_fraction(load_j));
         }
         let mic_delay = b.microphone.delay_s
             + self
@@ -309,6 +327,7 @@ impl Bench for VirtualBench {
                 block_start = end;
                 if let Some((a, _)) = ageing {
                     sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
+                    sim.model.set_ageing_collapse(a.collapse_fraction(load_j));
                 }
             }
             if let Some((k0, _)) = &abort {

@@ -17,6 +17,21 @@ pub const MAX_DURATION_S: f64 = 30.0 * 86400.0;
 pub const MAX_INTERVALS: usize = 2000;
 /// Default failure limit: a change of K(0) by more than this (%).
 pub const DEFAULT_K0_CHANGE_PERCENT: f64 = 60.0;
+/// Default failure limit: the stimulus' excursion grown by more than this (%).
+pub const DEFAULT_XPEAK_RUNAWAY_PERCENT: f64 = 30.0;
+
+/// What the stimulus holds as the part changes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Hold {
+    /// The excursion: the drive follows the part (the default).
+    #[default]
+    Excursion,
+    /// The drive level that gave `excursion_m` on the part at the test's
+    /// start, as an endurance test holds its voltage: the excursion follows
+    /// the part, and runs away when the part collapses.
+    Drive,
+}
 
 /// The stimulus between two measurements.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -29,6 +44,9 @@ pub struct Stimulus {
     pub on_s: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub off_s: Option<f64>,
+    /// `excursion` (default) or `drive`.
+    #[serde(default)]
+    pub hold: Hold,
 }
 
 impl Stimulus {
@@ -57,13 +75,28 @@ impl Stimulus {
 pub struct FailureLimits {
     /// Largest change of the small-signal K(0) from the first interval (%,
     /// either way). The test also stops when no resonance is found.
+    #[serde(default = "default_k0_change")]
     pub k0_change_percent: f64,
+    /// Largest growth of the stimulus' peak displacement over its value at
+    /// the test's start (%): a stimulus held at a drive level (`hold:
+    /// drive`) whose excursion runs away as the part collapses.
+    #[serde(default = "default_xpeak_runaway")]
+    pub xpeak_runaway_percent: f64,
+}
+
+fn default_k0_change() -> f64 {
+    DEFAULT_K0_CHANGE_PERCENT
+}
+
+fn default_xpeak_runaway() -> f64 {
+    DEFAULT_XPEAK_RUNAWAY_PERCENT
 }
 
 impl Default for FailureLimits {
     fn default() -> Self {
         FailureLimits {
             k0_change_percent: DEFAULT_K0_CHANGE_PERCENT,
+            xpeak_runaway_percent: DEFAULT_XPEAK_RUNAWAY_PERCENT,
         }
     }
 }
@@ -120,10 +153,14 @@ pub struct PartState {
 /// A failure limit that stopped the test.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Failure {
-    /// `k0_change_percent` or `no_resonance`.
+    /// `k0_change_percent`, `xpeak_runaway_percent` or `no_resonance`.
     pub limit: String,
-    /// The interval at which it was reached.
+    /// The interval at which it was reached (for a limit of the stimulus:
+    /// the interval whose stimulus it stopped, not measured).
     pub interval: usize,
+    /// Test time at which it was reached (s), for a limit of the stimulus.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_s: Option<f64>,
     /// The value and the bound (`k0_change_percent`), when the limit has them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub value: Option<f64>,
@@ -295,6 +332,12 @@ impl LongTermRequest {
                 format!("must be > 0 %, got {}", limits.k0_change_percent),
             ));
         }
+        if !(limits.xpeak_runaway_percent.is_finite() && limits.xpeak_runaway_percent > 0.0) {
+            add(FieldError::new(
+                "failure_limits.xpeak_runaway_percent",
+                format!("must be > 0 %, got {}", limits.xpeak_runaway_percent),
+            ));
+        }
         if let Some(p) = req.predict_s {
             if !(p.is_finite() && p > 0.0) {
                 add(FieldError::new(
@@ -394,6 +437,7 @@ mod tests {
             excursion_m: 0.005,
             on_s: Some(60.0),
             off_s: Some(30.0),
+            hold: Hold::Excursion,
         };
         assert_eq!(s.on_time_s(0.0, 90.0), 60.0);
         assert_eq!(s.on_time_s(0.0, 900.0), 600.0);

@@ -37,7 +37,9 @@ mod request;
 mod spec;
 mod stored;
 
-pub use long_term::{Failure, FailureLimits, LongTermRequest, LongTermSpec, PartState, Stimulus};
+pub use long_term::{
+    Failure, FailureLimits, Hold, LongTermRequest, LongTermSpec, PartState, Stimulus,
+};
 pub use measurement::{
     HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,
     RepeatEnded, SweepSettings,

@@ -39,6 +39,37 @@ pub struct AgeingParams {
     /// Half-width of the softened zone around rest (m): x_w in
     /// w(x) = exp(-(x/x_w)^4).
     pub width_m: f64,
+    /// A defect (`[ageing.collapse]`): past a load the part tears and its
+    /// stiffness collapses over the whole stroke. None: a sound part.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collapse: Option<Collapse>,
+}
+
+/// A torn spider (a defect, not ageing): once the part has taken
+/// `onset_load_j`, a fraction of its stiffness goes over the whole stroke,
+/// c(E) = fraction (1 - exp(-(E - E_c)/E_s)) for E > E_c, so that
+/// K(x, E) = (1 - c(E)) K_new(x) - L(E) w(x). The resonance falls, and a
+/// stimulus held at a drive level runs away in excursion.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Collapse {
+    /// Load at which the tear starts (J): E_c.
+    pub onset_load_j: f64,
+    /// Load over which the tear grows to 1 - 1/e of its end (J): E_s.
+    pub load_scale_j: f64,
+    /// Fraction of the stiffness the tear removes in the end (0 < f <= 0.9).
+    pub fraction: f64,
+}
+
+impl Collapse {
+    /// c(E): the fraction of the stiffness lost to the tear after `load_j`.
+    pub fn fraction_at(&self, load_j: f64) -> f64 {
+        let past = load_j - self.onset_load_j;
+        if past <= 0.0 {
+            return 0.0;
+        }
+        self.fraction * (1.0 - (-past / self.load_scale_j).exp())
+    }
 }
 
 impl AgeingParams {
@@ -62,6 +93,22 @@ impl AgeingParams {
                 return Err(format!("{n} must be a positive number, got {v}"));
             }
         }
+        if let Some(c) = &self.collapse {
+            for (n, v) in [
+                ("ageing.collapse.onset_load_j", c.onset_load_j),
+                ("ageing.collapse.load_scale_j", c.load_scale_j),
+            ] {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(format!("{n} must be a positive number, got {v}"));
+                }
+            }
+            if !(c.fraction.is_finite() && c.fraction > 0.0 && c.fraction <= 0.9) {
+                return Err(format!(
+                    "ageing.collapse.fraction must be in (0, 0.9], got {}",
+                    c.fraction
+                ));
+            }
+        }
         let lost = self.break_in_k_n_per_m + self.fatigue_k_n_per_m;
         if lost > 0.9 * k0_n_per_m {
             return Err(format!(
@@ -78,9 +125,15 @@ impl AgeingParams {
             + self.fatigue_k_n_per_m * (1.0 - (-e / self.fatigue_load_j).exp())
     }
 
+    /// The fraction of the stiffness lost to the defect (`collapse`) after
+    /// the load; 0 for a sound part.
+    pub fn collapse_fraction(&self, load_j: f64) -> f64 {
+        self.collapse.map_or(0.0, |c| c.fraction_at(load_j))
+    }
+
     /// The new part's k0 after the load: K(0, E) (N/m).
     pub fn k0_n_per_m(&self, k0_new_n_per_m: f64, load_j: f64) -> f64 {
-        k0_new_n_per_m - self.lost_k_n_per_m(load_j)
+        (1.0 - self.collapse_fraction(load_j)) * k0_new_n_per_m - self.lost_k_n_per_m(load_j)
     }
 
     /// Fraction of break-in still to come after the load: exp(-E/E_b).
@@ -100,7 +153,8 @@ pub fn shape(x_m: f64, inv_width4: f64) -> f64 {
 pub fn elastic_force_n(part: &super::PartSpec, load_j: f64, x_m: f64) -> f64 {
     let mut k = part.stiffness_n_per_m(x_m);
     if let Some(a) = &part.ageing {
-        k -= a.lost_k_n_per_m(load_j) * shape(x_m, a.width_m.powi(-4));
+        k = (1.0 - a.collapse_fraction(load_j)) * k
+            - a.lost_k_n_per_m(load_j) * shape(x_m, a.width_m.powi(-4));
     }
     k * x_m
 }
@@ -170,6 +224,60 @@ pub fn apply_sine(part: &super::PartSpec, load_j: f64, xpeak_m: f64, duration_s:
     e
 }
 
+/// The peak displacement of a sine held at the part's resonance at a
+/// constant drive level (m): at the resonance the drive's force balances the
+/// damping alone, F = R ω X, so with R unchanged the velocity amplitude
+/// `velocity_m_per_s` = ω_R X stays and X = v / ω_R(X, E). As the part
+/// softens ω_R falls and the excursion grows: a stiffness collapse makes it
+/// run away. Solved by fixed-point iteration (Keff varies slowly with X).
+pub fn excursion_at_velocity_m(part: &super::PartSpec, load_j: f64, velocity_m_per_s: f64) -> f64 {
+    if velocity_m_per_s <= 0.0 {
+        return 0.0;
+    }
+    let w = |x: f64| 2.0 * std::f64::consts::PI * resonance_hz(part, load_j, x);
+    let k0 = (part.stiffness_n_per_m(0.0) / part.moving_mass_kg).sqrt();
+    let mut x = velocity_m_per_s / k0;
+    for _ in 0..60 {
+        let next = velocity_m_per_s / w(x).max(1e-9);
+        // Damped: a hardening part's Keff(X) can make the plain iteration swing.
+        let nx = 0.5 * (x + next);
+        if (nx - x).abs() <= 1e-12 * x.abs().max(1e-9) {
+            return nx;
+        }
+        x = nx;
+    }
+    x
+}
+
+/// The velocity amplitude (m/s) of a sine at `xpeak_m` at the part's
+/// resonance after `load_j`: what a stimulus held at the drive level that
+/// gave `xpeak_m` then keeps ([`excursion_at_velocity_m`]).
+pub fn velocity_at_excursion_m_per_s(part: &super::PartSpec, load_j: f64, xpeak_m: f64) -> f64 {
+    2.0 * std::f64::consts::PI * resonance_hz(part, load_j, xpeak_m) * xpeak_m
+}
+
+/// As [`apply_sine`], the sine held at a drive level instead of an
+/// excursion: its excursion follows the part ([`excursion_at_velocity_m`]).
+pub fn apply_sine_at_velocity(
+    part: &super::PartSpec,
+    load_j: f64,
+    velocity_m_per_s: f64,
+    duration_s: f64,
+) -> f64 {
+    if duration_s <= 0.0 || velocity_m_per_s <= 0.0 {
+        return load_j;
+    }
+    let power = |e: f64| sine_power_w(part, e, excursion_at_velocity_m(part, e, velocity_m_per_s));
+    let steps = (duration_s / 10.0).ceil().max(1.0) as usize;
+    let h = duration_s / steps as f64;
+    let mut e = load_j;
+    for _ in 0..steps {
+        let p1 = power(e);
+        e += h * power(e + 0.5 * h * p1);
+    }
+    e
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -182,8 +290,69 @@ mod tests {
             fatigue_k_n_per_m: 500.0,
             fatigue_load_j: 2000.0,
             width_m: 0.004,
+            collapse: None,
         });
         p
+    }
+
+    fn torn() -> super::super::PartSpec {
+        let mut p = aged();
+        p.ageing.as_mut().unwrap().collapse = Some(Collapse {
+            onset_load_j: 1000.0,
+            load_scale_j: 500.0,
+            fraction: 0.6,
+        });
+        p
+    }
+
+    #[test]
+    fn a_collapse_takes_the_whole_stroke_past_its_onset() {
+        let (p, sound) = (torn(), aged());
+        let a = p.ageing.unwrap();
+        let k = |p: &super::super::PartSpec, x: f64, e: f64| elastic_force_n(p, e, x) / x;
+        // Before the onset: the sound part's law.
+        assert_eq!(a.collapse_fraction(999.0), 0.0);
+        assert_eq!(k(&p, 0.0064, 999.0), k(&sound, 0.0064, 999.0));
+        // One scale past it: 0.6 (1 - 1/e) of the stiffness, at rest and at 6.4 mm.
+        let c = 0.6 * (1.0 - (-1.0f64).exp());
+        assert!((a.collapse_fraction(1500.0) - c).abs() < 1e-12);
+        let lost = a.lost_k_n_per_m(1500.0);
+        for x in [1e-6, 0.0064] {
+            let want = (1.0 - c) * p.stiffness_n_per_m(x) - lost * shape(x, a.width_m.powi(-4));
+            assert!((k(&p, x, 1500.0) - want).abs() < 1e-9 * want);
+        }
+        let k0 = p.k_coeffs_si[0];
+        assert!(
+            (a.k0_n_per_m(k0, 1500.0) - ((1.0 - c) * k0 - a.lost_k_n_per_m(1500.0))).abs() < 1e-9
+        );
+        let mut bad = a;
+        bad.collapse.as_mut().unwrap().fraction = 0.95;
+        assert!(bad.validate(k0).unwrap_err().contains("collapse.fraction"));
+    }
+
+    #[test]
+    fn a_sine_held_at_a_drive_level_runs_away_in_excursion_as_the_part_tears() {
+        let p = torn();
+        let x0 = 0.005;
+        let v = velocity_at_excursion_m_per_s(&p, 0.0, x0);
+        // The same state gives the same excursion back.
+        assert!((excursion_at_velocity_m(&p, 0.0, v) / x0 - 1.0).abs() < 1e-6);
+        // Torn to 0.4 of its stiffness: X ω_R(X) = v still, and X has grown
+        // (by less than 1/sqrt(0.4): the hardening part's Keff rises with X);
+        // the sound part at the same load barely moves.
+        let e = 1e6;
+        let x = excursion_at_velocity_m(&p, e, v);
+        let w = 2.0 * std::f64::consts::PI * resonance_hz(&p, e, x);
+        assert!((x * w / v - 1.0).abs() < 1e-6, "{x} {w} {v}");
+        assert!(x / x0 > 1.3 && x / x0 < 1.0 / 0.4f64.sqrt(), "{x}");
+        let sound = aged();
+        let vs = velocity_at_excursion_m_per_s(&sound, 0.0, x0);
+        let xs = excursion_at_velocity_m(&sound, e, vs);
+        assert!(xs / x0 < 1.1, "{xs}");
+        // Held at the drive level, the load grows faster than held at x0 once torn.
+        let held = apply_sine(&p, 2000.0, x0, 600.0) - 2000.0;
+        let at_drive = apply_sine_at_velocity(&p, 2000.0, v, 600.0) - 2000.0;
+        assert!(at_drive > held, "{at_drive} {held}");
     }
 
     #[test]

@@ -261,6 +261,9 @@ pub struct Model {
     /// 1/x_w^4 of its shape; the elastic force is K(x) x - loss w(x) x.
     ageing_loss_n_per_m: f64,
     ageing_inv_width4: f64,
+    /// A defect's collapse (`ageing::Collapse`): the fraction of K(x) lost
+    /// over the whole stroke.
+    ageing_collapse: f64,
 }
 
 /// Instantaneous powers (W) and stored energies (J) for the energy balance.
@@ -325,6 +328,7 @@ impl Model {
             memory: super::memory::Memory::new(&fx, bench.sample_rate_hz),
             ageing_loss_n_per_m: 0.0,
             ageing_inv_width4: part.ageing.map_or(0.0, |a| a.width_m.powi(-4)),
+            ageing_collapse: 0.0,
         }
     }
 
@@ -338,10 +342,22 @@ impl Model {
         }
     }
 
+    /// Sets the fraction of K(x) a defect's collapse has removed so far
+    /// (`AgeingParams::collapse_fraction`).
+    pub fn set_ageing_collapse(&mut self, fraction: f64) {
+        if fraction > 0.0 {
+            self.ageing_collapse = fraction;
+            self.any_force_effect = true;
+        }
+    }
+
     /// The elastic restoring force of the part (N): K(x) x less ageing's loss.
     #[inline]
     pub fn elastic_force(&self, x: f64) -> f64 {
         let mut k = self.stiffness(x);
+        if self.ageing_collapse > 0.0 {
+            k *= 1.0 - self.ageing_collapse;
+        }
         if self.ageing_loss_n_per_m > 0.0 {
             k -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4);
         }
@@ -394,6 +410,9 @@ impl Model {
         }
         if self.ageing_loss_n_per_m > 0.0 {
             f -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4) * x;
+        }
+        if self.ageing_collapse > 0.0 {
+            f -= self.ageing_collapse * self.stiffness(x) * x;
         }
         f
     }
