@@ -51,7 +51,7 @@ enum Msg {
         std::sync::mpsc::SyncSender<Result<(), String>>,
     ),
     Failure(
-        Failure,
+        Box<Failure>,
         Option<(NewRecording, f64)>,
         std::sync::mpsc::SyncSender<Result<(), String>>,
     ),
@@ -470,7 +470,9 @@ fn run_blocking(
                     let secs = last.len() as f64 / last.sample_rate_hz;
                     let res = crate::bench::Bench::resolution(&vb);
                     let rec = super::execute::recording("main", &last, res.as_ref())?;
-                    send_and_wait(tx, |r| Msg::Failure(f.clone(), Some((rec, secs)), r))?;
+                    send_and_wait(tx, |r| {
+                        Msg::Failure(Box::new(f.clone()), Some((rec, secs)), r)
+                    })?;
                     return Err(failure_problem(&f));
                 }
             }
@@ -497,7 +499,7 @@ fn run_blocking(
                     detail: format!("the procedure found no resonance: {why}"),
                 };
                 if index > 0 {
-                    send_and_wait(tx, |r| Msg::Failure(f.clone(), None, r))?;
+                    send_and_wait(tx, |r| Msg::Failure(Box::new(f.clone()), None, r))?;
                 }
                 return Err(failure_problem(&f));
             }
@@ -656,7 +658,9 @@ fn run_blocking(
             let last = tail(&first.signals, LAST_SIGNALS_S);
             let secs = last.len() as f64 / last.sample_rate_hz;
             let rec = super::execute::recording("main", &last, res.as_ref())?;
-            send_and_wait(tx, |r| Msg::Failure(f.clone(), Some((rec, secs)), r))?;
+            send_and_wait(tx, |r| {
+                Msg::Failure(Box::new(f.clone()), Some((rec, secs)), r)
+            })?;
             return Err(failure_problem(&f));
         }
         let per = started.elapsed().as_secs_f64() / (index + 1 - start) as f64;
