@@ -221,6 +221,7 @@ async fn a_long_term_test_runs_as_a_job_while_the_other_bench_works() {
         drop > 150.0 && drop < 500.0,
         "K(0) fell by {drop} N/m: {doc}"
     );
+    offline_equals_online(&c, &d, &v).await;
     // The series as CSV.
     let csv = c
         .get(d.url(&format!("/api/v1/long-term-tests/{id}/series.csv")))
@@ -596,4 +597,97 @@ async fn an_excursion_running_away_under_a_held_drive_stops_the_test_with_its_la
         "runaway: stopped at {at_s} s before interval {at}, excursion {:+.1} % ({:.2} mm; sound part {sound_growth:+.1} %), last 10 s peak {:.2} mm at {f_meas:.1} Hz (true {f_true:.1} Hz)",
         growth, 1e3 * x_true, 1e3 * peak
     );
+}
+
+/// Issue 32, offline equals online: the test's intervals exported through
+/// the API (each measurement's meta and its pre.wav and main.wav, one
+/// recording set per directory) and read by `springbench ageing DIR` give
+/// the daemon's stored fit: the same intervals, law and prediction.
+async fn offline_equals_online(c: &reqwest::Client, d: &Daemon, v: &Value) {
+    let dir = tempfile::tempdir().unwrap();
+    for i in v["intervals"].as_array().unwrap() {
+        let mid = i["measurement_id"].as_str().unwrap();
+        let sub = dir
+            .path()
+            .join(format!("{:03}", i["index"].as_u64().unwrap()));
+        std::fs::create_dir_all(&sub).unwrap();
+        let m = get(c, d, &format!("/api/v1/measurements/{mid}")).await;
+        std::fs::write(
+            sub.join("meta.json"),
+            serde_json::to_vec(&m["measurement"]["meta"]).unwrap(),
+        )
+        .unwrap();
+        for f in ["pre.wav", "main.wav"] {
+            let r = c
+                .get(d.url(&format!("/api/v1/measurements/{mid}/recordings/{f}")))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status().as_u16(), 200, "{f}");
+            std::fs::write(sub.join(f), r.bytes().await.unwrap()).unwrap();
+        }
+    }
+    let online = &v["state"]["document"];
+    let predict_s = online["prediction"]["elapsed_s"].as_f64().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_springbench"))
+        .args(["ageing", "--json", "--predict-s"])
+        .arg(predict_s.to_string())
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let offline: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut worst = (0.0f64, String::new());
+    let mut cmp = |name: String, a: &Value, b: &Value| {
+        let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
+        let rel = if a == b { 0.0 } else { ((a - b) / b).abs() };
+        if rel >= worst.0 {
+            worst = (rel, format!("{name}: offline {a}, online {b}"));
+        }
+    };
+    let (lo, ln) = (&offline["law"], &online["law"]);
+    assert_eq!(lo["axis"], ln["axis"]);
+    assert_eq!(lo["validity"], ln["validity"], "{lo} {ln}");
+    assert_eq!(lo["intervals_used"], ln["intervals_used"]);
+    for k in [
+        "k_inf_n_per_m",
+        "break_in_k_n_per_m",
+        "fatigue_k_n_per_m",
+        "break_in_load_j",
+        "fatigue_load_j",
+    ] {
+        for p in ["value", "se"] {
+            cmp(format!("law.{k}.{p}"), &lo[k][p], &ln[k][p]);
+        }
+    }
+    for k in ["k0_n_per_m", "k0_se_n_per_m"] {
+        cmp(
+            format!("prediction.{k}"),
+            &offline["prediction"][k],
+            &online["prediction"][k],
+        );
+    }
+    let (io, on) = (
+        offline["intervals"].as_array().unwrap(),
+        online["intervals"].as_array().unwrap(),
+    );
+    assert_eq!(io.len(), on.len());
+    for (i, (a, b)) in io.iter().zip(on).enumerate() {
+        assert_eq!(a["elapsed_s"], b["elapsed_s"]);
+        assert_eq!(a["load_j"], b["load_j"]);
+        cmp(
+            format!("intervals[{i}].k0_n_per_m"),
+            &a["k0_n_per_m"],
+            &b["k0_n_per_m"],
+        );
+    }
+    println!(
+        "offline against online: largest relative difference {:.1e} ({})",
+        worst.0, worst.1
+    );
+    assert!(worst.0 <= 1e-6, "{}", worst.1);
 }
