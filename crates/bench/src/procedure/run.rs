@@ -10,8 +10,8 @@ use springbench_core::recording::Signals;
 const PROBE_S: f64 = 2.0;
 const PROBE_V: f64 = 0.5;
 /// Resonance search sweeps: one octave (1/3 below to 2/3 above the estimate) in this time.
-const SEARCH_S: f64 = 3.0;
-const MAX_SEARCH: usize = 3;
+pub(super) const SEARCH_S: f64 = 3.0;
+pub(super) const MAX_SEARCH: usize = 3;
 /// Silence after probe and search sweeps (s).
 pub(super) const SHORT_SILENCE_S: f64 = 0.2;
 /// Xpeak within this fraction of the target ends the search.
