@@ -48,6 +48,7 @@ mod physics_reference;
 mod production;
 mod qc;
 mod qc_faults;
+mod qc_station_keff;
 mod series;
 mod storage;
 mod trust_bad_parts;

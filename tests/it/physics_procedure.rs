@@ -95,9 +95,11 @@ fn procedure_on_every_preset() {
             "{name}: start"
         );
         assert!((n.f_end_hz / n.resonance_hz).log2() >= 0.25, "{name}: end");
-        // Xpeak near the 8 mm target, never beyond the limits.
+        // Xpeak near the aim (8 % above the 8 mm target, so that the
+        // excursion reaches it on both sides; issue 35), never beyond the
+        // limits.
         assert!(
-            (n.xpeak_m / 8e-3 - 1.0).abs() < 0.15,
+            (n.xpeak_m / 8.64e-3 - 1.0).abs() < 0.15,
             "{name}: Xpeak {}",
             n.xpeak_m
         );

@@ -12,6 +12,7 @@ use springbench::diagnose::engine::EngineOptions;
 use springbench::diagnose::series::{fit_series_sets, SeriesFit};
 use springbench::diagnose::{diagnose, DiagnoseOptions};
 use springbench::effects::*;
+use springbench::identify::validity::ACCURACY_K_OF_X;
 use springbench::physics::{preset, PartSpec};
 use springbench::recording::RecordingSet;
 
@@ -242,7 +243,19 @@ async fn daemon_job_with_levels_ends_with_the_joint_fit() {
         low_range[1] * 1e3,
     );
     assert!(e_joint <= 0.05, "{e_joint}");
-    assert!(e_own_union > 10.0 * e_joint, "{e_own_union} vs {e_joint}");
+    // Beyond its range the lowest level's own K(x) is an extrapolation, the
+    // joint K(x) a fit to data there. How far off the extrapolation is
+    // depends on whether that level's own ladder resolved the friction:
+    // 5.1 % at 2.98 mm of 3, 0.030 % at 3.29 mm (issue 35's level control
+    // reaches the target on both sides), both of an order-4 fit of an order-4
+    // truth; no ratio of the two follows from the physics, so only the order
+    // is asserted. The plain headline, which has no friction term, stays
+    // beyond the stated K(x) accuracy over the series' range.
+    assert!(e_own_union > e_joint, "{e_own_union} vs {e_joint}");
+    assert!(
+        e_head_union > 100.0 * ACCURACY_K_OF_X,
+        "headline {e_head_union} % over the series' range"
+    );
     assert!(
         joint["effects"]["coulomb_friction"].is_object(),
         "{}",

@@ -25,11 +25,13 @@
 //! that hit it is redone lower; the drive never exceeds the bench's limit.
 
 use super::run::{
-    analyse, validate, Ctx, Stop, NARROW_ABOVE_OCT, NARROW_BELOW_OCT, SEARCH_TOL, SHORT_SILENCE_S,
+    aim_m, analyse, validate, Ctx, Stop, NARROW_ABOVE_OCT, NARROW_BELOW_OCT, SEARCH_TOL,
+    SHORT_SILENCE_S,
 };
 use super::sweep::SweepSpec;
 use super::{Observer, Outcome, ProcedureConfig, ProcedureError, ProductionRun, Step};
 use crate::Bench;
+use springbench_core::identify::validity::TARGET_MARGIN;
 use springbench_core::qc::GoldenReference;
 
 /// Length of the short pre-measurement sweep (s): its three octaves put
@@ -282,15 +284,16 @@ pub fn run_production(
             )
         };
         // The golden drive is where the full search stopped, anywhere within
-        // its tolerance of the target (a spider_4in at 7.5 mm of 8): aimed at
-        // the target with the golden units' own Xpeak at that drive.
+        // its tolerance of its aim: aimed like the full procedure (above the
+        // target, so that the excursion reaches it on both sides) with the
+        // golden units' own Xpeak at that drive.
         let aim = gl.xpeak_m.map_or(1.0, |x| {
-            let aim = (level / x).clamp(0.5, 2.0);
+            let aim = (aim_m(level) / x).clamp(0.5, 2.0);
             cx.log.push(format!(
                 "golden drive {:.3} V reached Xpeak {:.3} mm: aimed at {:.3} mm with x{aim:.4}",
                 gl.drive_v,
                 x * 1e3,
-                level * 1e3
+                aim_m(level) * 1e3
             ));
             aim
         });
@@ -320,19 +323,27 @@ pub fn run_production(
                 .ok_or_else(|| ProcedureError::Failed("short narrow sweep too short".into()))?;
             // The level is checked with the analysis's own Xpeak, so the short
             // procedure accepts the sweeps the analysis reads as on target.
-            match springbench_core::identify::sweep_xpeak_m(&played.sig, cfg.moving_mass_kg) {
-                Ok(x) => info.xpeak_m = x,
+            match springbench_core::identify::sweep_xpeak_m(&played.sig, cfg.moving_mass_kg)
+                .and_then(|x| {
+                    springbench_core::identify::sweep_reach_m(&played.sig, cfg.moving_mass_kg)
+                        .map(|r| (x, r))
+                }) {
+                Ok((x, r)) => {
+                    info.xpeak_m = x;
+                    info.reach_m = r;
+                }
                 Err(e) => cx.log.push(format!(
                     "Xpeak from the raw samples ({:.3} mm): the analysis's preparation failed: {e}",
                     info.xpeak_m * 1e3
                 )),
             }
             cx.log.push(format!(
-                "short narrow sweep {:.2}-{:.2} Hz in {:.2} s at {v:.3} V: Xpeak {:.3} mm (target {:.3} mm), resonance {:.2} Hz",
+                "short narrow sweep {:.2}-{:.2} Hz in {:.2} s at {v:.3} V: Xpeak {:.3} mm, reached +-{:.3} mm (target {:.3} mm), resonance {:.2} Hz",
                 spec.f_start_hz,
                 spec.f_end_hz,
                 spec.duration_s,
                 info.xpeak_m * 1e3,
+                info.reach_m * 1e3,
                 level * 1e3,
                 info.resonance_hz
             ));
@@ -362,20 +373,26 @@ pub fn run_production(
                     ),
                 );
             }
-            let ratio = level / info.xpeak_m.max(1e-9);
-            if (ratio - 1.0).abs() > SEARCH_TOL && !corrected && !lowered {
+            // The excursion on both sides against the aim: off when it
+            // falls short of the target by more than the analysis's margin
+            // for Keff at the target (`validity::TARGET_MARGIN`), or
+            // overshoots the aim by more than the search tolerance.
+            let ratio = aim_m(level) / info.reach_m.max(1e-9);
+            let off = info.reach_m < level * (1.0 - TARGET_MARGIN)
+                || info.reach_m > aim_m(level) / (1.0 - SEARCH_TOL);
+            if off && !corrected && !lowered {
                 let nv = (v * ratio.clamp(0.5, 2.0)).min(vmax);
                 if nv != v {
                     corrected = true;
                     v = nv;
                     cx.log.push(format!(
-                        "Xpeak {:.0} % of the target: one more sweep at {v:.3} V",
+                        "the excursion {:.0} % of the aim: one more sweep at {v:.3} V",
                         100.0 / ratio
                     ));
                     continue;
                 }
             }
-            if (ratio - 1.0).abs() > SEARCH_TOL && !lowered {
+            if off && !lowered {
                 // Two short sweeps did not hit the level: the part is too far
                 // from the golden units for their drive; the full search decides
                 // (and says when the target cannot be reached).
@@ -383,10 +400,11 @@ pub fn run_production(
                     cx,
                     cfg,
                     format!(
-                        "Xpeak {:.3} mm at level {} is {:.0} % of the target {:.3} mm at {v:.3} V{}",
-                        info.xpeak_m * 1e3,
+                        "the excursion +-{:.3} mm at level {} is {:.0} % of the aim {:.3} mm (target {:.3} mm) at {v:.3} V{}",
+                        info.reach_m * 1e3,
                         li + 1,
                         100.0 / ratio,
+                        aim_m(level) * 1e3,
                         level * 1e3,
                         if corrected { " in the corrected short sweep" } else { " (drive limit)" }
                     ),

@@ -16,6 +16,18 @@ pub(super) const MAX_SEARCH: usize = 3;
 pub(super) const SHORT_SILENCE_S: f64 = 0.2;
 /// Xpeak within this fraction of the target ends the search.
 pub(super) const SEARCH_TOL: f64 = 0.08;
+
+/// The excursion the level control aims at for a target Xpeak: above the
+/// target by the search tolerance, so that a sweep accepted within the
+/// tolerance reaches the target on both sides (its half peak-to-peak, see
+/// [`SweepInfo::reach_m`], is at least the target). Keff at the target is
+/// read over c +- target (c the excursion's centre): aimed at the target
+/// itself, a hardening spider_4in stopped at 7.5 mm of 8 on its larger side
+/// and 6.75 mm on the other, and every good part's Keff at the target was
+/// extrapolated beyond the measured range (issue 35).
+pub(super) fn aim_m(target_m: f64) -> f64 {
+    target_m * (1.0 + SEARCH_TOL)
+}
 /// Narrow sweep: this many octaves below and above the large-signal resonance found.
 pub(super) const NARROW_BELOW_OCT: f64 = 0.45;
 pub(super) const NARROW_ABOVE_OCT: f64 = 0.4;
@@ -197,6 +209,11 @@ pub(super) struct SweepInfo {
     /// Largest |x| (m); the production procedure replaces it with the
     /// analysis's Xpeak (`identify::sweep_xpeak_m`) before its level check.
     pub(super) xpeak_m: f64,
+    /// Half the peak-to-peak excursion (m): how far the sweep reached on
+    /// both sides of its centre. The level control checks this one; the
+    /// production procedure replaces it with the analysis's at the resonance
+    /// (`identify::sweep_reach_m`).
+    pub(super) reach_m: f64,
     /// Peak of |X/Mic| (Hz).
     pub(super) resonance_hz: f64,
     /// |X/U| at the resonance (m/V).
@@ -287,6 +304,19 @@ pub(super) fn analyse(spec: &SweepSpec, sig: &Signals) -> Option<SweepInfo> {
             .displacement_m
             .iter()
             .fold(0.0f64, |a, x| a.max(x.abs())),
+        reach_m: {
+            let (lo, hi) = sig
+                .displacement_m
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+                    (l.min(x), h.max(x))
+                });
+            if hi >= lo {
+                0.5 * (hi - lo)
+            } else {
+                0.0
+            }
+        },
         resonance_hz: cyc[i].f_hz,
         gain_m_per_v: g,
         crossed,
@@ -386,7 +416,7 @@ pub fn run(
         + cfg.pre_duration_s
         + 0.5
         + cfg.levels_m.len() as f64
-            * (2.0 * (SEARCH_S + SHORT_SILENCE_S) + cfg.narrow_duration_s + 0.5);
+            * (MAX_SEARCH as f64 * (SEARCH_S + SHORT_SILENCE_S) + cfg.narrow_duration_s + 0.5);
     let mut cx = Ctx {
         bench,
         obs,
@@ -504,10 +534,12 @@ pub fn run(
                 continue;
             };
             f_r = info.resonance_hz;
-            let ratio = level / info.xpeak_m.max(1e-9);
+            let ratio = aim_m(level) / info.reach_m.max(1e-9);
             cx.log.push(format!(
-                "search {i} at {v:.3} V: Xpeak {:.3} mm, resonance {:.2} Hz{}",
+                "search {i} at {v:.3} V: Xpeak {:.3} mm, reached +-{:.3} mm (aim {:.3} mm), resonance {:.2} Hz{}",
                 info.xpeak_m * 1e3,
+                info.reach_m * 1e3,
+                aim_m(level) * 1e3,
                 f_r,
                 if let Stop::Early = played.stop {
                     " (stopped after the jump)"
@@ -547,10 +579,11 @@ pub fn run(
             let info = analyse(&spec, &played.sig)
                 .ok_or_else(|| ProcedureError::Failed("narrow sweep too short".into()))?;
             cx.log.push(format!(
-                "narrow sweep {:.2}-{:.2} Hz at {v:.3} V: Xpeak {:.3} mm (target {:.3} mm), resonance {:.2} Hz",
+                "narrow sweep {:.2}-{:.2} Hz at {v:.3} V: Xpeak {:.3} mm, reached +-{:.3} mm (target {:.3} mm), resonance {:.2} Hz",
                 spec.f_start_hz,
                 spec.f_end_hz,
                 info.xpeak_m * 1e3,
+                info.reach_m * 1e3,
                 level * 1e3,
                 info.resonance_hz
             ));

@@ -401,6 +401,16 @@ pub fn sweep_xpeak_m(main: &crate::recording::Signals, mass_kg: f64) -> Result<f
     Ok(p.px[i].max.max(-p.px[i].min))
 }
 
+/// Half the peak-to-peak excursion of a main sweep in the period at its
+/// resonance (m): how far it reached on both sides of the centre Keff at a
+/// target is read around (the production procedure's level check, issue 35).
+pub fn sweep_reach_m(main: &crate::recording::Signals, mass_kg: f64) -> Result<f64, AnalyzeError> {
+    let p = prep::prepare_sweep(main, mass_kg, "main")?;
+    let (i, _) = resonance_period(&p)
+        .ok_or_else(|| AnalyzeError::Invalid("main: no resonance inside the sweep".into()))?;
+    Ok(0.5 * (p.px[i].max - p.px[i].min))
+}
+
 /// The period the large-signal values are read at: where x lags the force by
 /// 90 degrees (with fR), else the displacement peak when it lies inside the
 /// sweep (fR None).

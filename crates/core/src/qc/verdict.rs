@@ -246,10 +246,10 @@ pub fn validity_problems(recipe: &Recipe, facts: &RunFacts) -> Vec<InvalidReason
 /// Keff at the recipe's target amplitude: the first-harmonic describing
 /// function of the fitted K(x) over `c +- X_target` (c: the measured centre
 /// of the excursion at resonance). The level control stops near, not at,
-/// the target (a hardening spider jumps to about 7.5 mm for an 8 mm
-/// target, and another part of the same lot to 7.9 mm), and the Keff of
-/// such a part changes by about 10 % per 0.5 mm, so the Keff measured at the
-/// reached Xpeak would judge the level control, not the part. Without a
+/// the target (it aims 8 % above it, with the excursion on both sides, so
+/// that c +- X_target lies inside the measured range; issue 35), and the
+/// Keff of a spider changes by about 10 % per 0.5 mm, so the Keff measured
+/// at the reached Xpeak would judge the level control, not the part. Without a
 /// target (or a fitted K(x)): the measured Keff.
 pub fn keff_at_target(r: &crate::identify::Report, target_xpeak_m: Option<f64>) -> f64 {
     let ls = &r.large_signal;
