@@ -46,6 +46,8 @@ enum Msg {
         progress: f64,
         eta_s: f64,
     },
+    /// Paused (`Some(reason)`: the disk is full) or resumed (`None`).
+    Paused(Option<String>),
     Interval(
         Box<NewInterval>,
         std::sync::mpsc::SyncSender<Result<(), String>>,
@@ -134,8 +136,15 @@ impl Runner {
         let flag = cancel.clone();
         let spec2 = spec.clone();
         let job_id = job.id.clone();
+        let space = (self.store.clone(), self.min_free_bytes);
         let mut handle = tokio::task::spawn_blocking(move || {
-            run_blocking(&job_id, &spec2, &bench_cfg, resume, &tx, &flag, &shutdown)
+            let room = Room {
+                store: &space.0,
+                min_free_bytes: space.1,
+            };
+            run_blocking(
+                &job_id, &spec2, &bench_cfg, resume, &tx, &flag, &shutdown, &room,
+            )
         });
         let res = loop {
             tokio::select! {
@@ -267,6 +276,28 @@ impl Runner {
                     )
                     .await;
             }
+            Msg::Paused(reason) => {
+                let step = match &reason {
+                    Some(r) => format!("paused: {r}"),
+                    None => "long_term".to_string(),
+                };
+                match &reason {
+                    Some(r) => tracing::warn!(job = %job_id, "long-term test paused: {r}"),
+                    None => tracing::info!(job = %job_id, "long-term test resumed: space returned"),
+                }
+                let stored = match self.store.get_job(job_id).await {
+                    Ok(Some(j)) => {
+                        self.store
+                            .set_progress(job_id, &step, j.progress, j.eta_s.unwrap_or(0.0))
+                            .await
+                    }
+                    Ok(None) => Ok(()),
+                    Err(e) => Err(e),
+                };
+                if let Err(e) = stored {
+                    tracing::warn!(job = %job_id, "pause not stored: {e}");
+                }
+            }
             Msg::Interval(iv, reply) => {
                 let (index, mid) = (iv.index, iv.measurement.id.clone());
                 let (elapsed_s, load_j) = (iv.elapsed_s, iv.load_j);
@@ -362,7 +393,40 @@ fn failure_problem(f: &Failure) -> Stop {
     ))
 }
 
+/// Where the test's results go, and the free space they need.
+struct Room<'a> {
+    store: &'a Store,
+    min_free_bytes: u64,
+}
+
+impl Room<'_> {
+    /// Waits while the disk is below `min_free_bytes`: the test pauses with
+    /// the reason (the job's `step`) and resumes when space returns.
+    fn wait_for_space(
+        &self,
+        tx: &mpsc::UnboundedSender<Msg>,
+        obs: &LtObserver<'_>,
+    ) -> Result<(), Stop> {
+        let mut paused = false;
+        while let Err(e) = self.store.check_space(self.min_free_bytes) {
+            if !paused {
+                let _ = tx.send(Msg::Paused(Some(e.to_string())));
+                paused = true;
+            }
+            if obs.cancelled() {
+                return Err(Stop::Aborted);
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+        if paused {
+            let _ = tx.send(Msg::Paused(None));
+        }
+        Ok(())
+    }
+}
+
 /// The test on the job's blocking thread; Ok(intervals measured in all).
+#[allow(clippy::too_many_arguments)]
 fn run_blocking(
     job_id: &str,
     spec: &LongTermSpec,
@@ -371,6 +435,7 @@ fn run_blocking(
     tx: &mpsc::UnboundedSender<Msg>,
     cancel: &AtomicU8,
     shutdown: &AtomicBool,
+    room: &Room<'_>,
 ) -> Result<usize, Stop> {
     let m = &spec.measurement;
     let part = super::job::mounted_part(m, bench_cfg)
@@ -480,6 +545,8 @@ fn run_blocking(
                 (index > start).then(|| started.elapsed().as_secs_f64() / (index - start) as f64);
             progress(index, t, per);
         }
+        // The interval's results need room: a full disk pauses the test here.
+        room.wait_for_space(tx, &obs)?;
         let load_at_start = vb.ageing_load_j().unwrap_or(load_j);
         let k0_true = vb.k0_now_n_per_m();
         let wall = Instant::now();

@@ -115,6 +115,8 @@ pub struct Runner {
     /// (`fleet::Link::recipe_trace`: `offline` when the station could not
     /// check its recipes with the center lately); unset without `[fleet]`.
     recipe_trace: std::sync::OnceLock<RecipeTrace>,
+    /// `min_free_bytes`: a long-term test pauses below it (`longterm.rs`).
+    min_free_bytes: u64,
 }
 
 /// See [`Runner::set_recipe_trace`].
@@ -191,6 +193,7 @@ impl Runner {
             mes: cfg.mes.clone(),
             outbox: Arc::new(Notify::new()),
             recipe_trace: std::sync::OnceLock::new(),
+            min_free_bytes: cfg.min_free_bytes,
         });
         longterm::requeue(&runner.store).await?;
         runner.end_interrupted(cfg).await?;

@@ -691,3 +691,105 @@ async fn offline_equals_online(c: &reqwest::Client, d: &Daemon, v: &Value) {
     );
     assert!(worst.0 <= 1e-6, "{}", worst.1);
 }
+
+/// Issue 32, faults: a full disk during a test (a real tmpfs, filled below
+/// `min_free_bytes`) pauses it with the reason in the job's `step`, and it
+/// resumes when space returns: every interval measured once, none lost.
+/// Needs root to mount; otherwise it says so and checks nothing.
+#[tokio::test]
+async fn a_full_disk_pauses_the_test_with_the_reason_and_it_resumes_when_space_returns() {
+    use std::io::Write;
+    let tmp = tempfile::tempdir().unwrap();
+    let mnt = tmp.path().join("mnt");
+    std::fs::create_dir(&mnt).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=256m", "tmpfs"])
+        .arg(&mnt)
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    if !mounted {
+        println!("SKIPPED: cannot mount a tmpfs (not root?): the real full-disk test did not run");
+        return;
+    }
+    struct Unmount(std::path::PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+    let _u = Unmount(mnt.clone());
+    let min_free = 40_000_000u64;
+    let d = Daemon::start_in(&mnt, &format!("min_free_bytes = {min_free}\n{BENCHES}"));
+    let c = client();
+    let n = 5;
+    let id = submit(&c, &d, &test_body("LT-DISK", n)).await;
+    wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        !v["intervals"].as_array().unwrap().is_empty() || terminal(v)
+    })
+    .await;
+    // Fill the disk to 10 MB short of the bound: room for the state, not for the test.
+    let filler = mnt.join("filler");
+    {
+        let mut f = std::fs::File::create(&filler).unwrap();
+        let block = vec![0u8; 1 << 20];
+        loop {
+            let st = nix_free(&mnt);
+            if st + 10_000_000 < min_free {
+                break;
+            }
+            f.write_all(&block).unwrap();
+        }
+        f.sync_all().unwrap();
+    }
+    let v = wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        v["job"]["step"]
+            .as_str()
+            .is_some_and(|s| s.starts_with("paused"))
+            || terminal(v)
+    })
+    .await;
+    assert_eq!(v["job"]["state"], "running", "{v}");
+    let step = v["job"]["step"].as_str().unwrap();
+    assert!(
+        step.contains("disk full") && step.contains("min_free_bytes"),
+        "{step}"
+    );
+    let held = v["intervals"].as_array().unwrap().len();
+    assert!(held < n, "{v}");
+    // Paused: no interval is measured while the disk stays full.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let still = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
+    assert_eq!(
+        still["intervals"].as_array().unwrap().len(),
+        held,
+        "{still}"
+    );
+    assert_eq!(still["job"]["state"], "running");
+    // Space returns: it resumes and finishes, every interval once.
+    std::fs::remove_file(&filler).unwrap();
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    check_intervals(&c, &d, &v, n).await;
+    println!("full disk: paused after {held} intervals ({step}); resumed, {n} intervals");
+    drop(d);
+}
+
+/// Free bytes of the file system holding `p` (statvfs through `df`).
+fn nix_free(p: &std::path::Path) -> u64 {
+    let out = std::process::Command::new("df")
+        .args(["-B1", "--output=avail"])
+        .arg(p)
+        .output()
+        .unwrap();
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .nth(1)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap()
+}
