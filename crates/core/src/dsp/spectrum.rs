@@ -170,17 +170,26 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
         l,
         subs,
         |z, rs| {
-            // z[n] = y[2n] + i y[2n+1] goes to subsequence n % subs, place
-            // n / subs; this group keeps subsequences `rs` (the record is
-            // read once per group, in order).
-            let mut y = padded(signal, n);
-            for q in 0..l {
-                for r in 0..subs {
-                    let re = y.next().unwrap_or(0.0);
-                    let im = y.next().unwrap_or(0.0);
-                    if rs.contains(&r) {
-                        z[(r - rs.start) * l + q] = Complex64::new(re, im);
-                    }
+            // z[c] = y[2c] + i y[2c+1] goes to subsequence c % subs, place
+            // c / subs; this group holds subsequences `rs`. Where both
+            // samples are the record's they are read directly; the rest (the
+            // pad, whose values follow a recurrence) in order, once per group.
+            let full = signal.len() / 2;
+            for r in rs.clone() {
+                let zr = &mut z[(r - rs.start) * l..][..l];
+                let inside = full.saturating_sub(r).div_ceil(subs).min(l);
+                for (q, o) in zr[..inside].iter_mut().enumerate() {
+                    let c = q * subs + r;
+                    *o = Complex64::new(signal[2 * c], signal[2 * c + 1]);
+                }
+            }
+            let mut y = padded(signal, n).skip(2 * full);
+            for c in full..m {
+                let re = y.next().unwrap_or(0.0);
+                let im = y.next().unwrap_or(0.0);
+                let r = c % subs;
+                if rs.contains(&r) {
+                    z[(r - rs.start) * l + c / subs] = Complex64::new(re, im);
                 }
             }
         },
