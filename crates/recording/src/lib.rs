@@ -54,36 +54,18 @@ impl RecordingSetFiles for RecordingSet {
             path: meta_path.display().to_string(),
             reason,
         })?;
-        // Each file is mapped and decoded from the page cache in place,
-        // straight into the channels, in blocks side by side (decision
-        // 0093): reading it into a buffer copied its 6-10 MB once more, and
-        // one thread decoded each file, the shorter one's waiting for the
-        // longer. What cannot be mapped (a pipe) is read in blocks.
+        // Each file is read whole and decoded in blocks side by side,
+        // straight into the channels (decision 0093); one thread decoded
+        // each file before, the shorter one's waiting for the longer. Not
+        // mapped: memmap2 links libc, which this pure crate must not
+        // (tests/it/layers.rs).
         let read = |name: &str| {
             let p = dir.join(name);
-            let f = std::fs::File::open(&p).map_err(|source| RecordingError::Io {
+            let bytes = std::fs::read(&p).map_err(|source| RecordingError::Io {
                 path: p.display().to_string(),
                 source,
             })?;
-            // SAFETY: a private read-only map of a file nobody writes while it
-            // is read (the CLI's recording directories); a file truncated
-            // meanwhile would end the process (SIGBUS), not read wrong values
-            // silently. Populated: one call maps all its pages.
-            let map = unsafe {
-                memmap2::MmapOptions::new()
-                    .populate()
-                    .map_copy_read_only(&f)
-            };
-            if let Ok(map) = map {
-                return read_signals_bytes(&map, &meta).map_err(|e| with_path(e, &p));
-            }
-            read_signals_seek(std::io::BufReader::new(f), &meta).map_err(|e| match e {
-                RecordingError::Io { source, .. } => RecordingError::Io {
-                    path: p.display().to_string(),
-                    source,
-                },
-                e => with_path(e, &p),
-            })
+            read_signals_bytes(&bytes, &meta).map_err(|e| with_path(e, &p))
         };
         // the two files decode side by side (rayon's pool: the analysis
         // that follows runs there too)
