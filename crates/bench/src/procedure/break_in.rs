@@ -107,21 +107,10 @@ pub fn break_in(
     for _ in 0..4 {
         let mut spec = SweepSpec::new(cfg.pre_f_start_hz, cfg.pre_f_end_hz, 2.0, v);
         spec.silence_s = 0.2;
-        let drive = spec.samples(fs);
-        bench_time += drive.len() as f64 / fs;
-        let mut hit = false;
-        let sig = bench.run(&drive, &mut |blk: Block<'_>| {
-            if blk.displacement_m.iter().any(|x| x.abs() > limit) {
-                hit = true;
-                return Control::Abort;
-            }
-            Control::Continue
-        });
-        if hit {
+        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time)? else {
             v /= 10.0;
             continue;
-        }
-        let sig = sig?;
+        };
         let info = analyse(&spec, &sig)
             .ok_or_else(|| ProcedureError::Failed("break-in probe too short".into()))?;
         if info.x_fund_peak_m < 0.03 * b.xpeak_m && v < limits.max_drive_v {
@@ -155,21 +144,10 @@ pub fn break_in(
             v,
         );
         spec.silence_s = SHORT_SILENCE_S;
-        let drive = spec.samples(fs);
-        bench_time += drive.len() as f64 / fs;
-        let mut hit = false;
-        let sig = bench.run(&drive, &mut |blk: Block<'_>| {
-            if blk.displacement_m.iter().any(|x| x.abs() > limit) {
-                hit = true;
-                return Control::Abort;
-            }
-            Control::Continue
-        });
-        if hit {
+        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time)? else {
             v *= 0.5;
             continue;
-        }
-        let sig = sig?;
+        };
         let Some(s) = analyse(&spec, &sig) else {
             continue;
         };
@@ -286,4 +264,30 @@ pub fn break_in(
         drive_v: drive_used,
         bench_time_s: bench_time,
     })
+}
+
+/// Plays a probe or search sweep, stopped as soon as |x| passes `limit`:
+/// None when it did (the caller lowers the drive and plays again); the
+/// sweep's length is added to `bench_time` either way.
+fn play_guarded(
+    bench: &mut dyn Bench,
+    spec: &SweepSpec,
+    limit: f64,
+    bench_time: &mut f64,
+) -> Result<Option<crate::Signals>, ProcedureError> {
+    let fs = bench.sample_rate_hz();
+    let drive = spec.samples(fs);
+    *bench_time += drive.len() as f64 / fs;
+    let mut hit = false;
+    let sig = bench.run(&drive, &mut |blk: Block<'_>| {
+        if blk.displacement_m.iter().any(|x| x.abs() > limit) {
+            hit = true;
+            return Control::Abort;
+        }
+        Control::Continue
+    });
+    if hit {
+        return Ok(None);
+    }
+    Ok(Some(sig?))
 }
