@@ -699,29 +699,10 @@ async fn offline_equals_online(c: &reqwest::Client, d: &Daemon, v: &Value) {
 #[tokio::test]
 async fn a_full_disk_pauses_the_test_with_the_reason_and_it_resumes_when_space_returns() {
     use std::io::Write;
-    let tmp = tempfile::tempdir().unwrap();
-    let mnt = tmp.path().join("mnt");
-    std::fs::create_dir(&mnt).unwrap();
-    let mounted = std::process::Command::new("mount")
-        .args(["-t", "tmpfs", "-o", "size=256m", "tmpfs"])
-        .arg(&mnt)
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if !mounted {
-        println!("SKIPPED: cannot mount a tmpfs (not root?): the real full-disk test did not run");
+    let Some(fs) = crate::common::Tmpfs::mount("256m") else {
         return;
-    }
-    struct Unmount(std::path::PathBuf);
-    impl Drop for Unmount {
-        fn drop(&mut self) {
-            let _ = std::process::Command::new("umount")
-                .arg("-l")
-                .arg(&self.0)
-                .status();
-        }
-    }
-    let _u = Unmount(mnt.clone());
+    };
+    let mnt = fs.path().to_path_buf();
     let min_free = 40_000_000u64;
     let d = Daemon::start_in(&mnt, &format!("min_free_bytes = {min_free}\n{BENCHES}"));
     let c = client();

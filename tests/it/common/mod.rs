@@ -4,11 +4,13 @@
 
 pub mod api;
 pub mod config;
+pub mod tmpfs;
 // The hardware binaries include this module and use neither.
 #[allow(unused_imports)]
 pub use api::Api;
 #[allow(unused_imports)]
 pub use config::Config;
+pub use tmpfs::Tmpfs;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
