@@ -344,7 +344,7 @@ impl PgStore {
         .bind(name)
         .bind(cur.map_or(1, |c| c.0 + 1))
         .bind(sha256)
-        .bind(springbench_store::recipe_json(body))
+        .bind(springbench_store::json_text(body))
         .bind(origin)
         .bind(created_by)
         .bind(now())

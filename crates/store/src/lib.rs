@@ -195,12 +195,6 @@ pub fn parse_recipe(
     })
 }
 
-/// The stored text of a recipe document: its keys sorted, as recipes have
-/// always been written (they were `serde_json::Value`s, whose maps sort).
-pub fn recipe_json(r: &springbench_core::qc::Recipe) -> String {
-    json_text(r)
-}
-
 /// A typed document's stored text, its keys sorted: the text it had when the
 /// store held it as a `serde_json::Value` (whose maps sort).
 pub fn json_text<T: serde::Serialize>(v: &T) -> String {

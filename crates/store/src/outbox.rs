@@ -444,7 +444,7 @@ impl Store {
                     .bind(r.name.clone())
                     .bind(r.version)
                     .bind(r.sha256.clone())
-                    .bind(crate::recipe_json(&r.recipe))
+                    .bind(crate::json_text(&r.recipe))
                     .bind(r.origin.clone())
                     .bind(r.proposal_id.clone())
                     .bind(i64::from(r.retired))

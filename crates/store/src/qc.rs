@@ -716,7 +716,7 @@ async fn insert_recipe_tx(
     .bind(name.to_string())
     .bind(name.to_string())
     .bind(sha256.to_string())
-    .bind(crate::recipe_json(body))
+    .bind(crate::json_text(body))
     .bind(origin.to_string())
     .bind(proposal_id.map(str::to_string))
     .bind(created_by.map(str::to_string))
