@@ -10,6 +10,7 @@ pub mod tmpfs;
 pub use api::Api;
 #[allow(unused_imports)]
 pub use config::Config;
+#[allow(unused_imports)]
 pub use tmpfs::Tmpfs;
 
 use serde_json::Value;
