@@ -553,3 +553,122 @@ async fn a_study_killed_while_it_waits_ends_with_its_job() {
         "{p}"
     );
 }
+
+/// One run of the added-mass study on the virtual bench: `part` with
+/// `added_kg` on its slide, the standard procedure at `level_m`, the fit
+/// given the true mass.
+fn added_mass_run(
+    part: &PartSpec,
+    added_kg: f64,
+    level_m: f64,
+    seed: u64,
+) -> springbench::diagnose::studies::AttributionRun {
+    use springbench::procedure::{run, Observer, ProcedureConfig};
+    struct Quiet;
+    impl Observer for Quiet {}
+    let mut part = part.clone();
+    part.moving_mass_kg += added_kg;
+    let mut bench = VirtualBench::new(part.clone(), seed);
+    let cfg = ProcedureConfig {
+        moving_mass_kg: part.moving_mass_kg,
+        levels_m: vec![level_m],
+        ..Default::default()
+    };
+    let out = run(&mut bench, &cfg, &mut Quiet).unwrap();
+    let set = springbench::recording::RecordingSet {
+        meta: springbench::recording::Meta::standard(part.moving_mass_kg, 48000.0),
+        pre: out.pre,
+        main: out.narrow[0].signals.clone(),
+    };
+    let (report, data) =
+        springbench::identify::analyze_with_force_balance(&set, &Default::default()).unwrap();
+    springbench::diagnose::studies::AttributionRun {
+        data,
+        resonance_hz: report.large_signal.resonance_hz,
+        xpeak_m: report.large_signal.xpeak_m,
+    }
+}
+
+/// The added-mass study's attribution (issue 33 acceptance: "on a part
+/// with creep and softening together, each is attributed to the right
+/// cause"; decision 0122). spider_4in (50 g, 35 Hz) measured at 6 mm, then
+/// with 20 g added (the resonance falls by a sixth); creep 400 N/m with
+/// tau 5 ms (omega tau about 1.2 at the resonance: where its stiffness
+/// changes most with frequency) and a reversible softening of 3e4 N/m^2
+/// (K(0) 180 N/m lower after 6 mm) with tau 2 s. The truth of each share
+/// is the part's law where the study measured: creep's stored stiffness
+/// `k w^2 tau^2 / (1 + w^2 tau^2)` at the second resonance minus at the
+/// first, the softening's `-depth Xpeak`. Tolerance 20 %: the issue's for
+/// a recovered effect parameter. Each share is also a parameter product
+/// (k and tau, depth and Xpeak), so the parameters are checked at 20 % too.
+/// A part with one of them gets a zero share for the other.
+#[test]
+fn added_mass_study_attributes_creep_and_softening_to_their_causes() {
+    use springbench::diagnose::studies::attribute_memory;
+    let creep = Creep {
+        k_n_per_m: 400.0,
+        tau_s: 0.005,
+    };
+    let soft = ReversibleSoftening {
+        depth_n_per_m2: 3.0e4,
+        tau_s: 2.0,
+    };
+    let storage = |f: f64| {
+        let u = (2.0 * std::f64::consts::PI * f * creep.tau_s).powi(2);
+        creep.k_n_per_m * u / (1.0 + u)
+    };
+    let cases = [
+        ("creep and softening", Some(creep), Some(soft)),
+        ("creep alone", Some(creep), None),
+        ("softening alone", None, Some(soft)),
+    ];
+    let mut failures = Vec::new();
+    for (name, c, s) in cases {
+        let part = spider_with(Effects {
+            creep: c,
+            reversible_softening: s,
+            ..Default::default()
+        });
+        let runs = [
+            added_mass_run(&part, 0.0, 0.006, 7),
+            added_mass_run(&part, 0.02, 0.006, 8),
+        ];
+        let a = attribute_memory(&runs, &Default::default()).unwrap();
+        let [f1, f2] = a.resonances_hz;
+        let want_f = if c.is_some() {
+            storage(f2) - storage(f1)
+        } else {
+            0.0
+        };
+        let want_a = s.map_or(0.0, |s| -s.depth_n_per_m2 * a.xpeak_m);
+        eprintln!(
+            "{name}: frequency-dependent {:+.1} N/m (truth {want_f:+.1}, {f1:.2} -> {f2:.2} Hz), amplitude-dependent {:+.1} N/m (truth {want_a:+.1} at {:.2} mm); effects {}; model error {:.3} %",
+            a.frequency_dependent_n_per_m,
+            a.amplitude_dependent_n_per_m,
+            a.xpeak_m * 1e3,
+            serde_json::to_string(&a.effects).unwrap(),
+            a.model_error_percent
+        );
+        let near = |got: f64, want: f64| {
+            if want == 0.0 {
+                got == 0.0
+            } else {
+                (got / want - 1.0).abs() <= 0.2
+            }
+        };
+        let mut ok = near(a.frequency_dependent_n_per_m, want_f)
+            && near(a.amplitude_dependent_n_per_m, want_a)
+            && a.effects.creep.is_some() == c.is_some()
+            && a.effects.reversible_softening.is_some() == s.is_some();
+        if let (Some(t), Some(g)) = (c, a.effects.creep) {
+            ok &= near(g.k_n_per_m, t.k_n_per_m) && near(g.tau_s, t.tau_s);
+        }
+        if let (Some(t), Some(g)) = (s, a.effects.reversible_softening) {
+            ok &= near(g.depth_n_per_m2, t.depth_n_per_m2);
+        }
+        if !ok {
+            failures.push(format!("{name}: {a:?}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

@@ -300,6 +300,161 @@ pub fn analyze_added_mass(
     Ok(out)
 }
 
+/// One run of the added-mass study for the attribution: its force-balance
+/// data with `mass_kg` the run's true moving mass (the derived mass, plus
+/// the added mass on the second run), its large-signal resonance and peak
+/// excursion.
+#[derive(Debug, Clone)]
+pub struct AttributionRun {
+    pub data: crate::identify::ForceBalanceData,
+    pub resonance_hz: f64,
+    pub xpeak_m: f64,
+}
+
+/// Which cause the added-mass study gives the part's stiffness changes to
+/// (issue 33, decision 0122): the two runs fitted as one part (one K(x),
+/// one R, one set of effects; only the mass differs), with creep's and the
+/// softening's time constants found together.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct MemoryAttribution {
+    /// The joint model's effects (every effect the ladder chose on both runs).
+    pub effects: crate::effects::Effects,
+    /// The joint model's error (%).
+    pub model_error_percent: f64,
+    /// Frequency-dependent (creep, viscoelastic): the change of the
+    /// stiffness from the first run's resonance to the second's (N/m),
+    /// `k w^2 tau^2 / (1 + w^2 tau^2)` at each; 0 when the joint model has no creep.
+    pub frequency_dependent_n_per_m: f64,
+    /// Amplitude-dependent (reversible softening): the drop of K(0) after an
+    /// excursion of the runs' mean peak excursion against the part at rest
+    /// (N/m, negative), `-depth Xpeak`; 0 when the joint model has no softening.
+    pub amplitude_dependent_n_per_m: f64,
+    /// The peak excursion the amplitude-dependent share is at (m).
+    pub xpeak_m: f64,
+    /// The two resonances the frequency-dependent share is between (Hz).
+    pub resonances_hz: [f64; 2],
+    /// One line per cause: what it is attributed to, or that nothing is.
+    pub notes: Vec<String>,
+}
+
+/// Real part of creep's stiffness at `f_hz` (N/m): the standard linear
+/// solid `k (x - xr)`, `xr' = (x - xr) / tau` stores `k w^2 tau^2 / (1 + w^2 tau^2)`.
+pub fn creep_storage_n_per_m(k_n_per_m: f64, tau_s: f64, f_hz: f64) -> f64 {
+    let u = (2.0 * PI * f_hz * tau_s).powi(2);
+    k_n_per_m * u / (1.0 + u)
+}
+
+/// The two runs one after the other as one record of one part: the
+/// acceleration of each scaled by its mass over the first's, so that the
+/// engine's `m a` (with the first run's mass) is each run's own inertia force.
+pub fn joint_data(runs: &[AttributionRun]) -> Result<crate::identify::ForceBalanceData, String> {
+    let first = &runs.first().ok_or("the attribution needs the runs")?.data;
+    let mut out = crate::identify::ForceBalanceData {
+        x_m: Vec::new(),
+        v_m_per_s: Vec::new(),
+        a_m_per_s2: Vec::new(),
+        mic_v: Vec::new(),
+        ..first.clone()
+    };
+    for (i, r) in runs.iter().enumerate() {
+        let d = &r.data;
+        if (d.sample_rate_hz - first.sample_rate_hz).abs() > 1e-9 * first.sample_rate_hz {
+            return Err(format!(
+                "run {} was prepared at {} Hz, run 1 at {} Hz",
+                i + 1,
+                d.sample_rate_hz,
+                first.sample_rate_hz
+            ));
+        }
+        if !(d.mass_kg.is_finite() && d.mass_kg > 0.0) {
+            return Err(format!("run {} has moving mass {} kg", i + 1, d.mass_kg));
+        }
+        let scale = d.mass_kg / first.mass_kg;
+        out.x_m.extend_from_slice(&d.x_m);
+        out.v_m_per_s.extend_from_slice(&d.v_m_per_s);
+        out.a_m_per_s2
+            .extend(d.a_m_per_s2.iter().map(|a| a * scale));
+        out.mic_v.extend_from_slice(&d.mic_v);
+        out.laser_noise_m = out.laser_noise_m.max(d.laser_noise_m);
+        out.mic_noise_v = out.mic_noise_v.max(d.mic_noise_v);
+    }
+    Ok(out)
+}
+
+/// The attribution from the two runs (decision 0122): the engine's ladder
+/// on the joint record chooses the effects (significance, relevance,
+/// plausibility as for one sweep), then the hyper-parameters of the chosen
+/// effects are found together ([`super::engine::refit_jointly`]), and each
+/// memory cause's share is evaluated where the study measured.
+pub fn attribute_memory(
+    runs: &[AttributionRun; 2],
+    opts: &super::engine::EngineOptions,
+) -> Result<MemoryAttribution, String> {
+    let joint = joint_data(runs)?;
+    let r = super::engine::run(&joint, opts)?;
+    let model = super::engine::refit_jointly(&joint, opts, &r.model, 3)?;
+    let fx = model.effects;
+    let f = [runs[0].resonance_hz, runs[1].resonance_hz];
+    let xpeak = 0.5 * (runs[0].xpeak_m + runs[1].xpeak_m);
+    if !(f.iter().all(|v| v.is_finite() && *v > 0.0) && xpeak.is_finite() && xpeak > 0.0) {
+        return Err(format!(
+            "the runs' resonances ({} and {} Hz) or excursion ({xpeak} m) were not determined",
+            f[0], f[1]
+        ));
+    }
+    let mut notes = Vec::new();
+    let freq = match fx.creep {
+        Some(c) => {
+            let d = creep_storage_n_per_m(c.k_n_per_m, c.tau_s, f[1])
+                - creep_storage_n_per_m(c.k_n_per_m, c.tau_s, f[0]);
+            notes.push(format!(
+                "frequency-dependent: creep (k {:.1} N/m, tau {:.2} ms) changes the stiffness by {d:+.1} N/m from {:.2} Hz to {:.2} Hz",
+                c.k_n_per_m,
+                c.tau_s * 1e3,
+                f[0],
+                f[1]
+            ));
+            d
+        }
+        None => {
+            notes.push("frequency-dependent: none found (no creep in the joint model)".into());
+            0.0
+        }
+    };
+    let ampl = match fx.reversible_softening {
+        Some(s) => {
+            let d = -s.depth_n_per_m2 * xpeak;
+            notes.push(format!(
+                "amplitude-dependent: reversible softening (depth {:.4e} N/m^2, tau {:.2} s) lowers K(0) by {:.1} N/m after {:.2} mm",
+                s.depth_n_per_m2,
+                s.tau_s,
+                -d,
+                xpeak * 1e3
+            ));
+            d
+        }
+        None => {
+            notes.push(
+                "amplitude-dependent: none found (no reversible softening in the joint model)"
+                    .into(),
+            );
+            0.0
+        }
+    };
+    // The engine's model error: the residual above the noise floor.
+    let (res, floor) = (model.residual_percent, r.noise_floor_percent);
+    let me = (res * res - floor * floor).max(0.0).sqrt();
+    Ok(MemoryAttribution {
+        effects: fx,
+        model_error_percent: me,
+        frequency_dependent_n_per_m: freq,
+        amplitude_dependent_n_per_m: ampl,
+        xpeak_m: xpeak,
+        resonances_hz: f,
+        notes,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -353,6 +508,37 @@ mod tests {
         let e =
             analyze_added_mass(0.02, run(0.04, 0.04, 2400.0), run(0.06, 0.04, 2400.0)).unwrap_err();
         assert!(e.contains("was the mass added"), "{e}");
+    }
+
+    #[test]
+    fn the_joint_record_keeps_each_runs_inertia_force() {
+        let run = |m: f64, a: f64| AttributionRun {
+            data: crate::identify::ForceBalanceData {
+                sample_rate_hz: 1000.0,
+                t0_s: 0.0,
+                mass_kg: m,
+                x_m: vec![1e-3; 3],
+                v_m_per_s: vec![0.0; 3],
+                a_m_per_s2: vec![a; 3],
+                mic_v: vec![0.5; 3],
+                laser_noise_m: 1e-7,
+                mic_noise_v: 1e-4,
+                starts_at_rest: false,
+            },
+            resonance_hz: 30.0,
+            xpeak_m: 1e-3,
+        };
+        let j = joint_data(&[run(0.05, 2.0), run(0.07, 3.0)]).unwrap();
+        assert_eq!(j.mass_kg, 0.05);
+        assert_eq!(j.x_m.len(), 6);
+        // m a of the second run: 0.07 kg x 3 m/s^2 = 0.05 kg x 4.2 m/s^2.
+        assert!((j.a_m_per_s2[3] * j.mass_kg - 0.21).abs() < 1e-12);
+        assert!((j.a_m_per_s2[0] - 2.0).abs() < 1e-12);
+        assert!(joint_data(&[run(0.05, 1.0), run(f64::NAN, 1.0)]).is_err());
+        // Creep's stored stiffness: half of k at omega tau = 1, k far above.
+        let f1 = 1.0 / (2.0 * PI * 0.005);
+        assert!((creep_storage_n_per_m(400.0, 0.005, f1) - 200.0).abs() < 1e-9);
+        assert!((creep_storage_n_per_m(400.0, 0.005, 1e6) - 400.0).abs() < 1e-3);
     }
 
     #[test]

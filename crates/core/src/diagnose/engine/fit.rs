@@ -316,6 +316,21 @@ pub(super) fn set_effect(effects: &mut Effects, e: EffectId, params: &serde_json
     }
 }
 
+/// The hyper-parameter of effect `e` in `effects` (0 for an effect without one or not there).
+pub(super) fn hyper_of(effects: &Effects, e: EffectId) -> f64 {
+    match e {
+        EffectId::CoulombFriction => effects.coulomb_friction.map(|f| f.v_eps_m_per_s),
+        EffectId::Creep => effects.creep.map(|c| c.tau_s),
+        EffectId::ChannelDelay => effects.channel_delay.map(|c| c.delay_s),
+        EffectId::Hysteresis => effects.hysteresis.map(|h| h.x_yield_m),
+        EffectId::ReversibleSoftening => effects.reversible_softening.map(|s| s.tau_s),
+        EffectId::QuadraticDamping | EffectId::DampingVsDisplacement | EffectId::StiffnessDrift => {
+            None
+        }
+    }
+    .unwrap_or(0.0)
+}
+
 /// Default hyper-parameter of a forced effect: searched like a candidate.
 pub(super) fn forced_hyper(p: &Prepared, built: &Built, e: EffectId) -> f64 {
     evaluate(p, built, Term::Effect(e)).hyper.unwrap_or(0.0)

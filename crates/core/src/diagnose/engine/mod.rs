@@ -214,6 +214,48 @@ pub fn run(d: &ForceBalanceData, opts: &EngineOptions) -> Result<EngineResult, S
     })
 }
 
+/// The chosen `model` (its order and effects) refitted with the
+/// hyper-parameters of its searched effects (creep's and the softening's
+/// tau, the yield excursion, friction's smoothing) found together: each in
+/// turn searched on its grid and refined by golden section, as the ladder
+/// does, but with every other effect of the model in, for `rounds` rounds.
+/// The ladder searches an effect's hyper-parameter once, when it enters,
+/// against the model of that step; two effects whose regressors overlap
+/// (creep and a reversible softening on one part) keep the first one's
+/// compromise. The added-mass study's attribution (decision 0122) needs
+/// both causes at their own values.
+pub fn refit_jointly(
+    d: &ForceBalanceData,
+    opts: &EngineOptions,
+    model: &FittedModel,
+    rounds: usize,
+) -> Result<FittedModel, String> {
+    let p = Prepared::new(d, opts.blocks)?;
+    let mut spec = Spec {
+        order: model.order,
+        effects: model
+            .effect_ids
+            .iter()
+            .map(|&e| (e, fit::hyper_of(&model.effects, e)))
+            .collect(),
+    };
+    for _ in 0..rounds {
+        for i in 0..spec.effects.len() {
+            let e = spec.effects[i].0;
+            if fit::hyper_grid(&p, e).is_none() {
+                continue;
+            }
+            let mut without = spec.clone();
+            without.effects.remove(i);
+            let built = Built::new(&p, without);
+            if let Some(h) = fit::evaluate(&p, &built, Term::Effect(e)).hyper {
+                spec.effects[i].1 = h;
+            }
+        }
+    }
+    Ok(describe(&p, &Built::new(&p, spec), opts.folds).0)
+}
+
 /// The model of `built` with creep's time constant free, when it holds
 /// creep: creep's column at tau is replaced by its columns at tau e^-h and
 /// tau e^h, which span the column and its derivative in ln tau (the
