@@ -672,3 +672,73 @@ fn added_mass_study_attributes_creep_and_softening_to_their_causes() {
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// The recovery study as a daemon job (issue 33 acceptance: "the time
+/// constant and depth within 10 % on the virtual bench"). The bench's
+/// configuration mounts the softening on every part
+/// (`[benches.virtual.part_effects.reversible_softening]`, the smallest
+/// typed way a daemon's virtual bench carries a material's memory): spider_4in
+/// with 3e4 N/m^2 and tau 2 s, the plan of the core test (30 Hz at 50 V,
+/// probes at 1.5 V, 0.5-30 s). A bad plan is a 422 naming the field; a
+/// bad part effect in the configuration stops the daemon's start-up with
+/// the field named (tested in `springbench-bench`'s settings).
+#[tokio::test]
+async fn recovery_study_job_gives_back_depth_and_time_constant() {
+    use crate::common::{client, problem, terminal, wait_job, Daemon};
+    use serde_json::{json, Value};
+    let d = Daemon::start(
+        "[[benches]]\nid = \"virtual-soft\"\npreset = \"spider_4in\"\nseed = 11\n\
+         [benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n",
+    );
+    let c = client();
+    let mut plan = serde_json::to_value(plan()).unwrap();
+    let body = |plan: &Value| {
+        json!({"bench": "virtual-soft", "part_serial": "SN-R", "moving_mass_kg": 0.05,
+            "plan": {"recovery": plan}})
+    };
+    let mut bad = plan.clone();
+    bad["delays_s"] = json!([0.5]);
+    let r = c
+        .post(d.url("/api/v1/studies"))
+        .json(&body(&bad))
+        .send()
+        .await
+        .unwrap();
+    let p = problem(r, 422).await;
+    assert_eq!(p["errors"][0]["field"], "plan.recovery.delays_s", "{p}");
+    plan["excitation_s"] = json!(2.0);
+    let r = c
+        .post(d.url("/api/v1/studies"))
+        .json(&body(&plan))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 202);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(v["kind"], "recovery", "{v}");
+    let id = v["id"].as_str().unwrap().to_string();
+    let j = wait_job(&c, &d, &id, std::time::Duration::from_secs(300), terminal).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let s: Value = c
+        .get(d.url(&format!("/api/v1/studies/{id}")))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(s["state"], "succeeded", "{s}");
+    let r = &s["result"];
+    assert_eq!(r["kind"], "recovery", "{s}");
+    let depth = r["depth_n_per_m2"].as_f64().unwrap();
+    let tau = r["tau_s"].as_f64().unwrap();
+    eprintln!(
+        "daemon recovery: depth {depth:.4e} N/m^2 (truth 3e4, {:+.1} %), tau {tau:.3} s (truth 2, {:+.1} %), probes {}",
+        100.0 * (depth / 3e4 - 1.0),
+        100.0 * (tau / 2.0 - 1.0),
+        r["points"].as_array().map_or(0, |p| p.len())
+    );
+    assert_eq!(r["softening_found"], true, "{r}");
+    assert!((depth / 3e4 - 1.0).abs() <= 0.10, "{depth}");
+    assert!((tau / 2.0 - 1.0).abs() <= 0.10, "{tau}");
+}

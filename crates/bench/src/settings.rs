@@ -495,6 +495,13 @@ pub struct VirtualConfig {
     /// part's own moving mass (kg; negative: lighter). The recipe's moving
     /// mass does not know it. At most 0.01 kg in size.
     pub clamp_mass_kg: f64,
+    /// Effects every part mounted on this bench carries beyond its own
+    /// (`[benches.virtual.part_effects.reversible_softening]`
+    /// `depth_n_per_m2 = 3e4`, `tau_s = 2.0`): a material's memory for the
+    /// recovery study of a daemon (issue 33), hidden effects for a
+    /// demonstration. One given here replaces the part's of its kind.
+    #[serde(skip_serializing_if = "springbench_core::effects::Effects::is_empty")]
+    pub part_effects: springbench_core::effects::Effects,
 }
 
 impl VirtualConfig {
@@ -512,6 +519,9 @@ impl VirtualConfig {
                 self.clamp_mass_kg
             ));
         }
+        self.part_effects
+            .validate()
+            .map_err(|e| format!("bench '{id}': virtual.part_{e}"))?;
         Ok(())
     }
 }

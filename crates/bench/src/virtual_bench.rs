@@ -112,11 +112,12 @@ impl VirtualBench {
 
     /// This bench's differences from its neighbours (`[benches.virtual]`):
     /// the laser's sensitivity error, the inner clamp's extra mass (added
-    /// to the mounted part's moving mass). Pacing is the caller's
-    /// ([`crate::procedure::pace::Paced`]).
+    /// to the mounted part's moving mass), the effects it adds to every
+    /// part. Pacing is the caller's ([`crate::procedure::pace::Paced`]).
     pub fn with_config(mut self, cfg: &crate::settings::VirtualConfig) -> VirtualBench {
         self.laser_gain_error = cfg.laser_gain_error;
         self.part.moving_mass_kg += cfg.clamp_mass_kg;
+        self.part.effects = self.part.effects.overlaid_with(&cfg.part_effects);
         self
     }
 
@@ -391,5 +392,26 @@ mod tests {
             ..Default::default()
         });
         assert_eq!(b.part.moving_mass_kg, part.moving_mass_kg + 0.001);
+        // The bench's part effects: added to the part's (issue 33).
+        let soft = springbench_core::effects::ReversibleSoftening {
+            depth_n_per_m2: 3e4,
+            tau_s: 2.0,
+        };
+        let cfg: VirtualConfig = toml::from_str(
+            "[part_effects.reversible_softening]\ndepth_n_per_m2 = 3e4\ntau_s = 2.0\n",
+        )
+        .unwrap();
+        let b = VirtualBench::new(part.clone(), 7).with_config(&cfg);
+        assert_eq!(b.part.effects.reversible_softening, Some(soft));
+        assert_eq!(b.part.moving_mass_kg, part.moving_mass_kg);
+        assert!(cfg.validate("v").is_ok());
+        let bad: VirtualConfig = toml::from_str(
+            "[part_effects.reversible_softening]\ndepth_n_per_m2 = 3e4\ntau_s = 0.0\n",
+        )
+        .unwrap();
+        assert_eq!(
+            bad.validate("v").unwrap_err(),
+            "bench 'v': virtual.part_effects.reversible_softening.tau_s must be > 0, got 0"
+        );
     }
 }

@@ -316,6 +316,22 @@ impl Effects {
         Some(id.parameter_names().iter().copied().zip(values).collect())
     }
 
+    /// These effects with each one `over` has replaced by `over`'s.
+    pub fn overlaid_with(&self, over: &Effects) -> Effects {
+        Effects {
+            coulomb_friction: over.coulomb_friction.or(self.coulomb_friction),
+            quadratic_damping: over.quadratic_damping.or(self.quadratic_damping),
+            damping_vs_displacement: over
+                .damping_vs_displacement
+                .or(self.damping_vs_displacement),
+            creep: over.creep.or(self.creep),
+            stiffness_drift: over.stiffness_drift.or(self.stiffness_drift),
+            channel_delay: over.channel_delay.or(self.channel_delay),
+            hysteresis: over.hysteresis.or(self.hysteresis),
+            reversible_softening: over.reversible_softening.or(self.reversible_softening),
+        }
+    }
+
     /// Checks that parameters are finite and physically possible; one-line error naming the field.
     pub fn validate(&self) -> Result<(), String> {
         let finite = |name: &str, v: f64| {
