@@ -33,6 +33,52 @@ pub struct LongTermDocument {
     pub series_csv: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_signals: Option<String>,
+    /// What happened besides the intervals, in test time: pauses and their
+    /// ends, resumptions after a stop of the daemon, the failure limit.
+    pub events: Vec<TestEvent>,
+}
+
+/// One event of a test's life, as its page lists it beside the plots.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct TestEvent {
+    /// `paused` (the disk was full), `resumed` (space returned),
+    /// `restarted` (resumed after the daemon stopped), `failure` (a limit stopped it).
+    pub kind: &'static str,
+    /// Test time (s), when known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub elapsed_s: Option<f64>,
+    /// The interval it happened before (or at, for a failure).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub interval: Option<usize>,
+    pub detail: String,
+    /// Wall time (RFC 3339), when known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub at: Option<String>,
+}
+
+/// One test of `GET /api/v1/long-term-tests`.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct LongTermSummary {
+    /// The job (state, progress, eta_s: the time left, problem).
+    pub job: crate::store::Job,
+    pub intervals_planned: usize,
+    pub intervals_done: usize,
+    /// Length of the test and time between measurements (test time, s).
+    pub duration_s: f64,
+    pub interval_s: f64,
+    pub accelerated: bool,
+    /// The fitted law's state so far (absent before 7 intervals).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub law_validity: Option<crate::identify::validity::HeadlineValidity>,
+    /// The failure limit that stopped it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failure: Option<crate::job::Failure>,
+}
+
+/// `GET /api/v1/long-term-tests`.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct LongTermList {
+    pub items: Vec<LongTermSummary>,
 }
 
 fn spec_of(j: &crate::store::Job) -> Option<&LongTermSpec> {
@@ -124,6 +170,7 @@ pub async fn submit(
             },
         )
         .await?;
+    st.store.add_long_term_test(&j.id).await?;
     st.runner.wake(&j.bench_id);
     let mut r = (StatusCode::ACCEPTED, Json(&j)).into_response();
     if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/long-term-tests/{}", j.id)) {
@@ -159,6 +206,7 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     let intervals = st.store.long_term_intervals(&id).await?;
     let state = st.store.long_term_state(&id).await?;
     let last = st.store.long_term_signals(&id).await?;
+    let events = test_events(&st, &id, &intervals, state.as_ref()).await?;
     let doc = LongTermDocument {
         job,
         intervals_planned: spec.intervals(),
@@ -167,8 +215,121 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
         accelerated: spec.accelerated,
         series_csv: format!("/api/v1/long-term-tests/{id}/series.csv"),
         last_signals: last.map(|_| format!("/api/v1/long-term-tests/{id}/last-signals.wav")),
+        events,
     };
     Ok(Json(serde_json::to_value(&doc).map_err(Problem::internal)?))
+}
+
+/// The test's events in test time: the stored pauses, the resumptions after
+/// a stop (after the last stored interval: its measurement's end is not
+/// kept, so the interval's start stands for it) and the failure.
+async fn test_events(
+    st: &AppState,
+    id: &str,
+    intervals: &[crate::store::longterm::LongTermInterval],
+    state: Option<&crate::store::longterm::LongTermState>,
+) -> ApiResult<Vec<TestEvent>> {
+    use crate::store::longterm::LongTermEventKind;
+    let mut out: Vec<TestEvent> = st
+        .store
+        .long_term_events(id)
+        .await?
+        .into_iter()
+        .map(|e| TestEvent {
+            kind: match e.kind {
+                LongTermEventKind::Paused => "paused",
+                LongTermEventKind::Resumed => "resumed",
+            },
+            elapsed_s: Some(e.elapsed_s),
+            interval: None,
+            detail: e.detail,
+            at: Some(e.at),
+        })
+        .collect();
+    if let Some(s) = state {
+        for r in &s.resumptions {
+            let after = r.intervals_done.checked_sub(1);
+            out.push(TestEvent {
+                kind: "restarted",
+                elapsed_s: after
+                    .and_then(|i| intervals.iter().find(|iv| iv.index == i))
+                    .map(|iv| iv.elapsed_s),
+                interval: Some(r.intervals_done),
+                detail: format!(
+                    "the daemon had stopped: resumed after {} intervals, load {:.1} J",
+                    r.intervals_done, r.load_j
+                ),
+                at: Some(r.at.clone()),
+            });
+        }
+        if let Some(f) = &s.failure {
+            let at_s = f.at_s.or_else(|| {
+                intervals
+                    .iter()
+                    .find(|iv| iv.index == f.interval)
+                    .map(|iv| iv.elapsed_s)
+            });
+            out.push(TestEvent {
+                kind: "failure",
+                elapsed_s: at_s,
+                interval: Some(f.interval),
+                detail: format!("failure limit `{}`: {}", f.limit, f.detail),
+                at: Some(s.updated_at.clone()),
+            });
+        }
+    }
+    out.sort_by(|a, b| {
+        let t = |e: &TestEvent| e.elapsed_s.unwrap_or(f64::INFINITY);
+        t(a).total_cmp(&t(b))
+    });
+    Ok(out)
+}
+
+#[derive(serde::Deserialize, utoipa::IntoParams)]
+pub struct ListQuery {
+    /// At most this many tests, newest first (default 100, at most 1000).
+    pub limit: Option<i64>,
+}
+
+#[utoipa::path(get, path = "/api/v1/long-term-tests", tag = "jobs",
+    summary = "The station's long-term tests, newest first: each job (state, progress, time left), its intervals done and planned, the law's state so far and the failure limit that stopped it.",
+    params(ListQuery),
+    responses(
+        (status = 200, description = "The tests", body = LongTermList),
+        (status = 422, description = "A bad `limit`")))]
+pub async fn list(
+    State(st): State<AppState>,
+    axum::extract::Query(q): axum::extract::Query<ListQuery>,
+) -> ApiResult<Json<LongTermList>> {
+    let limit = q.limit.unwrap_or(100);
+    if !(1..=1000).contains(&limit) {
+        return Err(Problem::validation(vec![FieldError::new(
+            "limit",
+            format!("must be 1 to 1000, got {limit}"),
+        )]));
+    }
+    let mut items = vec![];
+    for job in st.store.list_long_term_tests(limit).await? {
+        let Some(spec) = spec_of(&job).cloned() else {
+            continue;
+        };
+        let state = st.store.long_term_state(&job.id).await?;
+        items.push(LongTermSummary {
+            intervals_planned: spec.intervals(),
+            intervals_done: state.as_ref().map_or(0, |s| s.intervals_done),
+            duration_s: spec.duration_s,
+            interval_s: spec.interval_s,
+            accelerated: spec.accelerated,
+            law_validity: state
+                .as_ref()
+                .and_then(|s| s.document.as_ref())
+                .and_then(|d| d.law.as_ref())
+                .map(|l| l.validity.clone()),
+            failure: state.and_then(|s| s.failure),
+            job,
+        });
+    }
+    Ok(Json(LongTermList { items }))
 }
 
 fn num(v: Option<f64>) -> String {

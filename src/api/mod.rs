@@ -127,6 +127,7 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         "/api/v1/long-term-tests",
         post(longterm::submit).layer(json_limit),
     )
+    .add("get", "/api/v1/long-term-tests", get(longterm::list))
     .add(
         "get",
         "/api/v1/long-term-tests/{id}",

@@ -34,6 +34,7 @@ use utoipa::{Modify, OpenApi};
         super::jobs::get_one,
         super::jobs::cancel,
         super::longterm::submit,
+        super::longterm::list,
         super::longterm::get_one,
         super::longterm::series_csv,
         super::longterm::last_signals,

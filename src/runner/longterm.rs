@@ -28,7 +28,7 @@ use crate::job::{
 use crate::physics::ageing;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
-use crate::store::longterm::NewInterval;
+use crate::store::longterm::{LongTermEventKind, NewInterval};
 use crate::store::{Job, JobState, MeasurementReads, NewRecording, Store, StoreResult};
 use serde_json::json;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -46,8 +46,8 @@ enum Msg {
         progress: f64,
         eta_s: f64,
     },
-    /// Paused (`Some(reason)`: the disk is full) or resumed (`None`).
-    Paused(Option<String>),
+    /// Paused (`Some(reason)`: the disk is full) or resumed (`None`), at a test time (s).
+    Paused(Option<String>, f64),
     Interval(
         Box<NewInterval>,
         std::sync::mpsc::SyncSender<Result<(), String>>,
@@ -105,6 +105,8 @@ impl Runner {
             );
             return self.finish_failed(slot, job, p).await;
         }
+        // Listed among the station's tests (the API lists it at submit; again is no change).
+        self.store.add_long_term_test(&job.id).await?;
         let (resume, resumptions) = self.resume_point(&job.id).await?;
         let resumed_at = resume.index;
         // One line per resumption so far (the job's log is written at its end).
@@ -167,6 +169,17 @@ impl Runner {
             ))),
         };
         let cancelled_late = cancel.swap(COMMIT, Ordering::SeqCst) == CANCEL;
+        // The pauses and their ends, in the job's log (decision 0125).
+        for e in self.store.long_term_events(&job.id).await? {
+            log.push(match e.kind {
+                LongTermEventKind::Paused => {
+                    format!("paused at test time {:.0} s: {}", e.elapsed_s, e.detail)
+                }
+                LongTermEventKind::Resumed => {
+                    format!("resumed at test time {:.0} s: {}", e.elapsed_s, e.detail)
+                }
+            });
+        }
         let (state, problem) = match outcome {
             Ok(n) if !cancelled_late => {
                 log.push(format!("{n} intervals measured"));
@@ -276,7 +289,19 @@ impl Runner {
                     )
                     .await;
             }
-            Msg::Paused(reason) => {
+            Msg::Paused(reason, elapsed_s) => {
+                // The pause and its end stay with the test (its page, its log).
+                let (kind, detail) = match &reason {
+                    Some(r) => (LongTermEventKind::Paused, r.as_str()),
+                    None => (LongTermEventKind::Resumed, "space returned"),
+                };
+                if let Err(e) = self
+                    .store
+                    .add_long_term_event(job_id, kind, elapsed_s, detail)
+                    .await
+                {
+                    tracing::warn!(job = %job_id, "pause event not stored: {e}");
+                }
                 let step = match &reason {
                     Some(r) => format!("paused: {r}"),
                     None => "long_term".to_string(),
@@ -406,11 +431,12 @@ impl Room<'_> {
         &self,
         tx: &mpsc::UnboundedSender<Msg>,
         obs: &LtObserver<'_>,
+        elapsed_s: f64,
     ) -> Result<(), Stop> {
         let mut paused = false;
         while let Err(e) = self.store.check_space(self.min_free_bytes) {
             if !paused {
-                let _ = tx.send(Msg::Paused(Some(e.to_string())));
+                let _ = tx.send(Msg::Paused(Some(e.to_string()), elapsed_s));
                 paused = true;
             }
             if obs.cancelled() {
@@ -419,7 +445,7 @@ impl Room<'_> {
             std::thread::sleep(Duration::from_millis(500));
         }
         if paused {
-            let _ = tx.send(Msg::Paused(None));
+            let _ = tx.send(Msg::Paused(None, elapsed_s));
         }
         Ok(())
     }
@@ -546,7 +572,7 @@ fn run_blocking(
             progress(index, t, per);
         }
         // The interval's results need room: a full disk pauses the test here.
-        room.wait_for_space(tx, &obs)?;
+        room.wait_for_space(tx, &obs, t_start)?;
         let load_at_start = vb.ageing_load_j().unwrap_or(load_j);
         let k0_true = vb.k0_now_n_per_m();
         let wall = Instant::now();

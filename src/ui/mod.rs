@@ -45,6 +45,7 @@ pub const ASSETS: &[Asset] = &[
     asset!("measurement.js", JS),
     asset!("compare.js", JS),
     asset!("diagnostics.js", JS),
+    asset!("longterm.js", JS),
     asset!("qc.js", JS),
     asset!("verdict.js", JS),
     asset!("export.js", JS),

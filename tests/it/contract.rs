@@ -983,6 +983,12 @@ async fn every_route_answers_as_its_schema_says() {
         .await;
     let ltid = ltj["id"].as_str().unwrap().to_string();
     a.wait_job(&ltid).await;
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", lt, lt, Some(VIEWER), None, 200),
+        ("get", lt, &format!("{lt}?limit=0"), Some(VIEWER), None, 422),
+    ];
+    a.expect_all(rows).await;
     let one = "/api/v1/long-term-tests/{id}";
     let v = a.get(one, &format!("{lt}/{ltid}"), 200).await;
     assert_eq!(v["state"]["failure"]["limit"], "k0_change_percent", "{v}");

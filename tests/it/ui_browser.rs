@@ -2098,3 +2098,237 @@ async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
     assert!(counts[4].as_str().unwrap().starts_with("0.0 %"), "{counts}");
     b.finish("with two benches").await;
 }
+
+/// Issue 32: a long-term test's page against the API's numbers. A short
+/// accelerated test (7 intervals of 15 min on the virtual bench, the fewest
+/// the law needs) runs while the page watches; then the family of K(x)
+/// curves has one curve per interval, each the interval's polynomial; the
+/// K(0), Keff and f0 plots show the measured values of the series, K(0)'s
+/// fitted law and its 95 % band are the document's curve, ending at the
+/// prediction's band; against the load the x values are the intervals'
+/// loads; a law that is not valid says so in its table and its legend.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_prediction_band() {
+    let cfg = roles().bench("virtual-1", 7).text();
+    let (mut b, d) = open_browser!(&cfg);
+    b.login(&d.base, OPERATOR, "operator").await;
+    let n = 7usize;
+    let r = station(&d)
+        .post(
+            "/api/v1/long-term-tests",
+            &json!({"measurement": {"part": {"serial": "LT-UI-1"}, "bench": "virtual-1",
+                    "preset": "spider_3in", "target_xpeak_m": 0.006},
+                "duration_s": 900.0 * (n - 1) as f64, "interval_s": 900.0,
+                "stimulus": {"excursion_m": 0.0053}}),
+        )
+        .await;
+    assert_eq!(r.status, 202, "{}", r.text);
+    let id = r.body["id"].as_str().unwrap().to_string();
+    // The station's list shows it.
+    b.visit(
+        "#/long-term",
+        LONG,
+        "the list of long-term tests",
+        &format!("document.querySelector('#lt-list tr[data-id=\"{id}\"]')"),
+    )
+    .await;
+    let row = b.text(&format!("#lt-list tr[data-id=\"{id}\"]")).await;
+    assert!(
+        row.contains("LT-UI-1") && row.contains(&format!("of {n}")),
+        "{row}"
+    );
+    // The test's page, watched until the test ends (it polls while it runs).
+    b.visit(
+        &format!("#/long-term/{id}"),
+        LONG,
+        "the test's page",
+        "document.querySelector('#lt-progress-bar') || document.querySelector('#view-error')",
+    )
+    .await;
+    assert!(
+        !b.exists("#view-error").await,
+        "{}",
+        b.text("#view-error").await
+    );
+    b.wait_long(
+        "every interval and the fitted law on the page",
+        &format!("document.querySelector('#view').dataset.intervals === '{n}' && document.querySelector('#lt-law-table') && !document.querySelector('#lt-cancel:not([hidden])')"),
+    )
+    .await;
+    let doc = admin(&d)
+        .get(&format!("/api/v1/long-term-tests/{id}"))
+        .await;
+    assert_eq!(doc["job"]["state"], "succeeded", "{doc}");
+    let ad = &doc["state"]["document"];
+    let f = |v: &Value| v.as_f64().unwrap();
+    let arr = |v: &Value| -> Vec<Option<f64>> {
+        v.as_array().unwrap().iter().map(|x| x.as_f64()).collect()
+    };
+    let rel = |a: f64, b: f64| ((a - b) / b).abs();
+    b.screenshot("long-term-test").await;
+    b.screenshot_element("#lt-plots", "long-term-plots-time")
+        .await;
+
+    // The K(x) family: one curve per interval, each the interval's K(x).
+    let kx = b
+        .js(
+            "const e = document.querySelector('#plot-lt-kx'); const u = e.uplot;
+             return {curves: Number(e.dataset.curves), series: u.series.length - 1, data: u.data};",
+            vec![],
+        )
+        .await;
+    assert_eq!(kx["curves"], n);
+    assert_eq!(kx["series"], n);
+    let xs = arr(&kx["data"][0]);
+    let ivs = ad["intervals"].as_array().unwrap();
+    let mut compared = 0;
+    for (k, iv) in ivs.iter().enumerate() {
+        let c: Vec<f64> = arr(&iv["k_coefficients_n_per_m_pow_i_plus_1"])
+            .into_iter()
+            .map(Option::unwrap)
+            .collect();
+        let range = arr(&iv["valid_range_m"]);
+        let ys = arr(&kx["data"][k + 1]);
+        for (j, x) in xs.iter().enumerate() {
+            let x_m = x.unwrap() / 1000.0;
+            let inside = x_m >= range[0].unwrap() - 1e-9 && x_m <= range[1].unwrap() + 1e-9;
+            match ys[j] {
+                Some(y) => {
+                    let want = c.iter().rev().fold(0.0, |a, &ci| a * x_m + ci) / 1000.0;
+                    assert!(
+                        rel(y, want) < 1e-9,
+                        "K(x) of interval {k} at {x_m} m: {y} vs {want} N/mm"
+                    );
+                    compared += 1;
+                }
+                None => assert!(
+                    !inside,
+                    "interval {k}: no value at {x_m} m inside its range"
+                ),
+            }
+        }
+    }
+    assert!(compared > 5 * n, "{compared} K(x) values compared");
+
+    // The time plots: measured values, the law and its band, against time (h).
+    let plot = |sel: &str| {
+        format!(
+            "const e = document.querySelector('{sel}'); const u = e.uplot;
+             return {{data: u.data, labels: u.series.map(s => s.label), bands: u.bands.map(b => b.series),
+                     state: e.dataset.lawState}};"
+        )
+    };
+    let curves = ad["curves"]["curves"].as_array().unwrap();
+    let curve = |q: &str| curves.iter().find(|c| c["quantity"] == q).unwrap();
+    let times: Vec<f64> = ivs.iter().map(|i| f(&i["elapsed_s"]) / 3600.0).collect();
+    for (sel, q, scale) in [
+        ("#plot-lt-k0", "k0_n_per_m", 1e-3),
+        ("#plot-lt-keff", "keff_n_per_m", 1e-3),
+        ("#plot-lt-f0", "f0_hz", 1.0),
+    ] {
+        let p = b.js(&plot(sel), vec![]).await;
+        let x = arr(&p["data"][0]);
+        let measured: Vec<(f64, f64)> = arr(&p["data"][1])
+            .iter()
+            .zip(&x)
+            .filter_map(|(y, x)| y.map(|y| (x.unwrap(), y)))
+            .collect();
+        assert_eq!(measured.len(), n, "{sel}: {p}");
+        for (k, (xm, ym)) in measured.iter().enumerate() {
+            assert!((xm - times[k]).abs() < 1e-12, "{sel}: time of point {k}");
+            let want = f(&ivs[k][q]) * scale;
+            assert!(rel(*ym, want) < 1e-12, "{sel}: point {k}: {ym} vs {want}");
+        }
+        // The law (or the fit on its scales) and the band: the document's curve.
+        let cv = curve(q);
+        for (series, key) in [(2, "value"), (3, "band_low"), (4, "band_high")] {
+            let drawn: Vec<f64> = arr(&p["data"][series]).into_iter().flatten().collect();
+            let want: Vec<f64> = arr(&cv[key])
+                .into_iter()
+                .map(|v| v.unwrap() * scale)
+                .collect();
+            assert_eq!(drawn.len(), want.len(), "{sel} {key}");
+            for (a, w) in drawn.iter().zip(&want) {
+                assert!(rel(*a, *w) < 1e-12, "{sel} {key}: {a} vs {w}");
+            }
+        }
+        // The band is filled between its two edges.
+        assert_eq!(p["bands"], json!([[4, 3]]), "{sel}: {p}");
+        // The law's state is the document's; not valid: said in the legend.
+        let state = ad["law"]["validity"]["state"].as_str().unwrap();
+        assert_eq!(p["state"], state, "{sel}");
+        if state != "valid" {
+            let word = state.to_uppercase();
+            assert!(
+                p["labels"][2].as_str().unwrap().contains(&word),
+                "{sel}: {p}"
+            );
+        }
+    }
+    // K(0)'s band ends at the prediction's band, and the page writes it.
+    let pred = &ad["prediction"];
+    let p = b.js(&plot("#plot-lt-k0"), vec![]).await;
+    let last = |s: usize| arr(&p["data"][s]).into_iter().flatten().last().unwrap();
+    assert!(rel(last(3), f(&pred["k0_band_n_per_m"][0]) / 1000.0) < 1e-12);
+    assert!(rel(last(4), f(&pred["k0_band_n_per_m"][1]) / 1000.0) < 1e-12);
+    assert!(
+        (arr(&p["data"][0]).into_iter().flatten().last().unwrap() - f(&pred["elapsed_s"]) / 3600.0)
+            .abs()
+            < 1e-12
+    );
+    let band = b.text("#lt-pred-band").await;
+    let shown: Vec<f64> = band
+        .split(|ch: char| !(ch.is_ascii_digit() || ch == '.'))
+        .filter_map(|t| t.parse().ok())
+        .collect();
+    assert_eq!(shown.len(), 2, "{band}");
+    for (s, w) in shown
+        .iter()
+        .zip([&pred["k0_band_n_per_m"][0], &pred["k0_band_n_per_m"][1]])
+    {
+        assert!(rel(*s, f(w) / 1000.0) < 5e-4, "{band} vs {pred}");
+    }
+    assert!(band.ends_with("N/mm"), "{band}");
+    let state = ad["law"]["validity"]["state"].as_str().unwrap();
+    let table_state = b
+        .js(
+            "return document.querySelector('#lt-law-table').dataset.state;",
+            vec![],
+        )
+        .await;
+    assert_eq!(table_state, state);
+    if state != "valid" {
+        let said = b.text("#lt-law-state").await;
+        assert!(said.contains(&state.to_uppercase()), "{said}");
+    }
+    eprintln!(
+        "long-term page: {n} intervals, law {state}, prediction at {} h: K(0) band {band}",
+        f(&pred["elapsed_s"]) / 3600.0
+    );
+
+    // Against the accumulated load: the x values are the intervals' loads (kJ).
+    b.run("const s = document.querySelector('#lt-axis'); s.value = 'load'; s.dispatchEvent(new Event('change'));")
+        .await;
+    b.wait(
+        "the plots against the load",
+        "document.querySelector('#plot-lt-k0').dataset.kind === 'k0_n_per_m-vs-load'",
+    )
+    .await;
+    let p = b.js(&plot("#plot-lt-k0"), vec![]).await;
+    let x = arr(&p["data"][0]);
+    let at_points: Vec<f64> = arr(&p["data"][1])
+        .iter()
+        .zip(&x)
+        .filter_map(|(y, x)| y.map(|_| x.unwrap()))
+        .collect();
+    let loads: Vec<f64> = ivs.iter().map(|i| f(&i["load_j"]) / 1000.0).collect();
+    assert_eq!(at_points.len(), n);
+    for (a, w) in at_points.iter().zip(&loads) {
+        assert!((a - w).abs() <= 1e-12 * w.abs().max(1.0), "{a} vs {w} kJ");
+    }
+    b.screenshot_element("#lt-plots", "long-term-plots-load")
+        .await;
+    b.assert_no_console_errors("on the long-term test's page")
+        .await;
+    b.finish("long-term test page").await;
+}

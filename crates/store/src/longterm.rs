@@ -55,6 +55,36 @@ pub struct LongTermInterval {
     pub created_at: String,
 }
 
+/// What happened to a test between its intervals (decision 0125).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LongTermEventKind {
+    /// The disk was full: the test waits before its next interval.
+    Paused,
+    /// Space returned: the test goes on.
+    Resumed,
+}
+
+impl LongTermEventKind {
+    fn as_str(self) -> &'static str {
+        match self {
+            LongTermEventKind::Paused => "paused",
+            LongTermEventKind::Resumed => "resumed",
+        }
+    }
+}
+
+/// A pause or its end, with the test clock.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct LongTermEvent {
+    pub kind: LongTermEventKind,
+    /// Test time then (s).
+    pub elapsed_s: f64,
+    /// Why (the pause's reason).
+    pub detail: String,
+    pub at: String,
+}
+
 /// What one finished interval stores.
 pub struct NewInterval {
     pub index: usize,
@@ -311,5 +341,85 @@ impl Store {
         }
         tx.commit().await?;
         Ok(true)
+    }
+
+    /// Lists `job_id` among the station's long-term tests (again: no change).
+    pub async fn add_long_term_test(&self, job_id: &str) -> StoreResult<()> {
+        sqlx::query(
+            "INSERT OR IGNORE INTO long_term_tests (job_id, created_at) \
+             SELECT id, created_at FROM jobs WHERE id = ?",
+        )
+        .bind(job_id)
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// The station's long-term tests, newest first (at most `limit`).
+    pub async fn list_long_term_tests(&self, limit: i64) -> StoreResult<Vec<crate::Job>> {
+        let ids: Vec<String> = sqlx::query_scalar(
+            "SELECT job_id FROM long_term_tests ORDER BY created_at DESC, job_id LIMIT ?",
+        )
+        .bind(limit)
+        .fetch_all(&self.pool)
+        .await?;
+        let mut out = Vec::with_capacity(ids.len());
+        for id in ids {
+            if let Some(j) = self.get_job(&id).await? {
+                out.push(j);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Records a pause or its end of test `job_id`.
+    pub async fn add_long_term_event(
+        &self,
+        job_id: &str,
+        kind: LongTermEventKind,
+        elapsed_s: f64,
+        detail: &str,
+    ) -> StoreResult<()> {
+        if !elapsed_s.is_finite() {
+            return Err(StoreError::Invalid(format!(
+                "long-term event of {job_id}: elapsed_s {elapsed_s} is not finite"
+            )));
+        }
+        sqlx::query(
+            "INSERT INTO long_term_events (job_id, kind, elapsed_s, detail, at) VALUES (?, ?, ?, ?, ?)",
+        )
+        .bind(job_id)
+        .bind(kind.as_str())
+        .bind(elapsed_s)
+        .bind(detail)
+        .bind(now())
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// The pauses and their ends of test `job_id`, in order.
+    pub async fn long_term_events(&self, job_id: &str) -> StoreResult<Vec<LongTermEvent>> {
+        let rows = sqlx::query(
+            "SELECT kind, elapsed_s, detail, at FROM long_term_events WHERE job_id = ? ORDER BY seq",
+        )
+        .bind(job_id)
+        .fetch_all(&self.pool)
+        .await?;
+        rows.iter()
+            .map(|r| {
+                let kind = match r.get::<String, _>(0).as_str() {
+                    "paused" => LongTermEventKind::Paused,
+                    "resumed" => LongTermEventKind::Resumed,
+                    k => return Err(StoreError::Corrupt(format!("long-term event kind '{k}'"))),
+                };
+                Ok(LongTermEvent {
+                    kind,
+                    elapsed_s: r.get(1),
+                    detail: r.get(2),
+                    at: r.get(3),
+                })
+            })
+            .collect()
     }
 }

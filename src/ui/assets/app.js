@@ -11,6 +11,7 @@ import * as compare from './compare.js';
 import * as diagnostics from './diagnostics.js';
 import * as qc from './qc.js';
 import * as report from './report.js';
+import * as longterm from './longterm.js';
 
 const ROLES = ['viewer', 'operator', 'admin'];
 const main = document.getElementById('view');
@@ -29,6 +30,7 @@ const views = {
   diagnostics: diagnostics.render,
   qc: qc.render,
   report: report.render,
+  'long-term': longterm.render,
 };
 
 /** True when the session's role includes `role`. */
@@ -134,6 +136,7 @@ export function errorText(e) {
 const CENTER_ONLY_AT_STATION = {
   operator: 'The fleet\u2019s center runs no bench: jobs are submitted and watched at a station. Here: the parts, measurements, comparisons and QC of every station.',
   diagnostics: 'The diagnostics workspace refits a measurement from its recordings: open it on the station that measured it.',
+  'long-term': 'Long-term tests are kept by the station that runs them: open them there.',
 };
 
 function centerNote(text) {

@@ -32,7 +32,7 @@ function clean(arr) {
 /**
  * A line chart.
  * spec: {title, x: {label, unit, log}, y: {label, unit, log}, y2: {label, unit} (optional right axis),
- *        series: [{label, unit, color, dash, y2, points, width}], data: [xs, ys1, ys2, ...],
+ *        series: [{label, unit, color, dash, y2, points, width, spanGaps}], data: [xs, ys1, ys2, ...],
  *        xBands: [{from, to, label, fill}], validRange: [lo, hi], hBands: [{from, to, label}],
  *        height, sync: key, kind: 'K(x)' (for tests), vector: true (an SVG for print, svgplot.js)}
  */
@@ -54,7 +54,7 @@ export function chart(el, spec) {
       width: s.width || 1.5,
       dash: s.dash ? [6, 4] : undefined,
       scale: s.y2 ? 'y2' : 'y',
-      spanGaps: false,
+      spanGaps: s.spanGaps === true,
       points: s.points ? { show: true, size: 7, fill: color } : { show: false },
       paths: s.points === 'only' ? () => null : undefined,
       value: (u, v) => (v === null || v === undefined ? '\u2013' : `${num(v, 4)}${unit ? ` ${unit}` : ''}`),

@@ -316,14 +316,37 @@ pub struct Track {
     pub validity: HeadlineValidity,
 }
 
-/// Fits `y` against `c` with the K(0) law's scales held.
-pub fn track(
-    quantity: &str,
-    x_m: Option<f64>,
-    c: &[f64],
-    y: &[f64],
-    law: &LawFit,
-) -> Option<Track> {
+/// A quantity fitted on the K(0) law's scales: its three amplitudes, their
+/// covariance and the residual variance (for its curve and band).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackFit {
+    /// [K_∞, A_b, A_f] in the quantity's unit.
+    pub amplitudes: [f64; 3],
+    /// Covariance of the amplitudes.
+    pub cov: [[f64; 3]; 3],
+    /// Residual variance about the fit.
+    pub s2: f64,
+    tb: f64,
+    tf: f64,
+}
+
+impl TrackFit {
+    fn row(&self, c: f64) -> Vector3<f64> {
+        Vector3::new(1.0, (-c / self.tb).exp(), (-c / self.tf).exp())
+    }
+
+    /// The fitted value at load coordinate `c` and its standard error.
+    pub fn predict(&self, c: f64) -> (f64, f64) {
+        let r = self.row(c);
+        let a = Vector3::from(self.amplitudes);
+        let cov = Matrix3::from_fn(|i, j| self.cov[i][j]);
+        (r.dot(&a), (r.transpose() * cov * r)[(0, 0)].max(0.0).sqrt())
+    }
+}
+
+/// Fits `y` against `c` on the law's two scales (three linear amplitudes);
+/// None with fewer than 4 points, a non-finite one or a singular system.
+pub fn fit_track(c: &[f64], y: &[f64], law: &LawFit) -> Option<TrackFit> {
     let n = c.len();
     if n < 4 || n != y.len() || c.iter().chain(y).any(|v| !v.is_finite()) {
         return None;
@@ -337,6 +360,26 @@ pub fn track(
         ata += r * r.transpose();
     }
     let inv = ata.try_inverse()? * s2;
+    Some(TrackFit {
+        amplitudes: a,
+        cov: std::array::from_fn(|i| std::array::from_fn(|j| inv[(i, j)])),
+        s2,
+        tb,
+        tf,
+    })
+}
+
+/// Fits `y` against `c` with the K(0) law's scales held.
+pub fn track(
+    quantity: &str,
+    x_m: Option<f64>,
+    c: &[f64],
+    y: &[f64],
+    law: &LawFit,
+) -> Option<Track> {
+    let fit = fit_track(c, y, law)?;
+    let (a, tb, tf) = (fit.amplitudes, fit.tb, fit.tf);
+    let inv = Matrix3::from_fn(|i, j| fit.cov[i][j]);
     let t = [a[0], a[1], tb, a[2], tf];
     let initial = a[0] + a[1] + a[2];
     let last = model(&t, law.c_max);
@@ -441,5 +484,14 @@ mod tests {
         let want = -50.0 * (1.0 - (-200_000.0f64 / 150_000.0).exp()) / 50.0;
         assert!((t.change_percent.value - want).abs() < 0.05, "{:?}", t);
         assert!(t.break_in_change_percent.abs() < 0.05);
+        // Its curve: the value at any load within 0.01 % of the truth, the
+        // standard error small but not zero, and the band around it.
+        let fit = fit_track(&c, &z, &f).unwrap();
+        for cc in [0.0, 50_000.0, 200_000.0, 400_000.0] {
+            let (v, se) = fit.predict(cc);
+            let want = 5000.0 - 50.0 * (1.0 - (-cc / 150_000.0f64).exp());
+            assert!((v - want).abs() < 0.5, "{cc}: {v} vs {want}");
+            assert!(se.is_finite() && se < 0.5, "{cc}: se {se}");
+        }
     }
 }

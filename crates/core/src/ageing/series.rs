@@ -4,7 +4,7 @@
 //! a prediction). `springbench ageing` and the daemon's long-term test both
 //! call [`analyse`].
 
-use super::{fit_law, track, Estimate, Track};
+use super::{fit_law, fit_track, track, Estimate, Track};
 use crate::identify::validity::{HeadlineValidity, State};
 use crate::identify::Report;
 use serde::{Deserialize, Serialize};
@@ -113,6 +113,38 @@ pub struct Prediction {
     pub validity: HeadlineValidity,
 }
 
+/// A fitted law drawn over the test (for the page's plots): its value, the
+/// standard error of that value, and the 95 % band where a measurement
+/// falls (the law's uncertainty and the measurements' scatter about it:
+/// `value ± 2 sqrt(se² + s²)`), at the times of [`LawCurves::elapsed_s`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Curve {
+    /// What it is, with its unit: `k0_n_per_m` (the law), `f0_hz` or
+    /// `keff_n_per_m` (fitted on the law's scales).
+    pub quantity: String,
+    pub value: Vec<f64>,
+    pub se: Vec<f64>,
+    pub band_low: Vec<f64>,
+    pub band_high: Vec<f64>,
+}
+
+/// The fitted laws from the start to the later of the last interval and
+/// the prediction's time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LawCurves {
+    /// Test time of each point (s).
+    pub elapsed_s: Vec<f64>,
+    /// The load then (J): the intervals' loads interpolated, beyond the
+    /// last one at the series' mean load power. Absent when the law is
+    /// fitted against time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_j: Option<Vec<f64>>,
+    pub curves: Vec<Curve>,
+}
+
+/// Points of each curve.
+pub const CURVE_POINTS: usize = 61;
+
 /// The document of a series (`springbench ageing --json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct AgeingDocument {
@@ -126,6 +158,9 @@ pub struct AgeingDocument {
     pub large_excursion: Option<LargeExcursion>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prediction: Option<Prediction>,
+    /// The laws of K(0), f0 and Keff drawn over the test with their bands.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub curves: Option<LawCurves>,
     /// Why there is no law.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub problem: Option<String>,
@@ -194,6 +229,7 @@ pub fn analyse(intervals: &[Interval], predict_s: Option<f64>) -> AgeingDocument
         tracks: Vec::new(),
         large_excursion: None,
         prediction: None,
+        curves: None,
         problem: None,
     };
     let used: Vec<&IntervalValues> = values.iter().filter(|v| v.k0_n_per_m.is_some()).collect();
@@ -328,6 +364,73 @@ pub fn analyse(intervals: &[Interval], predict_s: Option<f64>) -> AgeingDocument
                 }
             ),
         });
+    }
+    // The laws over the test, up to the prediction's time.
+    {
+        let t_last = used.last().map_or(0.0, |v| v.elapsed_s);
+        let t_end = predict_s
+            .filter(|t| t.is_finite() && *t > t_last)
+            .unwrap_or(t_last);
+        let knots: Vec<(f64, f64)> = used.iter().map(|v| (v.elapsed_s, coord(v))).collect();
+        let c_of = |t: f64| -> f64 {
+            if !by_load {
+                return t;
+            }
+            let (t0, c0) = knots[0];
+            let (tn, cn) = knots[knots.len() - 1];
+            if t <= t0 {
+                return c0;
+            }
+            if t >= tn {
+                return cn + power * (t - tn);
+            }
+            let k = knots.partition_point(|&(a, _)| a <= t).max(1);
+            let ((ta, ca), (tb, cb)) = (knots[k - 1], knots[k]);
+            if tb > ta {
+                ca + (cb - ca) * (t - ta) / (tb - ta)
+            } else {
+                ca
+            }
+        };
+        let times: Vec<f64> = (0..CURVE_POINTS)
+            .map(|i| t_end * i as f64 / (CURVE_POINTS - 1) as f64)
+            .collect();
+        let cs: Vec<f64> = times.iter().map(|&t| c_of(t)).collect();
+        let curve = |quantity: &str, at: &dyn Fn(f64) -> (f64, f64), s2: f64| {
+            let (value, se): (Vec<f64>, Vec<f64>) = cs.iter().map(|&c| at(c)).unzip();
+            let half: Vec<f64> = se.iter().map(|e| 2.0 * (e * e + s2).sqrt()).collect();
+            Curve {
+                quantity: quantity.into(),
+                band_low: value.iter().zip(&half).map(|(v, h)| v - h).collect(),
+                band_high: value.iter().zip(&half).map(|(v, h)| v + h).collect(),
+                value,
+                se,
+            }
+        };
+        let mut curves = vec![curve(
+            "k0_n_per_m",
+            &|c| law.predict(c),
+            law.residual_sd * law.residual_sd,
+        )];
+        if let Some(f) = fit_track(&fc, &fy, &law) {
+            curves.push(curve("f0_hz", &|c| f.predict(c), f.s2));
+        }
+        if let Some(f) = fit_track(&all_c, &keff, &law) {
+            curves.push(curve("keff_n_per_m", &|c| f.predict(c), f.s2));
+        }
+        // Never a stored NaN: a curve that is not finite everywhere is left out.
+        curves.retain(|k| {
+            [&k.value, &k.se, &k.band_low, &k.band_high]
+                .iter()
+                .all(|v| v.iter().all(|x| x.is_finite()))
+        });
+        if cs.iter().all(|c| c.is_finite()) && t_end > 0.0 {
+            doc.curves = Some(LawCurves {
+                elapsed_s: times,
+                load_j: by_load.then_some(cs),
+                curves,
+            });
+        }
     }
     if let Some(ts) = predict_s.filter(|t| t.is_finite() && *t >= 0.0) {
         let last = used.last().expect("a fitted law has intervals");

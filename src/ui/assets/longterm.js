@@ -1,0 +1,390 @@
+// Long-term tests (issue 32): the station's list, and a test's page: the
+// family of K(x) curves over time (paper Fig. 23), K(0), Keff and f0 against
+// test time or accumulated load with the fitted law and its 95 % band, the
+// prediction, the events (pauses, resumptions, the failure), progress and
+// time left, cancel, and the series as CSV / JSON. A law that is not valid
+// is drawn dashed and grey and says so in its legend and its table.
+//
+// `#/long-term` lists the tests, `#/long-term/<id>` is one test. The page
+// polls the test every 2 s while it runs.
+
+import { api, download } from './api.js';
+import { h, put, num, dur, when, shortId, poly, linspace, withSe, stated, stateText, STATE_WORDS } from './util.js';
+import { chart } from './plots.js';
+import { saveText } from './export.js';
+
+const TERMINAL = ['succeeded', 'failed', 'cancelled', 'interrupted'];
+const POLL_MS = 2000;
+/** Points of each K(x) curve of the family. */
+const KX_POINTS = 81;
+
+const hours = (s) => (Number.isFinite(s) ? s / 3600 : null);
+const kj = (j) => (Number.isFinite(j) ? j / 1000 : null);
+const mm = (k) => (Number.isFinite(k) ? k / 1000 : null); // N/m -> N/mm
+
+function badge(state) {
+  return h('span', { class: `badge state-${state}` }, state);
+}
+
+function lawWord(v) {
+  if (!v) return 'no law yet';
+  return v.state === 'valid' ? 'valid' : STATE_WORDS[v.state] || v.state;
+}
+
+export async function render(main, ctx) {
+  if (ctx.arg) return renderTest(main, ctx, ctx.arg);
+  return renderList(main, ctx);
+}
+
+// --- the list ---------------------------------------------------------------
+
+async function renderList(main, ctx) {
+  const body = h('tbody', { id: 'lt-list' });
+  const msg = h('p', { class: 'muted', id: 'lt-list-msg' }, 'Loading\u2026');
+  put(
+    main,
+    h('section', { class: 'card' },
+      h('h1', {}, 'Long-term tests'),
+      h('p', { class: 'muted' }, 'Tests that age a part on one bench: the full procedure at intervals, a sine at the part\u2019s resonance in between. Submit one with POST /api/v1/long-term-tests.'),
+      msg,
+      h('table', { class: 'list' },
+        h('thead', {}, h('tr', {}, ['test', 'part', 'bench', 'state', 'progress', 'intervals', 'time left', 'law', 'failure', 'created'].map((t) => h('th', {}, t)))),
+        body)),
+  );
+  const draw = async () => {
+    const list = await api('/api/v1/long-term-tests');
+    if (ctx.stale()) return;
+    msg.textContent = list.items.length ? '' : 'No long-term test on this station yet.';
+    put(body, list.items.map((t) => {
+      const j = t.job;
+      const running = !TERMINAL.includes(j.state);
+      return h('tr', { dataset: { id: j.id, state: j.state } },
+        h('td', {}, h('a', { href: `#/long-term/${encodeURIComponent(j.id)}`, class: 'mono' }, shortId(j.id))),
+        h('td', { class: 'serial' }, j.part_serial),
+        h('td', {}, j.bench_id),
+        h('td', {}, badge(j.state), j.step && j.step.startsWith('paused') ? h('span', { class: 'error' }, ' paused') : null),
+        h('td', {}, `${num(100 * (j.progress || 0), 3)} %`),
+        h('td', {}, `${t.intervals_done} of ${t.intervals_planned} (every ${num(t.interval_s / 60, 3)} min over ${num(t.duration_s / 3600, 3)} h${t.accelerated ? ', accelerated' : ''})`),
+        h('td', {}, running ? dur(j.eta_s) : '\u2013'),
+        h('td', { class: t.law_validity && t.law_validity.state !== 'valid' ? 'error' : '' }, lawWord(t.law_validity)),
+        h('td', { class: 'error' }, t.failure ? t.failure.limit : ''),
+        h('td', {}, when(j.created_at)));
+    }));
+    return list.items.some((t) => !TERMINAL.includes(t.job.state));
+  };
+  let timer = null;
+  const tick = async () => {
+    try {
+      const more = await draw();
+      if (more && !ctx.stale()) timer = setTimeout(tick, POLL_MS);
+    } catch (e) {
+      msg.className = 'error';
+      msg.textContent = String(e.message || e);
+    }
+  };
+  await tick();
+  return () => clearTimeout(timer);
+}
+
+// --- one test ----------------------------------------------------------------
+
+/** The K(x) family: each interval's polynomial over its own valid range (mm, N/mm), on one x grid. */
+export function kxFamily(doc) {
+  const ivs = (doc && doc.intervals) || [];
+  if (!ivs.length) return null;
+  const lo = Math.min(...ivs.map((i) => i.valid_range_m[0]));
+  const hi = Math.max(...ivs.map((i) => i.valid_range_m[1]));
+  const xs = linspace(lo, hi, KX_POINTS);
+  const ys = ivs.map((i) => xs.map((x) => (x >= i.valid_range_m[0] - 1e-12 && x <= i.valid_range_m[1] + 1e-12 ? poly(i.k_coefficients_n_per_m_pow_i_plus_1, x) / 1000 : null)));
+  return { xs: xs.map((x) => x * 1000), ys, times: ivs.map((i) => i.elapsed_s) };
+}
+
+/** A colour from blue (new) to red (aged). */
+function ramp(u) {
+  const a = [31, 119, 180];
+  const b = [214, 39, 40];
+  const c = a.map((v, k) => Math.round(v + (b[k] - v) * u));
+  return `rgb(${c.join(',')})`;
+}
+
+/** Measured points, the law, its band and the prediction of one quantity against the chosen axis. */
+function lawSeries(doc, quantity, axis, scale, measured) {
+  const ivs = doc.intervals || [];
+  const cur = doc.curves || null;
+  const curve = cur && (cur.curves || []).find((c) => c.quantity === quantity);
+  const xOfIv = (i) => (axis === 'load' ? kj(i.load_j) : hours(i.elapsed_s));
+  const xm = ivs.map(xOfIv);
+  const ym = ivs.map((i) => (Number.isFinite(measured(i)) ? measured(i) * scale : null));
+  let xl = [];
+  if (curve) xl = axis === 'load' ? (cur.load_j || []).map(kj) : cur.elapsed_s.map(hours);
+  // One x array: the measured points and the curve's points, each series null where it has none.
+  const n = xm.length;
+  const xs = xm.concat(xl);
+  const pad = (arr, before, after) => Array(before).fill(null).concat(arr, Array(after).fill(null));
+  const s = (v) => (Number.isFinite(v) ? v * scale : null);
+  const data = [xs, pad(ym, 0, xl.length)];
+  if (curve) {
+    data.push(pad(curve.value.map(s), n, 0), pad(curve.band_low.map(s), n, 0), pad(curve.band_high.map(s), n, 0));
+  }
+  // uPlot needs x ascending: sort every column by x.
+  const order = xs.map((_, k) => k).filter((k) => Number.isFinite(xs[k])).sort((a, b) => xs[a] - xs[b]);
+  return { data: data.map((col) => order.map((k) => col[k])), hasCurve: !!curve, curve };
+}
+
+function lawPlot(el, doc, { quantity, title, unit, scale, measured, axis, lawState }) {
+  const { data, hasCurve } = lawSeries(doc, quantity, axis, scale, measured);
+  const valid = lawState === 'valid';
+  const word = valid ? '' : ` \u2014 ${STATE_WORDS[lawState] || lawState}`;
+  const series = [{ label: `measured ${title}`, unit, points: 'only', color: '#1f77b4' }];
+  const areas = [];
+  if (hasCurve) {
+    series.push(
+      // The curves share the x array with the measured points: their lines span those.
+      { label: `fitted law${word}`, unit, color: valid ? '#d62728' : '#888888', dash: !valid, width: 2, spanGaps: true },
+      { label: `95 % band, low${word}`, unit, color: valid ? 'rgba(214,39,40,0.55)' : '#aaaaaa', dash: true, width: 1, spanGaps: true },
+      { label: `95 % band, high${word}`, unit, color: valid ? 'rgba(214,39,40,0.55)' : '#aaaaaa', dash: true, width: 1, spanGaps: true },
+    );
+    areas.push({ upper: 4, lower: 3, fill: valid ? 'rgba(214,39,40,0.10)' : 'rgba(120,120,120,0.12)' });
+  }
+  chart(el, {
+    title: `${title} against ${axis === 'load' ? 'the accumulated load' : 'test time'}`,
+    kind: `${quantity}-vs-${axis}`,
+    x: axis === 'load' ? { label: 'accumulated load', unit: 'kJ' } : { label: 'test time', unit: 'h' },
+    y: { label: title, unit },
+    series,
+    areas,
+    data,
+    height: 240,
+  });
+  el.dataset.lawState = hasCurve ? lawState : 'none';
+  el.dataset.measured = String(data[1].filter((v) => v !== null).length);
+}
+
+async function renderTest(main, ctx, id) {
+  const head = h('div', { id: 'lt-head' });
+  const progressEl = h('div', { id: 'lt-progress' });
+  const lawEl = h('div', { id: 'lt-law' });
+  const predEl = h('div', { id: 'lt-prediction' });
+  const eventsEl = h('div', { id: 'lt-events' });
+  const kxEl = h('div', { id: 'plot-lt-kx' });
+  const k0El = h('div', { id: 'plot-lt-k0' });
+  const keffEl = h('div', { id: 'plot-lt-keff' });
+  const f0El = h('div', { id: 'plot-lt-f0' });
+  const tableEl = h('tbody', { id: 'lt-intervals' });
+  const msg = h('p', { class: 'status', id: 'lt-msg', role: 'status' });
+  const axisSel = h('select', { id: 'lt-axis', 'aria-label': 'Plot against' },
+    h('option', { value: 'time' }, 'test time (h)'),
+    h('option', { value: 'load' }, 'accumulated load (kJ)'));
+  const csvBtn = h('button', { id: 'lt-csv' }, 'Series as CSV');
+  const jsonBtn = h('button', { id: 'lt-json' }, 'Series as JSON');
+  const cancelBtn = h('button', { id: 'lt-cancel', class: 'danger' }, 'Cancel the test');
+  const wavLink = h('button', { id: 'lt-last-signals' }, 'Last 10 s of signals (WAV)');
+  // A button's display rule outranks the `hidden` attribute: both are set.
+  const show = (el, yes) => {
+    el.hidden = !yes;
+    el.style.display = yes ? '' : 'none';
+  };
+  show(cancelBtn, false);
+  show(wavLink, false);
+
+  put(
+    main,
+    h('section', { class: 'card' }, h('p', {}, h('a', { href: '#/long-term' }, '\u2190 all long-term tests')), head, progressEl,
+      h('div', { class: 'toolbar' }, cancelBtn, csvBtn, jsonBtn, wavLink,
+        h('span', { class: 'muted' }, 'Pausing is not offered: a test pauses by itself on a full disk and resumes when space returns.')),
+      msg),
+    h('section', { class: 'card' }, h('h2', {}, 'The fitted ageing law'), lawEl, predEl),
+    h('section', { class: 'card' },
+      h('div', { class: 'toolbar' }, h('h2', {}, 'The part over time'), h('label', { for: 'lt-axis' }, 'Plot against '), axisSel),
+      h('div', { class: 'plot-grid two', id: 'lt-plots' }, kxEl, k0El, keffEl, f0El)),
+    h('section', { class: 'card' }, h('h2', {}, 'Events'), eventsEl),
+    h('section', { class: 'card' }, h('h2', {}, 'Intervals'),
+      h('table', { class: 'list' },
+        h('thead', {}, h('tr', {}, ['#', 'test time', 'load', 'K(0)', 'f0', 'Keff', 'Xpeak', 'measurement'].map((t) => h('th', {}, t)))),
+        tableEl)),
+  );
+
+  let doc = null;
+  let drawnKey = '';
+  let timer = null;
+
+  csvBtn.addEventListener('click', () => download(doc.series_csv, `long-term-${id}.csv`).catch((e) => (msg.textContent = String(e.message || e))));
+  jsonBtn.addEventListener('click', () => {
+    const series = (doc.state && doc.state.document) || null;
+    const out = { test_id: id, part_serial: doc.job.part_serial, bench_id: doc.job.bench_id, accelerated: doc.accelerated, intervals: doc.intervals, events: doc.events, failure: doc.state && doc.state.failure, ageing: series };
+    saveText(`long-term-${id}.json`, JSON.stringify(out, null, 2), 'application/json');
+  });
+  wavLink.addEventListener('click', () => download(doc.last_signals, `long-term-${id}-last-signals.wav`).catch((e) => (msg.textContent = String(e.message || e))));
+  cancelBtn.addEventListener('click', async () => {
+    if (!(await ctx.confirm(`Cancel long-term test ${shortId(id)} of ${doc.job.part_serial}? The finished intervals stay.`, { yes: 'Yes, cancel the test', no: 'Keep running' }))) return;
+    try {
+      await api(`/api/v1/jobs/${encodeURIComponent(id)}/cancel`, { method: 'POST' });
+      msg.textContent = 'Cancel requested: the test stops after the step it is in.';
+      poll();
+    } catch (e) {
+      msg.textContent = String(e.message || e);
+    }
+  });
+  axisSel.addEventListener('change', () => {
+    drawnKey = '';
+    drawAll();
+  });
+
+  function drawHead() {
+    const j = doc.job;
+    const req = j.request || {};
+    const stim = req.stimulus || {};
+    put(head,
+      h('h1', {}, 'Long-term test ', h('span', { class: 'mono' }, shortId(j.id)), ' ', badge(j.state)),
+      h('table', { class: 'kv' },
+        h('tr', {}, h('th', {}, 'part'), h('td', { class: 'serial', id: 'lt-part' }, j.part_serial)),
+        h('tr', {}, h('th', {}, 'bench'), h('td', {}, j.bench_id, doc.accelerated ? h('span', { class: 'muted', id: 'lt-accelerated' }, ' \u2014 accelerated: the stimulus applied faster than real time on the virtual bench; each measurement simulated in full') : null)),
+        h('tr', {}, h('th', {}, 'test'), h('td', {}, `${num((req.duration_s || 0) / 3600, 4)} h, a measurement every ${num((req.interval_s || 0) / 60, 4)} min`)),
+        h('tr', {}, h('th', {}, 'stimulus'), h('td', {}, `sine at the part\u2019s resonance, ${num((stim.excursion_m || 0) * 1000, 3)} mm peak, held at its ${stim.hold === 'drive' ? 'drive level' : 'excursion'}${Number.isFinite(stim.on_s) ? `, ${num(stim.on_s, 4)} s on / ${num(stim.off_s, 4)} s off` : ''}`)),
+        j.problem ? h('tr', {}, h('th', {}, 'stopped'), h('td', { class: 'error', id: 'lt-problem' }, j.problem.detail || j.problem.title)) : null));
+    const running = !TERMINAL.includes(j.state);
+    const st = doc.state || {};
+    const paused = j.step && j.step.startsWith('paused');
+    put(progressEl,
+      h('progress', { class: 'job-progress', id: 'lt-progress-bar', max: 1, value: j.progress || 0 }),
+      h('p', { id: 'lt-progress-text' },
+        `${doc.intervals.length} of ${doc.intervals_planned} intervals, test time ${num(hours(Math.min(st.clock_s || 0, req.duration_s || Infinity)), 4)} h of ${num(hours(req.duration_s || 0), 4)} h (${num(100 * (j.progress || 0), 3)} %)`,
+        running ? ` \u2014 time left ${dur(j.eta_s)}${doc.accelerated ? ' (at the pace so far)' : ''}` : '',
+        paused ? h('strong', { class: 'error', id: 'lt-paused' }, ` ${j.step}`) : null));
+    show(cancelBtn, running && ctx.can('operator'));
+    show(wavLink, !!doc.last_signals);
+  }
+
+  function drawLaw() {
+    const d = doc.state && doc.state.document;
+    if (!d || !d.law) {
+      put(lawEl, h('p', { class: 'muted', id: 'lt-no-law' }, d && d.problem ? `No law yet: ${d.problem}.` : 'No law yet: the first interval is not finished.'));
+      put(predEl);
+      return;
+    }
+    const l = d.law;
+    const byLoad = l.axis === 'load_j';
+    const rows = [
+      ['K\u221e (aged, the law\u2019s limit)', withSe(l.k_inf_n_per_m.value, l.k_inf_n_per_m.se, 'N/mm', 1e-3)],
+      ['break-in loss \u0394K_b', withSe(l.break_in_k_n_per_m.value, l.break_in_k_n_per_m.se, 'N/mm', 1e-3)],
+      byLoad ? ['break-in load scale E_b', withSe(l.break_in_load_j.value, l.break_in_load_j.se, 'kJ', 1e-3)] : null,
+      ['break-in time scale', withSe(l.break_in_time_s.value, l.break_in_time_s.se, 'h', 1 / 3600)],
+      ['fatigue loss \u0394K_f', withSe(l.fatigue_k_n_per_m.value, l.fatigue_k_n_per_m.se, 'N/mm', 1e-3)],
+      byLoad ? ['fatigue load scale E_f', withSe(l.fatigue_load_j.value, l.fatigue_load_j.se, 'kJ', 1e-3)] : null,
+      ['fatigue time scale', withSe(l.fatigue_time_s.value, l.fatigue_time_s.se, 'h', 1 / 3600)],
+      ['scatter about the law', `${num(l.residual_sd_n_per_m / 1000, 3)} N/mm (${l.intervals_used} intervals)`],
+    ].filter(Boolean);
+    const c = d.characteristics;
+    put(lawEl,
+      h('p', {}, `K(0) = K\u221e + \u0394K_b e^(\u2212E/E_b) + \u0394K_f e^(\u2212E/E_f), fitted against ${byLoad ? 'the accumulated load E' : 'test time (the load unknown)'}. State: `,
+        stated(l.validity.state === 'valid' ? 'valid' : '', l.validity, { id: 'lt-law-state' })),
+      h('table', { class: 'kv', id: 'lt-law-table', dataset: { state: l.validity.state } },
+        rows.map(([k, v]) => h('tr', {}, h('th', {}, k), h('td', { class: l.validity.state === 'valid' ? '' : 'muted' }, v)))),
+      c ? h('p', { id: 'lt-characteristics' },
+        `Break-in ${num(c.break_in_loss_percent, 3)} % of the new part\u2019s K(0) (${num(100 * c.break_in_share, 3)} % of the whole loss), 95 % of it done after ${num(hours(c.break_in_95_time_s), 3)} h; fatigue ${num(c.fatigue_loss_percent, 3)} %, at ${num(c.fatigue_rate_percent_per_h, 3)} %/h after break-in${Number.isFinite(c.mean_power_w) ? `; the stimulus\u2019 mean load power ${num(c.mean_power_w, 4)} W` : ''}.`) : null,
+      d.large_excursion ? h('p', { id: 'lt-large-excursion', class: d.large_excursion.below_2_percent ? '' : 'error' }, d.large_excursion.statement) : null);
+    const p = d.prediction;
+    if (!p) {
+      put(predEl);
+      return;
+    }
+    put(predEl,
+      h('h2', {}, `Prediction at ${num(hours(p.elapsed_s), 4)} h${Number.isFinite(p.load_j) ? ` (${num(kj(p.load_j), 4)} kJ)` : ''}`),
+      h('table', { class: 'kv', id: 'lt-prediction-table', dataset: { state: p.validity.state } },
+        h('tr', {}, h('th', {}, 'K(0)'), h('td', {}, stated(withSe(p.k0_n_per_m, p.k0_se_n_per_m, 'N/mm', 1e-3), p.validity, { id: 'lt-pred-k0' }))),
+        h('tr', {}, h('th', {}, '95 % band of a measurement then'), h('td', { id: 'lt-pred-band' }, `${num(p.k0_band_n_per_m[0] / 1000, 4)} \u2026 ${num(p.k0_band_n_per_m[1] / 1000, 4)} N/mm`)),
+        h('tr', {}, h('th', {}, 'f0'), h('td', {}, withSe(p.f0_hz, p.f0_se_hz, 'Hz'))),
+        h('tr', {}, h('th', {}, 'state'), h('td', {}, stateText(p.validity)))));
+  }
+
+  function drawPlots() {
+    const d = (doc.state && doc.state.document) || null;
+    const axis = axisSel.value;
+    const byLoad = !d || !d.law || d.law.axis === 'load_j';
+    axisSel.querySelector('option[value="load"]').disabled = !byLoad;
+    if (!d || !d.intervals.length) {
+      for (const el of [kxEl, k0El, keffEl, f0El]) put(el, h('p', { class: 'muted' }, 'No interval measured yet.'));
+      return;
+    }
+    const fam = kxFamily(d);
+    const t0 = fam.times[0];
+    const t1 = fam.times[fam.times.length - 1];
+    chart(kxEl, {
+      title: 'K(x) over time (each over its valid range)',
+      kind: 'K(x) family',
+      x: { label: 'displacement x', unit: 'mm' },
+      y: { label: 'K(x)', unit: 'N/mm' },
+      series: fam.ys.map((_, k) => ({ label: `${num(hours(fam.times[k]), 3)} h`, unit: 'N/mm', color: ramp(t1 > t0 ? (fam.times[k] - t0) / (t1 - t0) : 0) })),
+      data: [fam.xs, ...fam.ys],
+      height: 240,
+    });
+    kxEl.dataset.curves = String(fam.ys.length);
+    const lawState = d.law ? d.law.validity.state : 'none';
+    lawPlot(k0El, d, { quantity: 'k0_n_per_m', title: 'K(0) small-signal', unit: 'N/mm', scale: 1e-3, measured: (i) => i.k0_n_per_m, axis, lawState });
+    lawPlot(keffEl, d, { quantity: 'keff_n_per_m', title: 'Keff at Xpeak', unit: 'N/mm', scale: 1e-3, measured: (i) => i.keff_n_per_m, axis, lawState });
+    lawPlot(f0El, d, { quantity: 'f0_hz', title: 'f0 small-signal', unit: 'Hz', scale: 1, measured: (i) => i.f0_hz, axis, lawState });
+  }
+
+  function drawEvents() {
+    const ev = doc.events || [];
+    if (!ev.length) {
+      put(eventsEl, h('p', { class: 'muted', id: 'lt-no-events' }, 'No pause, resumption or failure.'));
+      return;
+    }
+    put(eventsEl, h('table', { class: 'list' },
+      h('thead', {}, h('tr', {}, ['test time', 'event', 'what', 'when'].map((t) => h('th', {}, t)))),
+      h('tbody', { id: 'lt-event-rows' }, ev.map((e) => h('tr', { dataset: { kind: e.kind }, class: e.kind === 'failure' ? 'error' : '' },
+        h('td', {}, Number.isFinite(e.elapsed_s) ? `${num(hours(e.elapsed_s), 4)} h` : '\u2013'),
+        h('td', {}, e.kind),
+        h('td', {}, e.detail),
+        h('td', {}, when(e.at)))))));
+  }
+
+  function drawTable() {
+    const d = (doc.state && doc.state.document) || { intervals: [] };
+    put(tableEl, doc.intervals.map((iv, k) => {
+      const v = d.intervals[k] || {};
+      return h('tr', { dataset: { index: iv.index } },
+        h('td', {}, iv.index),
+        h('td', {}, `${num(hours(iv.elapsed_s), 4)} h`),
+        h('td', {}, `${num(kj(iv.load_j), 4)} kJ`),
+        h('td', {}, withSe(v.k0_n_per_m, v.k0_se_n_per_m, 'N/mm', 1e-3)),
+        h('td', {}, Number.isFinite(v.f0_hz) ? `${num(v.f0_hz, 4)} Hz` : '\u2013'),
+        h('td', {}, Number.isFinite(v.keff_n_per_m) ? `${num(mm(v.keff_n_per_m), 4)} N/mm` : '\u2013'),
+        h('td', {}, Number.isFinite(v.xpeak_m) ? `${num(v.xpeak_m * 1000, 4)} mm` : '\u2013'),
+        h('td', {}, h('a', { href: `#/measurement/${encodeURIComponent(iv.measurement_id)}`, class: 'mono' }, shortId(iv.measurement_id))));
+    }));
+  }
+
+  function drawAll() {
+    drawHead();
+    const key = `${doc.intervals.length}|${doc.job.state}|${axisSel.value}|${(doc.events || []).length}`;
+    if (key === drawnKey) return;
+    drawnKey = key;
+    drawLaw();
+    drawPlots();
+    drawEvents();
+    drawTable();
+    main.dataset.intervals = String(doc.intervals.length);
+  }
+
+  async function poll() {
+    clearTimeout(timer);
+    try {
+      doc = await api(`/api/v1/long-term-tests/${encodeURIComponent(id)}`);
+      if (ctx.stale()) return;
+      drawAll();
+      if (!TERMINAL.includes(doc.job.state)) timer = setTimeout(poll, POLL_MS);
+    } catch (e) {
+      if (ctx.stale()) return;
+      // The first read failing is the page's error (app.js shows it); later ones retry.
+      if (!doc) throw e;
+      msg.className = 'status error';
+      msg.textContent = String(e.message || e);
+      timer = setTimeout(poll, POLL_MS);
+    }
+  }
+  await poll();
+  return () => clearTimeout(timer);
+}
+
