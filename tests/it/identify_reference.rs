@@ -196,3 +196,25 @@ fn one_signal_on_cone_warns() {
         r.warnings
     );
 }
+
+/// The CLI's analysis of a set it gives away (`analyze_owned`, which frees
+/// each sweep's raw channels as soon as they are read, decision 0094) is
+/// the borrowed analysis's report, field for field, for both methods (p2:
+/// with its warnings and unreliable marks).
+#[test]
+fn owned_analysis_is_the_borrowed_one() {
+    let set = RecordingSet::read_dir(dir("p2_spider_friction")).unwrap();
+    for method in [Method::TwoSignal, Method::OneSignal] {
+        let opts = AnalyzeOptions {
+            method,
+            ..Default::default()
+        };
+        let borrowed = serde_json::to_string(&analyze(&set, &opts).unwrap()).unwrap();
+        let owned = springbench::identify::analyze_owned(set.clone(), &opts).unwrap();
+        assert_eq!(
+            serde_json::to_string(&owned).unwrap(),
+            borrowed,
+            "{method:?}"
+        );
+    }
+}

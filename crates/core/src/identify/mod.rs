@@ -111,34 +111,69 @@ impl<'a> Sweeps<'a> {
 
 /// [`analyze`] of borrowed sweeps.
 pub fn analyze_sweeps(s: Sweeps<'_>, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
-    let (p, fitted) = prepare_and_fit(s);
-    let (p, excursion) = p?;
-    let (mut r, creep) = analyze_prepared(excursion, &p, opts, fitted)?;
+    let (p, (fitted, excursion)) = prepare_and_fit(s.pre, s.main, s.moving_mass_kg, opts);
+    let (p, kf) = p?;
+    let (mut r, creep) = analyze_prepared(excursion, &p, opts, fitted, kf)?;
     validity::judge_plain(&mut r, creep.as_deref());
     Ok(r)
 }
 
-/// The main sweep's preparation and the small-signal fit of the
-/// pre-measurement: independent of each other and about equal in cost, so
-/// they run side by side on the two cores (rayon's pool, whose threads keep
-/// their FFT plans between calls). The pre-measurement's excursion
-/// ([`pre_excursion`]) is read beside the fit too (on the preparation's
-/// side, the shorter one) instead of after the K(x) fit. The same
-/// arithmetic as one after the other: the numbers are bit for bit the same.
+/// The main sweep's preparation and its K(x) fit, and the small-signal fit
+/// of the pre-measurement with its excursion ([`pre_excursion`]):
+/// independent of each other and about equal in cost, so they run side by
+/// side on the two cores (rayon's pool, whose threads keep their FFT plans
+/// between calls). The K(x) fit needs only the prepared main sweep: it runs
+/// right after the preparation, beside the small-signal fit, instead of
+/// alone after both (decision 0094). Given owned signals (`S = Signals`,
+/// [`analyze_owned`]), each half drops its sweep's raw channels as soon as
+/// it has read them, so the K(x) fit's designs reuse the main sweep's
+/// memory instead of fresh pages; borrowed (`S = &Signals`) they stay the
+/// caller's. The same arithmetic as one after the other: the numbers are
+/// bit for bit the same.
 #[allow(clippy::type_complexity)]
-fn prepare_and_fit(
-    s: Sweeps<'_>,
+fn prepare_and_fit<S: std::borrow::Borrow<crate::recording::Signals> + Send>(
+    pre: S,
+    main: S,
+    mass_kg: f64,
+    opts: &AnalyzeOptions,
 ) -> (
-    Result<(prep::Prepared, Option<(f64, f64)>), AnalyzeError>,
-    Result<small::SmallFit, AnalyzeError>,
+    Result<(prep::Prepared, Result<stiffness::KFit, AnalyzeError>), AnalyzeError>,
+    (Result<small::SmallFit, AnalyzeError>, Option<(f64, f64)>),
 ) {
     rayon::join(
-        || {
-            let p = prep::prepare_sweep(s.main, s.moving_mass_kg, "main")?;
-            Ok((p, pre_excursion(&s.pre.displacement_m)))
+        move || {
+            let p = prep::prepare_sweep(main.borrow(), mass_kg, "main");
+            drop(main);
+            let p = p?;
+            let kf = fit_stiffness(&p, opts);
+            Ok((p, kf))
         },
-        || small::fit(s.pre, s.moving_mass_kg),
+        move || {
+            let fitted = small::fit(pre.borrow(), mass_kg);
+            (fitted, pre_excursion(&pre.borrow().displacement_m))
+        },
     )
+}
+
+/// [`analyze`] of a set the caller gives away (the CLI): the same report,
+/// with each sweep's raw channels freed as soon as the analysis has read
+/// them ([`prepare_and_fit`]), which lowers the process's peak memory.
+pub fn analyze_owned(set: RecordingSet, opts: &AnalyzeOptions) -> Result<Report, AnalyzeError> {
+    let RecordingSet { meta, pre, main } = set;
+    let (p, (fitted, excursion)) = prepare_and_fit(pre, main, meta.moving_mass_kg, opts);
+    let (p, kf) = p?;
+    let (mut r, creep) = analyze_prepared(excursion, &p, opts, fitted, kf)?;
+    validity::judge_plain(&mut r, creep.as_deref());
+    Ok(r)
+}
+
+/// The K(x) fit of a prepared main sweep as [`analyze_prepared`] takes it
+/// (over the analysed span, One Signal as Two Signal).
+fn fit_stiffness(
+    p: &prep::Prepared,
+    opts: &AnalyzeOptions,
+) -> Result<stiffness::KFit, AnalyzeError> {
+    stiffness::fit(p, opts.method, p.span, opts.order)
 }
 
 /// [`analyze`] and [`force_balance_data`] from one preparation of the main
@@ -155,9 +190,9 @@ pub fn analyze_sweeps_with_force_balance(
     s: Sweeps<'_>,
     opts: &AnalyzeOptions,
 ) -> Result<(Report, ForceBalanceData), AnalyzeError> {
-    let (p, fitted) = prepare_and_fit(s);
-    let (p, excursion) = p?;
-    let (mut report, creep) = analyze_prepared(excursion, &p, opts, fitted)?;
+    let (p, (fitted, excursion)) = prepare_and_fit(s.pre, s.main, s.moving_mass_kg, opts);
+    let (p, kf) = p?;
+    let (mut report, creep) = analyze_prepared(excursion, &p, opts, fitted, kf)?;
     validity::judge_plain(&mut report, creep.as_deref());
     Ok((report, force_balance_of(&p, false)))
 }
@@ -209,18 +244,21 @@ pub fn analyze_for_diagnosis(
     // The diagnostics fit creep themselves: the plain analysis's mark for it
     // is not theirs.
     let fitted = small::fit_spectra(&set.pre, p.mass_kg, &sx, &sm);
-    let (report, _) = analyze_prepared(excursion, &p, opts, fitted)?;
+    let kf = fit_stiffness(&p, opts);
+    let (report, _) = analyze_prepared(excursion, &p, opts, fitted, kf)?;
     Ok((report, force_balance_of(&p, false), PreSpectra { sx, sm }))
 }
 
-/// The report of a prepared main sweep and the small-signal fit of its
-/// pre-measurement (`pre_excursion`: the pre-measurement's, by
-/// [`pre_excursion`]).
+/// The report of a prepared main sweep, its K(x) fit ([`fit_stiffness`])
+/// and the small-signal fit of its pre-measurement (`pre_excursion`: the
+/// pre-measurement's, by [`pre_excursion`]). A failed small-signal fit is
+/// reported before a failed K(x) fit, as when the K(x) fit ran after it.
 fn analyze_prepared(
     pre_excursion: Option<(f64, f64)>,
     p: &prep::Prepared,
     opts: &AnalyzeOptions,
     fitted: Result<small::SmallFit, AnalyzeError>,
+    kf: Result<stiffness::KFit, AnalyzeError>,
 ) -> Result<(Report, Option<String>), AnalyzeError> {
     let mut warnings = Vec::new();
 
@@ -246,7 +284,7 @@ fn analyze_prepared(
             p.span
         }
     };
-    let kf = stiffness::fit(p, opts.method, span, opts.order)?;
+    let kf = kf?;
     if opts.order.is_none() && kf.order == MAX_AUTO_ORDER {
         warnings.push(format!(
             "stiffness order reached the automatic limit {MAX_AUTO_ORDER}: the polynomial may not describe K(x) well"
