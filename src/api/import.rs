@@ -401,11 +401,11 @@ pub async fn import(
     .await
     .map_err(Problem::internal)?
     .map_err(|e| Problem::validation(vec![e]))?;
-    let (result, analysis_error) = match p
-        .analysis
-        .and_then(|r| crate::finite::to_value(&r).map_err(|e| format!("result refused: {e}")))
-    {
-        Ok(v) => (Some(v), None),
+    let (result, analysis_error) = match p.analysis.and_then(|r| match crate::finite::check(&r) {
+        Ok(()) => Ok(r),
+        Err(e) => Err(format!("result refused: {e}")),
+    }) {
+        Ok(r) => (Some(crate::store::Doc::Made(r)), None),
         Err(e) => (None, Some(e)),
     };
     let id = new_id();
@@ -428,8 +428,10 @@ pub async fn import(
                     analysis: Some(opts),
                     ..Default::default()
                 },
-                meta: crate::finite::to_value(&p.meta)
-                    .map_err(|e| Problem::field("meta", e.to_string()))?,
+                meta: match crate::finite::check(&p.meta) {
+                    Ok(()) => crate::store::Doc::Made(p.meta),
+                    Err(e) => return Err(Problem::field("meta", e.to_string())),
+                },
                 result,
                 analysis_error,
                 target_xpeak_m: None,

@@ -149,8 +149,10 @@ async fn job(s: &Store, id: &str, serial: &str, n: usize) {
             source: "bench",
             bench_id: Some("b1".into()),
             config: Default::default(),
-            meta: json!({}),
-            result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0 + i as f64}})),
+            meta: crate::store::Doc::Received(json!({})),
+            result: Some(crate::store::Doc::Received(
+                json!({"large_signal": {"keff_n_per_m": 1000.0 + i as f64}}),
+            )),
             analysis_error: None,
             target_xpeak_m: Some(0.004),
             repeat_index: Some(i as i64),

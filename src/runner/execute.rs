@@ -17,7 +17,7 @@ pub(super) struct Done {
     pub(super) log: Vec<String>,
     pub(super) warnings: Vec<String>,
     /// The job's measurements, stored as each level finished; kept without
-    /// their result and meta documents.
+    /// their result document.
     pub(super) measurements: Vec<NewMeasurement>,
     /// The result document of each measurement (index-aligned with
     /// `measurements`), typed: the series is attached to it when its repeat
@@ -733,9 +733,9 @@ impl Repeat<'_> {
             source: "bench",
             bench_id: Some(self.bench_id.to_string()),
             config: cfg_m,
-            meta: serde_json::to_value(&meta).unwrap_or(Value::Null),
+            meta: Doc::Made(meta),
             // checked finite above
-            result: report.as_ref().and_then(|r| serde_json::to_value(r).ok()),
+            result: report.clone().map(Doc::Made),
             analysis_error,
             target_xpeak_m: Some(target_xpeak_m),
             repeat_index: Some(self.repeat as i64),
@@ -756,7 +756,6 @@ impl Repeat<'_> {
         }
         // The job keeps the light part (the records and MES messages read it).
         m.result = None;
-        m.meta = Value::Null;
         self.done.measurements.push(m);
         self.done.reports.push(report);
         give_back_freed_memory();

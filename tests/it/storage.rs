@@ -59,7 +59,7 @@ async fn a_capture_reads_back_from_the_store_sample_for_sample() {
                 source: "import",
                 bench_id: None,
                 config: Default::default(),
-                meta: json!({"moving_mass_kg": 0.05}),
+                meta: springbench::store::Doc::Received(json!({"moving_mass_kg": 0.05})),
                 result: None,
                 analysis_error: Some("not analysed".into()),
                 target_xpeak_m: None,

@@ -414,8 +414,16 @@ impl MeasurementItem {
             source: m.source.to_string(),
             bench_id: m.bench_id.clone(),
             config: serde_json::to_value(&m.config).map_err(|e| e.to_string())?,
-            meta: m.meta.clone(),
-            result: m.result.clone(),
+            meta: m
+                .meta
+                .to_value()
+                .map_err(|e| format!("measurement {}: meta: {e}", m.id))?,
+            result: m
+                .result
+                .as_ref()
+                .map(|d| d.to_value())
+                .transpose()
+                .map_err(|e| format!("measurement {}: result: {e}", m.id))?,
             analysis_error: m.analysis_error.clone(),
             target_xpeak_m: m.target_xpeak_m,
             repeat_index: m.repeat_index,
@@ -497,8 +505,9 @@ impl MeasurementItem {
                 bench_id: self.bench_id.clone(),
                 config: serde_json::from_value(self.config.clone())
                     .map_err(|e| format!("measurement {}: config: {e}", self.id))?,
-                meta: self.meta.clone(),
-                result: self.result.clone(),
+                // A station's documents, whatever its version: kept whole.
+                meta: crate::Doc::Received(self.meta.clone()),
+                result: self.result.clone().map(crate::Doc::Received),
                 analysis_error: self.analysis_error.clone(),
                 target_xpeak_m: self.target_xpeak_m,
                 repeat_index: self.repeat_index,
@@ -569,8 +578,10 @@ mod tests {
                 source: "bench",
                 bench_id: Some("b1".into()),
                 config: Default::default(),
-                meta: json!({"id": "m-1"}),
-                result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
+                meta: crate::Doc::Received(json!({"id": "m-1"})),
+                result: Some(crate::Doc::Received(
+                    json!({"large_signal": {"keff_n_per_m": 1000.0}}),
+                )),
                 analysis_error: None,
                 target_xpeak_m: Some(0.002),
                 repeat_index: Some(0),

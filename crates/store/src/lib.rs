@@ -40,7 +40,7 @@ pub use imports::{ImportInserted, RecordingFile};
 pub use jobs::{Inserted, Job, JobRequestRow, JobState};
 pub use raw::{dir_bytes, BlobReader, RecordingInfo, Retention, RetentionReport, StoredRecording};
 pub use results::{
-    FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads,
+    Doc, FinishedMeasurement, Fit, FitReads, HeadlineChoice, MeasurementInfo, MeasurementReads,
     NewMeasurement, NewRecording, Part, PartReads, RecipeReads, ResultIngest, ResultStore,
     StoredMeasurement, Upserted, VerdictReads,
 };

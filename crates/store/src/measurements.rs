@@ -125,6 +125,12 @@ async fn insert_measurement_rows_at(
         let main = *rec_ids.get(m.main).ok_or_else(|| {
             StoreError::Corrupt("measurement names a missing main recording".into())
         })?;
+        let meta = doc_text(&m.id, "meta", &m.meta)?;
+        let result = m
+            .result
+            .as_ref()
+            .map(|d| doc_text(&m.id, "result", d))
+            .transpose()?;
         sqlx::query(
             "INSERT INTO measurements (id, part_serial, job_id, source, bench_id, software_version, config_json, meta_json, \
              result_json, analysis_error, target_xpeak_m, repeat_index, level_index, pre_recording_id, main_recording_id, created_at) \
@@ -137,8 +143,8 @@ async fn insert_measurement_rows_at(
         .bind(m.bench_id)
         .bind(software_version.to_string())
         .bind(m.config.to_json())
-        .bind(m.meta.to_string())
-        .bind(m.result.map(|v| v.to_string()))
+        .bind(meta)
+        .bind(result)
         .bind(m.analysis_error)
         .bind(m.target_xpeak_m)
         .bind(m.repeat_index)
@@ -270,5 +276,105 @@ impl ResultIngest for Store {
         crate::qc::insert_verdicts(&mut tx, &f.verdicts, &f.created_at).await?;
         tx.commit().await?;
         Ok(Upserted::Inserted)
+    }
+}
+
+/// A measurement's document as stored text; a non-finite number refuses
+/// the whole write (nothing is stored, the caller keeps the reason).
+fn doc_text<T: serde::Serialize>(
+    id: &str,
+    what: &str,
+    d: &crate::results::Doc<T>,
+) -> StoreResult<String> {
+    d.to_value()
+        .map(|v| v.to_string())
+        .map_err(|e| StoreError::Invalid(format!("measurement {id}: {what}: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::results::Doc;
+    use springbench_core::recording::Meta;
+
+    fn rec(kind: &'static str) -> NewRecording {
+        NewRecording {
+            kind,
+            sample_rate_hz: 48000.0,
+            frames: 3,
+            stored: springbench_recording::codec::Stored {
+                bytes: vec![1, 2, 3],
+                channel_scale: None,
+            },
+        }
+    }
+
+    fn measurement(id: &str, meta: Meta) -> NewMeasurement {
+        NewMeasurement {
+            id: id.into(),
+            part_serial: "SN-1".into(),
+            job_id: None,
+            source: "import",
+            bench_id: None,
+            config: Default::default(),
+            meta: Doc::Made(meta),
+            result: None,
+            analysis_error: Some("not analysed".into()),
+            target_xpeak_m: None,
+            repeat_index: None,
+            level_index: None,
+            pre: 0,
+            main: 1,
+        }
+    }
+
+    /// The store checks a made document on write: a NaN is refused with
+    /// the measurement and the field named, and nothing of the call is
+    /// stored (`serde_json::to_value` had written it as `null`).
+    #[tokio::test]
+    async fn a_non_finite_number_in_a_made_document_is_refused_on_write() {
+        let s = Store::memory().await.unwrap();
+        let good = measurement("m-good", Meta::standard(0.0123, 48000.0));
+        s.insert_measurements(
+            ("SN-1", None, None),
+            vec![rec("pre"), rec("main")],
+            vec![good],
+        )
+        .await
+        .unwrap();
+        let stored: String =
+            sqlx::query_scalar("SELECT meta_json FROM measurements WHERE id = 'm-good'")
+                .fetch_one(&s.pool)
+                .await
+                .unwrap();
+        let back: Meta = serde_json::from_str(&stored).unwrap();
+        assert_eq!(back.moving_mass_kg, 0.0123);
+        assert_eq!(back.sample_rate_hz, 48000.0);
+
+        let bad = measurement("m-nan", Meta::standard(f64::NAN, 48000.0));
+        let e = s
+            .insert_measurements(
+                ("SN-1", None, None),
+                vec![rec("pre"), rec("main")],
+                vec![bad],
+            )
+            .await
+            .unwrap_err();
+        let msg = e.to_string();
+        assert!(matches!(e, StoreError::Invalid(_)), "{msg}");
+        assert!(
+            msg.contains("m-nan") && msg.contains("meta") && msg.contains("moving_mass_kg"),
+            "{msg}"
+        );
+        let (_, n) = s.counts().await.unwrap();
+        assert_eq!(n, 1, "only the good measurement is stored");
+        let recs: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM recordings")
+            .fetch_one(&s.pool)
+            .await
+            .unwrap();
+        assert_eq!(
+            recs, 2,
+            "the refused call's recordings are not stored either"
+        );
     }
 }

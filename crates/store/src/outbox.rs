@@ -325,10 +325,11 @@ impl Store {
             source: measurement_source(&r.get::<String, _>("source"))?,
             bench_id: r.get("bench_id"),
             config: crate::parse_config(&r.get::<String, _>("config_json"))?,
-            meta: parse_json(&r.get::<String, _>("meta_json"))?,
+            // Sent on as stored (a document of an older version included).
+            meta: crate::Doc::Received(parse_json(&r.get::<String, _>("meta_json"))?),
             result: r
                 .get::<Option<String>, _>("result_json")
-                .map(|s| parse_json(&s))
+                .map(|s| parse_json(&s).map(crate::Doc::Received))
                 .transpose()?,
             analysis_error: r.get("analysis_error"),
             target_xpeak_m: r.get("target_xpeak_m"),
@@ -521,8 +522,10 @@ mod tests {
             source: "bench",
             bench_id: Some("b1".into()),
             config: Default::default(),
-            meta: json!({"moving_mass_kg": 0.01}),
-            result: Some(json!({"large_signal": {"keff_n_per_m": 1500.0}})),
+            meta: crate::Doc::Received(json!({"moving_mass_kg": 0.01})),
+            result: Some(crate::Doc::Received(
+                json!({"large_signal": {"keff_n_per_m": 1500.0}}),
+            )),
             analysis_error: None,
             target_xpeak_m: Some(0.004),
             repeat_index: Some(0),

@@ -329,8 +329,10 @@ mod tests {
             source: "import",
             bench_id: None,
             config: serde_json::from_value(json!({"analysis": {"method": "two-signal"}})).unwrap(),
-            meta: json!({"moving_mass_kg": 0.05}),
-            result: Some(json!({"large_signal": {"keff_n_per_m": 1000.0}})),
+            meta: crate::Doc::Received(json!({"moving_mass_kg": 0.05})),
+            result: Some(crate::Doc::Received(
+                json!({"large_signal": {"keff_n_per_m": 1000.0}}),
+            )),
             analysis_error: None,
             target_xpeak_m: None,
             repeat_index: None,

@@ -199,6 +199,28 @@ impl VerdictRow {
     }
 }
 
+/// A document a measurement stores (`meta_json`, `result_json`): the type
+/// this version made, or the JSON another station's version sent to the
+/// fleet, kept whole as it came (a newer version's members are not lost by
+/// reading them into this version's type).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Doc<T> {
+    Made(T),
+    Received(Value),
+}
+
+impl<T: serde::Serialize> Doc<T> {
+    /// The document as stored: object keys sorted; a NaN or infinity is
+    /// refused (issue 11), never written as null. The store checks here, on
+    /// write, whoever made the document.
+    pub fn to_value(&self) -> Result<Value, springbench_core::finite::NonFinite> {
+        match self {
+            Doc::Made(t) => springbench_core::finite::to_value(t),
+            Doc::Received(v) => springbench_core::finite::check(v).map(|()| v.clone()),
+        }
+    }
+}
+
 /// A new measurement to store.
 #[derive(Debug, Clone)]
 pub struct NewMeasurement {
@@ -209,8 +231,11 @@ pub struct NewMeasurement {
     pub bench_id: Option<String>,
     /// What the measurement was made with (stored as `config_json`).
     pub config: springbench_core::job::MeasurementConfig,
-    pub meta: Value,
-    pub result: Option<Value>,
+    /// How the signals were recorded (stored as `meta_json`).
+    pub meta: Doc<springbench_core::recording::Meta>,
+    /// The analysis' report (stored as `result_json`); `None` when the
+    /// analysis failed (`analysis_error` says why).
+    pub result: Option<Doc<springbench_core::identify::Report>>,
     pub analysis_error: Option<String>,
     pub target_xpeak_m: Option<f64>,
     pub repeat_index: Option<i64>,

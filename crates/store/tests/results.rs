@@ -84,9 +84,9 @@ fn finished(
             source: "bench",
             bench_id: Some("line-1".into()),
             config: serde_json::from_value(json!({"target_xpeak_m": 0.002})).unwrap(),
-            meta: json!({"sample_rate_hz": 48000, "id": id}),
+            meta: springbench_store::Doc::Received(json!({"sample_rate_hz": 48000, "id": id})),
             analysis_error: result.is_none().then(|| "laser signal lost".to_string()),
-            result,
+            result: result.map(springbench_store::Doc::Received),
             target_xpeak_m: Some(0.002),
             repeat_index: Some(0),
             level_index: level,
@@ -132,7 +132,7 @@ pub async fn results_suite<S: ResultStore>(s: &S) {
         vec![verdict("m-2", "P-1", "fail")],
     );
     let keff_state = json!({"state": "unreliable", "reason": "noise floor 4.2 %"});
-    if let Some(doc) = m2.measurement.result.as_mut() {
+    if let Some(springbench_store::Doc::Received(doc)) = m2.measurement.result.as_mut() {
         doc["large_signal"]["validity"] = json!({"keff_n_per_m": keff_state});
     }
     let m3 = finished("m-3", "P-2", Some("cone"), T3, None, None, vec![]);
