@@ -237,6 +237,7 @@ pub fn prepare(
         channel_scale: None,
         ..Meta::standard(meta.moving_mass_kg, main.0.sample_rate_hz)
     };
+    stored_meta.long_term = meta.long_term.clone();
     stored_meta.extra = meta.extra.clone();
     stored_meta.channels.drive = meta.channels.drive.map(|_| 2);
     let longest = [("pre", pre.0.frames), ("main", main.0.frames)]

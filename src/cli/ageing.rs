@@ -39,21 +39,19 @@ pub fn read_series(dir: &std::path::Path) -> Result<Vec<Interval>, String> {
     let mut out = Vec::with_capacity(subs.len());
     for sub in subs {
         let set = RecordingSet::read_dir(&sub).map_err(|e| e.to_string())?;
-        let num = |k: &str| -> Result<Option<f64>, String> {
-            match set.meta.extra.get(k) {
-                None => Ok(None),
-                Some(v) => match v.as_f64() {
-                    Some(x) if x.is_finite() && x >= 0.0 => Ok(Some(x)),
-                    _ => Err(format!(
-                        "{}/meta.json: {k} must be a number >= 0, got {v}",
-                        sub.display()
-                    )),
-                },
+        let num = |k: &str, v: Option<f64>| -> Result<Option<f64>, String> {
+            match v {
+                Some(x) if !(x.is_finite() && x >= 0.0) => Err(format!(
+                    "{}/meta.json: {k} must be a number >= 0, got {x}",
+                    sub.display()
+                )),
+                v => Ok(v),
             }
         };
-        let elapsed_s = num("elapsed_s")?
+        let stamp = &set.meta.long_term;
+        let elapsed_s = num("elapsed_s", stamp.elapsed_s)?
             .ok_or_else(|| format!("{}/meta.json: elapsed_s is missing", sub.display()))?;
-        let load_j = num("load_j")?;
+        let load_j = num("load_j", stamp.load_j)?;
         let report = analyze(&set, &AnalyzeOptions::default())
             .map_err(|e| format!("{}: {e}", sub.display()))?;
         out.push(Interval {

@@ -29,8 +29,7 @@ use crate::physics::ageing;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
 use crate::store::longterm::{LongTermEventKind, NewInterval};
-use crate::store::{Job, JobState, MeasurementReads, NewRecording, Store, StoreResult};
-use serde_json::json;
+use crate::store::{Job, JobState, NewRecording, Store, StoreResult};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -242,9 +241,12 @@ impl Runner {
         let mut done = vec![];
         let mut first_k0 = None;
         for iv in self.store.long_term_intervals(job_id).await? {
-            let report = match self.store.get_measurement(&iv.measurement_id).await? {
-                Some((_, Some(result), _)) => serde_json::from_value::<Report>(result).ok(),
-                _ => None,
+            let report = match self.store.measurement_report(&iv.measurement_id).await {
+                Ok(r) => r,
+                // As before the store read it into its type: an interval
+                // whose report does not read is left out of the fit.
+                Err(crate::store::StoreError::Corrupt(_)) => None,
+                Err(e) => return Err(e),
             };
             if let Some(report) = report {
                 if iv.index == 0 {
@@ -609,15 +611,13 @@ fn run_blocking(
             ))
         })?;
         let mut meta = Meta::standard(m.moving_mass_kg, out.pre.sample_rate_hz);
-        for (k, v) in [
-            ("elapsed_s", json!(t_start)),
-            ("load_j", json!(load_at_start)),
-            ("accelerated", json!(spec.accelerated)),
-            ("long_term_test", json!(job_id)),
-            ("long_term_interval", json!(index)),
-        ] {
-            meta.extra.insert(k.into(), v);
-        }
+        meta.long_term = crate::recording::LongTermStamp {
+            accelerated: Some(spec.accelerated),
+            elapsed_s: Some(t_start),
+            load_j: Some(load_at_start),
+            long_term_interval: Some(index as u32),
+            long_term_test: Some(job_id.to_string()),
+        };
         let analysed = identify::analyze_sweeps(
             identify::Sweeps {
                 moving_mass_kg: m.moving_mass_kg,

@@ -95,20 +95,19 @@ pub fn run_accelerated(
             .first()
             .ok_or("the procedure made no narrow sweep")?;
         let mut meta = Meta::standard(vb.part.moving_mass_kg, vb.bench.sample_rate_hz);
-        for (k, v) in [
-            ("elapsed_s", serde_json::json!(elapsed_s)),
-            ("load_j", serde_json::json!(load_j)),
-            ("accelerated", serde_json::json!(true)),
-            (
-                "source",
-                serde_json::json!(format!(
-                    "springbench long-term test (virtual, accelerated), part '{}', interval {index}",
-                    vb.part.name
-                )),
-            ),
-        ] {
-            meta.extra.insert(k.into(), v);
-        }
+        meta.long_term = springbench_core::recording::LongTermStamp {
+            accelerated: Some(true),
+            elapsed_s: Some(elapsed_s),
+            load_j: Some(load_j),
+            ..Default::default()
+        };
+        meta.extra.insert(
+            "source".into(),
+            serde_json::json!(format!(
+                "springbench long-term test (virtual, accelerated), part '{}', interval {index}",
+                vb.part.name
+            )),
+        );
         let set = RecordingSet {
             meta,
             pre: out.pre.clone(),

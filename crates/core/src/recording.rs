@@ -54,9 +54,34 @@ pub struct Meta {
     pub channels: Channels,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_scale: Option<ChannelScale>,
+    /// Where the set sits in a long-term test (top-level members of
+    /// `meta.json`; `springbench ageing` reads them).
+    #[serde(flatten)]
+    pub long_term: LongTermStamp,
     /// Any further fields, kept as they are.
     #[serde(flatten)]
     pub extra: serde_json::Map<String, serde_json::Value>,
+}
+
+/// A long-term test's interval, as its recording set says it (issue 32).
+/// Every member is optional: an ordinary set has none of them.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct LongTermStamp {
+    /// The stimulus ran faster than real time (the virtual bench).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accelerated: Option<bool>,
+    /// Time under the stimulus when the interval's measurement started (s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elapsed_s: Option<f64>,
+    /// Load accumulated by then (J; decision 0110's measure).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_j: Option<f64>,
+    /// The interval's index in its test, from 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub long_term_interval: Option<u32>,
+    /// The test's job id.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub long_term_test: Option<String>,
 }
 
 impl Meta {
@@ -71,6 +96,7 @@ impl Meta {
                 drive: Some(2),
             },
             channel_scale: None,
+            long_term: LongTermStamp::default(),
             extra: Default::default(),
         }
     }

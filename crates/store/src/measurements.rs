@@ -46,6 +46,26 @@ impl Store {
         Ok(())
     }
 
+    /// A measurement's report read into its type: `None` when the
+    /// measurement is unknown or its analysis failed; a stored document
+    /// that does not read as this version's report is `Corrupt`.
+    pub async fn measurement_report(
+        &self,
+        id: &str,
+    ) -> StoreResult<Option<springbench_core::identify::Report>> {
+        let text: Option<Option<String>> =
+            sqlx::query_scalar("SELECT result_json FROM measurements WHERE id = ?")
+                .bind(id.to_string())
+                .fetch_optional(&self.pool)
+                .await?;
+        text.flatten()
+            .map(|s| {
+                serde_json::from_str(&s)
+                    .map_err(|e| StoreError::Corrupt(format!("measurement {id}: result_json: {e}")))
+            })
+            .transpose()
+    }
+
     pub async fn counts(&self) -> StoreResult<(i64, i64)> {
         let r =
             sqlx::query("SELECT (SELECT COUNT(*) FROM parts), (SELECT COUNT(*) FROM measurements)")
