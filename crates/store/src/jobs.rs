@@ -667,17 +667,7 @@ mod tests {
         })
     }
 
-    fn rec(kind: &'static str) -> NewRecording {
-        NewRecording {
-            kind,
-            sample_rate_hz: 48000.0,
-            frames: 3,
-            stored: springbench_recording::codec::Stored {
-                bytes: vec![1, 2, 3, kind.len() as u8],
-                channel_scale: None,
-            },
-        }
-    }
+    use crate::results::tiny_recording as rec;
 
     #[tokio::test]
     async fn job_lifecycle_and_results_round_trip() {

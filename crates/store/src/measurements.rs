@@ -317,17 +317,7 @@ mod tests {
     use crate::results::Doc;
     use springbench_core::recording::Meta;
 
-    fn rec(kind: &'static str) -> NewRecording {
-        NewRecording {
-            kind,
-            sample_rate_hz: 48000.0,
-            frames: 3,
-            stored: springbench_recording::codec::Stored {
-                bytes: vec![1, 2, 3],
-                channel_scale: None,
-            },
-        }
-    }
+    use crate::results::tiny_recording as rec;
 
     fn measurement(id: &str, meta: Meta) -> NewMeasurement {
         NewMeasurement {

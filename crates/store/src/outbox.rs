@@ -502,17 +502,7 @@ mod tests {
     use crate::qc::JobRecords;
     use serde_json::json;
 
-    fn rec(kind: &'static str) -> NewRecording {
-        NewRecording {
-            kind,
-            sample_rate_hz: 48000.0,
-            frames: 3,
-            stored: springbench_recording::codec::Stored {
-                bytes: vec![1, 2, 3, kind.len() as u8],
-                channel_scale: None,
-            },
-        }
-    }
+    use crate::results::tiny_recording as rec;
 
     fn meas(id: &str, job: &str, serial: &str) -> NewMeasurement {
         NewMeasurement {

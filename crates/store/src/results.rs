@@ -199,6 +199,20 @@ impl VerdictRow {
     }
 }
 
+/// A recording of three frames for the store's own tests.
+#[cfg(test)]
+pub(crate) fn tiny_recording(kind: &'static str) -> NewRecording {
+    NewRecording {
+        kind,
+        sample_rate_hz: 48000.0,
+        frames: 3,
+        stored: springbench_recording::codec::Stored {
+            bytes: vec![1, 2, 3, kind.len() as u8],
+            channel_scale: None,
+        },
+    }
+}
+
 /// A document a measurement stores (`meta_json`, `result_json`): the type
 /// this version made, or the JSON another station's version sent to the
 /// fleet, kept whole as it came (a newer version's members are not lost by
