@@ -10,8 +10,9 @@ use super::events::StudyStep;
 use super::execute::make_bench;
 use super::{JobEvent, Runner, Slot, CANCEL};
 use crate::diagnose::studies::{
-    analyze_added_mass, MassRun, Study, StudyPlan, StudyResult, StudyState,
+    analyze_added_mass, attribute_added_mass, MassRun, Study, StudyPlan, StudyResult, StudyState,
 };
+use crate::identify::ForceBalanceData;
 use crate::job::{JobProblem, ProblemKind};
 use crate::store::{Job, JobState, StoreResult};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -41,7 +42,7 @@ fn measure(
     mass_given_kg: f64,
     level_m: f64,
     stop: (Arc<AtomicU8>, Arc<AtomicBool>),
-) -> Result<(MassRun, f64), Halt> {
+) -> Result<(MassRun, f64, ForceBalanceData), Halt> {
     let mut bench = make_bench(slot_cfg, part, seed, job_seq, slot_cfg.limits)
         .map_err(|e| failed(ProblemKind::Bench, "Bench not available", e))?;
     let cfg = crate::procedure::ProcedureConfig {
@@ -77,7 +78,7 @@ fn measure(
         main: narrow.signals.clone(),
     };
     let bench_time_s = (outcome.pre.len() + narrow.signals.len()) as f64 / bench.sample_rate_hz();
-    let report = crate::identify::analyze(&set, &Default::default())
+    let (report, data) = crate::identify::analyze_with_force_balance(&set, &Default::default())
         .map_err(|e| failed(ProblemKind::Procedure, "Analysis failed", e.to_string()))?;
     let ss = report.small_signal.as_ref();
     let run = MassRun {
@@ -88,7 +89,7 @@ fn measure(
         resonance_hz: report.large_signal.resonance_hz,
         xpeak_m: report.large_signal.xpeak_m,
     };
-    Ok((run, bench_time_s))
+    Ok((run, bench_time_s, data))
 }
 
 /// `f` on a blocking thread; a crash is the study's failure.
@@ -236,7 +237,7 @@ impl Runner {
                 let (level, added) = (plan.level_m, plan.added_mass_kg);
                 let (c1, p1, s1) = (cfg.clone(), part.clone(), stop.clone());
                 let first = blocking(move || measure(&c1, p1, seed, seq, mass, level, s1)).await;
-                let (without, t1) = match first {
+                let (without, t1, d1) = match first {
                     Ok(r) => r,
                     Err(h) => return Ok(Err(h)),
                 };
@@ -314,7 +315,7 @@ impl Runner {
                     )
                 })
                 .await;
-                let (with_mass, t2) = match second {
+                let (with_mass, t2, d2) = match second {
                     Ok(r) => r,
                     Err(h) => return Ok(Err(h)),
                 };
@@ -324,9 +325,30 @@ impl Runner {
                     with_mass.keff_n_per_m,
                     with_mass.xpeak_m * 1e3
                 ));
-                Ok(analyze_added_mass(added, without, with_mass)
-                    .map(|r| (StudyResult::AddedMass(r), t1 + t2))
-                    .map_err(|e| failed(ProblemKind::Procedure, "Added-mass study failed", e)))
+                let mut result = match analyze_added_mass(added, without, with_mass) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        return Ok(Err(failed(
+                            ProblemKind::Procedure,
+                            "Added-mass study failed",
+                            e,
+                        )))
+                    }
+                };
+                // Which cause the changes go to (decision 0122): both runs
+                // as one part, with the derived mass corrected for creep.
+                let r0 = result.clone();
+                match blocking(move || Ok(attribute_added_mass(&r0, [d1, d2], &Default::default())))
+                    .await
+                {
+                    Ok(Ok(a)) => {
+                        log.extend(a.notes.iter().cloned());
+                        result.attribution = Some(Box::new(a));
+                    }
+                    Ok(Err(e)) => log.push(format!("no attribution: {e}")),
+                    Err(h) => return Ok(Err(h)),
+                }
+                Ok(Ok((StudyResult::AddedMass(result), t1 + t2)))
             }
         }
     }
