@@ -61,7 +61,8 @@ fn run_test(dir: &Path, hours: f64, interval_s: f64, seed: u64) -> Vec<(f64, f64
 
 const STIMULUS_XPEAK_M: f64 = 0.0053;
 
-fn ageing_json(dir: &Path, predict_s: f64) -> serde_json::Value {
+/// `springbench ageing --json --predict-s T DIR`, asserted to succeed.
+pub(crate) fn ageing_json(dir: &Path, predict_s: f64) -> serde_json::Value {
     let out = Command::new(env!("CARGO_BIN_EXE_springbench"))
         .args(["ageing", "--json", "--predict-s"])
         .arg(predict_s.to_string())

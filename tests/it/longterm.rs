@@ -669,18 +669,7 @@ async fn offline_equals_online(c: &reqwest::Client, d: &Daemon, v: &Value) {
     }
     let online = &v["state"]["document"];
     let predict_s = online["prediction"]["elapsed_s"].as_f64().unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_springbench"))
-        .args(["ageing", "--json", "--predict-s"])
-        .arg(predict_s.to_string())
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let offline: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let offline = crate::ageing::ageing_json(dir.path(), predict_s);
     let mut worst = (0.0f64, String::new());
     let mut cmp = |name: String, a: &Value, b: &Value| {
         let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());

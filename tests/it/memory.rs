@@ -694,7 +694,7 @@ fn added_mass_study_attributes_creep_and_softening_to_their_causes() {
 /// the field named (tested in `springbench-bench`'s settings).
 #[tokio::test]
 async fn recovery_study_job_gives_back_depth_and_time_constant() {
-    use crate::common::{client, problem, terminal, wait_job, Daemon};
+    use crate::common::{client, get, problem, terminal, wait_job, Daemon};
     use serde_json::{json, Value};
     let d = Daemon::start(
         "[[benches]]\nid = \"virtual-soft\"\npreset = \"spider_4in\"\nseed = 11\n\
@@ -729,14 +729,7 @@ async fn recovery_study_job_gives_back_depth_and_time_constant() {
     let id = v["id"].as_str().unwrap().to_string();
     let j = wait_job(&c, &d, &id, std::time::Duration::from_secs(300), terminal).await;
     assert_eq!(j["state"], "succeeded", "{j}");
-    let s: Value = c
-        .get(d.url(&format!("/api/v1/studies/{id}")))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let s = get(&c, &d, &format!("/api/v1/studies/{id}")).await;
     assert_eq!(s["state"], "succeeded", "{s}");
     let r = &s["result"];
     assert_eq!(r["kind"], "recovery", "{s}");
