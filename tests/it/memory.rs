@@ -120,19 +120,34 @@ fn level_series_names_the_softening() {
 
 /// The recovery-of-the-law matrix (issue 33 acceptance): every preset, each
 /// memory effect at two strengths, 3 noise seeds: the hidden effect ranked
-/// first and significant, its parameter within 20 %, the model error down
-/// by at least half, the headline K(x) within 1 % RMS of the elastic truth.
+/// first (the final ranking the document shows, after the ladder's backward
+/// check and the neighbours' check) and significant, its parameter within
+/// 20 %, the model error down by at least half, the headline K(x) within
+/// 1 % RMS of the elastic truth.
+///
+/// The model error is measured on the record's noise-free twin (decision
+/// 0123): the same part and drive with the sensors' noise off, the base
+/// model and the model the diagnostics chose each fitted to it. On a noisy
+/// record the reported model error, sqrt(residual^2 - noise floor^2), is
+/// resolved only down to 4-12 % of the noise floor (a clean part reads
+/// 0.31 % on the 18" cone's 7.4 % floor), and a weak effect's whole share
+/// lies below that; the noisy figures are printed beside it.
 /// Always on: one preset per effect (`matrix_subset`); the full matrix:
-/// `cargo test --release --test memory -- --ignored --nocapture matrix_full`.
+/// `cargo test --release --test it -- --ignored --nocapture memory::matrix_full`.
 fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
-    use springbench::bench::simulate::simulate_recording_set;
+    use springbench::bench::simulate::{simulate, simulate_recording_set, SimulateOptions};
     use springbench::diagnose::{diagnose, DiagnoseOptions};
     let mut failures = Vec::new();
+    let mut quiet = SimulateOptions::default();
+    quiet.bench.laser.noise_m = 0.0;
+    quiet.bench.microphone.noise_pa = 0.0;
     for name in presets {
         let nominal = preset(name).unwrap();
         let k0 = nominal.k_coeffs_si[0];
         for id in [EffectId::Hysteresis, EffectId::ReversibleSoftening] {
             for &strength in strengths {
+                // The noise-free twin's model error per model (the seed only draws the noise).
+                let mut twin: Option<springbench::identify::ForceBalanceData> = None;
                 for seed in 0..seeds {
                     let f = [0.06, 0.15][strength];
                     let mut part = nominal.clone();
@@ -160,6 +175,38 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
                     let c = &diag["candidates"][0];
                     let base_me = diag["base_model"]["model_error_percent"].as_f64().unwrap();
                     let me = d.report.model.model_error_percent;
+                    let twin = twin.get_or_insert_with(|| {
+                        let set = simulate(&part, 900, &quiet).unwrap().set;
+                        springbench::identify::analyze_for_diagnosis(&set, &Default::default())
+                            .unwrap()
+                            .1
+                    });
+                    // The base model and the chosen one (its yield excursion
+                    // or tau as found on the noisy record), refitted to the
+                    // twin: there the residual is the model error (a clean
+                    // part leaves 0.0005-0.006 %).
+                    let twin_error = |m: &serde_json::Value| {
+                        let model = serde_json::from_value(serde_json::json!({
+                            "order": m["order"], "effect_ids": m["effects"],
+                            "effects": m["parameters"], "effects_se": {},
+                            "stiffness_coefficients_n_per_m_pow_i_plus_1": [],
+                            "r_ns_per_m": 0.0, "force_per_mic_n_per_v": 0.0,
+                            "residual_percent": 0.0, "cv_residual_percent": 0.0
+                        }))
+                        .unwrap();
+                        springbench::diagnose::engine::refit_jointly(
+                            twin,
+                            &Default::default(),
+                            &model,
+                            0,
+                        )
+                        .unwrap()
+                        .residual_percent
+                    };
+                    let (twin_base, twin_final) = (
+                        twin_error(&diag["base_model"]),
+                        twin_error(&diag["final_model"]),
+                    );
                     let got = c["parameters"][param].as_f64().unwrap_or(f64::NAN);
                     let s = &d.report.stiffness;
                     let [lo, hi] = s.valid_range_m;
@@ -177,7 +224,7 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
                     }
                     let k_rms = 100.0 * (se / st).sqrt();
                     let line = format!(
-                        "{name} {id} x{f} seed {seed}: first {} sig {} cut {:.1} % (model error {base_me:.3} -> {me:.3} %), {param} {:+.1} %, K(x) {k_rms:.2} % RMS, K(x) state {:?}",
+                        "{name} {id} x{f} seed {seed}: first {} sig {} cut {:.1} % (model error {base_me:.3} -> {me:.3} %; noise-free twin {twin_base:.3} -> {twin_final:.3} %), {param} {:+.1} %, K(x) {k_rms:.2} % RMS, K(x) state {:?}",
                         c["effect"],
                         c["significant"],
                         c["error_reduction_percent"].as_f64().unwrap_or(f64::NAN),
@@ -188,7 +235,7 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
                     let ok = c["effect"] == id.as_str()
                         && c["significant"] == true
                         && (got / truth - 1.0).abs() <= 0.2
-                        && me <= 0.5 * base_me
+                        && twin_final <= 0.5 * twin_base
                         && k_rms <= 1.0;
                     if !ok {
                         failures.push(line);
@@ -201,8 +248,8 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
 }
 
 /// spider_4in at the larger strength; the open cases of the full matrix
-/// (the 3" spider's softening ranks `stiffness_drift` first) are listed in
-/// docs/diagnostics.md.
+/// (the 18" cone's hysteresis with seed 902, its model error below the
+/// noise floor's resolution) are listed in docs/diagnostics.md.
 #[test]
 fn matrix_subset() {
     matrix(&["spider_4in"], &[1], 1);
