@@ -59,3 +59,44 @@ fn stored_documents_are_read_through_their_types() {
         found.join("\n")
     );
 }
+
+/// The runner's files: what they store they make from the project's types
+/// (decision 0080); a document built with `json!` is a bag no type checks
+/// (the calibration record's sensors were one until session 22: a renamed
+/// member would have gone unnoticed and forced a self-check after every
+/// upgrade).
+const RUNNER: [(&str, &str); 9] = [
+    ("src/runner/mod.rs", include_str!("mod.rs")),
+    ("src/runner/execute.rs", include_str!("execute.rs")),
+    ("src/runner/records.rs", include_str!("records.rs")),
+    ("src/runner/hardware.rs", include_str!("hardware.rs")),
+    ("src/runner/series.rs", include_str!("series.rs")),
+    ("src/runner/job.rs", include_str!("job.rs")),
+    ("src/runner/longterm.rs", include_str!("longterm.rs")),
+    ("src/runner/studies.rs", include_str!("studies.rs")),
+    ("src/runner/events.rs", include_str!("events.rs")),
+];
+
+#[test]
+fn the_runner_builds_no_json_bags() {
+    let mut found = vec![];
+    for (path, text) in RUNNER {
+        for (i, line) in text.lines().enumerate() {
+            let l = line.trim_start();
+            if l.starts_with("mod tests") {
+                break; // the files' own tests compare with literal documents
+            }
+            if l.starts_with("//") {
+                continue;
+            }
+            if l.contains(concat!("json", "!(")) {
+                found.push(format!("{path}:{}: {}", i + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "a document built as a JSON bag in the runner (build it from its type):\n{}",
+        found.join("\n")
+    );
+}

@@ -11,7 +11,6 @@ use crate::physics::PartSpec;
 use crate::store::hardware::{CalibrationRecord, SelfCheckResult};
 use crate::store::{Job, JobState, StoreResult};
 use serde::Serialize;
-use serde_json::{json, Value};
 use std::time::Instant;
 
 /// Why a bench is faulted.
@@ -59,26 +58,6 @@ pub fn open_bench(
         "bench '{}' needs the `hardware` feature, which this build lacks",
         cfg.id
     ))
-}
-
-/// Sensor identities as configured (stored with every calibration record).
-fn sensors(cfg: &BenchConfig) -> Value {
-    match &cfg.hardware {
-        Some(h) => json!({
-            "laser": h.laser,
-            "microphone": {"sensitivity_v_per_pa": h.calibration.mic_sensitivity_v_per_pa,
-                           "calibrated_on": h.calibration.mic_calibrated_on},
-            "input_device": h.input_device, "output_device": h.output_device,
-        }),
-        None => Value::Null,
-    }
-}
-
-fn calibration_json(cfg: &BenchConfig) -> Value {
-    cfg.hardware
-        .as_ref()
-        .map(|h| serde_json::to_value(&h.calibration).unwrap_or_default())
-        .unwrap_or_default()
 }
 
 /// Runs a self-check on its own blocking thread; Ok(result JSON, passed).
@@ -156,8 +135,8 @@ impl Runner {
             bench_id: slot.cfg.id.clone(),
             job_id: Some(job.id.clone()),
             passed,
-            calibration: calibration_json(&slot.cfg),
-            sensors: sensors(&slot.cfg),
+            calibration: slot.cfg.calibration_document(),
+            sensors: slot.cfg.sensors_document(),
             result,
             created_at: crate::store::now(),
         };
@@ -259,7 +238,9 @@ impl Runner {
             )));
         }
         if let Some(c) = self.store.latest_calibration(&slot.cfg.id).await? {
-            if c.calibration == calibration_json(&slot.cfg) && c.sensors == sensors(&slot.cfg) {
+            if c.calibration == slot.cfg.calibration_document()
+                && c.sensors == slot.cfg.sensors_document()
+            {
                 return Ok(Ok(Some(c)));
             }
         }

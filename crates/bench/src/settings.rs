@@ -280,7 +280,67 @@ pub enum FaultKind {
     LaserGarbage,
 }
 
+/// The sensors' identities as a hardware bench stores them with every
+/// calibration record and every measurement (`sensors`): the laser as
+/// configured, the microphone's calibration, the converters. The bench
+/// crate is the author of this document; the core and the store carry it
+/// whole (they sit below this crate and cannot name its types), and the
+/// runner compares the stored one with this one to decide whether a new
+/// self-check is due.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SensorIdentities<'a> {
+    pub laser: &'a LaserConfig,
+    pub microphone: MicrophoneIdentity<'a>,
+    pub input_device: &'a str,
+    pub output_device: &'a str,
+}
+
+/// The measuring microphone's identity: its sensitivity and when it was calibrated.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MicrophoneIdentity<'a> {
+    pub sensitivity_v_per_pa: f64,
+    pub calibrated_on: &'a str,
+}
+
+/// The document of a typed bench record. These types hold strings and
+/// numbers only, which serde_json does not refuse; were it to, the record
+/// would say `null` rather than the daemon stop.
+fn document<T: Serialize>(t: &T) -> serde_json::Value {
+    serde_json::to_value(t).unwrap_or_default()
+}
+
+impl BenchConfig {
+    /// `sensors` of this bench's calibration records and measurements;
+    /// `null` for a bench without a `[benches.hardware]` table.
+    pub fn sensors_document(&self) -> serde_json::Value {
+        self.hardware.as_ref().map_or(serde_json::Value::Null, |h| {
+            document(&h.sensor_identities())
+        })
+    }
+
+    /// `calibration` of this bench's calibration records and measurements:
+    /// the `[benches.hardware.calibration]` in effect; `null` without one.
+    pub fn calibration_document(&self) -> serde_json::Value {
+        self.hardware
+            .as_ref()
+            .map_or(serde_json::Value::Null, |h| document(&h.calibration))
+    }
+}
+
 impl HardwareConfig {
+    /// The sensors' identities as configured ([`SensorIdentities`]).
+    pub fn sensor_identities(&self) -> SensorIdentities<'_> {
+        SensorIdentities {
+            laser: &self.laser,
+            microphone: MicrophoneIdentity {
+                sensitivity_v_per_pa: self.calibration.mic_sensitivity_v_per_pa,
+                calibrated_on: &self.calibration.mic_calibrated_on,
+            },
+            input_device: &self.input_device,
+            output_device: &self.output_device,
+        }
+    }
+
     /// One-line error naming the first implausible field.
     pub fn validate(&self, bench_id: &str) -> Result<(), String> {
         let e = |m: String| Err(format!("bench '{bench_id}': hardware.{m}"));
@@ -587,3 +647,68 @@ pub fn default_limits() -> Limits {
 
 /// Preset mounted on the default virtual bench.
 pub const DEFAULT_PRESET: &str = "spider_4in";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn bench(laser: &str) -> BenchConfig {
+        toml::from_str(&format!(
+            r#"
+id = "hw-1"
+kind = "hardware"
+[hardware]
+output_device = "hw:1,0"
+input_device = "hw:2,0"
+[hardware.calibration]
+dac_full_scale_v = 1.0
+amplifier_gain = 100.0
+adc_full_scale_v = 10.0
+loopback_divider = 0.05
+mic_sensitivity_v_per_pa = 0.0005
+mic_calibrated_on = "2026-10-01"
+{laser}
+"#
+        ))
+        .unwrap()
+    }
+
+    /// The typed documents are the ones earlier versions wrote with `json!`
+    /// in the runner, member for member: a stored self-check of an earlier
+    /// version still matches the configuration after an upgrade (no forced
+    /// self-check), and the fleet's records keep their shape.
+    #[test]
+    fn sensor_and_calibration_documents_keep_the_stored_shape() {
+        for laser in [
+            "",
+            "[hardware.laser]\nkind = \"serial\"\nport = \"/dev/ttyUSB0\"\nbaud = 115200\nrate_hz = 2000.0\n\
+             protocol = { name = \"keyence\", range_m = 0.02 }\nmodel = \"LK-G32\"\nserial = \"K-7\"\n",
+        ] {
+            let b = bench(laser);
+            let h = b.hardware.as_ref().unwrap();
+            let before = json!({
+                "laser": h.laser,
+                "microphone": {"sensitivity_v_per_pa": h.calibration.mic_sensitivity_v_per_pa,
+                               "calibrated_on": h.calibration.mic_calibrated_on},
+                "input_device": h.input_device, "output_device": h.output_device,
+            });
+            assert_eq!(b.sensors_document(), before);
+            assert_eq!(
+                b.sensors_document().to_string(),
+                before.to_string(),
+                "same text, member order included"
+            );
+            assert_eq!(b.sensors_document()["microphone"]["calibrated_on"], "2026-10-01");
+            assert_eq!(
+                b.calibration_document(),
+                serde_json::to_value(&h.calibration).unwrap()
+            );
+            assert_eq!(b.calibration_document()["amplifier_gain"], 100.0);
+        }
+        let mut v = bench("");
+        v.hardware = None;
+        assert_eq!(v.sensors_document(), serde_json::Value::Null);
+        assert_eq!(v.calibration_document(), serde_json::Value::Null);
+    }
+}
