@@ -402,10 +402,7 @@ pub async fn import(
     .await
     .map_err(Problem::internal)?
     .map_err(|e| Problem::validation(vec![e]))?;
-    let (result, analysis_error) = match p.analysis.and_then(|r| match crate::finite::check(&r) {
-        Ok(()) => Ok(r),
-        Err(e) => Err(format!("result refused: {e}")),
-    }) {
+    let (result, analysis_error) = match p.analysis.and_then(crate::qc::level::storable) {
         Ok(r) => (Some(crate::store::Doc::Made(r)), None),
         Err(e) => (None, Some(e)),
     };

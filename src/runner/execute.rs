@@ -593,101 +593,32 @@ impl Repeat<'_> {
         let not_aligned = hw_record
             .as_ref()
             .and_then(HardwareRecord::alignment_invalid);
-        let mut fb = None;
-        let analysed = if let Some(why) = &not_aligned {
-            // Never a fit of a displacement not on the audio clock.
-            let l = self.tag(format!(
-                "level {} ({} m) not fitted: {why}",
-                li + 1,
-                target_xpeak_m
-            ));
-            self.log.push(l);
-            Err(why.clone())
-        } else if self.recipe.is_some_and(|r| r.needs_diagnostics()) {
-            // Judging an effect's size needs the diagnostics' fitted effects.
-            let dopts = crate::diagnose::DiagnoseOptions {
-                analyze: opts.clone(),
-                effects: vec![],
-                ..Default::default()
-            };
-            // (the diagnostics take a whole set: a copy of the pre-measurement
-            // for this level's analysis only)
-            let set = RecordingSet {
-                meta: meta.clone(),
-                pre: pre.signals.clone(),
-                main: signals.clone(),
-            };
-            if self.want_series {
-                fb = identify::force_balance_data(&set, opts).ok();
-            }
-            crate::diagnose::diagnose(&set, &dopts)
-                .map(|d| identify::Report {
-                    diagnostics: None,
-                    ..d.report
-                })
-                .map_err(|e| e.to_string())
-        } else if self.want_series {
-            identify::analyze_sweeps_with_force_balance(sweeps, opts)
-                .map(|(rep, d)| {
-                    fb = Some(d);
-                    rep
-                })
-                .map_err(|e| e.to_string())
-        } else {
-            identify::analyze_sweeps(sweeps, opts).map_err(|e| e.to_string())
-        }
-        .map(|mut rep| {
-            rep.warnings.extend(warning.iter().cloned());
-            // The Keff QC judges, beside the one measured at the reached Xpeak.
-            crate::qc::set_keff_at_target(&mut rep, Some(target_xpeak_m));
-            rep
+        let out = crate::qc::level::measure_level(crate::qc::level::Level {
+            sweeps,
+            meta: &meta,
+            opts,
+            level_index: li,
+            target_xpeak_m,
+            warning,
+            not_fitted: not_aligned,
+            keep_force_balance: self.want_series,
+            recipe: self.recipe,
+            bench_cal: self.bench_cal,
+            drive_v,
+            max_drive_v: spec.limits.max_drive_v,
+            pre_drive_v: pre.sweep.amplitude_v,
+            pre_q_drive_to_x: pre.q_drive_to_x,
         });
-        let mid = new_id();
-        if let Some(r) = self.recipe {
-            let facts = crate::qc::RunFacts {
-                report: analysed.as_ref().ok().cloned(),
-                analysis_error: analysed.as_ref().err().cloned(),
-                target_xpeak_m: Some(target_xpeak_m),
-                level_index: li,
-                drive_v: Some(drive_v),
-                max_drive_v: Some(spec.limits.max_drive_v),
-                pre_drive_v: Some(pre.sweep.amplitude_v),
-                pre_q_drive_to_x: pre.q_drive_to_x,
-            };
-            self.done.verdicts.push((
-                mid.clone(),
-                crate::qc::judge_calibrated(r, &facts, self.bench_cal),
-            ));
+        for l in out.log {
+            let l = self.tag(l);
+            self.log.push(l);
         }
-        let (report, analysis_error) = match analysed {
-            // Never stored with a non-finite number written as null
-            // (issue 11): the result is refused, the reason kept. QC has
-            // judged the report above with its own rules.
-            Ok(rep) => match crate::finite::check(&rep) {
-                Ok(()) => (Some(rep), None),
-                Err(e) => {
-                    let e = format!("result refused: {e}");
-                    let l = self.tag(format!(
-                        "analysis of level {} ({} m): {e}",
-                        li + 1,
-                        target_xpeak_m
-                    ));
-                    self.log.push(l);
-                    (None, Some(e))
-                }
-            },
-            Err(e) if not_aligned.is_some() => (None, Some(e)),
-            Err(e) => {
-                let l = self.tag(format!(
-                    "analysis of level {} ({} m) failed: {e}",
-                    li + 1,
-                    target_xpeak_m
-                ));
-                self.log.push(l);
-                (None, Some(e))
-            }
-        };
-        if let (Some(data), Some(_)) = (fb, &report) {
+        let mid = new_id();
+        if let Some(v) = out.verdict {
+            self.done.verdicts.push((mid.clone(), v));
+        }
+        let (report, analysis_error) = (out.report, out.analysis_error);
+        if let Some(data) = out.force_balance {
             self.series_in.push(series::Level {
                 measurement: self.done.measurements.len(),
                 measurement_id: mid.clone(),

@@ -28,7 +28,7 @@ use crate::identify::{self, AnalyzeOptions};
 use crate::job::{JobProblem, ProblemKind};
 use crate::physics::PartSpec;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError, Step};
-use crate::recording::{Meta, RecordingSet};
+use crate::recording::Meta;
 use crate::store::RecipeReads;
 use crate::store::{Doc, Job, JobState, NewMeasurement, NewRecording, Store, StoreResult};
 pub use events::{EventBus, JobEvent};

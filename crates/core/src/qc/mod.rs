@@ -16,6 +16,7 @@ mod apply;
 pub mod bench_cal;
 pub mod cfx;
 pub mod grr;
+pub mod level;
 pub mod limits;
 pub mod lot;
 pub mod production;

@@ -688,3 +688,70 @@ fn western_electric_rules_flag_the_points_that_complete_each_pattern() {
     // No sigma: no signal.
     assert!(western_electric(&v, 0.0, 0.0).is_empty());
 }
+
+/// One level from sweeps to what is stored and judged (`qc::level`, the
+/// runner's code before): a level that must not be fitted is stored without
+/// a result, its reason kept, logged and judged invalid; an analysis that
+/// fails is logged and not judged without a recipe; a result holding a NaN
+/// is refused with the reason, a finite one stored as it is.
+#[test]
+fn a_level_not_fitted_or_failed_is_stored_with_its_reason_and_judged() {
+    use super::level::{measure_level, storable, Level};
+    use crate::recording::{Meta, Signals};
+    let empty = Signals {
+        sample_rate_hz: 48000.0,
+        displacement_m: vec![],
+        microphone_v: vec![],
+        drive_v: None,
+    };
+    let meta = Meta::standard(0.05, 48000.0);
+    let opts = crate::identify::AnalyzeOptions::default();
+    let r = recipe();
+    let level = |not_fitted: Option<String>, judged: bool| Level {
+        sweeps: crate::identify::Sweeps {
+            moving_mass_kg: 0.05,
+            pre: &empty,
+            main: &empty,
+        },
+        meta: &meta,
+        opts: &opts,
+        level_index: 1,
+        target_xpeak_m: 0.006,
+        warning: None,
+        not_fitted,
+        keep_force_balance: true,
+        recipe: judged.then_some(&r),
+        bench_cal: None,
+        drive_v: 2.0,
+        max_drive_v: 10.0,
+        pre_drive_v: 0.5,
+        pre_q_drive_to_x: None,
+    };
+    let why = "laser samples not on the audio clock (residual 80 us)".to_string();
+    let out = measure_level(level(Some(why.clone()), true));
+    assert!(out.report.is_none() && out.force_balance.is_none());
+    assert_eq!(out.analysis_error.as_deref(), Some(why.as_str()));
+    assert_eq!(
+        out.log,
+        vec![format!("level 2 (0.006 m) not fitted: {why}")]
+    );
+    let v = out.verdict.expect("judged under the recipe");
+    assert_eq!(v.verdict, VerdictKind::Invalid, "{v:?}");
+    assert!(v.failures.is_empty() && v.parameters.is_empty(), "{v:?}");
+
+    let out = measure_level(level(None, false));
+    let e = out.analysis_error.expect("empty sweeps do not analyse");
+    assert!(out.report.is_none() && out.verdict.is_none());
+    assert_eq!(
+        out.log,
+        vec![format!("analysis of level 2 (0.006 m) failed: {e}")]
+    );
+
+    let good = report(2400.0, 1.2e5, 3.6e7, 6.0);
+    assert_eq!(storable(good.clone()), Ok(good.clone()));
+    let mut bad = good;
+    bad.stiffness.coefficients_n_per_m_pow_i_plus_1[1] = f64::INFINITY;
+    let e = storable(bad).unwrap_err();
+    assert!(e.starts_with("result refused: "), "{e}");
+    assert!(e.contains("stiffness"), "{e}");
+}
