@@ -121,6 +121,20 @@ pub struct Runner {
 /// See [`Runner::set_recipe_trace`].
 pub type RecipeTrace = Arc<dyn Fn() -> crate::qc::FleetTrace + Send + Sync>;
 
+/// What a measuring job has before its bench moves ([`Runner::preflight`]).
+struct Preflight {
+    /// A hardware bench's calibration record (None on a virtual bench).
+    calibration: Option<crate::store::hardware::CalibrationRecord>,
+    /// The job's start as stored.
+    started_at: String,
+    /// The job's recipe (None: it names none), or why it cannot be used.
+    recipe: Result<Option<crate::qc::Recipe>, String>,
+    /// The bench's calibration under the recipe (decision 0049).
+    bench_cal: Option<crate::qc::BenchCalibration>,
+    /// What the verdicts' trace says of it (None without a recipe).
+    cal_trace: Option<crate::qc::BenchCalibrationTrace>,
+}
+
 impl Runner {
     /// Makes every verdict's trace carry what `f` gives (the fleet's recipe
     /// provenance, at the trace's top level). Set once.
@@ -441,10 +455,29 @@ impl Runner {
             Ok(crate::job::StoredRequest::Measure(s)) => Ok(s.clone()),
             Err(e) => Err(e.to_string()),
         };
-        // A hardware bench: faulted benches refuse, every measurement needs a calibration record.
-        let calibration = match self.hardware_preflight(slot, job, &spec).await? {
-            Ok(c) => c,
+        let pf = match self.preflight(slot, job, &spec).await? {
+            Ok(pf) => pf,
             Err(p) => return self.finish_failed(slot, job, p).await,
+        };
+        let outcome = self.measure(slot, job, &spec, &pf, &cancel).await;
+        self.record(slot, job, &spec, pf, outcome, &cancel, started)
+            .await
+    }
+
+    /// Before the bench moves: a hardware bench's calibration record (a
+    /// faulted bench refuses), the job's start as stored, the recipe and
+    /// the bench's calibration under it. A recipe or a calibration that
+    /// cannot be read is the job's failure later, named (`measure`).
+    async fn preflight(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        spec: &Result<JobSpec, String>,
+    ) -> StoreResult<Result<Preflight, JobProblem>> {
+        // A hardware bench: faulted benches refuse, every measurement needs a calibration record.
+        let calibration = match self.hardware_preflight(slot, job, spec).await? {
+            Ok(c) => c,
+            Err(p) => return Ok(Err(p)),
         };
         let started_at = self
             .store
@@ -452,7 +485,7 @@ impl Runner {
             .await?
             .and_then(|j| j.started_at)
             .unwrap_or_else(crate::store::now);
-        let recipe = match &spec {
+        let recipe = match spec {
             Ok(s) => match &s.recipe {
                 Some(r) => Some(self.load_recipe(r).await?),
                 None => None,
@@ -491,8 +524,27 @@ impl Runner {
             Ok(_) => recipe.clone().transpose(),
             Err(e) => Err(e),
         };
-        let bench_cal = bench_cal.ok().flatten();
-        let outcome = match (spec.as_ref(), recipe_ok) {
+        Ok(Ok(Preflight {
+            calibration,
+            started_at,
+            recipe: recipe_ok,
+            bench_cal: bench_cal.ok().flatten(),
+            cal_trace,
+        }))
+    }
+
+    /// The measurement on the bench's blocking thread ([`execute`]), its
+    /// messages (progress, live samples, each finished repeat) handled here
+    /// as they come.
+    async fn measure(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        spec: &Result<JobSpec, String>,
+        pf: &Preflight,
+        cancel: &Arc<AtomicU8>,
+    ) -> Result<Done, Stop> {
+        match (spec.as_ref(), pf.recipe.clone()) {
             (Err(e), _) => Err(Stop::Failed(JobProblem::new(
                 ProblemKind::JobUnreadable,
                 "Job request unreadable",
@@ -511,7 +563,8 @@ impl Runner {
                 let seed = bench_cfg.seed.wrapping_add(job.seq as u64);
                 let job_id = job.id.clone();
                 let job_seq = job.seq;
-                let cal = calibration.clone();
+                let cal = pf.calibration.clone();
+                let bench_cal = pf.bench_cal.clone();
                 let mut handle = tokio::task::spawn_blocking(move || {
                     let mut obs = obs;
                     execute(
@@ -547,8 +600,29 @@ impl Runner {
                     ))),
                 }
             }
-        };
+        }
+    }
 
+    /// After the measurement: the job's state, its records (verdicts, CFX
+    /// messages, webhooks) committed with it, the bench's throughput, and
+    /// the events.
+    #[allow(clippy::too_many_arguments)]
+    async fn record(
+        &self,
+        slot: &Slot,
+        job: &Job,
+        spec: &Result<JobSpec, String>,
+        pf: Preflight,
+        outcome: Result<Done, Stop>,
+        cancel: &Arc<AtomicU8>,
+        started: Instant,
+    ) -> StoreResult<()> {
+        let Preflight {
+            calibration,
+            started_at,
+            cal_trace,
+            ..
+        } = pf;
         // From here on a cancel is too late (409); one that came during the
         // fit still wins, so a 202 always ends as `cancelled`.
         let cancelled_late = cancel.swap(COMMIT, Ordering::SeqCst) == CANCEL;
