@@ -137,6 +137,7 @@ fn level_series_names_the_softening() {
 fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
     use springbench::bench::simulate::{simulate, simulate_recording_set, SimulateOptions};
     use springbench::diagnose::{diagnose, DiagnoseOptions};
+    use springbench::identify::validity::State::Unreliable;
     let mut failures = Vec::new();
     let mut quiet = SimulateOptions::default();
     quiet.bench.laser.noise_m = 0.0;
@@ -232,6 +233,23 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
                         s.validity.k_of_x
                     );
                     eprintln!("{line}");
+                    // The record cannot weigh it (decision 0123): said, with
+                    // the experiment, and the headline values marked.
+                    let cannot_tell = c["effect"] == id.as_str()
+                        && c["significant"] == false
+                        && c["note"]
+                            .as_str()
+                            .is_some_and(|n| n.starts_with("cannot tell whether"))
+                        && d.report.warnings.iter().any(|w| {
+                            w.starts_with("cannot tell whether")
+                                && w.contains(Term::Effect(id).separating_experiment())
+                        })
+                        && s.validity.k_of_x.state == Unreliable
+                        && d.report.large_signal.validity.keff_n_per_m.state == Unreliable;
+                    if cannot_tell {
+                        eprintln!("  cannot tell (named, with its experiment): {line}");
+                        continue;
+                    }
                     let ok = c["effect"] == id.as_str()
                         && c["significant"] == true
                         && (got / truth - 1.0).abs() <= 0.2
@@ -268,6 +286,60 @@ fn matrix_full() {
         ],
         &[0, 1],
         3,
+    );
+}
+
+/// A hysteresis the record cannot weigh (decision 0123): the 18" cone with
+/// k = 0.15 x k0, x_yield 1 mm, seed 902. The block test finds it (p about
+/// 1e-42, the first candidate), but the noise floor (6.9 %) is estimated
+/// above the base model's held-out residual, so the model error reads 0 and
+/// the 5 % relevance rule cannot be met: it is not added, and K(x) carries
+/// its share (1.08 % RMS from the elastic truth). Before the fix the
+/// document said nothing and K(x), Keff and fR were `valid`; now it says
+/// "cannot tell whether hysteresis matters" with the separating
+/// experiment, and marks them.
+#[test]
+fn a_hysteresis_the_record_cannot_weigh_is_cannot_tell() {
+    use springbench::bench::simulate::simulate_recording_set;
+    use springbench::diagnose::{diagnose, DiagnoseOptions};
+    use springbench::identify::validity::State::Unreliable;
+    let mut part = preset("cone_18in").unwrap();
+    part.effects = hysteresis(0.15 * part.k_coeffs_si[0], 1e-3);
+    let set = simulate_recording_set(&part, 902).unwrap();
+    let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
+    let diag = d.report.diagnostics.as_ref().unwrap();
+    let first = &diag.candidates[0];
+    eprintln!(
+        "first {} p {:.1e} alpha {:.1e} note {:?}; model {:?}; warnings {:#?}",
+        first.effect,
+        first.p_value,
+        first.alpha,
+        first.note,
+        diag.final_model.effects,
+        d.report.warnings
+    );
+    assert_eq!(first.effect, "hysteresis");
+    assert!(!first.significant && first.p_value < first.alpha * 1e-6);
+    assert!(diag.final_model.effects.is_empty());
+    let experiment = Term::Effect(EffectId::Hysteresis).separating_experiment();
+    let note = first.note.as_deref().unwrap();
+    assert!(
+        note.starts_with("cannot tell whether hysteresis matters") && note.contains(experiment),
+        "{note}"
+    );
+    assert!(d
+        .report
+        .warnings
+        .iter()
+        .any(|w| note.starts_with(w.as_str())));
+    assert_eq!(d.report.stiffness.validity.k_of_x.state, Unreliable);
+    assert_eq!(
+        d.report.large_signal.validity.keff_n_per_m.state,
+        Unreliable
+    );
+    assert_eq!(
+        d.report.large_signal.validity.resonance_hz.state,
+        Unreliable
     );
 }
 

@@ -423,3 +423,83 @@ pub fn mark_memory(s: &mut Stiffness, l: &mut LargeSignal, r: &EngineResult) {
         l.validity.resonance_hz.mark(State::Unreliable, &why);
     }
 }
+
+/// A memory effect the record cannot weigh (decision 0123): the block test
+/// finds it systematic (p below its corrected alpha), it lowers the
+/// held-out error in most folds with plausible parameters, but the base
+/// model's held-out residual is at or below the estimated noise floor, so
+/// its model error reads 0 and the 5 % relevance rule (decision 0003)
+/// cannot be met. The 18" cone's hysteresis (0.15 x k0, seed 902: p 1e-42,
+/// the floor estimated 0.1 % above the residual) was left out and folded
+/// into K(x) (1.08 % RMS from the elastic truth) with K(x), Keff and fR
+/// `valid`. Such a candidate gets a "cannot tell" note and a warning with
+/// its separating experiment, and the values its share would move (its
+/// share at the measured excursion above their accuracy) are marked
+/// `unreliable`. The candidate is not added: the record cannot say that it
+/// matters. Returns the warnings.
+pub fn mark_unweighed_memory(
+    candidates: &mut [crate::identify::documents::CandidateResult],
+    r: &EngineResult,
+    s: &mut Stiffness,
+    l: &mut LargeSignal,
+) -> Vec<String> {
+    use crate::diagnose::engine::Term;
+    use crate::effects::EffectId;
+    let mut warnings = Vec::new();
+    let base_cv = r.base.cv_residual_percent;
+    let floor = r.noise_floor_percent;
+    // Only while the ladder added nothing: the base model is then the
+    // chosen one, and its error is what the record cannot resolve.
+    if !(r.model.effect_ids.is_empty() && base_cv <= floor) {
+        return warnings;
+    }
+    let x_peak = l
+        .x_max_at_resonance_m
+        .abs()
+        .max(l.x_min_at_resonance_m.abs());
+    for c in candidates.iter_mut() {
+        let Some(id) = EffectId::parse(&c.effect)
+            .ok()
+            .filter(|e| matches!(e, EffectId::Hysteresis | EffectId::ReversibleSoftening))
+        else {
+            continue;
+        };
+        if c.significant
+            || c.p_value >= c.alpha
+            || c.cv_residual_percent >= base_cv
+            || c.not_added.is_some()
+        {
+            continue;
+        }
+        let g = |k: &str| c.parameters.get(k).and_then(|v| v.as_f64()).unwrap_or(0.0);
+        let share = match id {
+            EffectId::Hysteresis => g("k_n_per_m"),
+            _ => g("depth_n_per_m2") * x_peak,
+        };
+        let keff = l.keff_n_per_m;
+        let rel = if keff > 0.0 { share / keff } else { 0.0 };
+        let note = format!(
+            "cannot tell whether {} matters with this data: it is systematic (p {:.1e}) and lowers the held-out error, but the base model's held-out residual ({base_cv:.3} %) is not above the estimated noise floor ({floor:.3} %), so its share of the model error cannot be weighed; it would add {:.1} % of Keff at this excursion; to tell: {}",
+            c.effect,
+            c.p_value,
+            100.0 * rel,
+            Term::Effect(id).separating_experiment()
+        );
+        if rel > ACCURACY_K_OF_X {
+            let why = format!(
+                "the part may have {} this record cannot weigh (up to {:.1} % of Keff), which K(x), Keff and fR would then carry",
+                c.effect,
+                100.0 * rel
+            );
+            s.validity.k_of_x.mark(State::Unreliable, &why);
+            l.validity.keff_n_per_m.mark(State::Unreliable, &why);
+            l.validity.resonance_hz.mark(State::Unreliable, &why);
+        }
+        c.note = Some(match c.note.take() {
+            Some(n) => format!("{note}; {n}"),
+            None => note.clone(),
+        });
+        warnings.push(note);
+    }
+    warnings
+}

@@ -284,6 +284,15 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         &mut diagnostics.candidates,
         &mut ambiguities,
     ));
+    // A memory the record finds systematic but cannot weigh (decision 0123).
+    if engine_opts.ladder && opts.analyze.method == crate::identify::Method::TwoSignal {
+        warnings.extend(headline::mark_unweighed_memory(
+            &mut diagnostics.candidates,
+            &result,
+            &mut report.stiffness,
+            &mut report.large_signal,
+        ));
+    }
     diagnostics.ambiguities = ambiguities;
     diagnostics.small_signal_model = small_signal_model;
     diagnostics.comparison.small_signal = small_signal_comparison(set, &report, &pre_spectra);
