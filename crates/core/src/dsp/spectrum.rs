@@ -174,11 +174,28 @@ fn real_fft_bins(signal: &[f64], n: usize, ks: &[usize]) -> Vec<Complex64> {
             // c / subs; this group holds subsequences `rs`. Where both
             // samples are the record's they are read directly; the rest (the
             // pad, whose values follow a recurrence) in order, once per group.
+            // The record is read in order (its `subs` pairs of samples at
+            // place q, of which this group's), not once per subsequence with
+            // a stride: the same values in the same places.
             let full = signal.len() / 2;
+            let inside = |r: usize| full.saturating_sub(r).div_ceil(subs).min(l);
+            let g = rs.len();
+            // places where every subsequence of the group has its samples
+            // (and the record all `subs` pairs of the place)
+            let common = inside(rs.end - 1).min(signal.len() / (2 * subs));
+            for (q, pairs) in signal
+                .chunks_exact(2 * subs)
+                .take(common)
+                .map(|c| &c[2 * rs.start..2 * rs.end])
+                .enumerate()
+            {
+                for (j, p) in pairs.chunks_exact(2).enumerate().take(g) {
+                    z[j * l + q] = Complex64::new(p[0], p[1]);
+                }
+            }
             for r in rs.clone() {
                 let zr = &mut z[(r - rs.start) * l..][..l];
-                let inside = full.saturating_sub(r).div_ceil(subs).min(l);
-                for (q, o) in zr[..inside].iter_mut().enumerate() {
+                for (q, o) in zr.iter_mut().enumerate().take(inside(r)).skip(common) {
                     let c = q * subs + r;
                     *o = Complex64::new(signal[2 * c], signal[2 * c + 1]);
                 }
@@ -606,8 +623,9 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let nd = Normal::new(0.0, 1.0).unwrap();
         let fs = 48_000.0;
-        // One sub-FFT (2^14 points), and 8 subsequences of 2^16 (2^20 padded).
-        for len in [20_000usize, 792_000] {
+        // One sub-FFT (2^14 points), 4 and 8 subsequences of 2^16 (2^19 and
+        // 2^20 padded; with a last place of the record only partly filled).
+        for len in [20_000usize, 300_005, 792_000, 792_003] {
             let x: Vec<f64> = (0..len)
                 .map(|i| (i as f64 * 0.003).sin() + 1e-3 * nd.sample(&mut rng))
                 .collect();
