@@ -89,7 +89,7 @@ fn spec_of(j: &crate::store::Job) -> Option<&LongTermSpec> {
 }
 
 #[utoipa::path(post, path = "/api/v1/long-term-tests", tag = "jobs",
-    summary = "Submit a long-term test: the full procedure at intervals while a sine held at the part's current resonance ages it (virtual bench; cancel it as a job).",
+    summary = "Submit a long-term test: the full procedure at intervals while a sine held at the part's current resonance ages it (a virtual bench accelerated or paced; a hardware or emulated bench in real time under its safety rules; cancel it as a job).",
     request_body(content = crate::job::LongTermRequest, content_type = "application/json",
         example = json!({"measurement": {"part": {"serial": "LT-0001"}, "preset": "spider_3in", "target_xpeak_m": 0.006},
             "duration_s": 36000.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053}})),
@@ -116,14 +116,37 @@ pub async fn submit(
         .benches
         .iter()
         .find(|b| b.id == spec.measurement.bench);
-    if bench.is_some_and(|b| b.kind != BenchKind::Virtual) {
-        return Err(Problem::validation(vec![FieldError::new(
-            "measurement.bench",
-            format!(
-                "bench '{}' is not virtual: this version runs long-term tests on virtual benches",
-                spec.measurement.bench
-            ),
-        )]));
+    // A hardware or emulated bench plays the stimulus in its own time:
+    // never accelerated (the default there), never a held drive level
+    // (its controller holds the excursion; decision 0126).
+    if let Some(b) = bench.filter(|b| b.kind != BenchKind::Virtual) {
+        let mut errors = vec![];
+        if spec.accelerated {
+            if body.get("accelerated").is_some() {
+                errors.push(FieldError::new(
+                    "accelerated",
+                    format!(
+                        "bench '{}' is {}: it plays the stimulus in real time, it cannot accelerate",
+                        b.id,
+                        b.kind.as_str()
+                    ),
+                ));
+            }
+            spec.accelerated = false;
+        }
+        if spec.stimulus.hold != crate::job::Hold::Excursion {
+            errors.push(FieldError::new(
+                "stimulus.hold",
+                format!(
+                    "bench '{}' is {}: its stimulus holds the excursion (\"excursion\")",
+                    b.id,
+                    b.kind.as_str()
+                ),
+            ));
+        }
+        if !errors.is_empty() {
+            return Err(Problem::validation(errors));
+        }
     }
     st.store
         .check_admission(st.cfg.min_free_bytes, spec.intervals() as u64)

@@ -17,17 +17,20 @@
 //! stops the test, names the limit and stores the last 10 s of the signals.
 
 use super::{new_id, JobEvent, Runner, Slot, Stop, CANCEL, COMMIT};
+use crate::ageing as ageing_law;
 use crate::ageing::series::{self, AgeingDocument};
 use crate::bench::virtual_bench::VirtualBench;
+use crate::bench::Bench;
 use crate::config::{BenchConfig, BenchKind};
 use crate::identify::{self, AnalyzeOptions, Report};
 use crate::job::{
-    Failure, Hold, JobProblem, LongTermSpec, MeasurementConfig, PartState, PreSweepSettings,
-    ProblemKind, SweepSettings,
+    Failure, HardwareRecord, Hold, JobProblem, LongTermSpec, MeasurementConfig, PartState,
+    PreSweepSettings, ProblemKind, SweepSettings,
 };
 use crate::physics::ageing;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
+use crate::store::hardware::CalibrationRecord;
 use crate::store::longterm::{LongTermEventKind, NewInterval};
 use crate::store::{Job, JobState, NewRecording, Store, StoreResult};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -41,6 +44,8 @@ pub const LAST_SIGNALS_S: f64 = 10.0;
 const STIMULUS_STEP_S: f64 = 60.0;
 
 enum Msg {
+    /// A line for the job's log (the stimulus on a hardware or emulated bench).
+    Log(String),
     Progress {
         progress: f64,
         eta_s: f64,
@@ -93,14 +98,17 @@ impl Runner {
         spec: LongTermSpec,
         cancel: Arc<AtomicU8>,
     ) -> StoreResult<()> {
-        if slot.cfg.kind != BenchKind::Virtual {
+        // A hardware or emulated bench: a faulted bench refuses, the
+        // intervals' measurements need the calibration record in effect.
+        let calibration = match self.hardware_preflight(slot, job, &spec).await? {
+            Ok(c) => c,
+            Err(p) => return self.finish_failed(slot, job, p).await,
+        };
+        if slot.cfg.kind != BenchKind::Virtual && calibration.is_none() {
             let p = JobProblem::new(
                 ProblemKind::Bench,
-                "Long-term test needs a virtual bench",
-                format!(
-                    "bench '{}' is {:?}: this version runs long-term tests on virtual benches",
-                    slot.cfg.id, slot.cfg.kind
-                ),
+                "Bench not available",
+                format!("bench '{}' has no calibration record", slot.cfg.id),
             );
             return self.finish_failed(slot, job, p).await;
         }
@@ -138,18 +146,24 @@ impl Runner {
         let spec2 = spec.clone();
         let job_id = job.id.clone();
         let space = (self.store.clone(), self.min_free_bytes);
+        let job_seq = job.seq;
         let mut handle = tokio::task::spawn_blocking(move || {
             let room = Room {
                 store: &space.0,
                 min_free_bytes: space.1,
             };
-            run_blocking(
-                &job_id, &spec2, &bench_cfg, resume, &tx, &flag, &shutdown, &room,
-            )
+            let on = On {
+                job_id: &job_id,
+                job_seq,
+                bench_cfg: &bench_cfg,
+                calibration: calibration.as_ref(),
+            };
+            run_blocking(on, &spec2, resume, &tx, &flag, &shutdown, &room)
         });
         let res = loop {
             tokio::select! {
                 msg = rx.recv() => match msg {
+                    Some(Msg::Log(l)) => log.push(l),
                     Some(m) => self.on_long_term(&job.id, m).await,
                     None => break (&mut handle).await,
                 },
@@ -157,7 +171,10 @@ impl Runner {
             }
         };
         while let Ok(m) = rx.try_recv() {
-            self.on_long_term(&job.id, m).await;
+            match m {
+                Msg::Log(l) => log.push(l),
+                m => self.on_long_term(&job.id, m).await,
+            }
         }
         let outcome = match res {
             Ok(r) => r,
@@ -194,6 +211,17 @@ impl Runner {
             Err(Stop::Aborted) => (JobState::Cancelled, None),
             Err(Stop::Failed(p)) => (JobState::Failed, Some(p)),
         };
+        // A fault of a hardware bench (a limit, the laser unplugged, a
+        // stream error): the drive was ramped down, the bench is faulted
+        // until a self-check passes, and the test stops with the reason;
+        // its finished intervals are stored.
+        if let Some(p) = problem
+            .as_ref()
+            .filter(|p| p.kind == ProblemKind::BenchFault)
+        {
+            log.push(format!("stopped by a bench fault: {}", p.detail));
+            self.fault_bench(slot, &job.id, p).await?;
+        }
         let commit = self.store.finish_job(
             &job.id,
             state,
@@ -349,6 +377,7 @@ impl Runner {
                 }
                 let _ = reply.send(r);
             }
+            Msg::Log(_) => {}
             Msg::Failure(f, signals, reply) => {
                 let r = self
                     .store
@@ -359,6 +388,14 @@ impl Runner {
             }
         }
     }
+}
+
+/// A report's K(x): coefficients (N/m^(i+1)) and valid range (m).
+fn k_of(r: &Report) -> (Vec<f64>, [f64; 2]) {
+    (
+        r.stiffness.coefficients_n_per_m_pow_i_plus_1.clone(),
+        r.stiffness.valid_range_m,
+    )
 }
 
 fn k0_of(r: &Report) -> Option<f64> {
@@ -453,23 +490,76 @@ impl Room<'_> {
     }
 }
 
+/// The job and the bench a test runs on.
+struct On<'a> {
+    job_id: &'a str,
+    job_seq: i64,
+    bench_cfg: &'a BenchConfig,
+    /// The calibration record in effect (hardware and emulated benches).
+    calibration: Option<&'a CalibrationRecord>,
+}
+
+/// A hardware or emulated bench, opened once for the test (a virtual bench
+/// is made anew for each interval from the stored load instead).
+struct Device<'a> {
+    bench: Box<dyn Bench>,
+    calibration: &'a CalibrationRecord,
+    /// The bench runs in real time (real devices, a paced emulator): the
+    /// stimulus' idle time is waited for, not skipped.
+    paced: bool,
+    /// The part's last measured K(x) (coefficients, valid range): the
+    /// load is measured with it.
+    k: Option<(Vec<f64>, [f64; 2])>,
+}
+
 /// The test on the job's blocking thread; Ok(intervals measured in all).
-#[allow(clippy::too_many_arguments)]
 fn run_blocking(
-    job_id: &str,
+    on: On<'_>,
     spec: &LongTermSpec,
-    bench_cfg: &BenchConfig,
     resume: Resume,
     tx: &mpsc::UnboundedSender<Msg>,
     cancel: &AtomicU8,
     shutdown: &AtomicBool,
     room: &Room<'_>,
 ) -> Result<usize, Stop> {
+    let (job_id, bench_cfg) = (on.job_id, on.bench_cfg);
     let m = &spec.measurement;
     let part = super::job::mounted_part(m, bench_cfg)
         .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
     part.validate()
         .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
+    let mut device = match (bench_cfg.kind, on.calibration) {
+        (BenchKind::Virtual, _) => None,
+        (_, None) => {
+            return Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Bench,
+                "Bench not available",
+                "no calibration record",
+            )))
+        }
+        (kind, Some(calibration)) => {
+            let seed = bench_cfg.seed.wrapping_add(on.job_seq as u64);
+            let bench =
+                super::execute::make_bench(bench_cfg, part.clone(), seed, on.job_seq, m.limits)
+                    .map_err(|e| {
+                        Stop::Failed(JobProblem::new(
+                            ProblemKind::Bench,
+                            "Bench not available",
+                            &e,
+                        ))
+                    })?;
+            let paced =
+                kind == BenchKind::Hardware || bench_cfg.emulator.as_ref().is_some_and(|e| e.paced);
+            // The last measured K(x) of a resumed test.
+            let k = resume.done.last().map(|iv| k_of(&iv.report));
+            Some(Device {
+                bench,
+                calibration,
+                paced,
+                k,
+            })
+        }
+    };
     let vcfg = bench_cfg.virtual_.unwrap_or_default();
     let n = spec.intervals();
     let pcfg = ProcedureConfig {
@@ -522,6 +612,12 @@ fn run_blocking(
         let t_start = index as f64 * spec.interval_s;
         // The stimulus up to this interval's start, from the last measurement's end.
         let mut t = clock_s.min(t_start);
+        if let Some(d) = device.as_mut() {
+            // Played through the bench, under its safety rules.
+            let mut report = |t_now: f64| progress(index, t_now, None);
+            load_j += device_stimulus(d, &pcfg, spec, (t, t_start), &obs, tx, &mut report)?;
+            t = t_start;
+        }
         while t < t_start {
             if obs.cancelled() {
                 return Err(Stop::Aborted);
@@ -576,9 +672,19 @@ fn run_blocking(
         // The interval's results need room: a full disk pauses the test here.
         room.wait_for_space(tx, &obs, t_start)?;
         let load_at_start = vb.ageing_load_j().unwrap_or(load_j);
-        let k0_true = vb.k0_now_n_per_m();
+        let k0_true = match bench_cfg.kind {
+            BenchKind::Virtual => Some(vb.k0_now_n_per_m()),
+            // The emulated part does not age: its truth is the new part's.
+            BenchKind::Emulated => part.k_coeffs_si.first().copied(),
+            BenchKind::Hardware => None,
+        };
         let wall = Instant::now();
-        let out = match procedure::run(&mut vb, &pcfg, &mut obs) {
+        let runs_before = device.as_ref().map_or(0, |d| d.bench.run_records().len());
+        let bench: &mut dyn Bench = match device.as_mut() {
+            Some(d) => d.bench.as_mut(),
+            None => &mut vb,
+        };
+        let out = match procedure::run(bench, &pcfg, &mut obs) {
             Ok(o) => o,
             Err(ProcedureError::Cancelled)
             | Err(ProcedureError::Bench(crate::bench::BenchError::Aborted)) => {
@@ -600,7 +706,7 @@ fn run_blocking(
             }
             Err(e) => return Err(super::execute::procedure_stop(e)),
         };
-        if !spec.accelerated {
+        if !spec.accelerated && device.is_none() {
             pace(out.bench_time_s - wall.elapsed().as_secs_f64(), &obs);
         }
         let first = out.narrow.first().ok_or_else(|| {
@@ -618,15 +724,34 @@ fn run_blocking(
             long_term_interval: Some(index as u32),
             long_term_test: Some(job_id.to_string()),
         };
-        let analysed = identify::analyze_sweeps(
-            identify::Sweeps {
-                moving_mass_kg: m.moving_mass_kg,
-                pre: &out.pre,
-                main: &first.signals,
-            },
-            &opts,
-        )
-        .map_err(|e| e.to_string())
+        // What a hardware bench stores about itself; never a fit of a
+        // displacement not on the audio clock.
+        let hw_record = device.as_ref().map(|d| {
+            HardwareRecord::of_level(
+                &d.calibration.id,
+                &d.calibration.calibration,
+                &d.calibration.sensors,
+                &d.bench.run_records()[runs_before..],
+                out.pre.len(),
+                first.signals.len(),
+                0,
+            )
+        });
+        let not_aligned = hw_record
+            .as_ref()
+            .and_then(HardwareRecord::alignment_invalid);
+        let analysed = match &not_aligned {
+            Some(why) => Err(why.clone()),
+            None => identify::analyze_sweeps(
+                identify::Sweeps {
+                    moving_mass_kg: m.moving_mass_kg,
+                    pre: &out.pre,
+                    main: &first.signals,
+                },
+                &opts,
+            )
+            .map_err(|e| e.to_string()),
+        }
         .and_then(|r| {
             crate::finite::check(&r)
                 .map(|()| r)
@@ -643,7 +768,10 @@ fn run_blocking(
             procedure_run: None,
             limits: Some(m.limits),
             bench: Some(bench_cfg.id.clone()),
-            bench_description: Some(crate::bench::Bench::describe(&vb)),
+            bench_description: Some(match device.as_ref() {
+                Some(d) => d.bench.describe(),
+                None => vb.describe(),
+            }),
             seed: Some(seed),
             narrow_sweep: Some(SweepSettings {
                 drive_v: first.drive_v,
@@ -660,10 +788,13 @@ fn run_blocking(
                 },
                 q_drive_to_x: out.pre_q_drive_to_x,
             }),
-            hardware: None,
+            hardware: hw_record,
             other: Default::default(),
         };
-        let res = crate::bench::Bench::resolution(&vb);
+        let res = match device.as_ref() {
+            Some(d) => d.bench.resolution(),
+            None => vb.resolution(),
+        };
         let recordings = vec![
             super::execute::recording("pre", &out.pre, res.as_ref())?,
             super::execute::recording("main", &first.signals, res.as_ref())?,
@@ -697,7 +828,25 @@ fn run_blocking(
         }
         let document: Option<AgeingDocument> = Some(series::analyse(&done, Some(spec.predict_s)))
             .filter(|d| crate::finite::check(d).is_ok());
-        load_j = vb.ageing_load_j().unwrap_or(load_at_start);
+        load_j = match device.as_mut() {
+            // The measurement's own load, measured with the K(x) it found.
+            Some(d) => {
+                if let Some(r) = report.as_ref().filter(|r| !k_of(r).0.is_empty()) {
+                    d.k = Some(k_of(r));
+                }
+                let fs = out.pre.sample_rate_hz;
+                let sweeps = std::iter::once(&out.pre).chain(out.narrow.iter().map(|n| &n.signals));
+                load_at_start
+                    + d.k.as_ref().map_or(0.0, |(c, r)| {
+                        sweeps
+                            .map(|s| {
+                                ageing_law::load_from_displacement_j(&s.displacement_m, fs, c, *r)
+                            })
+                            .sum()
+                    })
+            }
+            None => vb.ageing_load_j().unwrap_or(load_at_start),
+        };
         clock_s = t_start + out.bench_time_s;
         let iv = NewInterval {
             index,
@@ -829,6 +978,117 @@ fn stimulus_signals(
         }
     }
     play(v, LAST_SIGNALS_S)
+}
+
+/// Bench time a held stimulus spends finding the resonance at its level
+/// before it holds (s): the probe and at most three search sweeps.
+const HOLD_SEARCH_S: f64 = 12.0;
+/// Longest hold of one call (s): the resonance is searched again after it.
+const HOLD_MAX_S: f64 = 3600.0;
+
+/// The stimulus on a hardware or emulated bench over test times `span`:
+/// the sine held at the part's resonance at `stimulus.excursion_m`
+/// (`procedure::hold_at_resonance`, the break-in's hold) played through the
+/// bench, so that the bench's safety rules hold for it as for a
+/// measurement: the drive clamped to the limit where it is produced and
+/// checked on the loopback, the displacement limit and the laser checked
+/// on every block, and any fault (a limit, the laser unplugged, a stream
+/// error) ramps the drive down and stops the test (`Stop::Failed` with a
+/// bench-fault problem). On/off cycled when asked; the off time, and the
+/// time the hold could not fill, pass idle (waited for on a bench that runs
+/// in real time). Returns the load it put on the part, measured from the
+/// displacement with the last measured K(x) (J).
+fn device_stimulus(
+    d: &mut Device<'_>,
+    pcfg: &ProcedureConfig,
+    spec: &LongTermSpec,
+    span: (f64, f64),
+    obs: &LtObserver<'_>,
+    tx: &mpsc::UnboundedSender<Msg>,
+    report: &mut dyn FnMut(f64),
+) -> Result<f64, Stop> {
+    let (mut t, to) = span;
+    let x = spec.stimulus.excursion_m;
+    let max_drive_v = d.bench.limits().max_drive_v;
+    let mut load_j = 0.0;
+    while t < to - 1e-9 {
+        if obs.cancelled() {
+            return Err(Stop::Aborted);
+        }
+        // The current phase of the on/off cycle and its end.
+        let (on, end) = match (spec.stimulus.on_s, spec.stimulus.off_s) {
+            (Some(on_s), Some(off_s)) if on_s + off_s > 0.0 => {
+                let period = on_s + off_s;
+                let phase = t - (t / period).floor() * period;
+                if phase < on_s {
+                    (true, (t - phase + on_s).min(to))
+                } else {
+                    (false, (t - phase + period).min(to))
+                }
+            }
+            _ => (true, to),
+        };
+        let hold_s = (end - t - HOLD_SEARCH_S).min(HOLD_MAX_S);
+        if on && x > 0.0 && hold_s >= 1.0 {
+            let fs = d.bench.sample_rate_hz();
+            let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
+            let k = d.k.clone();
+            let t0 = t;
+            let done = procedure::hold_at_resonance(
+                d.bench.as_mut(),
+                pcfg,
+                &procedure::BreakIn {
+                    duration_s: hold_s,
+                    xpeak_m: x,
+                },
+                &mut || obs.cancelled(),
+                &mut |sig: &Signals| {
+                    if let Some((c, r)) = &k {
+                        e += ageing_law::load_from_displacement_j(&sig.displacement_m, fs, c, *r);
+                    }
+                    if let Some(u) = &sig.drive_v {
+                        peak_v = u.iter().fold(peak_v, |a, v| a.max(v.abs()));
+                    }
+                    played_s += sig.len() as f64 / fs;
+                    report(t0 + played_s);
+                },
+            )
+            .map_err(|e| match super::execute::procedure_stop(e) {
+                Stop::Failed(mut p) => {
+                    p.detail = format!(
+                        "during the stimulus at test time {:.0} s: {}",
+                        t0 + played_s,
+                        p.detail
+                    );
+                    Stop::Failed(p)
+                }
+                s => s,
+            })?;
+            load_j += e;
+            let _ = tx.send(Msg::Log(format!(
+                "stimulus from test time {t0:.0} s: {:.0} s held at {:.2} Hz, mean peak displacement {:.3} mm (target {:.3} mm), drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",
+                done.held_s,
+                done.f_hz,
+                1e3 * done.xpeak_m,
+                1e3 * x,
+                done.drive_v,
+                peak_v,
+            )));
+            t += done.bench_time_s;
+        }
+        // Off, or what the hold left of its phase: idle, drive silent.
+        if t < end {
+            if d.paced {
+                pace(end - t, obs);
+                if obs.cancelled() {
+                    return Err(Stop::Aborted);
+                }
+            }
+            t = end;
+        }
+        report(t);
+    }
+    Ok(load_j)
 }
 
 /// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.

@@ -77,6 +77,8 @@ struct Run {
     /// DAC output (amplifier V) of the whole run, and the first sample beyond the limit.
     played_v: Vec<f32>,
     event_sample: Option<usize>,
+    /// First DAC sample produced after the bench asked for the ramp-down.
+    abort_sample: Option<usize>,
     x_tap: Vec<f64>,
     /// Converter clock (`clock_k`) of the first sample in `x_tap`.
     x_tap_k: u64,
@@ -162,6 +164,9 @@ impl EmulatedAudio {
     fn step(&mut self) {
         let run = self.run.as_mut().expect("started");
         // Output buffer: produced now, played out_lat samples later.
+        if run.abort_sample.is_none() && run.drive.shared().aborted() {
+            run.abort_sample = Some(run.dac_k + run.dac_line.len());
+        }
         run.dac_line.push_back(run.drive.next_sample());
         let dac = run.dac_line.pop_front().unwrap_or(0.0) as f64;
         let u = dac * self.cal.dac_full_scale_v * self.cal.amplifier_gain;
@@ -239,6 +244,13 @@ impl EmulatedAudio {
             Some((FaultKind::AudioStreamError, s)) if run.stream_error_sent => Some(s),
             _ => None,
         };
+        // The drive's last 2 ms before it reached zero: a ramp fades it, a cut ends it at level.
+        let tail_peak = last_nonzero.map(|l| {
+            let a = l.saturating_sub((0.002 * self.fs) as usize);
+            run.played_v[a..=l]
+                .iter()
+                .fold(0.0f32, |m, u| m.max(u.abs()))
+        });
         let doc = serde_json::json!({
             "job_seq": self.job_seq,
             "sweep": self.sweep,
@@ -248,6 +260,8 @@ impl EmulatedAudio {
             "fault_sample": fault_sample,
             "event_sample": event,
             "last_nonzero_drive_sample": last_nonzero,
+            "abort_sample": run.abort_sample,
+            "last_2ms_peak_drive_v": tail_peak,
             "peak_drive_v": run.played_v.iter().fold(0.0f32, |a, u| a.max(u.abs())),
             "latency_samples": self.latency_samples(),
             "paced": self.emu.paced,
@@ -297,6 +311,7 @@ impl AudioIo for EmulatedAudio {
             stream_error_sent: false,
             played_v: Vec::new(),
             event_sample: None,
+            abort_sample: None,
             x_tap: Vec::new(),
             x_tap_k: self.clock_k,
             clock_k0: self.clock_k,

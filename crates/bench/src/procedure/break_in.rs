@@ -95,6 +95,20 @@ pub fn break_in(
     b: &BreakIn,
     cancelled: &mut dyn FnMut() -> bool,
 ) -> Result<BreakInDone, ProcedureError> {
+    hold_at_resonance(bench, cfg, b, cancelled, &mut |_| {})
+}
+
+/// The break-in's sine held at the resonance at a level, with every run's
+/// signals handed to `on_run` as it finishes (the probe, the search sweeps,
+/// each held chunk): the long-term test's stimulus on a hardware or
+/// emulated bench measures the load it puts on the part from them.
+pub fn hold_at_resonance(
+    bench: &mut dyn Bench,
+    cfg: &ProcedureConfig,
+    b: &BreakIn,
+    cancelled: &mut dyn FnMut() -> bool,
+    on_run: &mut dyn FnMut(&crate::Signals),
+) -> Result<BreakInDone, ProcedureError> {
     let limits = bench.limits();
     b.validate(limits.max_displacement_m)
         .map_err(ProcedureError::Invalid)?;
@@ -107,7 +121,7 @@ pub fn break_in(
     for _ in 0..4 {
         let mut spec = SweepSpec::new(cfg.pre_f_start_hz, cfg.pre_f_end_hz, 2.0, v);
         spec.silence_s = 0.2;
-        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time)? else {
+        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time, on_run)? else {
             v /= 10.0;
             continue;
         };
@@ -144,7 +158,7 @@ pub fn break_in(
             v,
         );
         spec.silence_s = SHORT_SILENCE_S;
-        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time)? else {
+        let Some(sig) = play_guarded(bench, &spec, limit, &mut bench_time, on_run)? else {
             v *= 0.5;
             continue;
         };
@@ -223,6 +237,7 @@ pub fn break_in(
             Err(crate::BenchError::Aborted) => return Err(ProcedureError::Cancelled),
             r => r?,
         };
+        on_run(&sig);
         // The steady second half of the held part.
         let (from, to) = (nf + (n - 2 * nf) / 2, n - nf);
         let x = &sig.displacement_m;
@@ -274,6 +289,7 @@ fn play_guarded(
     spec: &SweepSpec,
     limit: f64,
     bench_time: &mut f64,
+    on_run: &mut dyn FnMut(&crate::Signals),
 ) -> Result<Option<crate::Signals>, ProcedureError> {
     let fs = bench.sample_rate_hz();
     let drive = spec.samples(fs);
@@ -289,5 +305,7 @@ fn play_guarded(
     if hit {
         return Ok(None);
     }
-    Ok(Some(sig?))
+    let sig = sig?;
+    on_run(&sig);
+    Ok(Some(sig))
 }

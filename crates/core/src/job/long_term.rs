@@ -114,7 +114,9 @@ pub struct LongTermRequest {
     pub interval_s: Option<f64>,
     /// The stimulus between the measurements.
     pub stimulus: Option<Stimulus>,
-    /// Virtual bench: run faster than real time (default true); results say so.
+    /// Virtual bench: run faster than real time (default true); results say
+    /// so. A hardware or emulated bench plays the stimulus in real time:
+    /// false (its default; true is refused).
     pub accelerated: Option<bool>,
     #[serde(default)]
     pub failure_limits: Option<FailureLimits>,
@@ -141,13 +143,17 @@ impl LongTermSpec {
     }
 }
 
-/// The part's state on the virtual bench, as persisted after each interval.
+/// The part's state, as persisted after each interval.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct PartState {
-    /// The load the part has taken (J).
+    /// The load the part has taken (J): simulated on a virtual bench,
+    /// measured from the stimulus' displacement on a hardware or emulated
+    /// one (`ageing::load_from_displacement_j`).
     pub load_j: f64,
-    /// Its stiffness at rest then (N/m; the virtual part's truth).
-    pub k0_true_n_per_m: f64,
+    /// Its stiffness at rest then (N/m): the virtual part's truth, the
+    /// emulated part's; unknown (null) on a real bench.
+    #[serde(default)]
+    pub k0_true_n_per_m: Option<f64>,
 }
 
 /// A failure limit that stopped the test.
