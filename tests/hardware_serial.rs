@@ -276,6 +276,17 @@ async fn long_term_stimulus_holds_the_drive_limit_and_ramps_down_when_the_laser_
         j["log"].to_string().contains("stopped by a bench fault"),
         "{j}"
     );
+    let ev = t["events"].as_array().unwrap();
+    let stop = ev.last().expect("an event");
+    assert_eq!(stop["kind"], "stopped", "{ev:?}");
+    assert!(
+        stop["detail"]
+            .as_str()
+            .unwrap()
+            .contains("serial port closed"),
+        "{stop}"
+    );
+    assert_eq!(stop["interval"], 1, "{stop}");
     let ivs = t["intervals"].as_array().unwrap();
     assert_eq!(ivs.len(), 1, "{t}");
     assert_eq!(ivs[0]["index"], 0);
@@ -386,8 +397,34 @@ async fn long_term_test_runs_paced_in_real_time_on_the_emulated_bench() {
     assert!(wall_s >= 600.0, "ran faster than real time: {wall_s} s");
     assert!(peak <= 100.0 * 1.0001, "{peak} V");
     // The load grows with the stimulus; the emulated part does not age.
+    // The load carries each stimulus' measured load (its log line) on top
+    // of the measurements' own.
     let loads: Vec<f64> = ivs.iter().map(|i| i["load_j"].as_f64().unwrap()).collect();
-    assert!(loads[1] > loads[0] && loads[2] > loads[1], "{loads:?}");
+    let stimulus_j: Vec<f64> = j["log"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| {
+            l.as_str()?
+                .split("load +")
+                .nth(1)?
+                .split(' ')
+                .next()?
+                .parse()
+                .ok()
+        })
+        .collect();
+    println!("loads {loads:?} J, the stimuli's {stimulus_j:?} J");
+    assert_eq!(stimulus_j.len(), 2, "{j}");
+    for k in 0..2 {
+        let added = loads[k + 1] - loads[k];
+        assert!(
+            added > stimulus_j[k] && added < stimulus_j[k] * 1.5,
+            "interval {k} -> {}: {added} J, the stimulus {} J",
+            k + 1,
+            stimulus_j[k]
+        );
+    }
     let k0: Vec<f64> = doc["intervals"]
         .as_array()
         .unwrap()

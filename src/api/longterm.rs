@@ -42,7 +42,8 @@ pub struct LongTermDocument {
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct TestEvent {
     /// `paused` (the disk was full), `resumed` (space returned),
-    /// `restarted` (resumed after the daemon stopped), `failure` (a limit stopped it).
+    /// `restarted` (resumed after the daemon stopped), `failure` (a limit stopped it),
+    /// `stopped` (a fault of a hardware or emulated bench stopped it).
     pub kind: &'static str,
     /// Test time (s), when known.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -229,7 +230,24 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     let intervals = st.store.long_term_intervals(&id).await?;
     let state = st.store.long_term_state(&id).await?;
     let last = st.store.long_term_signals(&id).await?;
-    let events = test_events(&st, &id, &intervals, state.as_ref()).await?;
+    let mut events = test_events(&st, &id, &intervals, state.as_ref()).await?;
+    // A hardware bench's fault stopped it (decision 0126): the last event.
+    if let Some(p) = job
+        .problem
+        .as_ref()
+        .filter(|p| p.kind == crate::job::ProblemKind::BenchFault)
+    {
+        events.push(TestEvent {
+            kind: "stopped",
+            elapsed_s: None,
+            interval: Some(intervals.len()),
+            detail: format!(
+                "stopped by a bench fault, the drive ramped down (a self-check clears the bench): {}",
+                p.detail
+            ),
+            at: job.finished_at.clone(),
+        });
+    }
     let doc = LongTermDocument {
         job,
         intervals_planned: spec.intervals(),

@@ -671,7 +671,11 @@ fn run_blocking(
         }
         // The interval's results need room: a full disk pauses the test here.
         room.wait_for_space(tx, &obs, t_start)?;
-        let load_at_start = vb.ageing_load_j().unwrap_or(load_j);
+        // A device's load is measured (the stimulus' just added); a virtual part's simulated.
+        let load_at_start = match device {
+            Some(_) => load_j,
+            None => vb.ageing_load_j().unwrap_or(load_j),
+        };
         let k0_true = match bench_cfg.kind {
             BenchKind::Virtual => Some(vb.k0_now_n_per_m()),
             // The emulated part does not age: its truth is the new part's.

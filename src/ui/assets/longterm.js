@@ -333,7 +333,7 @@ async function renderTest(main, ctx, id) {
     }
     put(eventsEl, h('table', { class: 'list' },
       h('thead', {}, h('tr', {}, ['test time', 'event', 'what', 'when'].map((t) => h('th', {}, t)))),
-      h('tbody', { id: 'lt-event-rows' }, ev.map((e) => h('tr', { dataset: { kind: e.kind }, class: e.kind === 'failure' ? 'error' : '' },
+      h('tbody', { id: 'lt-event-rows' }, ev.map((e) => h('tr', { dataset: { kind: e.kind }, class: e.kind === 'failure' || e.kind === 'stopped' ? 'error' : '' },
         h('td', {}, Number.isFinite(e.elapsed_s) ? `${num(hours(e.elapsed_s), 4)} h` : '\u2013'),
         h('td', {}, e.kind),
         h('td', {}, e.detail),
