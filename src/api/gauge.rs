@@ -12,7 +12,6 @@
 use super::problem::{ApiResult, Problem};
 use super::qc::parse_body;
 use super::{AppState, JsonBody};
-use crate::job::JobProduction;
 use crate::qc::grr;
 use crate::qc::Recipe;
 use crate::store::{Inserted, JobState, RecipeReads, VerdictReads};
@@ -30,50 +29,7 @@ pub const MIN_REPEATS: u32 = 2;
 pub const MAX_REPEATS: u32 = 10;
 pub const MAX_RUNS: usize = 1000;
 
-/// One part of a study.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct GaugePart {
-    /// The part's serial (as in a job).
-    pub serial: String,
-    /// On a virtual bench: the production-lot part mounted (as in a job).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub production: Option<JobProduction>,
-}
-
-/// `POST /api/v1/gauge-studies`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct GaugeStudyRequest {
-    /// The recipe every run is measured and judged with; its parameters
-    /// with both limits are the quantities studied against their tolerance.
-    pub recipe: String,
-    /// 2 to 50 parts, each measured `repeats` times on every bench.
-    #[schema(min_items = 2, max_items = 50)]
-    pub parts: Vec<GaugePart>,
-    /// 2 to 10.
-    #[schema(minimum = 2, maximum = 10)]
-    pub repeats: u32,
-    /// The benches (appraisers); default: every configured bench.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub benches: Option<Vec<String>>,
-    /// More members of each run's job request (e.g. the procedure), checked
-    /// as a job request is.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = Option<Object>)]
-    pub job: Option<serde_json::Map<String, Value>>,
-}
-
-/// One planned run.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct GaugeRun {
-    pub part_index: usize,
-    pub bench_id: String,
-    pub repeat: u32,
-    pub idempotency_key: String,
-    /// None until the job was submitted.
-    pub job_id: Option<String>,
-}
+pub use crate::qc::grr::{GaugePart, GaugeRun, GaugeStudyRequest};
 
 fn check(req: &GaugeStudyRequest, benches: &[String]) -> ApiResult<Vec<String>> {
     if !(MIN_PARTS..=MAX_PARTS).contains(&req.parts.len()) {
@@ -212,15 +168,8 @@ pub async fn create(
             return Err(Problem::validation(errors));
         }
     }
-    let stored_req = serde_json::to_value(&req).map_err(Problem::internal)?;
     st.store
-        .insert_gauge_study(
-            &id,
-            &req.recipe,
-            &stored_req,
-            &serde_json::to_value(&runs).map_err(Problem::internal)?,
-            caller.0.as_deref(),
-        )
+        .insert_gauge_study(&id, &req, &runs, caller.0.as_deref())
         .await?;
     for run in runs.iter_mut() {
         let body = run_request(&req, run);
@@ -232,12 +181,7 @@ pub async fn create(
             };
         run.job_id = Some(job.id);
     }
-    st.store
-        .update_gauge_runs(
-            &id,
-            &serde_json::to_value(&runs).map_err(Problem::internal)?,
-        )
-        .await?;
+    st.store.update_gauge_runs(&id, &runs).await?;
     let doc = study_document(&st, &id).await?;
     let mut r = (StatusCode::CREATED, Json(doc)).into_response();
     if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/gauge-studies/{id}")) {
@@ -269,7 +213,7 @@ pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
             json!({
                 "id": r.id,
                 "recipe": r.recipe_name,
-                "runs_total": r.runs.as_array().map_or(0, |a| a.len()),
+                "runs_total": r.runs.len(),
                 "created_at": r.created_at,
                 "created_by": r.created_by,
                 "href": format!("/api/v1/gauge-studies/{}", r.id),
@@ -312,10 +256,7 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
         .get_gauge_study(id)
         .await?
         .ok_or_else(|| Problem::not_found("gauge study", id))?;
-    let req: GaugeStudyRequest =
-        serde_json::from_value(row.request.clone()).map_err(Problem::internal)?;
-    let runs: Vec<GaugeRun> =
-        serde_json::from_value(row.runs.clone()).map_err(Problem::internal)?;
+    let (req, runs) = (row.request, row.runs);
     let mut benches: Vec<String> = vec![];
     for r in &runs {
         if !benches.contains(&r.bench_id) {

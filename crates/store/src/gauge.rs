@@ -4,6 +4,7 @@
 use crate::{now, Store, StoreResult};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
+use springbench_core::qc::grr::{GaugeRun, GaugeStudyRequest};
 use sqlx::Row;
 
 /// A stored gauge study.
@@ -11,8 +12,10 @@ use sqlx::Row;
 pub struct GaugeStudyRow {
     pub id: String,
     pub recipe_name: String,
-    pub request: Value,
-    pub runs: Value,
+    /// The study as requested, read into its type at the store's edge.
+    pub request: GaugeStudyRequest,
+    /// Its planned runs, with their job ids once submitted.
+    pub runs: Vec<GaugeRun>,
     pub created_by: Option<String>,
     pub created_at: String,
 }
@@ -22,9 +25,8 @@ impl Store {
     pub async fn insert_gauge_study(
         &self,
         id: &str,
-        recipe_name: &str,
-        request: &Value,
-        runs: &Value,
+        request: &GaugeStudyRequest,
+        runs: &[GaugeRun],
         created_by: Option<&str>,
     ) -> StoreResult<()> {
         sqlx::query(
@@ -32,9 +34,9 @@ impl Store {
              VALUES (?, ?, ?, ?, ?, ?)",
         )
         .bind(id)
-        .bind(recipe_name)
-        .bind(request.to_string())
-        .bind(runs.to_string())
+        .bind(&request.recipe)
+        .bind(crate::json_text(request))
+        .bind(crate::json_text(&runs))
         .bind(created_by)
         .bind(now())
         .execute(&self.pool)
@@ -43,9 +45,9 @@ impl Store {
     }
 
     /// Replaces the runs of a study (their job ids once submitted).
-    pub async fn update_gauge_runs(&self, id: &str, runs: &Value) -> StoreResult<()> {
+    pub async fn update_gauge_runs(&self, id: &str, runs: &[GaugeRun]) -> StoreResult<()> {
         sqlx::query("UPDATE gauge_studies SET runs = ? WHERE id = ?")
-            .bind(runs.to_string())
+            .bind(crate::json_text(&runs))
             .bind(id)
             .execute(&self.pool)
             .await?;
@@ -77,16 +79,19 @@ impl Store {
 }
 
 fn from_row(r: &sqlx::sqlite::SqliteRow) -> StoreResult<GaugeStudyRow> {
-    let json = |c: &str| -> StoreResult<Value> {
+    fn json<T: serde::de::DeserializeOwned>(
+        r: &sqlx::sqlite::SqliteRow,
+        c: &str,
+    ) -> StoreResult<T> {
         let s: String = r.try_get(c)?;
         serde_json::from_str(&s)
             .map_err(|e| crate::StoreError::Corrupt(format!("gauge_studies.{c}: {e}")))
-    };
+    }
     Ok(GaugeStudyRow {
         id: r.try_get("id")?,
         recipe_name: r.try_get("recipe_name")?,
-        request: json("request")?,
-        runs: json("runs")?,
+        request: json(r, "request")?,
+        runs: json(r, "runs")?,
         created_by: r.try_get("created_by")?,
         created_at: r.try_get("created_at")?,
     })

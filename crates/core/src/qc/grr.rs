@@ -27,6 +27,7 @@
 //! acceptable, 10-30 % conditionally acceptable, above 30 % not; ndc ≥ 5.
 
 use crate::diagnose::stats::f_upper_p;
+use crate::job::JobProduction;
 use serde::{Deserialize, Serialize};
 
 /// AIAG's significance level for keeping the part × appraiser interaction.
@@ -441,6 +442,54 @@ pub fn run_values<'a>(verdicts: impl IntoIterator<Item = &'a super::Verdict>) ->
     sums.into_iter()
         .map(|(k, (s, n, unit))| (k, (s / n as f64, unit)))
         .collect()
+}
+
+// The study's stored documents: its request and its planned runs (the
+// store reads them into these types; `src/api/gauge.rs` serves them).
+
+/// One part of a study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GaugePart {
+    /// The part's serial (as in a job).
+    pub serial: String,
+    /// On a virtual bench: the production-lot part mounted (as in a job).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub production: Option<JobProduction>,
+}
+
+/// `POST /api/v1/gauge-studies`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GaugeStudyRequest {
+    /// The recipe every run is measured and judged with; its parameters
+    /// with both limits are the quantities studied against their tolerance.
+    pub recipe: String,
+    /// 2 to 50 parts, each measured `repeats` times on every bench.
+    #[schema(min_items = 2, max_items = 50)]
+    pub parts: Vec<GaugePart>,
+    /// 2 to 10.
+    #[schema(minimum = 2, maximum = 10)]
+    pub repeats: u32,
+    /// The benches (appraisers); default: every configured bench.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub benches: Option<Vec<String>>,
+    /// More members of each run's job request (e.g. the procedure), checked
+    /// as a job request is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub job: Option<serde_json::Map<String, serde_json::Value>>,
+}
+
+/// One planned run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct GaugeRun {
+    pub part_index: usize,
+    pub bench_id: String,
+    pub repeat: u32,
+    pub idempotency_key: String,
+    /// None until the job was submitted.
+    pub job_id: Option<String>,
 }
 
 #[cfg(test)]
