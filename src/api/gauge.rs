@@ -11,7 +11,7 @@
 
 use super::problem::{ApiResult, Problem};
 use super::qc::parse_body;
-use super::{AppState, JsonBody};
+use super::{AppState, JsonBody, Sorted};
 use crate::qc::grr;
 use crate::qc::Recipe;
 use crate::store::{Inserted, JobState, RecipeReads, VerdictReads};
@@ -203,24 +203,43 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
 
 #[utoipa::path(get, path = "/api/v1/gauge-studies", tag = "qc",
     summary = "The newest 50 gauge studies (plan and state; the figures are in each study).",
-    responses((status = 200, description = "Studies, newest first", body = serde_json::Value)))]
+    responses((status = 200, description = "Studies, newest first", body = GaugeStudyList)))]
 /// `GET /api/v1/gauge-studies`.
-pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Value>> {
+pub async fn list(State(st): State<AppState>) -> ApiResult<Json<Sorted<GaugeStudyList>>> {
     let rows = st.store.list_gauge_studies(50).await?;
-    let items: Vec<Value> = rows
+    let items = rows
         .iter()
-        .map(|r| {
-            json!({
-                "id": r.id,
-                "recipe": r.recipe_name,
-                "runs_total": r.runs.len(),
-                "created_at": r.created_at,
-                "created_by": r.created_by,
-                "href": format!("/api/v1/gauge-studies/{}", r.id),
-            })
+        .map(|r| GaugeStudySummary {
+            id: r.id.clone(),
+            recipe: r.recipe_name.clone(),
+            runs_total: r.runs.len(),
+            created_at: r.created_at.clone(),
+            created_by: r.created_by.clone(),
+            href: format!("/api/v1/gauge-studies/{}", r.id),
         })
         .collect();
-    Ok(Json(json!({ "items": items })))
+    Ok(Json(Sorted(GaugeStudyList { items })))
+}
+
+/// `GET /api/v1/gauge-studies`: the newest studies, newest first.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct GaugeStudyList {
+    pub items: Vec<GaugeStudySummary>,
+}
+
+/// One study in the list: its plan's size; the figures are in the study.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct GaugeStudySummary {
+    pub id: String,
+    /// The recipe the study measures and judges with.
+    pub recipe: String,
+    /// Runs planned (parts x benches x repeats).
+    pub runs_total: usize,
+    pub created_at: String,
+    /// The token that created it (null with open access).
+    pub created_by: Option<String>,
+    /// The study (`GET`).
+    pub href: String,
 }
 
 use crate::qc::grr::RunValues;
