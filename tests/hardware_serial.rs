@@ -176,17 +176,21 @@ async fn garbage_from_the_laser_mid_sweep_faults_the_bench_and_ramps_the_drive_d
     hw::fault_scenario(&cfg, traces.path(), "garbage from the laser").await;
 }
 
+/// `POST /api/v1/long-term-tests` with `body`: the answer, unread.
+async fn post_long_term(c: &reqwest::Client, d: &Daemon, body: &Value) -> reqwest::Response {
+    c.post(d.url("/api/v1/long-term-tests"))
+        .json(body)
+        .send()
+        .await
+        .unwrap()
+}
+
 /// Submits a long-term test on the emulated bench `emu-1` (after a
 /// self-check, so that the test is job 2); returns its id.
 async fn submit_long_term(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
     let sc = hw::self_check(c, d).await;
     assert_eq!(sc["state"], "succeeded", "{sc}");
-    let r = c
-        .post(d.url("/api/v1/long-term-tests"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
+    let r = post_long_term(c, d, &body).await;
     let status = r.status().as_u16();
     let v: Value = r.json().await.unwrap();
     assert_eq!(status, 202, "{v}");
@@ -238,13 +242,7 @@ async fn long_term_stimulus_holds_the_drive_limit_and_ramps_down_when_the_laser_
         for (k, v) in extra.as_object().unwrap() {
             body[k] = v.clone();
         }
-        let r = c
-            .post(d.url("/api/v1/long-term-tests"))
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        let p = common::problem(r, 422).await;
+        let p = common::problem(post_long_term(&c, &d, &body).await, 422).await;
         assert_eq!(p["errors"][0]["field"], field, "{p}");
     }
     let id = submit_long_term(
