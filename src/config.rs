@@ -145,6 +145,7 @@ impl Default for Config {
                 hardware: None,
                 emulator: None,
                 virtual_: None,
+                ambient: None,
             }],
             defaults: JobDefaults::default(),
             http: HttpConfig::default(),

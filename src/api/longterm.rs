@@ -36,15 +36,22 @@ pub struct LongTermDocument {
     /// What happened besides the intervals, in test time: pauses and their
     /// ends, resumptions after a stop of the daemon, the failure limit.
     pub events: Vec<TestEvent>,
+    /// The user's pause in effect (`POST .../pause`), until `POST .../resume`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub user_pause: Option<crate::store::longterm::UserPause>,
 }
 
 /// One event of a test's life, as its page lists it beside the plots.
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct TestEvent {
-    /// `paused` (the disk was full), `resumed` (space returned),
+    /// `paused` (the disk was full, or a user paused it), `resumed` (space
+    /// returned, or a user resumed it),
     /// `restarted` (resumed after the daemon stopped), `failure` (a limit stopped it),
     /// `stopped` (a fault of a hardware or emulated bench stopped it).
     pub kind: &'static str,
+    /// What paused it (`paused`, `resumed`): `disk` or `user`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cause: Option<crate::store::longterm::PauseCause>,
     /// Test time (s), when known.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub elapsed_s: Option<f64>,
@@ -239,6 +246,7 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
     {
         events.push(TestEvent {
             kind: "stopped",
+            cause: None,
             elapsed_s: None,
             interval: Some(intervals.len()),
             detail: format!(
@@ -248,6 +256,11 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
             at: job.finished_at.clone(),
         });
     }
+    // A finished test is no longer paused (a cancel while paused keeps the row).
+    let user_pause = match job.state.is_terminal() {
+        true => None,
+        false => st.store.long_term_pause(&id).await?,
+    };
     let doc = LongTermDocument {
         job,
         intervals_planned: spec.intervals(),
@@ -257,6 +270,7 @@ pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiR
         series_csv: format!("/api/v1/long-term-tests/{id}/series.csv"),
         last_signals: last.map(|_| format!("/api/v1/long-term-tests/{id}/last-signals.wav")),
         events,
+        user_pause,
     };
     Ok(Json(serde_json::to_value(&doc).map_err(Problem::internal)?))
 }
@@ -281,6 +295,7 @@ async fn test_events(
                 LongTermEventKind::Paused => "paused",
                 LongTermEventKind::Resumed => "resumed",
             },
+            cause: Some(e.cause),
             elapsed_s: Some(e.elapsed_s),
             interval: None,
             detail: e.detail,
@@ -292,6 +307,7 @@ async fn test_events(
             let after = r.intervals_done.checked_sub(1);
             out.push(TestEvent {
                 kind: "restarted",
+                cause: None,
                 elapsed_s: after
                     .and_then(|i| intervals.iter().find(|iv| iv.index == i))
                     .map(|iv| iv.elapsed_s),
@@ -312,6 +328,7 @@ async fn test_events(
             });
             out.push(TestEvent {
                 kind: "failure",
+                cause: None,
                 elapsed_s: at_s,
                 interval: Some(f.interval),
                 detail: format!("failure limit `{}`: {}", f.limit, f.detail),
@@ -380,7 +397,7 @@ fn num(v: Option<f64>) -> String {
 }
 
 #[utoipa::path(get, path = "/api/v1/long-term-tests/{id}/series.csv", tag = "jobs",
-    summary = "A long-term test's series as CSV: one row per finished interval (elapsed_s, load_j, k0_n_per_m, its standard error, f0_hz, keff_n_per_m, xpeak_m, measurement_id, accelerated).",
+    summary = "A long-term test's series as CSV: one row per finished interval (elapsed_s, load_j, k0_n_per_m, its standard error, f0_hz, keff_n_per_m, xpeak_m, measurement_id, accelerated, temperature_k and relative_humidity_percent with their sources, empty when unknown).",
     params(("id" = String, Path, description = "The test's job id")),
     responses(
         (status = 200, description = "CSV", content_type = "text/csv", body = String),
@@ -388,7 +405,8 @@ fn num(v: Option<f64>) -> String {
 pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
     test_job(&st, &id).await?;
     let mut out = String::from(
-        "index,elapsed_s,load_j,k0_n_per_m,k0_se_n_per_m,f0_hz,keff_n_per_m,xpeak_m,measurement_id,accelerated\n",
+        "index,elapsed_s,load_j,k0_n_per_m,k0_se_n_per_m,f0_hz,keff_n_per_m,xpeak_m,measurement_id,accelerated,\
+         temperature_k,temperature_source,relative_humidity_percent,humidity_source\n",
     );
     for iv in st.store.long_term_intervals(&id).await? {
         let report = match st.store.get_measurement(&iv.measurement_id).await? {
@@ -397,7 +415,7 @@ pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> A
         };
         let ss = report.as_ref().and_then(|r| r.small_signal.as_ref());
         out.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
             iv.index,
             iv.elapsed_s,
             iv.load_j,
@@ -407,10 +425,127 @@ pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> A
             num(report.as_ref().map(|r| r.large_signal.keff_n_per_m)),
             num(report.as_ref().map(|r| r.large_signal.xpeak_m)),
             iv.measurement_id,
-            iv.accelerated
+            iv.accelerated,
+            num(iv.temperature_k),
+            iv.temperature_source.map_or("", |s| s.as_str()),
+            num(iv.relative_humidity_percent),
+            iv.humidity_source.map_or("", |s| s.as_str()),
         ));
     }
     Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
+}
+
+#[utoipa::path(post, path = "/api/v1/long-term-tests/{id}/pause", tag = "jobs",
+    summary = "Pause a long-term test: it stops its stimulus at its next step (a hardware or emulated bench at the end of the held chunk, faded out; an interval being measured is finished first), and its test time and load stand still until it is resumed. The pause outlives a restart of the daemon; cancel still works.",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 202, description = "Pausing (the event is recorded when it stops)", body = crate::store::Job),
+        (status = 404, description = "No such long-term test"),
+        (status = 409, description = "Finished, or paused already (`state` names the job's state)")))]
+/// `POST /api/v1/long-term-tests/{id}/pause`.
+pub async fn pause(
+    State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    pause_or_resume(st, caller, id, true).await
+}
+
+#[utoipa::path(post, path = "/api/v1/long-term-tests/{id}/resume", tag = "jobs",
+    summary = "Resume a long-term test paused by a user: it carries on from its test time and load where it paused (no interval lost or repeated).",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 202, description = "Resuming", body = crate::store::Job),
+        (status = 404, description = "No such long-term test"),
+        (status = 409, description = "Finished, or not paused (`state` names the job's state)")))]
+/// `POST /api/v1/long-term-tests/{id}/resume`.
+pub async fn resume(
+    State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    pause_or_resume(st, caller, id, false).await
+}
+
+async fn pause_or_resume(
+    st: AppState,
+    caller: super::auth::Caller,
+    id: String,
+    pause: bool,
+) -> ApiResult<Response> {
+    use crate::runner::PauseOutcome;
+    let conflict =
+        |j: &crate::store::Job, kind: &'static str, title: &'static str, detail: String| {
+            Problem::new(StatusCode::CONFLICT, kind, title, detail)
+                .with_extra(serde_json::json!({"state": j.state.as_str()}))
+        };
+    match st.runner.pause_long_term(&id, caller.0, pause).await? {
+        PauseOutcome::Done(j) => Ok((StatusCode::ACCEPTED, Json(j)).into_response()),
+        PauseOutcome::Unchanged(j) => Err(if pause {
+            conflict(
+                &j,
+                "long-term-paused",
+                "Test paused already",
+                format!("long-term test '{id}' is paused already; resume it at /api/v1/long-term-tests/{id}/resume"),
+            )
+        } else {
+            conflict(
+                &j,
+                "long-term-not-paused",
+                "Test not paused",
+                format!("long-term test '{id}' is not paused by a user"),
+            )
+        }),
+        PauseOutcome::Finished(j) => Err(conflict(
+            &j,
+            "job-finished",
+            "Test finished",
+            format!(
+                "long-term test '{id}' is {}; it cannot be {}",
+                j.state.as_str(),
+                if pause { "paused" } else { "resumed" }
+            ),
+        )),
+        PauseOutcome::NotFound => Err(Problem::not_found("long-term test", &id)),
+    }
+}
+
+#[utoipa::path(put, path = "/api/v1/long-term-tests/{id}/intervals/{index}/ambient", tag = "jobs",
+    summary = "Enter by hand the ambient conditions of a finished interval of a long-term test: air temperature (K) and relative humidity (%), either or both; a value given replaces the bench sensor's (its source becomes `hand`).",
+    params(("id" = String, Path, description = "The test's job id"),
+        ("index" = u32, Path, description = "The interval's index (0 is the first measurement)")),
+    request_body(content = crate::job::AmbientRequest, content_type = "application/json",
+        example = json!({"temperature_k": 296.15, "relative_humidity_percent": 45.0})),
+    responses(
+        (status = 200, description = "The interval with its ambient conditions", body = crate::store::longterm::LongTermInterval),
+        (status = 400, description = "Unreadable body"),
+        (status = 404, description = "No such long-term test or interval"),
+        (status = 413, description = "Body too large"),
+        (status = 422, description = "Invalid fields, one message each in `errors` (`temperature_k` outside 173.15 to 423.15 K, `relative_humidity_percent` outside 0 to 100 %, neither given)"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
+/// `PUT /api/v1/long-term-tests/{id}/intervals/{index}/ambient`.
+pub async fn put_ambient(
+    State(st): State<AppState>,
+    Path((id, index)): Path<(String, String)>,
+    JsonBody(body): JsonBody,
+) -> ApiResult<Json<crate::store::longterm::LongTermInterval>> {
+    st.store.check_space(st.cfg.min_free_bytes)?;
+    test_job(&st, &id).await?;
+    let no_interval = || Problem::not_found(&format!("interval of long-term test '{id}'"), &index);
+    let i: usize = index.parse::<u32>().map_err(|_| no_interval())? as usize;
+    let ambient = crate::job::AmbientRequest::check(crate::job::parse_lenient(&body))
+        .map_err(Problem::validation)?;
+    if !st.store.set_long_term_ambient(&id, i, ambient).await? {
+        return Err(no_interval());
+    }
+    let iv = st
+        .store
+        .long_term_intervals(&id)
+        .await?
+        .into_iter()
+        .find(|iv| iv.index == i)
+        .ok_or_else(no_interval)?;
+    Ok(Json(iv))
 }
 
 #[utoipa::path(get, path = "/api/v1/long-term-tests/{id}/last-signals.wav", tag = "jobs",

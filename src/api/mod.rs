@@ -139,6 +139,21 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         get(longterm::series_csv),
     )
     .add(
+        "post",
+        "/api/v1/long-term-tests/{id}/pause",
+        post(longterm::pause),
+    )
+    .add(
+        "post",
+        "/api/v1/long-term-tests/{id}/resume",
+        post(longterm::resume),
+    )
+    .add(
+        "put",
+        "/api/v1/long-term-tests/{id}/intervals/{index}/ambient",
+        put(longterm::put_ambient).layer(json_limit),
+    )
+    .add(
         "get",
         "/api/v1/long-term-tests/{id}/last-signals.wav",
         get(longterm::last_signals),

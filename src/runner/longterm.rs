@@ -31,10 +31,10 @@ use crate::physics::ageing;
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
 use crate::store::hardware::CalibrationRecord;
-use crate::store::longterm::{LongTermEventKind, NewInterval};
+use crate::store::longterm::{LongTermEventKind, NewInterval, PauseCause};
 use crate::store::{Job, JobState, NewRecording, Store, StoreResult};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 
@@ -50,8 +50,16 @@ enum Msg {
         progress: f64,
         eta_s: f64,
     },
-    /// Paused (`Some(reason)`: the disk is full) or resumed (`None`), at a test time (s).
-    Paused(Option<String>, f64),
+    /// Paused (with the reason) or resumed (with why), at a test time (s).
+    Paused {
+        cause: PauseCause,
+        paused: bool,
+        detail: String,
+        elapsed_s: f64,
+        /// Stored as an event (false: the job's step only, for a pause
+        /// stored before a stop of the daemon).
+        record: bool,
+    },
     Interval(
         Box<NewInterval>,
         std::sync::mpsc::SyncSender<Result<(), String>>,
@@ -80,6 +88,37 @@ pub(super) async fn requeue(store: &Store) -> StoreResult<Vec<String>> {
     Ok(ids)
 }
 
+/// The user's pause as a running test sees it (decision 0130).
+#[derive(Debug, Default)]
+pub(super) struct PauseFlag {
+    paused: bool,
+    /// Who paused it, or who resumed it last (a token's name).
+    by: Option<String>,
+    /// The pause in effect is stored as an event already (before a restart
+    /// of the daemon): not recorded twice.
+    recorded: bool,
+}
+
+pub(super) type SharedPause = Arc<Mutex<PauseFlag>>;
+
+/// Answer to a user's pause or resume of a long-term test.
+pub enum PauseOutcome {
+    /// Asked: the test pauses at its next step (or resumes).
+    Done(Job),
+    /// It was paused already (pause), or not paused (resume).
+    Unchanged(Job),
+    /// It has finished.
+    Finished(Job),
+    NotFound,
+}
+
+fn who(by: &Option<String>) -> String {
+    match by {
+        Some(b) if !b.is_empty() => format!("by {b}"),
+        _ => "by the user".into(),
+    }
+}
+
 struct Resume {
     index: usize,
     clock_s: f64,
@@ -89,7 +128,60 @@ struct Resume {
     first_k0: Option<f64>,
 }
 
+/// Takes a running test's pause flag out of the runner's map when the test ends.
+struct Unregister<'a>(
+    &'a Mutex<std::collections::HashMap<String, SharedPause>>,
+    String,
+);
+
+impl Drop for Unregister<'_> {
+    fn drop(&mut self) {
+        self.0.lock().unwrap().remove(&self.1);
+    }
+}
+
 impl Runner {
+    /// The user pauses (`pause`) or resumes long-term test `id` (`by`: the
+    /// token's name). Stored with the test, so that it outlives a stop of
+    /// the daemon; a running test stops its stimulus at its next step
+    /// (decision 0130). A queued test starts paused.
+    pub async fn pause_long_term(
+        &self,
+        id: &str,
+        by: Option<String>,
+        pause: bool,
+    ) -> StoreResult<PauseOutcome> {
+        let Some(job) = self.store.get_job(id).await? else {
+            return Ok(PauseOutcome::NotFound);
+        };
+        if !matches!(
+            job.request.read(),
+            Ok(crate::job::StoredRequest::LongTerm(_))
+        ) {
+            return Ok(PauseOutcome::NotFound);
+        }
+        if job.state.is_terminal() {
+            return Ok(PauseOutcome::Finished(job));
+        }
+        let changed = self
+            .store
+            .set_long_term_pause(id, pause.then_some(by.as_deref()))
+            .await?;
+        if !changed {
+            return Ok(PauseOutcome::Unchanged(job));
+        }
+        if let Some(flag) = self.pauses.lock().unwrap().get(id) {
+            let mut f = flag.lock().unwrap();
+            f.paused = pause;
+            f.by = by;
+            if pause {
+                f.recorded = false;
+            }
+        }
+        tracing::info!(job = %id, "long-term test {} by the user", if pause { "paused" } else { "resumed" });
+        Ok(PauseOutcome::Done(job))
+    }
+
     /// Runs (or resumes) long-term test `job` on `slot`'s bench.
     pub(super) async fn run_long_term(
         &self,
@@ -114,6 +206,33 @@ impl Runner {
         }
         // Listed among the station's tests (the API lists it at submit; again is no change).
         self.store.add_long_term_test(&job.id).await?;
+        // The user's pause: registered before it is read, so that a pause
+        // asked in between reaches the test either way. A test paused
+        // before a stop of the daemon stays paused.
+        let pause: SharedPause = Arc::default();
+        self.pauses
+            .lock()
+            .unwrap()
+            .insert(job.id.clone(), pause.clone());
+        let _unregister = Unregister(&self.pauses, job.id.clone());
+        if let Some(p) = self.store.long_term_pause(&job.id).await? {
+            let recorded = self
+                .store
+                .long_term_events(&job.id)
+                .await?
+                .iter()
+                .rev()
+                .find(|e| e.cause == PauseCause::User)
+                .is_some_and(|e| e.kind == LongTermEventKind::Paused);
+            let mut f = pause.lock().unwrap();
+            if !f.paused && f.by.is_none() {
+                *f = PauseFlag {
+                    paused: true,
+                    by: p.by,
+                    recorded,
+                };
+            }
+        }
         let (resume, resumptions) = self.resume_point(&job.id).await?;
         let resumed_at = resume.index;
         // One line per resumption so far (the job's log is written at its end).
@@ -147,10 +266,13 @@ impl Runner {
         let job_id = job.id.clone();
         let space = (self.store.clone(), self.min_free_bytes);
         let job_seq = job.seq;
+        let user_pause = pause.clone();
         let mut handle = tokio::task::spawn_blocking(move || {
             let room = Room {
                 store: &space.0,
                 min_free_bytes: space.1,
+                pause: &user_pause,
+                tx: &tx,
             };
             let on = On {
                 job_id: &job_id,
@@ -319,26 +441,39 @@ impl Runner {
                     )
                     .await;
             }
-            Msg::Paused(reason, elapsed_s) => {
+            Msg::Paused {
+                cause,
+                paused,
+                detail,
+                elapsed_s,
+                record,
+            } => {
                 // The pause and its end stay with the test (its page, its log).
-                let (kind, detail) = match &reason {
-                    Some(r) => (LongTermEventKind::Paused, r.as_str()),
-                    None => (LongTermEventKind::Resumed, "space returned"),
+                let kind = if paused {
+                    LongTermEventKind::Paused
+                } else {
+                    LongTermEventKind::Resumed
                 };
-                if let Err(e) = self
-                    .store
-                    .add_long_term_event(job_id, kind, elapsed_s, detail)
-                    .await
-                {
+                let stored = match record {
+                    true => {
+                        self.store
+                            .add_long_term_event(job_id, kind, cause, elapsed_s, &detail)
+                            .await
+                    }
+                    false => Ok(()),
+                };
+                if let Err(e) = stored {
                     tracing::warn!(job = %job_id, "pause event not stored: {e}");
                 }
-                let step = match &reason {
-                    Some(r) => format!("paused: {r}"),
-                    None => "long_term".to_string(),
+                let step = if paused {
+                    format!("paused: {detail}")
+                } else {
+                    "long_term".to_string()
                 };
-                match &reason {
-                    Some(r) => tracing::warn!(job = %job_id, "long-term test paused: {r}"),
-                    None => tracing::info!(job = %job_id, "long-term test resumed: space returned"),
+                if paused {
+                    tracing::warn!(job = %job_id, "long-term test paused: {detail}");
+                } else {
+                    tracing::info!(job = %job_id, "long-term test resumed: {detail}");
                 }
                 let stored = match self.store.get_job(job_id).await {
                     Ok(Some(j)) => {
@@ -461,6 +596,10 @@ fn failure_problem(f: &Failure) -> Stop {
 struct Room<'a> {
     store: &'a Store,
     min_free_bytes: u64,
+    /// The user's pause (decision 0130).
+    pause: &'a SharedPause,
+    /// The test's messages to its job.
+    tx: &'a mpsc::UnboundedSender<Msg>,
 }
 
 impl Room<'_> {
@@ -475,7 +614,13 @@ impl Room<'_> {
         let mut paused = false;
         while let Err(e) = self.store.check_space(self.min_free_bytes) {
             if !paused {
-                let _ = tx.send(Msg::Paused(Some(e.to_string()), elapsed_s));
+                let _ = tx.send(Msg::Paused {
+                    cause: PauseCause::Disk,
+                    paused: true,
+                    detail: e.to_string(),
+                    elapsed_s,
+                    record: true,
+                });
                 paused = true;
             }
             if obs.cancelled() {
@@ -484,9 +629,68 @@ impl Room<'_> {
             std::thread::sleep(Duration::from_millis(500));
         }
         if paused {
-            let _ = tx.send(Msg::Paused(None, elapsed_s));
+            let _ = tx.send(Msg::Paused {
+                cause: PauseCause::Disk,
+                paused: false,
+                detail: "space returned".into(),
+                elapsed_s,
+                record: true,
+            });
         }
         Ok(())
+    }
+
+    /// Holds the test while the user's pause is in effect (decision 0130):
+    /// nothing is played, the test clock and the load stand still. The
+    /// pause and its end are events at test time `elapsed_s`; a cancel
+    /// (or the daemon stopping) ends the wait.
+    fn hold_while_paused(
+        &self,
+        tx: &mpsc::UnboundedSender<Msg>,
+        obs: &LtObserver<'_>,
+        elapsed_s: f64,
+    ) -> Result<(), Stop> {
+        {
+            let mut f = self.pause.lock().unwrap();
+            if !f.paused {
+                return Ok(());
+            }
+            // The job's step says it; the event is stored once (not again
+            // for a pause stored before a stop of the daemon).
+            let _ = tx.send(Msg::Paused {
+                cause: PauseCause::User,
+                paused: true,
+                detail: format!("paused {}", who(&f.by)),
+                elapsed_s,
+                record: !f.recorded,
+            });
+            f.recorded = true;
+        }
+        loop {
+            if obs.cancelled() {
+                return Err(Stop::Aborted);
+            }
+            let by = {
+                let f = self.pause.lock().unwrap();
+                (!f.paused).then(|| f.by.clone())
+            };
+            if let Some(by) = by {
+                let _ = tx.send(Msg::Paused {
+                    cause: PauseCause::User,
+                    paused: false,
+                    detail: format!("resumed {}", who(&by)),
+                    elapsed_s,
+                    record: true,
+                });
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// The user's pause is in effect.
+    fn paused(&self) -> bool {
+        self.pause.lock().unwrap().paused
     }
 }
 
@@ -612,16 +816,21 @@ fn run_blocking(
         let t_start = index as f64 * spec.interval_s;
         // The stimulus up to this interval's start, from the last measurement's end.
         let mut t = clock_s.min(t_start);
+        // A test paused by the user (a paused test resumed after a stop of
+        // the daemon too) holds here, its clock and load standing still.
+        room.hold_while_paused(tx, &obs, t)?;
         if let Some(d) = device.as_mut() {
             // Played through the bench, under its safety rules.
             let mut report = |t_now: f64| progress(index, t_now, None);
-            load_j += device_stimulus(d, &pcfg, spec, (t, t_start), &obs, tx, &mut report)?;
+            load_j += device_stimulus(d, &pcfg, spec, (t, t_start), &obs, room, &mut report)?;
             t = t_start;
         }
         while t < t_start {
             if obs.cancelled() {
                 return Err(Stop::Aborted);
             }
+            // The user's pause stops the stimulus at the next step.
+            room.hold_while_paused(tx, &obs, t)?;
             let step = (t_start - t).min(STIMULUS_STEP_S);
             let on = spec.stimulus.on_time_s(t, t + step);
             match held_velocity {
@@ -671,6 +880,18 @@ fn run_blocking(
         }
         // The interval's results need room: a full disk pauses the test here.
         room.wait_for_space(tx, &obs, t_start)?;
+        room.hold_while_paused(tx, &obs, t_start)?;
+        // The air around the bench, from its configured sensor (decision
+        // 0130): a reading that fails is left out of the interval, and said.
+        let ambient = match &bench_cfg.ambient {
+            None => crate::job::Ambient::default(),
+            Some(sensor) => sensor.read(t_start).unwrap_or_else(|e| {
+                let _ = tx.send(Msg::Log(format!(
+                    "interval {index}: no ambient conditions stored: {e}"
+                )));
+                crate::job::Ambient::default()
+            }),
+        };
         // A device's load is measured (the stimulus' just added); a virtual part's simulated.
         let load_at_start = match device {
             Some(_) => load_j,
@@ -865,6 +1086,7 @@ fn run_blocking(
                 k0_true_n_per_m: k0_true,
             },
             document,
+            ambient,
         };
         send_and_wait(tx, |r| Msg::Interval(Box::new(iv), r))?;
         // The failure limits, on what this interval measured.
@@ -1008,9 +1230,10 @@ fn device_stimulus(
     spec: &LongTermSpec,
     span: (f64, f64),
     obs: &LtObserver<'_>,
-    tx: &mpsc::UnboundedSender<Msg>,
+    room: &Room<'_>,
     report: &mut dyn FnMut(f64),
 ) -> Result<f64, Stop> {
+    let tx = room.tx;
     let (mut t, to) = span;
     let x = spec.stimulus.excursion_m;
     let max_drive_v = d.bench.limits().max_drive_v;
@@ -1019,6 +1242,10 @@ fn device_stimulus(
         if obs.cancelled() {
             return Err(Stop::Aborted);
         }
+        // The user's pause: the hold below stopped at the end of a chunk
+        // (faded out), nothing plays until it is resumed, then the
+        // resonance is searched again.
+        room.hold_while_paused(tx, obs, t)?;
         // The current phase of the on/off cycle and its end.
         let (on, end) = match (spec.stimulus.on_s, spec.stimulus.off_s) {
             (Some(on_s), Some(off_s)) if on_s + off_s > 0.0 => {
@@ -1046,6 +1273,7 @@ fn device_stimulus(
                     xpeak_m: x,
                 },
                 &mut || obs.cancelled(),
+                &mut || room.paused(),
                 &mut |sig: &Signals| {
                     if let Some((c, r)) = &k {
                         e += ageing_law::load_from_displacement_j(&sig.displacement_m, fs, c, *r);
@@ -1079,16 +1307,23 @@ fn device_stimulus(
                 peak_v,
             )));
             t += done.bench_time_s;
+            if room.paused() {
+                report(t);
+                continue;
+            }
         }
         // Off, or what the hold left of its phase: idle, drive silent.
         if t < end {
             if d.paced {
-                pace(end - t, obs);
+                // The user's pause stops the idle clock too.
+                let waited = pace_unless(end - t, obs, &|| room.paused());
                 if obs.cancelled() {
                     return Err(Stop::Aborted);
                 }
+                t = if room.paused() { t + waited } else { end };
+            } else {
+                t = end;
             }
-            t = end;
         }
         report(t);
     }
@@ -1097,8 +1332,15 @@ fn device_stimulus(
 
 /// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.
 fn pace(seconds: f64, obs: &LtObserver<'_>) {
-    let until = Instant::now() + Duration::from_secs_f64(seconds.max(0.0));
-    while Instant::now() < until && !obs.cancelled() {
+    pace_unless(seconds, obs, &|| false);
+}
+
+/// [`pace`], also ended by `stop`; returns the seconds waited.
+fn pace_unless(seconds: f64, obs: &LtObserver<'_>, stop: &dyn Fn() -> bool) -> f64 {
+    let start = Instant::now();
+    let until = start + Duration::from_secs_f64(seconds.max(0.0));
+    while Instant::now() < until && !obs.cancelled() && !stop() {
         std::thread::sleep(Duration::from_millis(100).min(until - Instant::now()));
     }
+    start.elapsed().as_secs_f64().min(seconds.max(0.0))
 }

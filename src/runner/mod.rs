@@ -34,6 +34,7 @@ use crate::store::{Doc, Job, JobState, NewMeasurement, NewRecording, Store, Stor
 pub use events::{EventBus, JobEvent};
 use execute::*;
 pub use job::{FieldError, JobSpec};
+pub use longterm::PauseOutcome;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -116,6 +117,8 @@ pub struct Runner {
     recipe_trace: std::sync::OnceLock<RecipeTrace>,
     /// `min_free_bytes`: a long-term test pauses below it (`longterm.rs`).
     min_free_bytes: u64,
+    /// The user's pause of the running long-term tests, by job id (decision 0130).
+    pauses: Mutex<HashMap<String, longterm::SharedPause>>,
 }
 
 /// See [`Runner::set_recipe_trace`].
@@ -207,6 +210,7 @@ impl Runner {
             outbox: Arc::new(Notify::new()),
             recipe_trace: std::sync::OnceLock::new(),
             min_free_bytes: cfg.min_free_bytes,
+            pauses: Mutex::new(HashMap::new()),
         });
         longterm::requeue(&runner.store).await?;
         runner.end_interrupted(cfg).await?;

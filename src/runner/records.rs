@@ -331,6 +331,7 @@ impl Runner {
                     hardware: None,
                     emulator: None,
                     virtual_: None,
+                    ambient: None,
                 });
             let spec = job.request.measure();
             let started_at = job.started_at.clone().unwrap_or_else(crate::store::now);

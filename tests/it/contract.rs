@@ -1000,6 +1000,16 @@ async fn every_route_answers_as_its_schema_says() {
         ("get", csv, &format!("{lt}/nope/series.csv"), Some(VIEWER), None, 404),
     ];
     a.expect_all(rows).await;
+    // Ambient conditions entered by hand (decision 0130): a temperature in
+    // °C where kelvin is asked names its field; an unknown test is a 404.
+    let amb = "/api/v1/long-term-tests/{id}/intervals/{index}/ambient";
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("put", amb, &format!("{lt}/{ltid}/intervals/0/ambient"), Some(OPERATOR), Some(json!({"temperature_k": 21.0})), 422),
+        ("put", amb, &format!("{lt}/nope/intervals/0/ambient"), Some(OPERATOR), Some(json!({"temperature_k": 294.15})), 404),
+        ("put", amb, &format!("{lt}/{ltid}/intervals/0/ambient"), Some(OPERATOR), Some(json!({"temperature_k": 294.15, "relative_humidity_percent": 40.0})), 200),
+    ];
+    a.expect_all(rows).await;
     let wav = "/api/v1/long-term-tests/{id}/last-signals.wav";
     #[rustfmt::skip]
     let rows: &[Row] = &[
@@ -1007,6 +1017,42 @@ async fn every_route_answers_as_its_schema_says() {
         ("get", wav, &format!("{lt}/nope/last-signals.wav"), Some(VIEWER), None, 404),
     ];
     a.expect_all(rows).await;
+
+    // Pause and resume by the user (decision 0130): a long test paused
+    // (202), paused again (409), resumed (202), resumed again (409), then
+    // cancelled; an unknown test is a 404.
+    let long_body = json!({"measurement": {"part": {"serial": "LT-CP"}, "bench": "virtual-2",
+        "preset": "spider_3in", "target_xpeak_m": 0.006},
+        "duration_s": 36000.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053}});
+    let lpj = a
+        .expect("post", lt, lt, Some(OPERATOR), Some(long_body), 202)
+        .await;
+    let lpid = lpj["id"].as_str().unwrap().to_string();
+    let (pause, resume) = (
+        "/api/v1/long-term-tests/{id}/pause",
+        "/api/v1/long-term-tests/{id}/resume",
+    );
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("post", pause, &format!("{lt}/{lpid}/pause"), Some(OPERATOR), None, 202),
+        ("post", pause, &format!("{lt}/{lpid}/pause"), Some(OPERATOR), None, 409),
+        ("post", resume, &format!("{lt}/{lpid}/resume"), Some(OPERATOR), None, 202),
+        ("post", resume, &format!("{lt}/{lpid}/resume"), Some(OPERATOR), None, 409),
+        ("post", pause, &format!("{lt}/nope/pause"), Some(OPERATOR), None, 404),
+        ("post", resume, &format!("{lt}/nope/resume"), Some(OPERATOR), None, 404),
+    ];
+    a.expect_all(rows).await;
+    let (s, _) = a
+        .call(
+            "post",
+            "/api/v1/jobs/{id}/cancel",
+            &format!("/api/v1/jobs/{lpid}/cancel"),
+            Some(OPERATOR),
+            None,
+        )
+        .await;
+    assert!(s == 200 || s == 202, "cancel: {s}");
+    a.wait_job(&lpid).await;
 
     let (_, routes) = springbench::api::routes(&springbench::config::Config::default());
     let mut missing = vec![];

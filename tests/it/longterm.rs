@@ -909,3 +909,294 @@ fn nix_free(p: &std::path::Path) -> u64 {
         .parse()
         .unwrap()
 }
+
+/// Ambient conditions (decision 0130): an emulated sensor with known
+/// values (296.15 K + 0.4 K/h, 45 % − 1.5 %/h of test time) on virtual-1,
+/// a hwmon sensor whose file is missing on virtual-2. Each interval
+/// stores the sensor's values at its start with their source, in the
+/// test's JSON and its CSV (units in the header); a failed reading leaves
+/// them out and says why in the log. Entered by hand: 422s naming the
+/// field, 404 for an interval not measured, and a value given replaces the
+/// sensor's (source `hand`), the other kept.
+#[tokio::test]
+async fn ambient_conditions_come_from_the_benchs_sensor_or_by_hand() {
+    let benches = "[[benches]]\nid = \"virtual-1\"\nseed = 7\npreset = \"spider_3in\"\n\
+         [benches.ambient]\nkind = \"emulated\"\ntemperature_k = 296.15\ntemperature_k_per_h = 0.4\n\
+         relative_humidity_percent = 45.0\nrelative_humidity_percent_per_h = -1.5\n\
+         [[benches]]\nid = \"virtual-2\"\nseed = 1007\npreset = \"spider_3in\"\n\
+         [benches.ambient]\nkind = \"hwmon\"\ntemperature_path = \"/nonexistent/temp1_input\"\n";
+    let d = Daemon::start(benches);
+    let c = client();
+    let n = 3;
+    let id = submit(&c, &d, &test_body("LT-AMB", n)).await;
+    let mut other = test_body("LT-AMB-2", 2);
+    other["measurement"]["bench"] = json!("virtual-2");
+    let id2 = submit(&c, &d, &other).await;
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    let truth = |t_s: f64| (296.15 + 0.4 * t_s / 3600.0, 45.0 - 1.5 * t_s / 3600.0);
+    for iv in v["intervals"].as_array().unwrap() {
+        let (t, h) = truth(iv["elapsed_s"].as_f64().unwrap());
+        assert!(
+            (iv["temperature_k"].as_f64().unwrap() - t).abs() < 1e-9,
+            "{iv}"
+        );
+        assert!(
+            (iv["relative_humidity_percent"].as_f64().unwrap() - h).abs() < 1e-9,
+            "{iv}"
+        );
+        assert_eq!(iv["temperature_source"], "sensor");
+        assert_eq!(iv["humidity_source"], "sensor");
+    }
+    let csv = c
+        .get(d.url(&format!("/api/v1/long-term-tests/{id}/series.csv")))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (ct, ch) = (col("temperature_k"), col("relative_humidity_percent"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), n);
+    for (k, r) in rows.iter().enumerate() {
+        let (t, h) = truth(900.0 * k as f64);
+        assert!((r[ct].parse::<f64>().unwrap() - t).abs() < 1e-9, "{csv}");
+        assert!((r[ch].parse::<f64>().unwrap() - h).abs() < 1e-9, "{csv}");
+        assert_eq!(r[col("temperature_source")], "sensor");
+    }
+    // By hand: bad values are 422s naming the field; never stored.
+    let url = |i: &str| {
+        d.url(&format!(
+            "/api/v1/long-term-tests/{id}/intervals/{i}/ambient"
+        ))
+    };
+    for (body, field) in [
+        (json!({"temperature_k": 23.0}), "temperature_k"),
+        (json!({"temperature_k": "NaN"}), "temperature_k"),
+        (
+            json!({"relative_humidity_percent": 100.5}),
+            "relative_humidity_percent",
+        ),
+        (
+            json!({"relative_humidity_percent": -3.0}),
+            "relative_humidity_percent",
+        ),
+        (json!({}), "temperature_k"),
+        (json!({"temperature_c": 21.0}), "temperature_c"),
+    ] {
+        let r = c.put(url("1")).json(&body).send().await.unwrap();
+        let p = problem(r, 422).await;
+        let fields: Vec<&str> = p["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e["field"].as_str().unwrap())
+            .collect();
+        assert!(fields.contains(&field), "{body}: {field} not named: {p}");
+    }
+    for i in ["9", "x"] {
+        let r = c
+            .put(url(i))
+            .json(&json!({"temperature_k": 295.0}))
+            .send()
+            .await
+            .unwrap();
+        problem(r, 404).await;
+    }
+    let r = c
+        .put(url("1"))
+        .json(&json!({"temperature_k": 294.65}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let iv: Value = r.json().await.unwrap();
+    assert_eq!(iv["index"], 1);
+    assert_eq!(iv["temperature_k"], 294.65);
+    assert_eq!(iv["temperature_source"], "hand");
+    // The humidity not given stays the sensor's.
+    assert!((iv["relative_humidity_percent"].as_f64().unwrap() - truth(900.0).1).abs() < 1e-9);
+    assert_eq!(iv["humidity_source"], "sensor");
+    let v = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
+    assert_eq!(v["intervals"][1]["temperature_k"], 294.65, "{v}");
+    assert_eq!(v["intervals"][0]["temperature_source"], "sensor");
+    // A sensor that cannot be read: no values, and the log says why.
+    let v2 = wait_test(&c, &d, &id2, Duration::from_secs(300), terminal).await;
+    assert_eq!(v2["job"]["state"], "succeeded", "{v2}");
+    for iv in v2["intervals"].as_array().unwrap() {
+        assert!(iv["temperature_k"].is_null(), "{iv}");
+        assert!(iv["temperature_source"].is_null(), "{iv}");
+    }
+    let log = v2["job"]["log"].to_string();
+    assert!(
+        log.contains(
+            "interval 0: no ambient conditions stored: ambient sensor /nonexistent/temp1_input"
+        ),
+        "{log}"
+    );
+    drop(d);
+}
+
+async fn post_status(c: &reqwest::Client, d: &Daemon, path: &str) -> u16 {
+    c.post(d.url(path))
+        .header("content-type", "application/json")
+        .send()
+        .await
+        .unwrap()
+        .status()
+        .as_u16()
+}
+
+fn paused(v: &Value) -> bool {
+    v["job"]["step"]
+        .as_str()
+        .is_some_and(|s| s.starts_with("paused"))
+}
+
+/// Pause and resume by the user (decision 0130): the pause holds (no
+/// interval measured, the test clock, the load and the progress stand
+/// still), outlives a kill -9 of the daemon (the resumed test stays
+/// paused, its pause not recorded twice), resume continues with no
+/// interval lost or repeated and the loads of the same test run without a
+/// pause; cancel works while paused.
+#[tokio::test]
+async fn a_user_pause_holds_the_test_across_a_restart_and_resume_continues_it() {
+    let n = 5;
+    let mut d = Daemon::start(BENCHES);
+    let tmp = d.take_dir().unwrap();
+    let reference = Daemon::start(BENCHES);
+    let c = client();
+    let id = submit(&c, &d, &test_body("LT-P", n)).await;
+    let ref_id = submit(&c, &reference, &test_body("LT-P", n)).await;
+    let mut other = test_body("LT-P-C", 40);
+    other["measurement"]["bench"] = json!("virtual-2");
+    let id2 = submit(&c, &d, &other).await;
+    let lt = |id: &str, what: &str| format!("/api/v1/long-term-tests/{id}/{what}");
+    // Resuming a test not paused: 409; unknown tests: 404.
+    assert_eq!(post_status(&c, &d, &lt(&id, "resume")).await, 409);
+    assert_eq!(post_status(&c, &d, &lt("nope", "pause")).await, 404);
+    wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        !v["intervals"].as_array().unwrap().is_empty() || terminal(v)
+    })
+    .await;
+    assert_eq!(post_status(&c, &d, &lt(&id, "pause")).await, 202);
+    assert_eq!(post_status(&c, &d, &lt(&id, "pause")).await, 409);
+    let v = wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        paused(v) || terminal(v)
+    })
+    .await;
+    assert_eq!(v["job"]["state"], "running", "{v}");
+    assert!(v["user_pause"].is_object(), "{v}");
+    let held = v["intervals"].as_array().unwrap().len();
+    assert!(held < n, "{v}");
+    let still = |a: &Value, b: &Value| {
+        assert_eq!(
+            a["intervals"], b["intervals"],
+            "an interval measured while paused"
+        );
+        assert_eq!(
+            a["state"]["clock_s"], b["state"]["clock_s"],
+            "the test clock moved"
+        );
+        assert_eq!(a["state"]["load_j"], b["state"]["load_j"], "the load moved");
+        assert_eq!(a["job"]["progress"], b["job"]["progress"]);
+        assert!(paused(b), "{b}");
+    };
+    // The pause holds.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let v2 = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
+    still(&v, &v2);
+    // Cancel works while paused (the other bench's test).
+    wait_test(&c, &d, &id2, Duration::from_secs(120), |v| {
+        !v["intervals"].as_array().unwrap().is_empty() || terminal(v)
+    })
+    .await;
+    assert_eq!(post_status(&c, &d, &lt(&id2, "pause")).await, 202);
+    wait_test(&c, &d, &id2, Duration::from_secs(120), |v| {
+        paused(v) || terminal(v)
+    })
+    .await;
+    assert_eq!(
+        post_status(&c, &d, &format!("/api/v1/jobs/{id2}/cancel")).await,
+        202
+    );
+    let c2 = wait_test(&c, &d, &id2, Duration::from_secs(120), terminal).await;
+    assert_eq!(c2["job"]["state"], "cancelled", "{c2}");
+    assert!(c2["user_pause"].is_null(), "{c2}");
+    assert_eq!(post_status(&c, &d, &lt(&id2, "resume")).await, 409);
+    // kill -9 while paused: the test resumes paused, holds, and its pause
+    // is one event.
+    d.kill9();
+    d = Daemon::start_in(tmp.path(), BENCHES);
+    let v3 = wait_test(&c, &d, &id, Duration::from_secs(120), |v| {
+        (paused(v) && v["job"]["state"] == "running") || terminal(v)
+    })
+    .await;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let v4 = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
+    assert_eq!(v3["intervals"], v["intervals"], "{v3}");
+    assert_eq!(v3["state"]["clock_s"], v["state"]["clock_s"]);
+    still(&v3, &v4);
+    let users = |v: &Value| -> Vec<(String, f64)> {
+        v["events"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| e["cause"] == "user")
+            .map(|e| {
+                (
+                    e["kind"].as_str().unwrap().to_string(),
+                    e["elapsed_s"].as_f64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    // Paused at the next step: after the last measurement's end, before
+    // the next interval's start (the stimulus between them is accelerated).
+    let u = users(&v4);
+    assert_eq!(u.len(), 1, "{v4}");
+    assert_eq!(u[0].0, "paused");
+    let clock = u[0].1;
+    let last_end = v["state"]["clock_s"].as_f64().unwrap();
+    assert!(
+        clock >= last_end && clock <= 900.0 * held as f64,
+        "paused at {clock} s, the last measurement ended at {last_end} s"
+    );
+    // Resumed: it finishes, every interval once, the loads those of the
+    // test run without a pause.
+    assert_eq!(post_status(&c, &d, &lt(&id, "resume")).await, 202);
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    check_intervals(&c, &d, &v, n).await;
+    assert_eq!(
+        users(&v),
+        [
+            ("paused".to_string(), clock),
+            ("resumed".to_string(), clock)
+        ],
+        "{v}"
+    );
+    let log = v["job"]["log"].to_string();
+    assert!(
+        log.contains(&format!(
+            "paused at test time {clock:.0} s: paused by the user"
+        )) && log.contains(&format!(
+            "resumed at test time {clock:.0} s: resumed by the user"
+        )),
+        "{log}"
+    );
+    let r = wait_test(&c, &reference, &ref_id, Duration::from_secs(300), terminal).await;
+    let (e, e_ref) = (loads(&v), loads(&r));
+    for (a, b) in e.iter().zip(&e_ref).skip(1) {
+        assert!((a / b - 1.0).abs() <= 1e-9, "{e:?} against {e_ref:?}");
+    }
+    println!(
+        "user pause: held after {held} intervals at test time {clock} s across a kill -9; loads {e:?}, without a pause {e_ref:?}"
+    );
+    drop(d);
+    drop(tmp);
+}

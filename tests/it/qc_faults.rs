@@ -356,12 +356,14 @@ async fn every_route_checks_the_role_of_its_matched_template() {
     ];
     let mut checked = 0;
     let mut wrong = vec![];
+    let mut templates = vec![];
     for (route, item) in doc["paths"].as_object().unwrap() {
         for method in ["get", "post", "put", "delete"] {
             if item.get(method).is_none() || route == "/api/v1/events" {
                 continue;
             }
             let need = policy(method, route);
+            templates.push(format!("{method} {route}"));
             let paths: Vec<String> = if route.contains('{') {
                 words
                     .iter()
@@ -372,6 +374,7 @@ async fn every_route_checks_the_role_of_its_matched_template() {
                             .replace("{serial}", w)
                             .replace("{file}", w)
                             .replace("{version}", "1")
+                            .replace("{index}", "0")
                     })
                     .collect()
             } else {
@@ -407,6 +410,21 @@ async fn every_route_checks_the_role_of_its_matched_template() {
         }
     }
     assert!(checked > 400, "{checked} requests");
+    // The long-term test's writes (issue 32, decision 0130) are an operator's.
+    for (m, t) in [
+        (
+            "put",
+            "/api/v1/long-term-tests/{id}/intervals/{index}/ambient",
+        ),
+        ("post", "/api/v1/long-term-tests/{id}/pause"),
+        ("post", "/api/v1/long-term-tests/{id}/resume"),
+    ] {
+        assert!(
+            templates.contains(&format!("{m} {t}")),
+            "{m} {t} not checked"
+        );
+        assert_eq!(policy(m, t), Some(2), "{m} {t}");
+    }
     assert!(
         wrong.is_empty(),
         "{} of {checked} wrong:\n{}",

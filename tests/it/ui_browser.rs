@@ -2109,7 +2109,11 @@ async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
 /// loads; a law that is not valid says so in its table and its legend.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_prediction_band() {
-    let cfg = roles().bench("virtual-1", 7).text();
+    // An emulated ambient sensor (decision 0130): 296.15 K + 0.4 K/h, 45 % RH.
+    let cfg = roles()
+        .bench("virtual-1", 7)
+        .toml("[benches.ambient]\nkind = \"emulated\"\ntemperature_k = 296.15\ntemperature_k_per_h = 0.4\nrelative_humidity_percent = 45.0")
+        .text();
     let (mut b, d) = open_browser!(&cfg);
     b.login(&d.base, OPERATOR, "operator").await;
     let n = 7usize;
@@ -2150,6 +2154,30 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
         "{}",
         b.text("#view-error").await
     );
+    // Paused by the operator on the page after two intervals, then resumed:
+    // the pause and its end are events on the page, by the user.
+    b.wait_long(
+        "two intervals on the page",
+        "Number(document.querySelector('#view').dataset.intervals) >= 2 && !document.querySelector('#lt-pause').hidden",
+    )
+    .await;
+    b.click("#lt-pause").await;
+    b.wait_long(
+        "the user's pause among the events",
+        "document.querySelector('#lt-event-rows tr[data-kind=\"paused\"]') && !document.querySelector('#lt-resume').hidden",
+    )
+    .await;
+    let paused_row = b.text("#lt-event-rows tr[data-kind=\"paused\"]").await;
+    assert!(
+        paused_row.contains("(user)") && paused_row.contains("paused by station-1"),
+        "{paused_row}"
+    );
+    b.click("#lt-resume").await;
+    b.wait_long(
+        "the resumption among the events",
+        "document.querySelector('#lt-event-rows tr[data-kind=\"resumed\"]')",
+    )
+    .await;
     b.wait_long(
         "every interval and the fitted law on the page",
         &format!("document.querySelector('#view').dataset.intervals === '{n}' && document.querySelector('#lt-law-table') && !document.querySelector('#lt-cancel:not([hidden])')"),
@@ -2166,6 +2194,38 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
     };
     let rel = |a: f64, b: f64| ((a - b) / b).abs();
     b.screenshot("long-term-test").await;
+    // The pause and its end, in the document at one test time.
+    let ev: Vec<&Value> = doc["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["cause"] == "user")
+        .collect();
+    assert_eq!(ev.len(), 2, "{doc}");
+    assert_eq!(
+        (&ev[0]["kind"], &ev[1]["kind"]),
+        (&json!("paused"), &json!("resumed"))
+    );
+    assert_eq!(ev[0]["elapsed_s"], ev[1]["elapsed_s"]);
+    // The ambient conditions beside the values: °C from the stored kelvin.
+    let cells = b
+        .js(
+            "return [...document.querySelectorAll('#lt-intervals tr')].map((r) => ({k: r.querySelector('td.lt-temp').dataset.k, t: r.querySelector('td.lt-temp').textContent, rh: r.querySelector('td.lt-rh').textContent}));",
+            vec![],
+        )
+        .await;
+    let cells = cells.as_array().unwrap();
+    assert_eq!(cells.len(), n);
+    for (c, iv) in cells.iter().zip(doc["intervals"].as_array().unwrap()) {
+        let k = f(&iv["temperature_k"]);
+        assert!(
+            (k - (296.15 + 0.4 * f(&iv["elapsed_s"]) / 3600.0)).abs() < 1e-9,
+            "{iv}"
+        );
+        assert_eq!(c["k"].as_str().unwrap().parse::<f64>().unwrap(), k);
+        assert_eq!(c["t"], format!("{:.1} \u{b0}C", k - 273.15), "{c}");
+        assert_eq!(c["rh"], "45.0 %", "{c}");
+    }
     b.screenshot_element("#lt-plots", "long-term-plots-time")
         .await;
 

@@ -533,6 +533,140 @@ pub struct BenchConfig {
     /// this bench differs from its neighbours (calibration, clamp).
     #[serde(default, rename = "virtual", skip_serializing_if = "Option::is_none")]
     pub virtual_: Option<VirtualConfig>,
+    /// `[benches.ambient]`: the sensor of the air around the bench, read at
+    /// every interval of a long-term test (issue 32, decision 0130).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ambient: Option<AmbientSensor>,
+}
+
+/// `[benches.ambient]`: where a bench's ambient conditions (air temperature
+/// and relative humidity) come from. Read at the start of every interval of
+/// a long-term test; a reading that fails or is out of range is left out of
+/// the interval (the job's log says why), never stored as a guess.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum AmbientSensor {
+    /// An emulated sensor (virtual and emulated benches): known values, each
+    /// drifting linearly with the test time, so that a test knows the truth:
+    /// T(t) = `temperature_k` + `temperature_k_per_h` · t/3600 s.
+    Emulated {
+        /// Air temperature at test time 0 (K).
+        temperature_k: f64,
+        /// Its drift (K per hour of test time).
+        #[serde(default)]
+        temperature_k_per_h: f64,
+        /// Relative humidity at test time 0 (%).
+        relative_humidity_percent: f64,
+        /// Its drift (% per hour of test time).
+        #[serde(default)]
+        relative_humidity_percent_per_h: f64,
+    },
+    /// A Linux hwmon sensor (e.g. an SHT3x or HTU21 on I²C): `temp*_input`
+    /// in millidegrees Celsius, `humidity*_input` in milli-percent.
+    Hwmon {
+        /// E.g. `/sys/class/hwmon/hwmon2/temp1_input`.
+        temperature_path: std::path::PathBuf,
+        /// E.g. `/sys/class/hwmon/hwmon2/humidity1_input` (absent: no humidity).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        humidity_path: Option<std::path::PathBuf>,
+    },
+}
+
+impl AmbientSensor {
+    /// One-line error naming the field.
+    pub fn validate(&self, id: &str, kind: BenchKind) -> Result<(), String> {
+        match self {
+            AmbientSensor::Emulated {
+                temperature_k,
+                temperature_k_per_h,
+                relative_humidity_percent,
+                relative_humidity_percent_per_h,
+            } => {
+                if kind == BenchKind::Hardware {
+                    return Err(format!(
+                        "bench '{id}': ambient.kind = \"emulated\" is for virtual and emulated benches; a hardware bench reads a real sensor (\"hwmon\")"
+                    ));
+                }
+                let a = springbench_core::job::Ambient {
+                    temperature_k: Some(*temperature_k),
+                    relative_humidity_percent: Some(*relative_humidity_percent),
+                };
+                if let Some(e) = a.check().first() {
+                    return Err(format!("bench '{id}': ambient.{}: {}", e.field, e.message));
+                }
+                for (name, v) in [
+                    ("temperature_k_per_h", temperature_k_per_h),
+                    (
+                        "relative_humidity_percent_per_h",
+                        relative_humidity_percent_per_h,
+                    ),
+                ] {
+                    if !v.is_finite() {
+                        return Err(format!(
+                            "bench '{id}': ambient.{name} must be a finite number, got {v}"
+                        ));
+                    }
+                }
+                Ok(())
+            }
+            AmbientSensor::Hwmon {
+                temperature_path,
+                humidity_path,
+            } => {
+                for p in std::iter::once(temperature_path).chain(humidity_path.iter()) {
+                    if p.as_os_str().is_empty() {
+                        return Err(format!("bench '{id}': ambient: an empty sensor path"));
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// The ambient conditions at test time `elapsed_s` (s), checked (within
+    /// `Ambient::check`'s ranges), or why not.
+    pub fn read(&self, elapsed_s: f64) -> Result<springbench_core::job::Ambient, String> {
+        let a = match self {
+            AmbientSensor::Emulated {
+                temperature_k,
+                temperature_k_per_h,
+                relative_humidity_percent,
+                relative_humidity_percent_per_h,
+            } => {
+                let h = elapsed_s / 3600.0;
+                springbench_core::job::Ambient {
+                    temperature_k: Some(temperature_k + temperature_k_per_h * h),
+                    relative_humidity_percent: Some(
+                        relative_humidity_percent + relative_humidity_percent_per_h * h,
+                    ),
+                }
+            }
+            AmbientSensor::Hwmon {
+                temperature_path,
+                humidity_path,
+            } => {
+                let milli = |p: &std::path::Path| -> Result<f64, String> {
+                    let s = std::fs::read_to_string(p)
+                        .map_err(|e| format!("ambient sensor {}: {e}", p.display()))?;
+                    s.trim().parse::<f64>().map(|v| v / 1000.0).map_err(|_| {
+                        format!(
+                            "ambient sensor {}: not a number: {:?}",
+                            p.display(),
+                            s.trim()
+                        )
+                    })
+                };
+                springbench_core::job::Ambient {
+                    temperature_k: Some(milli(temperature_path)? + 273.15),
+                    relative_humidity_percent: humidity_path.as_deref().map(milli).transpose()?,
+                }
+            }
+        };
+        match a.check().first() {
+            Some(e) => Err(format!("ambient sensor: {}: {}", e.field, e.message)),
+            None => Ok(a),
+        }
+    }
 }
 
 /// `[benches.virtual]` of a `kind = "virtual"` bench. Two real benches of one
@@ -613,6 +747,9 @@ impl BenchConfig {
                 ))
             }
             _ => {}
+        }
+        if let Some(a) = &self.ambient {
+            a.validate(id, self.kind)?;
         }
         match (self.kind, &self.virtual_) {
             (BenchKind::Virtual, Some(v)) => v.validate(id)?,
@@ -710,5 +847,41 @@ mic_calibrated_on = "2026-10-01"
         v.hardware = None;
         assert_eq!(v.sensors_document(), serde_json::Value::Null);
         assert_eq!(v.calibration_document(), serde_json::Value::Null);
+    }
+
+    #[test]
+    fn an_ambient_sensor_reads_its_known_values_or_says_why_not() {
+        let b: BenchConfig = toml::from_str(
+            "id = \"v\"\n[ambient]\nkind = \"emulated\"\ntemperature_k = 296.15\ntemperature_k_per_h = 0.5\nrelative_humidity_percent = 40.0\nrelative_humidity_percent_per_h = -1.0\n",
+        )
+        .unwrap();
+        b.validate_devices().unwrap();
+        let a = b.ambient.as_ref().unwrap().read(7200.0).unwrap();
+        assert_eq!(a.temperature_k, Some(297.15));
+        assert_eq!(a.relative_humidity_percent, Some(38.0));
+        // Drifted out of range: refused, not stored.
+        assert!(b.ambient.as_ref().unwrap().read(3600.0 * 41.0).is_err());
+        let dir = std::env::temp_dir().join(format!("sb-hwmon-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("temp1_input"), "23450\n").unwrap();
+        std::fs::write(dir.join("humidity1_input"), "41250\n").unwrap();
+        let h = AmbientSensor::Hwmon {
+            temperature_path: dir.join("temp1_input"),
+            humidity_path: Some(dir.join("humidity1_input")),
+        };
+        let a = h.read(0.0).unwrap();
+        assert!((a.temperature_k.unwrap() - 296.6).abs() < 1e-9);
+        assert_eq!(a.relative_humidity_percent, Some(41.25));
+        std::fs::write(dir.join("humidity1_input"), "garbage").unwrap();
+        assert!(h.read(0.0).unwrap_err().contains("not a number"));
+        std::fs::remove_dir_all(&dir).unwrap();
+        let bad: BenchConfig = toml::from_str(
+            "id = \"v\"\n[ambient]\nkind = \"emulated\"\ntemperature_k = 23.0\nrelative_humidity_percent = 40.0\n",
+        )
+        .unwrap();
+        assert!(bad
+            .validate_devices()
+            .unwrap_err()
+            .contains("ambient.temperature_k"));
     }
 }

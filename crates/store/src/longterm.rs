@@ -53,6 +53,41 @@ pub struct LongTermInterval {
     /// Run faster than real time (virtual bench).
     pub accelerated: bool,
     pub created_at: String,
+    /// Air temperature at the interval (K), when known.
+    pub temperature_k: Option<f64>,
+    /// Where it came from.
+    pub temperature_source: Option<AmbientSource>,
+    /// Relative humidity at the interval (%), when known.
+    pub relative_humidity_percent: Option<f64>,
+    pub humidity_source: Option<AmbientSource>,
+}
+
+/// Where an interval's ambient value came from (decision 0130).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum AmbientSource {
+    /// The bench's configured sensor, read at the interval's start.
+    Sensor,
+    /// Entered by hand (it replaces the sensor's).
+    Hand,
+}
+
+impl AmbientSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AmbientSource::Sensor => "sensor",
+            AmbientSource::Hand => "hand",
+        }
+    }
+
+    fn parse(s: Option<String>) -> StoreResult<Option<AmbientSource>> {
+        match s.as_deref() {
+            None => Ok(None),
+            Some("sensor") => Ok(Some(AmbientSource::Sensor)),
+            Some("hand") => Ok(Some(AmbientSource::Hand)),
+            Some(k) => Err(StoreError::Corrupt(format!("ambient source '{k}'"))),
+        }
+    }
 }
 
 /// What happened to a test between its intervals (decision 0125).
@@ -74,10 +109,39 @@ impl LongTermEventKind {
     }
 }
 
+/// What paused a test (decision 0130).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PauseCause {
+    /// The disk was full (decision 0125): the test resumes by itself.
+    Disk,
+    /// A user paused it (`POST .../pause`); a user resumes it.
+    User,
+}
+
+impl PauseCause {
+    fn as_str(self) -> &'static str {
+        match self {
+            PauseCause::Disk => "disk",
+            PauseCause::User => "user",
+        }
+    }
+}
+
+/// The user's pause of a test in effect.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct UserPause {
+    /// When it was asked for (RFC 3339).
+    pub at: String,
+    /// Who asked (the token's name; absent without authentication).
+    pub by: Option<String>,
+}
+
 /// A pause or its end, with the test clock.
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct LongTermEvent {
     pub kind: LongTermEventKind,
+    pub cause: PauseCause,
     /// Test time then (s).
     pub elapsed_s: f64,
     /// Why (the pause's reason).
@@ -98,6 +162,8 @@ pub struct NewInterval {
     pub clock_s: f64,
     pub part: PartState,
     pub document: Option<AgeingDocument>,
+    /// The bench's sensor's reading at the interval's start (checked).
+    pub ambient: springbench_core::job::Ambient,
 }
 
 fn to_json<T: Serialize>(v: &T) -> StoreResult<String> {
@@ -137,12 +203,20 @@ impl Store {
             )));
         }
         let mid = iv.measurement.id.clone();
+        if let Some(e) = iv.ambient.check().first() {
+            return Err(StoreError::Invalid(format!(
+                "interval {} of test {job_id}: {}: {}",
+                iv.index, e.field, e.message
+            )));
+        }
+        let src = |v: Option<f64>| v.map(|_| AmbientSource::Sensor.as_str());
         let ids = insert_results(&mut tx, iv.recordings, vec![]).await?;
         insert_measurement_rows(&mut tx, vec![iv.measurement], &ids).await?;
         let t = now();
         sqlx::query(
-            "INSERT INTO long_term_intervals (job_id, idx, measurement_id, elapsed_s, load_j, accelerated, created_at) \
-             VALUES (?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO long_term_intervals (job_id, idx, measurement_id, elapsed_s, load_j, accelerated, created_at, \
+             temperature_k, temperature_source, relative_humidity_percent, humidity_source) \
+             VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
         )
         .bind(job_id)
         .bind(iv.index as i64)
@@ -151,6 +225,10 @@ impl Store {
         .bind(iv.load_j)
         .bind(iv.accelerated)
         .bind(&t)
+        .bind(iv.ambient.temperature_k)
+        .bind(src(iv.ambient.temperature_k))
+        .bind(iv.ambient.relative_humidity_percent)
+        .bind(src(iv.ambient.relative_humidity_percent))
         .execute(&mut *tx)
         .await?;
         sqlx::query(
@@ -205,23 +283,60 @@ impl Store {
     /// The finished intervals of test `job_id`, in order.
     pub async fn long_term_intervals(&self, job_id: &str) -> StoreResult<Vec<LongTermInterval>> {
         let rows = sqlx::query(
-            "SELECT idx, measurement_id, elapsed_s, load_j, accelerated, created_at \
+            "SELECT idx, measurement_id, elapsed_s, load_j, accelerated, created_at, \
+             temperature_k, temperature_source, relative_humidity_percent, humidity_source \
              FROM long_term_intervals WHERE job_id = ? ORDER BY idx",
         )
         .bind(job_id)
         .fetch_all(&self.pool)
         .await?;
-        Ok(rows
-            .iter()
-            .map(|r| LongTermInterval {
-                index: r.get::<i64, _>(0).max(0) as usize,
-                measurement_id: r.get(1),
-                elapsed_s: r.get(2),
-                load_j: r.get(3),
-                accelerated: r.get(4),
-                created_at: r.get(5),
+        rows.iter()
+            .map(|r| {
+                Ok(LongTermInterval {
+                    index: r.get::<i64, _>(0).max(0) as usize,
+                    measurement_id: r.get(1),
+                    elapsed_s: r.get(2),
+                    load_j: r.get(3),
+                    accelerated: r.get(4),
+                    created_at: r.get(5),
+                    temperature_k: r.get(6),
+                    temperature_source: AmbientSource::parse(r.get(7))?,
+                    relative_humidity_percent: r.get(8),
+                    humidity_source: AmbientSource::parse(r.get(9))?,
+                })
             })
-            .collect())
+            .collect()
+    }
+
+    /// Enters by hand the ambient conditions of finished interval `index` of
+    /// test `job_id` (each value given replaces the stored one, its source
+    /// `hand`). False when the test has no such interval.
+    pub async fn set_long_term_ambient(
+        &self,
+        job_id: &str,
+        index: usize,
+        ambient: springbench_core::job::Ambient,
+    ) -> StoreResult<bool> {
+        if let Some(e) = ambient.check().first() {
+            return Err(StoreError::Invalid(format!("{}: {}", e.field, e.message)));
+        }
+        let hand = AmbientSource::Hand.as_str();
+        let r = sqlx::query(
+            "UPDATE long_term_intervals SET \
+             temperature_k = COALESCE(?1, temperature_k), \
+             temperature_source = CASE WHEN ?1 IS NULL THEN temperature_source ELSE ?3 END, \
+             relative_humidity_percent = COALESCE(?2, relative_humidity_percent), \
+             humidity_source = CASE WHEN ?2 IS NULL THEN humidity_source ELSE ?3 END \
+             WHERE job_id = ?4 AND idx = ?5",
+        )
+        .bind(ambient.temperature_k)
+        .bind(ambient.relative_humidity_percent)
+        .bind(hand)
+        .bind(job_id)
+        .bind(index as i64)
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
     }
 
     /// Records the failure limit that stopped running test `job_id`, and the
@@ -372,11 +487,57 @@ impl Store {
         Ok(out)
     }
 
+    /// Pauses (`Some(by)`) or resumes (`None`) test `job_id` as the user
+    /// asks; false when it already was paused, or not paused.
+    pub async fn set_long_term_pause(
+        &self,
+        job_id: &str,
+        pause: Option<Option<&str>>,
+    ) -> StoreResult<bool> {
+        self.add_long_term_test(job_id).await?;
+        let r = match pause {
+            Some(by) => {
+                sqlx::query(
+                    "UPDATE long_term_tests SET paused_at = ?, paused_by = ? WHERE job_id = ? AND paused_at IS NULL",
+                )
+                .bind(now())
+                .bind(by)
+                .bind(job_id)
+                .execute(&self.pool)
+                .await?
+            }
+            None => {
+                sqlx::query(
+                    "UPDATE long_term_tests SET paused_at = NULL, paused_by = NULL WHERE job_id = ? AND paused_at IS NOT NULL",
+                )
+                .bind(job_id)
+                .execute(&self.pool)
+                .await?
+            }
+        };
+        Ok(r.rows_affected() == 1)
+    }
+
+    /// The user's pause of test `job_id` in effect, if any.
+    pub async fn long_term_pause(&self, job_id: &str) -> StoreResult<Option<UserPause>> {
+        let r = sqlx::query(
+            "SELECT paused_at, paused_by FROM long_term_tests WHERE job_id = ? AND paused_at IS NOT NULL",
+        )
+        .bind(job_id)
+        .fetch_optional(&self.pool)
+        .await?;
+        Ok(r.map(|r| UserPause {
+            at: r.get(0),
+            by: r.get(1),
+        }))
+    }
+
     /// Records a pause or its end of test `job_id`.
     pub async fn add_long_term_event(
         &self,
         job_id: &str,
         kind: LongTermEventKind,
+        cause: PauseCause,
         elapsed_s: f64,
         detail: &str,
     ) -> StoreResult<()> {
@@ -386,22 +547,23 @@ impl Store {
             )));
         }
         sqlx::query(
-            "INSERT INTO long_term_events (job_id, kind, elapsed_s, detail, at) VALUES (?, ?, ?, ?, ?)",
+            "INSERT INTO long_term_events (job_id, kind, elapsed_s, detail, at, cause) VALUES (?, ?, ?, ?, ?, ?)",
         )
         .bind(job_id)
         .bind(kind.as_str())
         .bind(elapsed_s)
         .bind(detail)
         .bind(now())
+        .bind(cause.as_str())
         .execute(&self.pool)
         .await?;
         Ok(())
     }
 
-    /// The pauses and their ends of test `job_id`, in order.
+    /// The pauses and their ends of test `job_id` (the disk's and the user's), in order.
     pub async fn long_term_events(&self, job_id: &str) -> StoreResult<Vec<LongTermEvent>> {
         let rows = sqlx::query(
-            "SELECT kind, elapsed_s, detail, at FROM long_term_events WHERE job_id = ? ORDER BY seq",
+            "SELECT kind, elapsed_s, detail, at, cause FROM long_term_events WHERE job_id = ? ORDER BY seq",
         )
         .bind(job_id)
         .fetch_all(&self.pool)
@@ -413,8 +575,14 @@ impl Store {
                     "resumed" => LongTermEventKind::Resumed,
                     k => return Err(StoreError::Corrupt(format!("long-term event kind '{k}'"))),
                 };
+                let cause = match r.get::<String, _>(4).as_str() {
+                    "disk" => PauseCause::Disk,
+                    "user" => PauseCause::User,
+                    c => return Err(StoreError::Corrupt(format!("long-term event cause '{c}'"))),
+                };
                 Ok(LongTermEvent {
                     kind,
+                    cause,
                     elapsed_s: r.get(1),
                     detail: r.get(2),
                     at: r.get(3),

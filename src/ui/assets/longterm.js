@@ -2,7 +2,9 @@
 // family of K(x) curves over time (paper Fig. 23), K(0), Keff and f0 against
 // test time or accumulated load with the fitted law and its 95 % band, the
 // prediction, the events (pauses, resumptions, the failure), progress and
-// time left, cancel, and the series as CSV / JSON. A law that is not valid
+// time left, pause, resume and cancel, the ambient conditions per interval
+// (°C and % beside the values; entered by hand by an operator), and the
+// series as CSV / JSON. A law that is not valid
 // is drawn dashed and grey and says so in its legend and its table.
 //
 // `#/long-term` lists the tests, `#/long-term/<id>` is one test. The page
@@ -178,6 +180,8 @@ async function renderTest(main, ctx, id) {
   const csvBtn = h('button', { id: 'lt-csv' }, 'Series as CSV');
   const jsonBtn = h('button', { id: 'lt-json' }, 'Series as JSON');
   const cancelBtn = h('button', { id: 'lt-cancel', class: 'danger' }, 'Cancel the test');
+  const pauseBtn = h('button', { id: 'lt-pause' }, 'Pause the test');
+  const resumeBtn = h('button', { id: 'lt-resume' }, 'Resume the test');
   const wavLink = h('button', { id: 'lt-last-signals' }, 'Last 10 s of signals (WAV)');
   // A button's display rule outranks the `hidden` attribute: both are set.
   const show = (el, yes) => {
@@ -185,13 +189,25 @@ async function renderTest(main, ctx, id) {
     el.style.display = yes ? '' : 'none';
   };
   show(cancelBtn, false);
+  show(pauseBtn, false);
+  show(resumeBtn, false);
   show(wavLink, false);
+  // Ambient conditions entered by hand (operator): in °C and %, stored in K.
+  const ambIndex = h('input', { id: 'lt-amb-index', type: 'number', min: 0, step: 1, value: 0, 'aria-label': 'interval' });
+  const ambTemp = h('input', { id: 'lt-amb-temp', type: 'number', step: 0.1, 'aria-label': 'air temperature (°C)' });
+  const ambRh = h('input', { id: 'lt-amb-rh', type: 'number', step: 0.1, min: 0, max: 100, 'aria-label': 'relative humidity (%)' });
+  const ambBtn = h('button', { id: 'lt-amb-save' }, 'Enter');
+  const ambientForm = h('div', { class: 'toolbar', id: 'lt-ambient-form' },
+    h('span', {}, 'Ambient conditions by hand: interval '), ambIndex,
+    h('label', { for: 'lt-amb-temp' }, ' air temperature (\u00b0C) '), ambTemp,
+    h('label', { for: 'lt-amb-rh' }, ' relative humidity (%) '), ambRh, ambBtn);
+  show(ambientForm, false);
 
   put(
     main,
     h('section', { class: 'card' }, h('p', {}, h('a', { href: '#/long-term' }, '\u2190 all long-term tests')), head, progressEl,
-      h('div', { class: 'toolbar' }, cancelBtn, csvBtn, jsonBtn, wavLink,
-        h('span', { class: 'muted' }, 'Pausing is not offered: a test pauses by itself on a full disk and resumes when space returns.')),
+      h('div', { class: 'toolbar' }, pauseBtn, resumeBtn, cancelBtn, csvBtn, jsonBtn, wavLink,
+        h('span', { class: 'muted' }, 'A paused test stops its stimulus at its next step; its test time and load stand still. It also pauses by itself on a full disk.')),
       msg),
     h('section', { class: 'card' }, h('h2', {}, 'The fitted ageing law'), lawEl, predEl),
     h('section', { class: 'card' },
@@ -200,8 +216,9 @@ async function renderTest(main, ctx, id) {
     h('section', { class: 'card' }, h('h2', {}, 'Events'), eventsEl),
     h('section', { class: 'card' }, h('h2', {}, 'Intervals'),
       h('table', { class: 'list' },
-        h('thead', {}, h('tr', {}, ['#', 'test time', 'load', 'K(0)', 'f0', 'Keff', 'Xpeak', 'measurement'].map((t) => h('th', {}, t)))),
-        tableEl)),
+        h('thead', {}, h('tr', {}, ['#', 'test time', 'load', 'K(0)', 'f0', 'Keff', 'Xpeak', 'air temperature', 'relative humidity', 'measurement'].map((t) => h('th', {}, t)))),
+        tableEl),
+      ambientForm),
   );
 
   let doc = null;
@@ -225,6 +242,34 @@ async function renderTest(main, ctx, id) {
       msg.textContent = String(e.message || e);
     }
   });
+  ambBtn.addEventListener('click', async () => {
+    const body = {};
+    if (ambTemp.value !== '') body.temperature_k = Number(ambTemp.value) + 273.15;
+    if (ambRh.value !== '') body.relative_humidity_percent = Number(ambRh.value);
+    try {
+      await api(`/api/v1/long-term-tests/${encodeURIComponent(id)}/intervals/${encodeURIComponent(ambIndex.value)}/ambient`, { method: 'PUT', body });
+      msg.className = 'status';
+      msg.textContent = `Ambient conditions of interval ${ambIndex.value} entered.`;
+      drawnKey = '';
+      poll();
+    } catch (e) {
+      msg.className = 'status error';
+      msg.textContent = String(e.message || e);
+    }
+  });
+  for (const [btn, what] of [[pauseBtn, 'pause'], [resumeBtn, 'resume']]) {
+    btn.addEventListener('click', async () => {
+      try {
+        await api(`/api/v1/long-term-tests/${encodeURIComponent(id)}/${what}`, { method: 'POST' });
+        msg.className = 'status';
+        msg.textContent = what === 'pause' ? 'Pause requested: the test stops its stimulus at its next step.' : 'Resume requested.';
+        poll();
+      } catch (e) {
+        msg.className = 'status error';
+        msg.textContent = String(e.message || e);
+      }
+    });
+  }
   axisSel.addEventListener('change', () => {
     drawnKey = '';
     drawAll();
@@ -252,7 +297,10 @@ async function renderTest(main, ctx, id) {
         running ? ` \u2014 time left ${dur(j.eta_s)}${doc.accelerated ? ' (at the pace so far)' : ''}` : '',
         paused ? h('strong', { class: 'error', id: 'lt-paused' }, ` ${j.step}`) : null));
     show(cancelBtn, running && ctx.can('operator'));
+    show(pauseBtn, running && !doc.user_pause && ctx.can('operator'));
+    show(resumeBtn, running && !!doc.user_pause && ctx.can('operator'));
     show(wavLink, !!doc.last_signals);
+    show(ambientForm, doc.intervals.length > 0 && ctx.can('operator'));
   }
 
   function drawLaw() {
@@ -335,7 +383,7 @@ async function renderTest(main, ctx, id) {
       h('thead', {}, h('tr', {}, ['test time', 'event', 'what', 'when'].map((t) => h('th', {}, t)))),
       h('tbody', { id: 'lt-event-rows' }, ev.map((e) => h('tr', { dataset: { kind: e.kind }, class: e.kind === 'failure' || e.kind === 'stopped' ? 'error' : '' },
         h('td', {}, Number.isFinite(e.elapsed_s) ? `${num(hours(e.elapsed_s), 4)} h` : '\u2013'),
-        h('td', {}, e.kind),
+        h('td', { class: 'lt-event-kind' }, e.kind, e.cause ? ` (${e.cause === 'user' ? 'user' : 'disk full'})` : ''),
         h('td', {}, e.detail),
         h('td', {}, when(e.at)))))));
   }
@@ -352,13 +400,18 @@ async function renderTest(main, ctx, id) {
         h('td', {}, Number.isFinite(v.f0_hz) ? `${num(v.f0_hz, 4)} Hz` : '\u2013'),
         h('td', {}, Number.isFinite(v.keff_n_per_m) ? `${num(mm(v.keff_n_per_m), 4)} N/mm` : '\u2013'),
         h('td', {}, Number.isFinite(v.xpeak_m) ? `${num(v.xpeak_m * 1000, 4)} mm` : '\u2013'),
+        h('td', { class: 'lt-temp', dataset: { k: Number.isFinite(iv.temperature_k) ? String(iv.temperature_k) : '' } },
+          Number.isFinite(iv.temperature_k) ? `${(iv.temperature_k - 273.15).toFixed(1)} \u00b0C${iv.temperature_source === 'hand' ? ' (by hand)' : ''}` : '\u2013'),
+        h('td', { class: 'lt-rh', dataset: { percent: Number.isFinite(iv.relative_humidity_percent) ? String(iv.relative_humidity_percent) : '' } },
+          Number.isFinite(iv.relative_humidity_percent) ? `${iv.relative_humidity_percent.toFixed(1)} %${iv.humidity_source === 'hand' ? ' (by hand)' : ''}` : '\u2013'),
         h('td', {}, h('a', { href: `#/measurement/${encodeURIComponent(iv.measurement_id)}`, class: 'mono' }, shortId(iv.measurement_id))));
     }));
   }
 
   function drawAll() {
     drawHead();
-    const key = `${doc.intervals.length}|${doc.job.state}|${axisSel.value}|${(doc.events || []).length}`;
+    const ambient = doc.intervals.map((i) => `${i.temperature_k}/${i.relative_humidity_percent}`).join(',');
+    const key = `${doc.intervals.length}|${doc.job.state}|${axisSel.value}|${(doc.events || []).length}|${ambient}|${!!doc.user_pause}`;
     if (key === drawnKey) return;
     drawnKey = key;
     drawLaw();

@@ -95,18 +95,22 @@ pub fn break_in(
     b: &BreakIn,
     cancelled: &mut dyn FnMut() -> bool,
 ) -> Result<BreakInDone, ProcedureError> {
-    hold_at_resonance(bench, cfg, b, cancelled, &mut |_| {})
+    hold_at_resonance(bench, cfg, b, cancelled, &mut || false, &mut |_| {})
 }
 
 /// The break-in's sine held at the resonance at a level, with every run's
 /// signals handed to `on_run` as it finishes (the probe, the search sweeps,
 /// each held chunk): the long-term test's stimulus on a hardware or
 /// emulated bench measures the load it puts on the part from them.
+/// `stop` ends the hold early but gracefully, at the end of a chunk (each
+/// fades out to silence): the long-term test's pause by the user; the
+/// answer then says the time held so far.
 pub fn hold_at_resonance(
     bench: &mut dyn Bench,
     cfg: &ProcedureConfig,
     b: &BreakIn,
     cancelled: &mut dyn FnMut() -> bool,
+    stop: &mut dyn FnMut() -> bool,
     on_run: &mut dyn FnMut(&crate::Signals),
 ) -> Result<BreakInDone, ProcedureError> {
     let limits = bench.limits();
@@ -188,6 +192,9 @@ pub fn hold_at_resonance(
     while held < b.duration_s - 1e-9 {
         if cancelled() {
             return Err(ProcedureError::Cancelled);
+        }
+        if stop() {
+            break;
         }
         let hold = (b.duration_s - held).clamp(0.5, CHUNK_S - 2.0 * FADE_S);
         let len_s = hold + 2.0 * FADE_S;

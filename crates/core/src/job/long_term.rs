@@ -175,6 +175,100 @@ pub struct Failure {
     pub detail: String,
 }
 
+/// Lowest and highest air temperature taken for a reading (K): −100 and
+/// +150 °C. Outside, the number is a mistake of unit (23 entered for 23 °C)
+/// or a broken sensor, not the air around a bench.
+pub const AMBIENT_TEMPERATURE_RANGE_K: (f64, f64) = (173.15, 423.15);
+
+/// The air around the bench at an interval (issue 32, decision 0130): from
+/// the bench's configured sensor or entered by hand. SI units; the page
+/// shows the temperature in °C.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Ambient {
+    /// Air temperature (K).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temperature_k: Option<f64>,
+    /// Relative humidity (%, 0 to 100).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_humidity_percent: Option<f64>,
+}
+
+impl Ambient {
+    /// One message per value out of its range (never a stored NaN).
+    pub fn check(&self) -> Vec<FieldError> {
+        let mut errors = vec![];
+        let (lo, hi) = AMBIENT_TEMPERATURE_RANGE_K;
+        if let Some(t) = self.temperature_k {
+            if !(t.is_finite() && (lo..=hi).contains(&t)) {
+                let hint = if t.is_finite() && (-100.0..=150.0).contains(&t) {
+                    format!(" ({t} °C is {} K)", t + 273.15)
+                } else {
+                    String::new()
+                };
+                errors.push(FieldError::new(
+                    "temperature_k",
+                    format!(
+                        "must be an air temperature in kelvin within {lo} to {hi} K (−100 to 150 °C), got {t}{hint}"
+                    ),
+                ));
+            }
+        }
+        if let Some(h) = self.relative_humidity_percent {
+            if !(h.is_finite() && (0.0..=100.0).contains(&h)) {
+                errors.push(FieldError::new(
+                    "relative_humidity_percent",
+                    format!("must be a relative humidity within 0 to 100 %, got {h}"),
+                ));
+            }
+        }
+        errors
+    }
+}
+
+/// `PUT /api/v1/long-term-tests/{id}/intervals/{index}/ambient`: the
+/// ambient conditions of a finished interval entered by hand (either or
+/// both; a value given replaces the sensor's).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct AmbientRequest {
+    /// Air temperature (K).
+    pub temperature_k: Option<f64>,
+    /// Relative humidity (%, 0 to 100).
+    pub relative_humidity_percent: Option<f64>,
+}
+
+impl AmbientRequest {
+    /// A body checked whole (`parsed` is [`super::parse_lenient`]'s answer).
+    pub fn check(
+        parsed: (Option<AmbientRequest>, Vec<FieldError>),
+    ) -> Result<Ambient, Vec<FieldError>> {
+        let (req, mut errors) = parsed;
+        let Some(req) = req else {
+            return Err(errors);
+        };
+        let a = Ambient {
+            temperature_k: req.temperature_k,
+            relative_humidity_percent: req.relative_humidity_percent,
+        };
+        for e in a.check() {
+            if !errors.iter().any(|x| x.field == e.field) {
+                errors.push(e);
+            }
+        }
+        if errors.is_empty() && a.temperature_k.is_none() && a.relative_humidity_percent.is_none() {
+            errors.push(FieldError::new(
+                "temperature_k",
+                "give temperature_k (K) or relative_humidity_percent (%), or both",
+            ));
+        }
+        if errors.is_empty() {
+            Ok(a)
+        } else {
+            Err(errors)
+        }
+    }
+}
+
 fn prefixed(e: FieldError) -> FieldError {
     let field = if e.field.is_empty() {
         "measurement".to_string()
@@ -456,5 +550,44 @@ mod tests {
             ..s
         };
         assert_eq!(c.on_time_s(10.0, 20.0), 10.0);
+    }
+
+    #[test]
+    fn ambient_values_out_of_range_are_named() {
+        let check = |b: serde_json::Value| AmbientRequest::check(crate::job::parse_lenient(&b));
+        let a = check(json!({"temperature_k": 296.15, "relative_humidity_percent": 45.0})).unwrap();
+        assert_eq!(a.temperature_k, Some(296.15));
+        assert_eq!(a.relative_humidity_percent, Some(45.0));
+        let a = check(json!({"relative_humidity_percent": 0.0})).unwrap();
+        assert_eq!(a.temperature_k, None);
+        for (b, field) in [
+            (json!({"temperature_k": 23.0}), "temperature_k"),
+            (json!({"temperature_k": -1.0}), "temperature_k"),
+            (json!({"temperature_k": "NaN"}), "temperature_k"),
+            (
+                json!({"relative_humidity_percent": 100.5}),
+                "relative_humidity_percent",
+            ),
+            (
+                json!({"relative_humidity_percent": -0.1}),
+                "relative_humidity_percent",
+            ),
+            (json!({}), "temperature_k"),
+            (json!({"temperature_c": 23.0}), "temperature_c"),
+        ] {
+            let e = check(b.clone()).unwrap_err();
+            assert!(e.iter().any(|e| e.field == field), "{b}: {e:?}");
+        }
+        let e = check(json!({"temperature_k": 23.0})).unwrap_err();
+        assert!(e[0].message.contains("296.15 K"), "{e:?}");
+        assert!(
+            Ambient {
+                temperature_k: Some(f64::NAN),
+                relative_humidity_percent: Some(f64::INFINITY)
+            }
+            .check()
+            .len()
+                == 2
+        );
     }
 }
