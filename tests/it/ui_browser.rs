@@ -2226,6 +2226,28 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
         assert_eq!(c["t"], format!("{:.1} \u{b0}C", k - 273.15), "{c}");
         assert_eq!(c["rh"], "45.0 %", "{c}");
     }
+    // Entered by hand on the page (°C): stored in kelvin with source `hand`,
+    // shown "(by hand)"; the humidity not given stays the sensor's.
+    b.run("const s = (id, v) => { const e = document.querySelector(id); e.value = v; e.dispatchEvent(new Event('input')); }; s('#lt-amb-index', '1'); s('#lt-amb-temp', '21.5');")
+        .await;
+    b.click("#lt-amb-save").await;
+    b.wait(
+        "the temperature entered by hand",
+        "(document.querySelector('#lt-intervals tr[data-index=\"1\"] td.lt-temp') || {textContent: ''}).textContent.includes('by hand')",
+    )
+    .await;
+    let hand = admin(&d)
+        .get(&format!("/api/v1/long-term-tests/{id}"))
+        .await;
+    let iv1 = &hand["intervals"][1];
+    assert!((f(&iv1["temperature_k"]) - 294.65).abs() < 1e-9, "{iv1}");
+    assert_eq!(iv1["temperature_source"], "hand");
+    assert_eq!(iv1["humidity_source"], "sensor");
+    assert_eq!(
+        b.text("#lt-intervals tr[data-index=\"1\"] td.lt-temp")
+            .await,
+        "21.5 \u{b0}C (by hand)"
+    );
     b.screenshot_element("#lt-plots", "long-term-plots-time")
         .await;
 

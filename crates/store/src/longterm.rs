@@ -129,7 +129,7 @@ impl PauseCause {
 }
 
 /// The user's pause of a test in effect.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct UserPause {
     /// When it was asked for (RFC 3339).
     pub at: String,
