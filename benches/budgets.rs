@@ -410,6 +410,9 @@ fn center_ingest_batch(items: Vec<ReplicationItem>) -> usize {
                 }
             }
             ItemBody::Correction(_) => {}
+            ItemBody::LongTermTest(t) => {
+                bytes += t.document.to_string().len() + t.summary.to_string().len();
+            }
         }
     }
     black_box(bytes)

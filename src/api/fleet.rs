@@ -37,6 +37,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 mod ingest;
+mod longterm;
 mod recipes;
 pub use ingest::{ItemsRequest, ITEM_REFUSED};
 pub use recipes::*;
@@ -179,6 +180,17 @@ fn station_reads() -> Vec<(&'static str, MethodRouter<FleetState>)> {
             get(qc::version::<F>),
         ),
         ("/api/v1/recipes/{name}/spc", get(qc::spc::<F>)),
+        // The stations' long-term tests, read only (decision 0134).
+        ("/api/v1/long-term-tests", get(longterm::list)),
+        ("/api/v1/long-term-tests/{id}", get(longterm::get_one)),
+        (
+            "/api/v1/long-term-tests/{id}/series.csv",
+            get(longterm::series_csv),
+        ),
+        (
+            "/api/v1/long-term-tests/{id}/last-signals.wav",
+            get(longterm::last_signals),
+        ),
     ]
 }
 

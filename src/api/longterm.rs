@@ -8,92 +8,21 @@ use super::{AppState, JsonBody};
 use crate::config::BenchKind;
 use crate::job::{FieldError, LongTermRequest, LongTermSpec, StoredRequest};
 use crate::runner::{job, new_id, JobEvent};
-use crate::store::{Inserted, MeasurementReads};
+use crate::store::Inserted;
 use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde::Serialize;
-use serde_json::Value;
 
-/// `GET /api/v1/long-term-tests/{id}`.
-#[derive(Serialize, utoipa::ToSchema)]
-pub struct LongTermDocument {
-    /// The job (state, progress, eta_s: the time left, problem).
-    pub job: crate::store::Job,
-    /// Intervals planned (one at the start and one per interval).
-    pub intervals_planned: usize,
-    /// Finished intervals: each an ordinary measurement linked to the test.
-    pub intervals: Vec<crate::store::longterm::LongTermInterval>,
-    /// The test's state after its last finished interval (the fitted law in `document`).
-    pub state: Option<crate::store::longterm::LongTermState>,
-    /// Every interval was run faster than real time (virtual bench).
-    pub accelerated: bool,
-    /// The series as CSV, and the last signals when a failure limit stopped the test.
-    pub series_csv: String,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub last_signals: Option<String>,
-    /// What happened besides the intervals, in test time: pauses and their
-    /// ends, resumptions after a stop of the daemon, the failure limit.
-    pub events: Vec<TestEvent>,
-    /// The user's pause in effect (`POST .../pause`), until `POST .../resume`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub user_pause: Option<crate::store::longterm::UserPause>,
-}
-
-/// One event of a test's life, as its page lists it beside the plots.
-#[derive(Serialize, utoipa::ToSchema)]
-pub struct TestEvent {
-    /// `paused` (the disk was full, or a user paused it), `resumed` (space
-    /// returned, or a user resumed it),
-    /// `restarted` (resumed after the daemon stopped), `failure` (a limit stopped it),
-    /// `stopped` (a fault of a hardware or emulated bench stopped it).
-    pub kind: &'static str,
-    /// What paused it (`paused`, `resumed`): `disk` or `user`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub cause: Option<crate::store::longterm::PauseCause>,
-    /// Test time (s), when known.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub elapsed_s: Option<f64>,
-    /// The interval it happened before (or at, for a failure).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub interval: Option<usize>,
-    pub detail: String,
-    /// Wall time (RFC 3339), when known.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub at: Option<String>,
-}
-
-/// One test of `GET /api/v1/long-term-tests`.
-#[derive(Serialize, utoipa::ToSchema)]
-pub struct LongTermSummary {
-    /// The job (state, progress, eta_s: the time left, problem).
-    pub job: crate::store::Job,
-    pub intervals_planned: usize,
-    pub intervals_done: usize,
-    /// Length of the test and time between measurements (test time, s).
-    pub duration_s: f64,
-    pub interval_s: f64,
-    pub accelerated: bool,
-    /// The fitted law's state so far (absent before 7 intervals).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub law_validity: Option<crate::identify::validity::HeadlineValidity>,
-    /// The failure limit that stopped it.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub failure: Option<crate::job::Failure>,
-}
+pub use crate::store::longterm_view::{
+    LongTermDocument, LongTermSummary, TestEvent, TestEventKind,
+};
 
 /// `GET /api/v1/long-term-tests`.
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct LongTermList {
     pub items: Vec<LongTermSummary>,
-}
-
-fn spec_of(j: &crate::store::Job) -> Option<&LongTermSpec> {
-    match j.request.read() {
-        Ok(StoredRequest::LongTerm(t)) => Some(t),
-        _ => None,
-    }
 }
 
 #[utoipa::path(post, path = "/api/v1/long-term-tests", tag = "jobs",
@@ -220,7 +149,7 @@ async fn test_job(st: &AppState, id: &str) -> ApiResult<(crate::store::Job, Long
         .get_job(id)
         .await?
         .ok_or_else(|| Problem::not_found("long-term test", id))?;
-    let spec = spec_of(&j)
+    let spec = crate::store::longterm_view::spec_of(&j)
         .cloned()
         .ok_or_else(|| Problem::not_found("long-term test", id))?;
     Ok((j, spec))
@@ -232,115 +161,16 @@ async fn test_job(st: &AppState, id: &str) -> ApiResult<(crate::store::Job, Long
     responses(
         (status = 200, description = "The test", body = LongTermDocument),
         (status = 404, description = "No such long-term test")))]
-pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
-    let (job, spec) = test_job(&st, &id).await?;
-    let intervals = st.store.long_term_intervals(&id).await?;
-    let state = st.store.long_term_state(&id).await?;
-    let last = st.store.long_term_signals(&id).await?;
-    let mut events = test_events(&st, &id, &intervals, state.as_ref()).await?;
-    // A hardware bench's fault stopped it (decision 0126): the last event.
-    if let Some(p) = job
-        .problem
-        .as_ref()
-        .filter(|p| p.kind == crate::job::ProblemKind::BenchFault)
-    {
-        events.push(TestEvent {
-            kind: "stopped",
-            cause: None,
-            elapsed_s: None,
-            interval: Some(intervals.len()),
-            detail: format!(
-                "stopped by a bench fault, the drive ramped down (a self-check clears the bench): {}",
-                p.detail
-            ),
-            at: job.finished_at.clone(),
-        });
-    }
-    // A finished test is no longer paused (a cancel while paused keeps the row).
-    let user_pause = match job.state.is_terminal() {
-        true => None,
-        false => st.store.long_term_pause(&id).await?,
-    };
-    let doc = LongTermDocument {
-        job,
-        intervals_planned: spec.intervals(),
-        intervals,
-        state,
-        accelerated: spec.accelerated,
-        series_csv: format!("/api/v1/long-term-tests/{id}/series.csv"),
-        last_signals: last.map(|_| format!("/api/v1/long-term-tests/{id}/last-signals.wav")),
-        events,
-        user_pause,
-    };
-    Ok(Json(serde_json::to_value(&doc).map_err(Problem::internal)?))
-}
-
-/// The test's events in test time: the stored pauses, the resumptions after
-/// a stop (after the last stored interval: its measurement's end is not
-/// kept, so the interval's start stands for it) and the failure.
-async fn test_events(
-    st: &AppState,
-    id: &str,
-    intervals: &[crate::store::longterm::LongTermInterval],
-    state: Option<&crate::store::longterm::LongTermState>,
-) -> ApiResult<Vec<TestEvent>> {
-    use crate::store::longterm::LongTermEventKind;
-    let mut out: Vec<TestEvent> = st
+pub async fn get_one(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<super::Sorted<LongTermDocument>>> {
+    let doc = st
         .store
-        .long_term_events(id)
+        .long_term_document(&id)
         .await?
-        .into_iter()
-        .map(|e| TestEvent {
-            kind: match e.kind {
-                LongTermEventKind::Paused => "paused",
-                LongTermEventKind::Resumed => "resumed",
-            },
-            cause: Some(e.cause),
-            elapsed_s: Some(e.elapsed_s),
-            interval: None,
-            detail: e.detail,
-            at: Some(e.at),
-        })
-        .collect();
-    if let Some(s) = state {
-        for r in &s.resumptions {
-            let after = r.intervals_done.checked_sub(1);
-            out.push(TestEvent {
-                kind: "restarted",
-                cause: None,
-                elapsed_s: after
-                    .and_then(|i| intervals.iter().find(|iv| iv.index == i))
-                    .map(|iv| iv.elapsed_s),
-                interval: Some(r.intervals_done),
-                detail: format!(
-                    "the daemon had stopped: resumed after {} intervals, load {:.1} J",
-                    r.intervals_done, r.load_j
-                ),
-                at: Some(r.at.clone()),
-            });
-        }
-        if let Some(f) = &s.failure {
-            let at_s = f.at_s.or_else(|| {
-                intervals
-                    .iter()
-                    .find(|iv| iv.index == f.interval)
-                    .map(|iv| iv.elapsed_s)
-            });
-            out.push(TestEvent {
-                kind: "failure",
-                cause: None,
-                elapsed_s: at_s,
-                interval: Some(f.interval),
-                detail: format!("failure limit `{}`: {}", f.limit, f.detail),
-                at: Some(s.updated_at.clone()),
-            });
-        }
-    }
-    out.sort_by(|a, b| {
-        let t = |e: &TestEvent| e.elapsed_s.unwrap_or(f64::INFINITY);
-        t(a).total_cmp(&t(b))
-    });
-    Ok(out)
+        .ok_or_else(|| Problem::not_found("long-term test", &id))?;
+    Ok(Json(super::Sorted(doc)))
 }
 
 #[derive(serde::Deserialize, utoipa::IntoParams)]
@@ -366,27 +196,7 @@ pub async fn list(
             format!("must be 1 to 1000, got {limit}"),
         )]));
     }
-    let mut items = vec![];
-    for job in st.store.list_long_term_tests(limit).await? {
-        let Some(spec) = spec_of(&job).cloned() else {
-            continue;
-        };
-        let state = st.store.long_term_state(&job.id).await?;
-        items.push(LongTermSummary {
-            intervals_planned: spec.intervals(),
-            intervals_done: state.as_ref().map_or(0, |s| s.intervals_done),
-            duration_s: spec.duration_s,
-            interval_s: spec.interval_s,
-            accelerated: spec.accelerated,
-            law_validity: state
-                .as_ref()
-                .and_then(|s| s.document.as_ref())
-                .and_then(|d| d.law.as_ref())
-                .map(|l| l.validity.clone()),
-            failure: state.and_then(|s| s.failure),
-            job,
-        });
-    }
+    let items = st.store.long_term_summaries(limit).await?;
     Ok(Json(LongTermList { items }))
 }
 
@@ -404,12 +214,23 @@ fn num(v: Option<f64>) -> String {
         (status = 404, description = "No such long-term test")))]
 pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
     test_job(&st, &id).await?;
+    let intervals = st.store.long_term_intervals(&id).await?;
+    let out = series_text(&st.store, &intervals).await?;
+    Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
+}
+
+/// The series as CSV, one row per interval, with each interval's
+/// measurement read from `store` (the station's, or the fleet center's).
+pub async fn series_text<S: crate::store::MeasurementReads>(
+    store: &S,
+    intervals: &[crate::store::longterm::LongTermInterval],
+) -> ApiResult<String> {
     let mut out = String::from(
         "index,elapsed_s,load_j,k0_n_per_m,k0_se_n_per_m,f0_hz,keff_n_per_m,xpeak_m,measurement_id,accelerated,\
          temperature_k,temperature_source,relative_humidity_percent,humidity_source\n",
     );
-    for iv in st.store.long_term_intervals(&id).await? {
-        let report = match st.store.get_measurement(&iv.measurement_id).await? {
+    for iv in intervals {
+        let report = match store.get_measurement(&iv.measurement_id).await? {
             Some((_, Some(r), _)) => serde_json::from_value::<crate::identify::Report>(r).ok(),
             _ => None,
         };
@@ -432,7 +253,7 @@ pub async fn series_csv(State(st): State<AppState>, Path(id): Path<String>) -> A
             iv.humidity_source.map_or("", |s| s.as_str()),
         ));
     }
-    Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response())
+    Ok(out)
 }
 
 #[utoipa::path(post, path = "/api/v1/long-term-tests/{id}/pause", tag = "jobs",

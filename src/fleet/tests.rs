@@ -309,6 +309,7 @@ async fn the_station_catches_up_once_in_order_after_an_outage_and_a_lost_ack() {
                 assert_eq!(j.verdicts.len(), 1);
             }
             ItemBody::Correction(_) => panic!("no correction was made"),
+            ItemBody::LongTermTest(_) => panic!("no long-term test was run"),
         }
     }
     // The hello reported the backlog while it drained, and the bench.

@@ -1173,7 +1173,10 @@ async fn fleet_role_contract(o: &OneStation) {
     let fleet_routes = springbench::api::fleet::paths()
         .into_iter()
         .chain(springbench::api::fleet::station_paths())
-        .chain(["/healthz"]);
+        .chain(["/healthz"])
+        // Checked against the document where a long-term test runs:
+        // a_long_term_test_is_at_the_center_read_only_while_it_runs_and_after.
+        .filter(|p| !p.starts_with("/api/v1/long-term-tests"));
     for p in fleet_routes {
         let seen = k.seen.get(&("get".to_string(), p.to_string()));
         assert!(
@@ -1875,4 +1878,168 @@ async fn a_recipe_authored_at_the_center_is_judged_with_at_three_stations() {
     for a in &apis {
         station_recipe(a, NAME, 2, |v| v["retired"] == true).await;
     }
+}
+
+/// Issue 32 (decision 0134): a station's long-term test is at the center,
+/// read only, while it runs and after: each interval's measurement arrives
+/// when the interval is stored, the test's document follows each change,
+/// and once the test has ended the center's copy is the station's document
+/// value for value (with the station named), the list's line too, and the
+/// series' CSV byte for byte from the center's copies of the measurements.
+/// The last signals stay at the station (the center's 404 names it); the
+/// center offers no write.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_long_term_test_is_at_the_center_read_only_while_it_runs_and_after() {
+    if !can_start_private("center long-term test") {
+        return;
+    }
+    let pg = TestServer::start(55477).expect("a private PostgreSQL server");
+    let fleet = center(&pg.url(), &[STATION], Config::new());
+    let station = Daemon::start(&station_config(
+        &fleet.base,
+        STATION,
+        "full",
+        "retry_max_s = 1",
+        7,
+    ));
+    let (s, fa) = (Api::new(&station), Api::new(&fleet));
+    // spider_3in loses ~10 % of its K(0) to break-in in its first interval:
+    // a 5 % limit stops the test at interval 1, with its last signals.
+    let body = json!({
+        "measurement": {"part": {"serial": "LT-C1"}, "bench": "virtual-1", "preset": "spider_3in",
+                        "target_xpeak_m": 0.006},
+        "duration_s": 4.0 * 900.0, "interval_s": 900.0,
+        "stimulus": {"excursion_m": 0.0053},
+        "failure_limits": {"k0_change_percent": 5.0},
+    });
+    let id = s.post("/api/v1/long-term-tests", &body).await.expect(202)["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let doc_path = format!("/api/v1/long-term-tests/{id}");
+    // Interval 0 at the center, and its measurement with it (sent when the
+    // interval was stored, whether or not the test has ended by now).
+    let first = fa
+        .poll(&doc_path, 5 * MINUTE, |d| {
+            d["intervals"].as_array().is_some_and(|i| !i.is_empty())
+        })
+        .await;
+    assert_eq!(first["station_id"], STATION, "{first}");
+    let m0 = first["intervals"][0]["measurement_id"].as_str().unwrap();
+    let m = fa.get(&format!("/api/v1/measurements/{m0}")).await;
+    assert_eq!(m["measurement"]["part_serial"], "LT-C1", "{m}");
+    // The test ends at the station; the center's copy follows.
+    let end = s
+        .poll(&doc_path, 5 * MINUTE, |d| {
+            common::terminal(d["job"]["state"].as_str().unwrap_or(""))
+        })
+        .await;
+    assert_eq!(end["job"]["state"], "failed", "{end}");
+    assert_eq!(end["intervals"].as_array().unwrap().len(), 2);
+    let mut at_center = fa
+        .poll(&doc_path, MINUTE, |d| {
+            d["job"]["state"] == end["job"]["state"]
+        })
+        .await;
+    let copy_seq = at_center["copy_seq"].as_i64().unwrap();
+    assert!(copy_seq >= 6, "the copy of outbox item {copy_seq}");
+    let o = at_center.as_object_mut().unwrap();
+    for k in ["copy_seq", "copy_received_at"] {
+        assert!(o.remove(k).is_some(), "{k}");
+    }
+    assert_eq!(o.remove("station_id"), Some(json!(STATION)));
+    assert_eq!(
+        at_center, end,
+        "the center's copy differs from the station's"
+    );
+    // Both intervals' measurements, the K(0) of each the same as at the station.
+    for iv in end["intervals"].as_array().unwrap() {
+        let p = format!(
+            "/api/v1/measurements/{}",
+            iv["measurement_id"].as_str().unwrap()
+        );
+        let (a, b) = (s.get(&p).await, fa.get(&p).await);
+        let k0 = &a["small_signal"]["k0_n_per_m"];
+        assert!(k0.as_f64().is_some_and(|k| k > 1000.0), "{k0}");
+        assert_eq!(&b["small_signal"]["k0_n_per_m"], k0);
+    }
+    // The list's line, and the series' CSV byte for byte.
+    let mut line = fa.get("/api/v1/long-term-tests").await["items"][0].clone();
+    let o = line.as_object_mut().unwrap();
+    assert_eq!(o.remove("station_id"), Some(json!(STATION)));
+    o.remove("copy_seq");
+    o.remove("copy_received_at");
+    assert_eq!(line, s.get("/api/v1/long-term-tests").await["items"][0]);
+    let csv = format!("{doc_path}/series.csv");
+    let (a, b) = (s.text(&csv).await, fa.text(&csv).await);
+    assert_eq!(a.lines().count(), 3, "{a}");
+    assert_eq!(a, b, "the series' CSV differs at the center");
+    // The last signals: at the station; the center names it.
+    let wav = end["last_signals"].as_str().unwrap();
+    assert_eq!(s.get_reply(wav).await.status, 200);
+    let p = fa.get_reply(wav).await.problem(404);
+    assert_eq!(p["type"], "/problems/signals-at-station", "{p}");
+    assert!(p["detail"].as_str().unwrap().contains(STATION), "{p}");
+    // Every long-term route of the center against the OpenAPI document (the
+    // station's schemas), as fleet_role_contract checks the others.
+    let mut k = contract_check::Contract::new(
+        serde_json::from_str(springbench::api::openapi::json()).unwrap(),
+    );
+    let lt = "/api/v1/long-term-tests";
+    #[rustfmt::skip]
+    let cases: Vec<(String, String, u16, Option<&str>)> = vec![
+        (lt.into(), lt.into(), 200, None),
+        (lt.into(), format!("{lt}?station={STATION}&limit=1"), 200, None),
+        (lt.into(), format!("{lt}?limit=0"), 422, Some("limit")),
+        (format!("{lt}/{{id}}"), doc_path.clone(), 200, None),
+        (format!("{lt}/{{id}}"), format!("{lt}/nope"), 404, None),
+        (format!("{lt}/{{id}}/series.csv"), csv.clone(), 200, None),
+        (format!("{lt}/{{id}}/series.csv"), format!("{lt}/nope/series.csv"), 404, None),
+        (format!("{lt}/{{id}}/last-signals.wav"), wav.to_string(), 404, None),
+    ];
+    for (route, url, status, field) in cases {
+        let resp = fa.builder(Method::GET, &url).send().await.unwrap();
+        let (got, v) = k.take("get", &route, resp).await;
+        assert_eq!(got, status, "GET {url}: {v}");
+        if let Some(field) = field {
+            assert_eq!(v["errors"][0]["field"], field, "GET {url}: {v}");
+        }
+    }
+    // Read only: no cancel at the center.
+    fa.post_empty(&format!("/api/v1/jobs/{id}/cancel"))
+        .await
+        .problem(405);
+    // The web UI at the center: the list names the station, the test's page
+    // the station and its copy, with both intervals' K(x) and no cancel.
+    let _one = browser::ONE_AT_A_TIME.lock().await;
+    let Some(mut b) = Browser::start().await else {
+        return;
+    };
+    const T: Duration = Duration::from_secs(30);
+    b.goto(&format!("{}/#/long-term", fleet.base)).await;
+    let row = format!("#lt-list tr[data-id=\"{id}\"]");
+    b.wait_js(
+        &format!("document.querySelector('{row}')"),
+        T,
+        "the test in the center's list",
+    )
+    .await;
+    assert_eq!(b.text(&format!("{row} td.station")).await, STATION);
+    b.goto(&format!("{}/#/long-term/{id}", fleet.base)).await;
+    b.wait_js(
+        "document.querySelector('#view').dataset.intervals === '2' && document.querySelector('#lt-station') && document.querySelector('#plot-lt-kx').dataset.curves === '2'",
+        T,
+        "the test's page at the center",
+    )
+    .await;
+    assert!(b.text("#lt-station").await.contains(STATION));
+    assert!(b.text("#lt-problem").await.contains("k0_change_percent"));
+    assert!(
+        !b.exists("#lt-cancel:not([hidden])").await,
+        "no cancel at the center"
+    );
+    b.screenshot("center-long-term-test").await;
+    b.assert_no_console_errors("on the center's long-term page")
+        .await;
+    b.quit().await;
 }

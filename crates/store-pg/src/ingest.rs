@@ -7,8 +7,8 @@ use crate::reads::recipe_from_row;
 use crate::PgStore;
 use springbench_store::fleet::{
     verdict_kind, CenterIngest, Correction, IngestConflict, IngestReport, ItemBody,
-    JobVerdictsItem, MeasurementItem, RecordingItem, ReplicationItem, StationHello, StationStatus,
-    VerdictItem, CLOCK_SKEW_REPORT_S, CONTRACT_VERSION,
+    JobVerdictsItem, LongTermTestItem, MeasurementItem, RecordingItem, ReplicationItem,
+    StationHello, StationStatus, VerdictItem, CLOCK_SKEW_REPORT_S, CONTRACT_VERSION,
 };
 use springbench_store::results::{FinishedMeasurement, RecipeRow, ResultIngest, Upserted};
 use springbench_store::{now, StoreError, StoreResult};
@@ -482,8 +482,60 @@ async fn apply_item(tx: &mut Tx<'_>, station: &str, item: &ReplicationItem) -> S
         ItemBody::Correction(c) => {
             apply_correction(tx, Some(station), c).await?;
         }
+        ItemBody::LongTermTest(t) => {
+            t.check().map_err(refuse)?;
+            apply_long_term_test(tx, station, item.seq, t)
+                .await?
+                .map_err(refuse)?;
+        }
     }
     Ok(())
+}
+
+/// Keeps the newest document of a station's long-term test (by the
+/// station's seq; a resend of the same seq replaces it). A test id another
+/// station holds is refused.
+async fn apply_long_term_test(
+    tx: &mut Tx<'_>,
+    station: &str,
+    seq: i64,
+    t: &LongTermTestItem,
+) -> StoreResult<Result<(), String>> {
+    let held: Option<String> =
+        sqlx::query_scalar("SELECT station_id FROM long_term_tests WHERE job_id = $1")
+            .bind(&t.job_id)
+            .fetch_optional(&mut **tx)
+            .await?;
+    if let Some(by) = held.filter(|by| by != station) {
+        return Ok(Err(format!(
+            "long-term test {} is held from station {by}",
+            t.job_id
+        )));
+    }
+    sqlx::query(
+        "INSERT INTO long_term_tests (job_id, station_id, part_serial, bench_id, job_state, created_at, \
+         item_seq, document_json, summary_json, last_signals_at_station, received_at) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11) \
+         ON CONFLICT (job_id) DO UPDATE SET part_serial = EXCLUDED.part_serial, bench_id = EXCLUDED.bench_id, \
+         job_state = EXCLUDED.job_state, created_at = EXCLUDED.created_at, item_seq = EXCLUDED.item_seq, \
+         document_json = EXCLUDED.document_json, summary_json = EXCLUDED.summary_json, \
+         last_signals_at_station = EXCLUDED.last_signals_at_station, received_at = EXCLUDED.received_at \
+         WHERE long_term_tests.item_seq <= EXCLUDED.item_seq",
+    )
+    .bind(&t.job_id)
+    .bind(station)
+    .bind(&t.part_serial)
+    .bind(&t.bench_id)
+    .bind(&t.job_state)
+    .bind(&t.created_at)
+    .bind(seq)
+    .bind(t.document.to_string())
+    .bind(t.summary.to_string())
+    .bind(t.last_signals_at_station)
+    .bind(now())
+    .execute(&mut **tx)
+    .await?;
+    Ok(Ok(()))
 }
 
 impl ResultIngest for PgStore {
@@ -676,6 +728,21 @@ impl CenterIngest for PgStore {
             let (by, held_sha): (String, String) = (held.get(0), held.get(1));
             let reason = if by != station {
                 format!("item {id} is held from station {by}")
+            } else if held_sha != sha && matches!(item.body, ItemBody::LongTermTest(_)) {
+                // A long-term test's document is built when sent: a resend
+                // of the same seq (a lost acknowledgement) may carry a newer
+                // one. It replaces the held one (decision 0134).
+                if let Err(e) = apply_item(&mut tx, station, item).await {
+                    drop(tx);
+                    return Err(as_refusal(e, item));
+                }
+                sqlx::query("UPDATE station_items SET content_sha256 = $2 WHERE item_id = $1")
+                    .bind(&id)
+                    .bind(&sha)
+                    .execute(&mut *tx)
+                    .await?;
+                report.already_stored += 1;
+                continue;
             } else if held_sha != sha {
                 format!("item {id} is held with another content (SHA-256 {held_sha}, this one {sha}); the first copy stays")
             } else {

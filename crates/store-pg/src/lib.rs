@@ -15,6 +15,7 @@
 
 mod center;
 mod ingest;
+pub mod longterm;
 mod reads;
 mod recipes;
 pub mod test_server;

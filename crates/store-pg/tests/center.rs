@@ -932,6 +932,7 @@ async fn a_stations_corrections_reach_the_center_in_order() {
             ItemBody::Measurement(_) => "measurement",
             ItemBody::JobVerdicts(_) => "job",
             ItemBody::Correction(_) => "correction",
+            ItemBody::LongTermTest(_) => "long_term_test",
         })
         .collect();
     assert_eq!(

@@ -134,6 +134,10 @@ pub enum ItemBody {
     /// measurement (it stays stored, marked void), with reason, who, when:
     /// a row of the station's audit log (`corrections`).
     Correction(Correction),
+    /// A long-term test as the station's page shows it, when it changed
+    /// (submitted, started, an interval stored, a pause, its end): the
+    /// center keeps the newest and shows it read only (decision 0134).
+    LongTermTest(Box<LongTermTestItem>),
 }
 
 impl ReplicationItem {
@@ -144,6 +148,9 @@ impl ReplicationItem {
             ItemBody::Measurement(m) => format!("measurement:{}", m.id),
             ItemBody::JobVerdicts(j) => format!("job_verdicts:{}", j.job_id),
             ItemBody::Correction(c) => format!("correction:{}", c.id),
+            // A document of the test as it stood when sent: one per outbox
+            // row. A resend may carry a newer one (the newest is kept).
+            ItemBody::LongTermTest(t) => format!("long_term_test:{}:{}", t.job_id, self.seq),
         }
     }
 
@@ -152,6 +159,47 @@ impl ReplicationItem {
     pub fn content_sha256(&self) -> String {
         let body = serde_json::to_vec(&self.body).unwrap_or_default();
         hex(&Sha256::digest(&body))
+    }
+}
+
+/// A long-term test as it leaves a station: its page's document and its
+/// line in the list, as the station's API serves them (their author is the
+/// store's `longterm_view`; the center serves them back as they came).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LongTermTestItem {
+    pub job_id: String,
+    pub part_serial: String,
+    pub bench_id: String,
+    /// The job's state when sent (`queued`, `running`, `succeeded`, ...).
+    pub job_state: String,
+    /// When the test was submitted (RFC 3339 UTC, the station's clock).
+    pub created_at: String,
+    /// `GET /api/v1/long-term-tests/{id}` of the station.
+    pub document: Value,
+    /// The test's line of `GET /api/v1/long-term-tests` of the station.
+    pub summary: Value,
+    /// The last signals before a failure limit stopped it are stored at the
+    /// station (their bytes are not sent): download them there.
+    #[serde(default)]
+    pub last_signals_at_station: bool,
+}
+
+impl LongTermTestItem {
+    /// Checks what the center files the item under.
+    pub fn check(&self) -> Result<(), String> {
+        if self.job_id.is_empty() || self.part_serial.is_empty() {
+            return Err("long_term_test: job_id and part_serial must not be empty".into());
+        }
+        if !self.document.is_object() || !self.summary.is_object() {
+            return Err("long_term_test: document and summary must be JSON objects".into());
+        }
+        if crate::jobs::JobState::parse(&self.job_state).is_none() {
+            return Err(format!(
+                "long_term_test.job_state: a job state, got '{}'",
+                self.job_state
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -18,6 +18,7 @@ pub mod health;
 mod imports;
 mod jobs;
 pub mod longterm;
+pub mod longterm_view;
 mod measurements;
 pub mod migrations;
 pub mod outbox;

@@ -42,7 +42,8 @@ pub struct Resumption {
 }
 
 /// One finished interval: an ordinary stored measurement linked to the test.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+// Deserialize: read back at the fleet's center from the station's document (decision 0134).
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct LongTermInterval {
     pub index: usize,
     pub measurement_id: String,

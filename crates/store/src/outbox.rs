@@ -29,6 +29,9 @@ pub enum OutboxKind {
     JobVerdicts,
     /// A row of `corrections` (`ref_id` its id).
     Correction,
+    /// A long-term test changed (`ref_id` its job id): its document as it
+    /// stands when the item is sent (decision 0134).
+    LongTermTest,
 }
 
 impl OutboxKind {
@@ -37,6 +40,7 @@ impl OutboxKind {
             "measurement" => Ok(OutboxKind::Measurement),
             "job_verdicts" => Ok(OutboxKind::JobVerdicts),
             "correction" => Ok(OutboxKind::Correction),
+            "long_term_test" => Ok(OutboxKind::LongTermTest),
             o => Err(StoreError::Corrupt(format!("unknown outbox kind '{o}'"))),
         }
     }
@@ -679,6 +683,84 @@ mod tests {
         let b = s.outbox_backlog().await.unwrap();
         assert_eq!((b.pending, b.delivered, b.last_seq), (3, 1, 4));
         assert_eq!(s.outbox_next(10).await.unwrap()[0].seq, 2);
+    }
+
+    /// A long-term test reaches the outbox while it runs (decision 0134):
+    /// submitted, started, each interval's measurement at once and then the
+    /// test's document, ambient values entered by hand, a user's pause asked,
+    /// the pause, the pause ended, its end; the interval's measurement is not
+    /// sent a second time at the job's end.
+    #[tokio::test]
+    async fn a_long_term_test_reaches_the_outbox_as_it_runs() {
+        use crate::longterm::{LongTermEventKind, NewInterval, PauseCause};
+        let s = Store::memory().await.unwrap();
+        queued(&s, "lt", "SN-LT").await;
+        s.add_long_term_test("lt").await.unwrap();
+        assert!(s.start_job("lt").await.unwrap());
+        s.insert_long_term_interval(
+            "lt",
+            NewInterval {
+                index: 0,
+                elapsed_s: 0.0,
+                load_j: 0.0,
+                accelerated: true,
+                recordings: vec![rec("pre"), rec("main")],
+                measurement: meas("m0", "lt", "SN-LT"),
+                clock_s: 20.0,
+                part: springbench_core::job::PartState {
+                    load_j: 0.0,
+                    k0_true_n_per_m: Some(2000.0),
+                },
+                document: None,
+                ambient: Default::default(),
+            },
+        )
+        .await
+        .unwrap();
+        // Ambient values entered by hand, a user's pause asked, the pause
+        // as it happened, the pause ended.
+        let ambient = springbench_core::job::Ambient {
+            temperature_k: Some(296.15),
+            relative_humidity_percent: None,
+        };
+        assert!(s.set_long_term_ambient("lt", 0, ambient).await.unwrap());
+        assert!(s.set_long_term_pause("lt", Some(Some("op"))).await.unwrap());
+        s.add_long_term_event(
+            "lt",
+            LongTermEventKind::Paused,
+            PauseCause::User,
+            20.0,
+            "paused by op",
+        )
+        .await
+        .unwrap();
+        assert!(s.set_long_term_pause("lt", None).await.unwrap());
+        let none = JobRecords::default();
+        assert!(s
+            .end_running_job("lt", JobState::Cancelled, None, None, &[], &[], &none)
+            .await
+            .unwrap());
+        let rows = s.outbox_next(20).await.unwrap();
+        let got: Vec<_> = rows
+            .iter()
+            .map(|r| (r.seq, r.kind, r.ref_id.as_str(), r.part_serial.as_str()))
+            .collect();
+        let lt = OutboxKind::LongTermTest;
+        assert_eq!(
+            got,
+            [
+                (1, lt, "lt", "SN-LT"),
+                (2, lt, "lt", "SN-LT"),
+                (3, OutboxKind::Measurement, "m0", "SN-LT"),
+                (4, lt, "lt", "SN-LT"),
+                (5, lt, "lt", "SN-LT"),
+                (6, lt, "lt", "SN-LT"),
+                (7, lt, "lt", "SN-LT"),
+                (8, lt, "lt", "SN-LT"),
+                (9, lt, "lt", "SN-LT"),
+                (10, OutboxKind::JobVerdicts, "lt", "SN-LT"),
+            ]
+        );
     }
 
     /// A refused event holds the later events of its part, not of others.

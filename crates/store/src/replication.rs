@@ -2,7 +2,10 @@
 //! what the replication worker hands the center. Apart from `outbox.rs`
 //! because the contract names the outbox's `Correction` (no import circle).
 
-use crate::fleet::{ItemBody, JobVerdictsItem, MeasurementItem, ReplicationItem, VerdictItem};
+use crate::fleet::{
+    ItemBody, JobVerdictsItem, LongTermTestItem, MeasurementItem, ReplicationItem, VerdictItem,
+};
+use crate::longterm_view::LongTermSummary;
 use crate::outbox::{OutboxKind, OutboxRow};
 use crate::{Store, StoreError, StoreResult};
 
@@ -60,6 +63,28 @@ impl Store {
                         .await?
                         .ok_or_else(|| missing("correction"))?,
                 ),
+                OutboxKind::LongTermTest => {
+                    let doc = self
+                        .long_term_document(&r.ref_id)
+                        .await?
+                        .ok_or_else(|| missing("long-term test"))?;
+                    let spec = crate::longterm_view::spec_of(&doc.job)
+                        .ok_or_else(|| missing("long-term test"))?;
+                    let summary = LongTermSummary::of(doc.job.clone(), spec, doc.state.clone());
+                    let value = |v: serde_json::Result<serde_json::Value>| {
+                        v.map_err(|e| StoreError::Corrupt(format!("outbox item {}: {e}", r.seq)))
+                    };
+                    ItemBody::LongTermTest(Box::new(LongTermTestItem {
+                        job_id: doc.job.id.clone(),
+                        part_serial: doc.job.part_serial.clone(),
+                        bench_id: doc.job.bench_id.clone(),
+                        job_state: doc.job.state.as_str().to_string(),
+                        created_at: doc.job.created_at.clone(),
+                        last_signals_at_station: doc.last_signals.is_some(),
+                        summary: value(serde_json::to_value(&summary))?,
+                        document: value(serde_json::to_value(&doc))?,
+                    }))
+                }
             };
             items.push(ReplicationItem { seq: r.seq, body });
         }

@@ -136,7 +136,6 @@ export function errorText(e) {
 const CENTER_ONLY_AT_STATION = {
   operator: 'The fleet\u2019s center runs no bench: jobs are submitted and watched at a station. Here: the parts, measurements, comparisons and QC of every station.',
   diagnostics: 'The diagnostics workspace refits a measurement from its recordings: open it on the station that measured it.',
-  'long-term': 'Long-term tests are kept by the station that runs them: open them there.',
 };
 
 function centerNote(text) {

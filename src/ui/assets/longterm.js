@@ -10,7 +10,7 @@
 // `#/long-term` lists the tests, `#/long-term/<id>` is one test. The page
 // polls the test every 2 s while it runs.
 
-import { api, download } from './api.js';
+import { api, download, daemon } from './api.js';
 import { h, put, num, dur, when, shortId, poly, linspace, withSe, stated, stateText, STATE_WORDS } from './util.js';
 import { chart } from './plots.js';
 import { saveText } from './export.js';
@@ -47,20 +47,23 @@ async function renderList(main, ctx) {
     main,
     h('section', { class: 'card' },
       h('h1', {}, 'Long-term tests'),
-      h('p', { class: 'muted' }, 'Tests that age a part on one bench: the full procedure at intervals, a sine at the part\u2019s resonance in between. Submit one with POST /api/v1/long-term-tests.'),
+      h('p', { class: 'muted' }, daemon.center
+        ? 'Every station\u2019s long-term tests, read only: the copy each station sent when its test last changed (a running test is as current as its station\u2019s link).'
+        : 'Tests that age a part on one bench: the full procedure at intervals, a sine at the part\u2019s resonance in between. Submit one with POST /api/v1/long-term-tests.'),
       msg,
       h('table', { class: 'list' },
-        h('thead', {}, h('tr', {}, ['test', 'part', 'bench', 'state', 'progress', 'intervals', 'time left', 'law', 'failure', 'created'].map((t) => h('th', {}, t)))),
+        h('thead', {}, h('tr', {}, [...(daemon.center ? ['station'] : []), 'test', 'part', 'bench', 'state', 'progress', 'intervals', 'time left', 'law', 'failure', 'created'].map((t) => h('th', {}, t)))),
         body)),
   );
   const draw = async () => {
     const list = await api('/api/v1/long-term-tests');
     if (ctx.stale()) return;
-    msg.textContent = list.items.length ? '' : 'No long-term test on this station yet.';
+    msg.textContent = list.items.length ? '' : (daemon.center ? 'No station has sent a long-term test yet.' : 'No long-term test on this station yet.');
     put(body, list.items.map((t) => {
       const j = t.job;
       const running = !TERMINAL.includes(j.state);
       return h('tr', { dataset: { id: j.id, state: j.state } },
+        daemon.center ? h('td', { class: 'station' }, t.station_id) : null,
         h('td', {}, h('a', { href: `#/long-term/${encodeURIComponent(j.id)}`, class: 'mono' }, shortId(j.id))),
         h('td', { class: 'serial' }, j.part_serial),
         h('td', {}, j.bench_id),
@@ -282,6 +285,7 @@ async function renderTest(main, ctx, id) {
     put(head,
       h('h1', {}, 'Long-term test ', h('span', { class: 'mono' }, shortId(j.id)), ' ', badge(j.state)),
       h('table', { class: 'kv' },
+        doc.station_id ? h('tr', {}, h('th', {}, 'station'), h('td', { id: 'lt-station' }, doc.station_id, h('span', { class: 'muted' }, ` \u2014 the station\u2019s copy of ${when(doc.copy_received_at)}, read only`))) : null,
         h('tr', {}, h('th', {}, 'part'), h('td', { class: 'serial', id: 'lt-part' }, j.part_serial)),
         h('tr', {}, h('th', {}, 'bench'), h('td', {}, j.bench_id, doc.accelerated ? h('span', { class: 'muted', id: 'lt-accelerated' }, ' \u2014 accelerated: the stimulus applied faster than real time on the virtual bench; each measurement simulated in full') : null)),
         h('tr', {}, h('th', {}, 'test'), h('td', {}, `${num((req.duration_s || 0) / 3600, 4)} h, a measurement every ${num((req.interval_s || 0) / 60, 4)} min`)),
@@ -296,11 +300,17 @@ async function renderTest(main, ctx, id) {
         `${doc.intervals.length} of ${doc.intervals_planned} intervals, test time ${num(hours(Math.min(st.clock_s || 0, req.duration_s || Infinity)), 4)} h of ${num(hours(req.duration_s || 0), 4)} h (${num(100 * (j.progress || 0), 3)} %)`,
         running ? ` \u2014 time left ${dur(j.eta_s)}${doc.accelerated ? ' (at the pace so far)' : ''}` : '',
         paused ? h('strong', { class: 'error', id: 'lt-paused' }, ` ${j.step}`) : null));
-    show(cancelBtn, running && ctx.can('operator'));
-    show(pauseBtn, running && !doc.user_pause && ctx.can('operator'));
-    show(resumeBtn, running && !!doc.user_pause && ctx.can('operator'));
+    const station = !daemon.center;
+    show(cancelBtn, running && station && ctx.can('operator'));
+    show(pauseBtn, running && station && !doc.user_pause && ctx.can('operator'));
+    show(resumeBtn, running && station && !!doc.user_pause && ctx.can('operator'));
     show(wavLink, !!doc.last_signals);
-    show(ambientForm, doc.intervals.length > 0 && ctx.can('operator'));
+    show(ambientForm, station && doc.intervals.length > 0 && ctx.can('operator'));
+    // At the fleet's center the signals' bytes stay at the station (decision 0134).
+    if (doc.station_id) {
+      wavLink.disabled = true;
+      wavLink.textContent = `Last 10 s of signals: at station ${doc.station_id}`;
+    }
   }
 
   function drawLaw() {
