@@ -35,9 +35,15 @@ pub struct SmallFit {
 
 pub fn fit(pre: &Signals, mass_kg: f64) -> Result<SmallFit, AnalyzeError> {
     check(pre)?;
-    // Only the bins up to fmax are used.
-    let (sx, sm) = band_spectra(pre, max_hz(pre.sample_rate_hz), None);
+    let (sx, sm) = spectra(pre);
     fit_spectra(pre, mass_kg, &sx, &sm)
+}
+
+/// The displacement and microphone spectra [`fit`] takes of the checked
+/// pre-measurement (only the bins up to fmax are used). [`fit_spectra`]
+/// reads nothing else of those two channels.
+pub(super) fn spectra(pre: &Signals) -> (Spectrum, Spectrum) {
+    band_spectra(pre, max_hz(pre.sample_rate_hz), None)
 }
 
 /// The checks [`fit`] makes before it transforms the pre-measurement.

@@ -197,8 +197,17 @@ fn fit_order(
 
 fn nested(d: &(Vec<f64>, Vec<Vec<f64>>)) -> Result<dsp::lstsq::NestedLstsq, AnalyzeError> {
     let refs: Vec<&[f64]> = d.1.iter().map(|c| c.as_slice()).collect();
-    dsp::lstsq::NestedLstsq::new(&refs, &d.0)
-        .map_err(|e| AnalyzeError::Invalid(format!("stiffness fit failed: {e}")))
+    dsp::lstsq::NestedLstsq::new(&refs, &d.0).map_err(stiffness_failed)
+}
+
+/// [`nested`] of a design nothing else reads (the whitened one): its
+/// columns are freed as they are copied into the factorised matrix.
+fn nested_owned((y, cols): Design) -> Result<dsp::lstsq::NestedLstsq, AnalyzeError> {
+    dsp::lstsq::NestedLstsq::from_columns(cols, y).map_err(stiffness_failed)
+}
+
+fn stiffness_failed(e: dsp::lstsq::LstsqError) -> AnalyzeError {
+    AnalyzeError::Invalid(format!("stiffness fit failed: {e}"))
 }
 
 /// A least-squares design: the target and its columns.
@@ -217,7 +226,7 @@ fn designs(
 ) -> (Design, Result<dsp::lstsq::NestedLstsq, AnalyzeError>) {
     let (d, whitened) = rayon::join(
         || design(p, method, span, max_order, xs),
-        || coefficient_design(p, method, span, max_order, xs).map(|c| nested(&c)),
+        || coefficient_design(p, method, span, max_order, xs).map(nested_owned),
     );
     let nl = whitened.unwrap_or_else(|| nested(&d));
     (d, nl)
