@@ -115,11 +115,18 @@ fn check_shape(columns: &[&[f64]], y: &[f64]) -> Result<(), LstsqError> {
             "{n} rows are too few for {p} unknowns"
         )));
     }
-    if y.iter().any(|v| !v.is_finite()) || columns.iter().any(|c| c.iter().any(|v| !v.is_finite()))
-    {
+    if !all_finite(y) || !columns.iter().all(|c| all_finite(c)) {
         return Err(LstsqError::NonFinite);
     }
     Ok(())
+}
+
+/// Every value finite: blocks without an early exit, so that the test
+/// vectorises (the small-signal fit's ~60 least squares of ~4 000 rows
+/// checked value by value cost 8 M instructions).
+fn all_finite(x: &[f64]) -> bool {
+    x.chunks(256)
+        .all(|b| b.iter().fold(true, |ok, v| ok & v.is_finite()))
 }
 
 /// 1 / norm of each column (RankDeficient for a zero column).
@@ -314,7 +321,11 @@ mod tests {
     fn nested_from_owned_columns_is_the_same() {
         let x: Vec<f64> = (0..2501).map(|i| (i as f64 - 1200.0) * 1e-5).collect();
         let cols: Vec<Vec<f64>> = (0..6)
-            .map(|k| x.iter().map(|v| v.powi(k) + 1e-3 * (v * 1e3).sin()).collect())
+            .map(|k| {
+                x.iter()
+                    .map(|v| v.powi(k) + 1e-3 * (v * 1e3).sin())
+                    .collect()
+            })
             .collect();
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
         let y: Vec<f64> = x.iter().map(|v| 1.0 + 7e2 * v - 3e6 * v * v).collect();

@@ -90,17 +90,30 @@ fn by_thresholds(x: &[f64], n: usize, r_lo: usize, r_hi: usize) -> Option<(f64, 
         Vec::with_capacity(2 * j_lo * n / SAMPLE),
         Vec::with_capacity(2 * j_hi * n / SAMPLE),
     );
-    for &v in x {
-        // Non-finite values are not counted; NaN and the infinities sort
-        // beyond every finite threshold, so they are checked only here.
-        if v.total_cmp(&t_lo) != Ordering::Greater && v.is_finite() {
-            low.push(v);
+    for block in x.chunks(64) {
+        // A block whose values all lie strictly between the thresholds
+        // (nearly every block of a record) keeps none of them: tested as a
+        // whole, by comparisons that vectorise (a NaN fails both, and a
+        // value equal to a threshold, -0.0 against 0.0 included, fails one,
+        // so such blocks are walked value by value, as every block was).
+        if block
+            .iter()
+            .fold(true, |inside, &v| inside & (v > t_lo) & (v < t_hi))
+        {
+            continue;
         }
-        if v.total_cmp(&t_hi) != Ordering::Less && v.is_finite() {
-            high.push(v);
-        }
-        if low.len() > cap || high.len() > cap {
-            return None;
+        for &v in block {
+            // Non-finite values are not counted; NaN and the infinities sort
+            // beyond every finite threshold, so they are checked only here.
+            if v.total_cmp(&t_lo) != Ordering::Greater && v.is_finite() {
+                low.push(v);
+            }
+            if v.total_cmp(&t_hi) != Ordering::Less && v.is_finite() {
+                high.push(v);
+            }
+            if low.len() > cap || high.len() > cap {
+                return None;
+            }
         }
     }
     // Every finite value at or below t_lo is in `low`, every other one is
