@@ -14,7 +14,7 @@ use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
-use serde_json::{json, Value};
+use serde_json::Value;
 
 /// Parses and checks a recipe body; `name` (from the path) must match when given.
 fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
@@ -22,7 +22,7 @@ fn parse_recipe(body: Value, name: Option<&str>) -> ApiResult<Recipe> {
     if let (Some(n), Some(o)) = (name, body.as_object_mut()) {
         match o.get("name") {
             None => {
-                o.insert("name".into(), json!(n));
+                o.insert("name".into(), Value::String(n.to_string()));
             }
             Some(v) if v.as_str() == Some(n) => {}
             Some(_) => return Err(Problem::field("name", format!("must be '{n}' (the path)"))),
