@@ -139,6 +139,11 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         get(longterm::series_csv),
     )
     .add(
+        "get",
+        "/api/v1/long-term-tests/{id}/report.html",
+        get(report::long_term_report),
+    )
+    .add(
         "post",
         "/api/v1/long-term-tests/{id}/pause",
         post(longterm::pause),

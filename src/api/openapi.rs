@@ -52,6 +52,7 @@ use utoipa::{Modify, OpenApi};
         super::measurements::list_fits,
         super::measurements::choose_headline,
         super::report::report,
+        super::report::long_term_report,
         super::derived::diagnostics,
         super::derived::plot,
         super::events::events,

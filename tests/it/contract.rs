@@ -1000,6 +1000,14 @@ async fn every_route_answers_as_its_schema_says() {
         ("get", csv, &format!("{lt}/nope/series.csv"), Some(VIEWER), None, 404),
     ];
     a.expect_all(rows).await;
+    // The printable report (decision 0131): HTML, a viewer's; an unknown test is a 404.
+    let rep = "/api/v1/long-term-tests/{id}/report.html";
+    #[rustfmt::skip]
+    let rows: &[Row] = &[
+        ("get", rep, &format!("{lt}/{ltid}/report.html"), Some(VIEWER), None, 200),
+        ("get", rep, &format!("{lt}/nope/report.html"), Some(VIEWER), None, 404),
+    ];
+    a.expect_all(rows).await;
     // Ambient conditions entered by hand (decision 0130): a temperature in
     // °C where kelvin is asked names its field; an unknown test is a 404.
     let amb = "/api/v1/long-term-tests/{id}/intervals/{index}/ambient";

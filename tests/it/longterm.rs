@@ -244,6 +244,7 @@ async fn a_long_term_test_runs_as_a_job_while_the_other_bench_works() {
     let p = problem(r, 422).await;
     assert_eq!(p["errors"][0]["field"], "limit", "{p}");
     offline_equals_online(&c, &d, &v).await;
+    the_report_prints_the_documents_numbers(&c, &d, &v, n).await;
     // The series as CSV.
     let csv = c
         .get(d.url(&format!("/api/v1/long-term-tests/{id}/series.csv")))
@@ -316,6 +317,218 @@ async fn a_failure_limit_stops_the_test_names_it_and_keeps_the_last_signals() {
     let seconds = h.duration() as f64 / spec.sample_rate as f64;
     assert!((seconds - 10.0).abs() < 1e-3, "{seconds} s");
     assert!(spec.channels >= 2);
+    // The printable report names the limit that stopped it, says there is
+    // no law (two intervals), and prints both intervals' K(0).
+    let id = v["job"]["id"].as_str().unwrap();
+    let page = report_page(&c, &d, id).await;
+    let failure = between(&page, "<td id=\"failure\">", "</td>");
+    assert!(
+        failure.contains("k0_change_percent") && failure.contains("at interval 1"),
+        "{failure}"
+    );
+    assert!(between(&page, "<td id=\"problem\">", "</td>").contains("failure limit"));
+    assert!(
+        page.contains("<p id=\"no-law\" data-state=\"none\">No law"),
+        "{page}"
+    );
+    assert!(!page.contains("id=\"law-table\""), "no law, no law table");
+    assert!(page.contains("<tr data-kind=\"failure\" class=\"fail\">"));
+    let ivs = v["state"]["document"]["intervals"].as_array().unwrap();
+    for (k, iv) in ivs.iter().enumerate() {
+        let row = between(&page, &format!("<tr data-index=\"{k}\">"), "</tr>");
+        let mid = v["intervals"][k]["measurement_id"].as_str().unwrap();
+        let cell = k0_cell(&c, &d, row, mid).await;
+        printed_equals(
+            cell,
+            "N/mm",
+            iv["k0_n_per_m"].as_f64().unwrap() / 1e3,
+            &format!("K(0) of interval {k}"),
+        );
+    }
+}
+
+/// The K(0) cell of an interval's row without its state mark, which must be
+/// the measurement's own state of K(0): none when valid, else " (STATE)".
+async fn k0_cell<'a>(c: &reqwest::Client, d: &Daemon, row: &'a str, mid: &str) -> &'a str {
+    let cell = between(row, "<td class=\"num k0\">", "</td>");
+    let m = get(c, d, &format!("/api/v1/measurements/{mid}")).await;
+    let state = m["small_signal"]["validity"]["k0_n_per_m"]["state"]
+        .as_str()
+        .unwrap();
+    if state == "valid" {
+        assert!(!cell.contains('('), "{cell}: K(0) is valid");
+        cell
+    } else {
+        cell.strip_suffix(&format!(" ({})", state.replace('_', " ").to_uppercase()))
+            .unwrap_or_else(|| panic!("{cell}: K(0) is {state}"))
+    }
+}
+
+/// The text between `a` (its first occurrence) and the next `b`.
+fn between<'a>(s: &'a str, a: &str, b: &str) -> &'a str {
+    let i = s.find(a).unwrap_or_else(|| panic!("{a} not in the page")) + a.len();
+    let j = s[i..].find(b).unwrap_or_else(|| panic!("no {b} after {a}"));
+    &s[i..i + j]
+}
+
+/// A printed "value ± error unit" (rounded to the error: the value's last
+/// printed digit is the error's second significant one) equals `want` to
+/// half its last digit; returns the printed value and error.
+fn printed_equals(cell: &str, unit: &str, want: f64, what: &str) -> (f64, f64) {
+    let t = cell
+        .strip_suffix(&format!(" {unit}"))
+        .unwrap_or_else(|| panic!("{what}: '{cell}' does not end in {unit}"));
+    let (v, e) = t
+        .split_once(" \u{b1} ")
+        .unwrap_or_else(|| panic!("{what}: '{cell}' has no \u{b1}"));
+    let decimals = v.split_once('.').map_or(0, |(_, d)| d.len()) as i32;
+    assert_eq!(
+        decimals,
+        e.split_once('.').map_or(0, |(_, d)| d.len()) as i32,
+        "{what}: '{cell}': the value to the error's place"
+    );
+    let (pv, pe): (f64, f64) = (v.parse().unwrap(), e.parse().unwrap());
+    let half = 0.5 * 10f64.powi(-decimals) * (1.0 + 1e-9);
+    assert!(
+        (pv - want).abs() <= half,
+        "{what}: printed {v}, the document's {want} (to {half})"
+    );
+    (pv, pe)
+}
+
+async fn report_page(c: &reqwest::Client, d: &Daemon, id: &str) -> String {
+    let r = c
+        .get(d.url(&format!("/api/v1/long-term-tests/{id}/report.html")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let ct = r.headers()["content-type"].to_str().unwrap().to_string();
+    assert!(ct.starts_with("text/html"), "{ct}");
+    let csp = r.headers()["content-security-policy"]
+        .to_str()
+        .unwrap()
+        .to_string();
+    assert_eq!(csp, "default-src 'none'; style-src 'unsafe-inline'");
+    let page = r.text().await.unwrap();
+    // Self-contained: nothing runs, nothing is loaded.
+    assert!(!page.contains("<script") && !page.contains("src=\"") && !page.contains("href=\""));
+    page
+}
+
+/// Issue 32, decision 0131: the printable report of a finished test prints
+/// the numbers of the API's document (K(0) of each interval and the law's
+/// stiffness parameters, each rounded to its standard error as printed), its
+/// prediction, one K(x) curve per interval, the law's curve and band on the
+/// time plots, every measurement id; an unknown test is a 404.
+async fn the_report_prints_the_documents_numbers(
+    c: &reqwest::Client,
+    d: &Daemon,
+    v: &Value,
+    n: usize,
+) {
+    let id = v["job"]["id"].as_str().unwrap();
+    let page = report_page(c, d, id).await;
+    let doc = &v["state"]["document"];
+    let f = |x: &Value| x.as_f64().unwrap();
+    let ivs = doc["intervals"].as_array().unwrap();
+    assert_eq!(ivs.len(), n);
+    for (k, iv) in ivs.iter().enumerate() {
+        let row = between(&page, &format!("<tr data-index=\"{k}\">"), "</tr>");
+        let mid = v["intervals"][k]["measurement_id"].as_str().unwrap();
+        let cell = k0_cell(c, d, row, mid).await;
+        let (_, se) = printed_equals(
+            cell,
+            "N/mm",
+            f(&iv["k0_n_per_m"]) / 1e3,
+            &format!("K(0) of interval {k}"),
+        );
+        let want_se = f(&iv["k0_se_n_per_m"]) / 1e3;
+        assert!(
+            (se - want_se).abs() <= 0.05 * want_se,
+            "interval {k}: se {se} vs {want_se}"
+        );
+        // Test time and load as the document says them.
+        assert!(
+            row.contains(&format!("{} h", f(&iv["elapsed_s"]) / 3600.0)),
+            "{row}"
+        );
+        assert!(row.contains(mid), "{row}");
+        assert!(
+            between(&page, "<td class=\"mono\" id=\"measurement-ids\">", "</td>").contains(mid)
+        );
+    }
+    // The law: its state and its stiffness parameters, rounded to their errors.
+    let law = &doc["law"];
+    let state = law["validity"]["state"].as_str().unwrap();
+    assert!(
+        page.contains(&format!("<p id=\"law-state\" data-state=\"{state}\">")),
+        "{page}"
+    );
+    for (key, field) in [
+        ("k_inf", "k_inf_n_per_m"),
+        ("break_in_k", "break_in_k_n_per_m"),
+        ("fatigue_k", "fatigue_k_n_per_m"),
+    ] {
+        let row = between(&page, &format!("<tr id=\"law-{key}\""), "</tr>");
+        let cell = between(row, "<td class=\"num\">", "</td>");
+        let (_, se) = printed_equals(cell, "N/mm", f(&law[field]["value"]) / 1e3, field);
+        let want_se = f(&law[field]["se"]) / 1e3;
+        assert!(
+            (se - want_se).abs() <= 0.05 * want_se,
+            "{field}: se {se} vs {want_se}"
+        );
+        assert_eq!(row.contains("NOT VALID"), state != "valid", "{row}");
+    }
+    // The prediction and its band.
+    let p = &doc["prediction"];
+    printed_equals(
+        between(&page, "<td class=\"num\" id=\"prediction-k0\">", "</td>"),
+        "N/mm",
+        f(&p["k0_n_per_m"]) / 1e3,
+        "predicted K(0)",
+    );
+    let band = between(&page, "<td class=\"num\" id=\"prediction-band\">", "</td>");
+    let (lo, hi) = band
+        .strip_suffix(" N/mm")
+        .unwrap()
+        .split_once(" \u{2026} ")
+        .unwrap();
+    for (printed, want) in [
+        (lo, f(&p["k0_band_n_per_m"][0])),
+        (hi, f(&p["k0_band_n_per_m"][1])),
+    ] {
+        let x: f64 = printed.parse().unwrap();
+        assert!(
+            ((x - want / 1e3) / (want / 1e3)).abs() < 1e-4,
+            "band {band} vs {p}"
+        );
+    }
+    // One K(x) curve per interval; the time plots: the measured values, the
+    // law and its band's two edges.
+    let kx = between(&page, "<figure id=\"plot-kx\"", "</figure>");
+    assert!(kx.starts_with(&format!(" data-curves=\"{n}\">")), "{kx}");
+    assert_eq!(kx.matches("<path ").count(), n, "K(x) curves");
+    for plot in ["plot-k0", "plot-keff", "plot-f0"] {
+        let svg = between(&page, &format!("<figure id=\"{plot}\">"), "</figure>");
+        assert_eq!(
+            svg.matches("<path ").count(),
+            4,
+            "{plot}: measured, law, band low and high"
+        );
+        assert!(svg.contains("95 % band, low"), "{plot}");
+    }
+    assert!(page.contains(&format!(
+        "<tr><th>test (job) id</th><td class=\"mono\">{id}</td></tr>"
+    )));
+    // An unknown test is a 404 problem naming it.
+    let r = c
+        .get(d.url("/api/v1/long-term-tests/nope/report.html"))
+        .send()
+        .await
+        .unwrap();
+    let p = problem(r, 404).await;
+    assert!(p["detail"].as_str().unwrap().contains("nope"), "{p}");
 }
 
 #[tokio::test]

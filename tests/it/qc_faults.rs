@@ -425,6 +425,13 @@ async fn every_route_checks_the_role_of_its_matched_template() {
         );
         assert_eq!(policy(m, t), Some(2), "{m} {t}");
     }
+    // Its printable report (decision 0131) is a viewer's.
+    let t = "/api/v1/long-term-tests/{id}/report.html";
+    assert!(
+        templates.contains(&format!("get {t}")),
+        "get {t} not checked"
+    );
+    assert_eq!(policy("get", t), Some(1));
     assert!(
         wrong.is_empty(),
         "{} of {checked} wrong:\n{}",

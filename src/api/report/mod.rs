@@ -9,6 +9,7 @@
 //! from the fit chosen as the measurement's headline, else its own result.
 
 mod format;
+mod longterm;
 mod plots;
 mod table;
 
@@ -19,7 +20,7 @@ use axum::extract::{Path, State};
 use axum::http::{header, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use format::{display, esc, f, limits, sig};
-use plots::plots;
+use plots::{big, plots};
 use serde_json::Value;
 use std::fmt::Write;
 use table::parameter_table;
@@ -202,12 +203,7 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
     s.push_str(&parameter_table(&doc));
     s.push_str("<section id=\"plots\"><h2>Curves over the measured (valid) range</h2><div class=\"plots\">");
     for p in plots(&doc, &levels) {
-        // Drawn 760 px wide and printed about 90 mm wide: larger type (the
-        // layout leaves room for it), so the labels read at about 7 pt.
-        s.push_str(
-            &p.replacen("font-size=\"12\"", "font-size=\"19\"", 1)
-                .replacen("font-size=\"15\"", "font-size=\"21\"", 1),
-        );
+        s.push_str(&big(&p));
     }
     s.push_str("</div></section>");
     // Traceability.
@@ -250,8 +246,26 @@ pub async fn html(st: &AppState, id: &str) -> ApiResult<String> {
         (status = 200, description = "The report", content_type = "text/html", body = String),
         (status = 404, description = "No such measurement")))]
 pub async fn report(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Response> {
-    let body = html(&st, &id).await?;
-    Ok((
+    Ok(page_response(html(&st, &id).await?))
+}
+
+#[utoipa::path(get, path = "/api/v1/long-term-tests/{id}/report.html", tag = "jobs",
+    summary = "The printable report of a long-term test (HTML, A4 and Letter print stylesheet, inline SVG plots, no script): part, bench, plan, state and failure, the fitted ageing law with standard errors and its state, the prediction and its band, the K(x) family, K(0), Keff and f0 against test time with the law's curve and band, the intervals with their ambient conditions, the events, traceability.",
+    params(("id" = String, Path, description = "The test's job id")),
+    responses(
+        (status = 200, description = "The report", content_type = "text/html", body = String),
+        (status = 404, description = "No such long-term test")))]
+pub async fn long_term_report(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Response> {
+    Ok(page_response(longterm::html(&st, &id).await?))
+}
+
+/// A report page with its own policy: its styles only, nothing loaded,
+/// nothing run.
+fn page_response(body: String) -> Response {
+    (
         [
             (
                 header::CONTENT_TYPE,
@@ -265,7 +279,7 @@ pub async fn report(State(st): State<AppState>, Path(id): Path<String>) -> ApiRe
         ],
         body,
     )
-        .into_response())
+        .into_response()
 }
 
 #[cfg(test)]

@@ -90,3 +90,10 @@ pub(super) fn plots(doc: &Value, levels: &[(f64, f64)]) -> Vec<String> {
         ),
     ]
 }
+
+/// A plot drawn 760 px wide and printed about 90 mm wide: larger type (the
+/// layout leaves room for it), so the labels read at about 7 pt.
+pub(super) fn big(svg: &str) -> String {
+    svg.replacen("font-size=\"12\"", "font-size=\"19\"", 1)
+        .replacen("font-size=\"15\"", "font-size=\"21\"", 1)
+}

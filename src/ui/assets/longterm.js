@@ -2,7 +2,8 @@
 // family of K(x) curves over time (paper Fig. 23), K(0), Keff and f0 against
 // test time or accumulated load with the fitted law and its 95 % band, the
 // prediction, the events (pauses, resumptions, the failure), progress and
-// time left, pause, resume and cancel, the ambient conditions per interval
+// time left, pause, resume and cancel, the printable report (the API's
+// page, decision 0131), the ambient conditions per interval
 // (°C and % beside the values; entered by hand by an operator), and the
 // series as CSV / JSON. A law that is not valid
 // is drawn dashed and grey and says so in its legend and its table.
@@ -182,6 +183,7 @@ async function renderTest(main, ctx, id) {
     h('option', { value: 'load' }, 'accumulated load (kJ)'));
   const csvBtn = h('button', { id: 'lt-csv' }, 'Series as CSV');
   const jsonBtn = h('button', { id: 'lt-json' }, 'Series as JSON');
+  const reportBtn = h('button', { id: 'lt-report', dataset: { href: `/api/v1/long-term-tests/${encodeURIComponent(id)}/report.html` } }, 'Printable report');
   const cancelBtn = h('button', { id: 'lt-cancel', class: 'danger' }, 'Cancel the test');
   const pauseBtn = h('button', { id: 'lt-pause' }, 'Pause the test');
   const resumeBtn = h('button', { id: 'lt-resume' }, 'Resume the test');
@@ -209,7 +211,7 @@ async function renderTest(main, ctx, id) {
   put(
     main,
     h('section', { class: 'card' }, h('p', {}, h('a', { href: '#/long-term' }, '\u2190 all long-term tests')), head, progressEl,
-      h('div', { class: 'toolbar' }, pauseBtn, resumeBtn, cancelBtn, csvBtn, jsonBtn, wavLink,
+      h('div', { class: 'toolbar' }, pauseBtn, resumeBtn, cancelBtn, reportBtn, csvBtn, jsonBtn, wavLink,
         h('span', { class: 'muted' }, 'A paused test stops its stimulus at its next step; its test time and load stand still. It also pauses by itself on a full disk.')),
       msg),
     h('section', { class: 'card' }, h('h2', {}, 'The fitted ageing law'), lawEl, predEl),
@@ -233,6 +235,28 @@ async function renderTest(main, ctx, id) {
     const series = (doc.state && doc.state.document) || null;
     const out = { test_id: id, part_serial: doc.job.part_serial, bench_id: doc.job.bench_id, accelerated: doc.accelerated, intervals: doc.intervals, events: doc.events, failure: doc.state && doc.state.failure, ageing: series };
     saveText(`long-term-${id}.json`, JSON.stringify(out, null, 2), 'application/json');
+  });
+  // The report is the API's page (decision 0131): fetched with the session's
+  // token, opened in a new tab to print (saved as a file when the browser
+  // allows no new tab).
+  reportBtn.addEventListener('click', async () => {
+    const w = window.open('', '_blank');
+    try {
+      const r = await api(reportBtn.dataset.href, { raw: true, headers: { Accept: 'text/html' } });
+      const url = URL.createObjectURL(new Blob([await r.text()], { type: 'text/html' }));
+      if (w) w.location = url;
+      else {
+        const a = h('a', { href: url, download: `long-term-${id}-report.html` });
+        document.body.append(a);
+        a.click();
+        a.remove();
+      }
+      setTimeout(() => URL.revokeObjectURL(url), 60000);
+    } catch (e) {
+      if (w) w.close();
+      msg.className = 'status error';
+      msg.textContent = String(e.message || e);
+    }
   });
   wavLink.addEventListener('click', () => download(doc.last_signals, `long-term-${id}-last-signals.wav`).catch((e) => (msg.textContent = String(e.message || e))));
   cancelBtn.addEventListener('click', async () => {
