@@ -121,7 +121,7 @@ fn run_request(req: &GaugeStudyRequest, run: &GaugeRun) -> Value {
     summary = "Start a gauge study: every part measured `repeats` times on every bench under a recipe (one job per run).",
     request_body(content = GaugeStudyRequest, content_type = "application/json"),
     responses(
-        (status = 201, description = "Planned and submitted; the study as `GET` returns it", body = serde_json::Value,
+        (status = 201, description = "Planned and submitted; the study as `GET` returns it", body = GaugeStudyDocument,
             headers(("Location" = String, description = "The study"))),
         (status = 422, description = "Invalid fields (also any run's job request), one message each"),
         (status = 503, description = "Storage unavailable or the disk is full")))]
@@ -183,7 +183,7 @@ pub async fn create(
     }
     st.store.update_gauge_runs(&id, &runs).await?;
     let doc = study_document(&st, &id).await?;
-    let mut r = (StatusCode::CREATED, Json(doc)).into_response();
+    let mut r = (StatusCode::CREATED, Json(Sorted(doc))).into_response();
     if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/gauge-studies/{id}")) {
         r.headers_mut().insert(header::LOCATION, v);
     }
@@ -194,11 +194,75 @@ pub async fn create(
     summary = "A gauge study: its runs and, once every run has ended, repeatability, reproducibility, %GRR and ndc per judged quantity.",
     params(("id" = String, Path, description = "Study id")),
     responses(
-        (status = 200, description = "The study", body = serde_json::Value),
+        (status = 200, description = "The study", body = GaugeStudyDocument),
         (status = 404, description = "No such study")))]
 /// `GET /api/v1/gauge-studies/{id}`.
-pub async fn get_one(State(st): State<AppState>, Path(id): Path<String>) -> ApiResult<Json<Value>> {
-    Ok(Json(study_document(&st, &id).await?))
+pub async fn get_one(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Sorted<GaugeStudyDocument>>> {
+    Ok(Json(Sorted(study_document(&st, &id).await?)))
+}
+
+/// `GET /api/v1/gauge-studies/{id}`: the plan, each run's state and, once
+/// every run has ended, the gauge figures of each judged parameter.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct GaugeStudyDocument {
+    pub id: String,
+    /// The recipe every run is measured and judged with, and the version
+    /// the runs were judged with (null before the first verdict).
+    pub recipe: String,
+    pub recipe_version: Option<i64>,
+    pub parts: Vec<crate::qc::grr::GaugePart>,
+    pub repeats: u32,
+    /// The benches (appraisers), in the order of their first run.
+    pub benches: Vec<String>,
+    /// More members of each run's job request, as given.
+    #[schema(value_type = Option<Object>)]
+    pub job: Option<serde_json::Map<String, Value>>,
+    pub created_at: String,
+    /// The token that created it (null with open access).
+    pub created_by: Option<String>,
+    /// `running` until every run has ended, then `done`.
+    pub state: GaugeStudyState,
+    pub runs_total: usize,
+    pub runs_finished: usize,
+    pub runs: Vec<GaugeRunDocument>,
+    /// The gauge figures of each judged parameter (once `done`).
+    pub quantities: Vec<grr::GaugeRr>,
+    /// The parameters without figures, each with why.
+    pub not_computed: Vec<NotComputed>,
+    /// How the figures are computed.
+    pub method: &'static str,
+}
+
+/// A study's state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum GaugeStudyState {
+    Running,
+    Done,
+}
+
+/// One run of a study.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct GaugeRunDocument {
+    pub part_index: usize,
+    /// The part's serial.
+    pub serial: Option<String>,
+    pub bench_id: String,
+    pub repeat: u32,
+    /// Its job (null before it was queued).
+    pub job_id: Option<String>,
+    /// Its job's state (null before it was queued).
+    pub state: Option<JobState>,
+}
+
+/// A judged parameter without gauge figures, and why.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct NotComputed {
+    pub parameter: String,
+    pub reason: String,
 }
 
 #[utoipa::path(get, path = "/api/v1/gauge-studies", tag = "qc",
@@ -269,7 +333,7 @@ async fn run_values(
 
 /// The study with its runs' states and, when every run has ended, the
 /// gauge figures of each parameter the recipe judges.
-async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
+async fn study_document(st: &AppState, id: &str) -> ApiResult<GaugeStudyDocument> {
     let row = st
         .store
         .get_gauge_study(id)
@@ -295,14 +359,14 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
         if state.is_some_and(|s| s.is_terminal()) {
             finished += 1;
         }
-        run_docs.push(json!({
-            "part_index": r.part_index,
-            "serial": req.parts.get(r.part_index).map(|p| p.serial.clone()),
-            "bench_id": r.bench_id,
-            "repeat": r.repeat,
-            "job_id": r.job_id,
-            "state": state,
-        }));
+        run_docs.push(GaugeRunDocument {
+            part_index: r.part_index,
+            serial: req.parts.get(r.part_index).map(|p| p.serial.clone()),
+            bench_id: r.bench_id.clone(),
+            repeat: r.repeat,
+            job_id: r.job_id.clone(),
+            state,
+        });
         values.push(vals);
     }
     let done = finished == runs.len();
@@ -333,40 +397,52 @@ async fn study_document(st: &AppState, id: &str) -> ApiResult<Value> {
                 }
             }
             if !missing.is_empty() {
-                not_computed.push(json!({
-                    "parameter": p.name,
-                    "reason": format!(
+                not_computed.push(NotComputed {
+                    parameter: p.name.clone(),
+                    reason: format!(
                         "no valid value from {} run(s): {}",
                         missing.len(),
-                        missing.iter().take(5).cloned().collect::<Vec<_>>().join(", ")
+                        missing
+                            .iter()
+                            .take(5)
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", ")
                     ),
-                }));
+                });
                 continue;
             }
             match grr::study(&p.name, &unit, &grid, p.lower, p.upper) {
                 Ok(g) => quantities.push(g),
-                Err(e) => not_computed.push(json!({"parameter": p.name, "reason": e})),
+                Err(e) => not_computed.push(NotComputed {
+                    parameter: p.name.clone(),
+                    reason: e,
+                }),
             }
         }
     }
-    Ok(json!({
-        "id": row.id,
-        "recipe": req.recipe,
-        "recipe_version": version,
-        "parts": req.parts,
-        "repeats": req.repeats,
-        "benches": benches,
-        "job": req.job,
-        "created_at": row.created_at,
-        "created_by": row.created_by,
-        "state": if done { "done" } else { "running" },
-        "runs_total": runs.len(),
-        "runs_finished": finished,
-        "runs": run_docs,
-        "quantities": quantities,
-        "not_computed": not_computed,
-        "method": "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); one-sided limit: %GRR = 100 * 3 GRR / |limit - mean| (not applicable with the mean beyond the limit); no limits: %GRR of the total variation; ndc = floor(1.41 PV / GRR); warnings below 10 parts or 2 benches",
-    }))
+    Ok(GaugeStudyDocument {
+        id: row.id,
+        recipe: req.recipe,
+        recipe_version: version,
+        parts: req.parts,
+        repeats: req.repeats,
+        benches,
+        job: req.job,
+        created_at: row.created_at,
+        created_by: row.created_by,
+        state: if done {
+            GaugeStudyState::Done
+        } else {
+            GaugeStudyState::Running
+        },
+        runs_total: runs.len(),
+        runs_finished: finished,
+        runs: run_docs,
+        quantities,
+        not_computed,
+        method: "ANOVA, AIAG MSA 4th edition: crossed parts x benches x repeats; interaction pooled when p > 0.25; %GRR of tolerance = 100 * 6 GRR / (USL - LSL); one-sided limit: %GRR = 100 * 3 GRR / |limit - mean| (not applicable with the mean beyond the limit); no limits: %GRR of the total variation; ndc = floor(1.41 PV / GRR); warnings below 10 parts or 2 benches",
+    })
 }
 
 /// `POST /api/v1/recipes/{name}/bench-calibrations`.
