@@ -338,6 +338,76 @@ pub fn mark_creep_tau_main(s: &mut Stiffness, r: &EngineResult, f_res_hz: f64) {
     }
 }
 
+/// Creep's stored stiffness `kc (w tau)^2 / (1 + (w tau)^2)` at `f_hz`
+/// (0 without creep): the part of the dynamic stiffness there that relaxes
+/// at rest.
+fn creep_stored_n_per_m(c: Option<crate::effects::Creep>, f_hz: f64) -> f64 {
+    let w = 2.0 * std::f64::consts::PI * f_hz;
+    c.map_or(0.0, |c| {
+        let wt2 = (w * c.tau_s).powi(2);
+        c.k_n_per_m * wt2 / (1.0 + wt2)
+    })
+}
+
+/// Marks K(x) of the main sweep `unreliable` when the two sweeps' fits of
+/// the same creep disagree about its stored stiffness at the resonance
+/// (decision 0129). With creep's corner below the main sweep's band, the
+/// main sweep sees creep nearly as a constant stiffness: the headline K(x)
+/// is its stiffness at the resonance less creep's stored stiffness there,
+/// and that split rests on the little creep changes across the band. The
+/// pre-measurement (from 5 Hz, nearer the corner) fits the same creep
+/// (forced into its model); where the small-signal values take that
+/// model (`pre_creep`; not where it stands in for a spider's harmonics)
+/// it is a second estimate of the stored stiffness at the same frequency,
+/// and K(x) near 0 moves by their difference. K(x) is
+/// uncertain by that difference (relative to K(x)'s RMS over the range)
+/// plus two standard errors with tau free; beyond K(x)'s accuracy it is
+/// marked (the tau-free standard errors alone see one sweep's noise, not
+/// the bias of its split). Keff follows K(x) (`validity::judge`).
+pub fn mark_creep_two_sweeps(
+    s: &mut Stiffness,
+    main: &EngineResult,
+    pre_creep: Option<crate::effects::Creep>,
+    f_res_hz: f64,
+) {
+    let Some(c) = main.creep_tau_free.as_ref() else {
+        return;
+    };
+    let (Some(main_creep), Some(pre_creep)) = (main.model.effects.creep, pre_creep) else {
+        return;
+    };
+    let rel_se = k_of_x_relative_se(&c.model, s.valid_range_m);
+    if beyond(rel_se, ACCURACY_K_OF_X) {
+        // Marked with tau free already (mark_creep_tau_main).
+        return;
+    }
+    let k = &main.model.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let range = s.valid_range_m;
+    let mut kk = 0.0;
+    for i in 0..=200 {
+        let x = range[0] + (range[1] - range[0]) * i as f64 / 200.0;
+        kk += k_of(k, x).powi(2);
+    }
+    let k_rms = (kk / 201.0).sqrt();
+    let stored_main = creep_stored_n_per_m(Some(main_creep), f_res_hz);
+    let stored_pre = creep_stored_n_per_m(Some(pre_creep), f_res_hz);
+    let rel_split = (stored_main - stored_pre).abs() / k_rms;
+    let total = rel_split + TAU_FREE_COVERAGE * rel_se;
+    if k_rms.is_nan() || k_rms <= 0.0 || total.is_nan() || total <= ACCURACY_K_OF_X {
+        return;
+    }
+    let corner = 1.0 / (2.0 * std::f64::consts::PI * main_creep.tau_s);
+    let why = format!(
+        "the two sweeps' fits of creep place its stored stiffness at the resonance ({f_res_hz:.1} Hz) at {stored_main:.1} N/m (main sweep, tau {:.1} ms) and {stored_pre:.1} N/m (pre-measurement, tau {:.1} ms): K(x) is the main sweep's stiffness there less creep's, uncertain by their difference ({:.2} % of K(x)) plus {TAU_FREE_COVERAGE} standard errors with tau free ({:.2} %), more than its stated accuracy of {:.1} %; a pre-measurement from below creep's corner ({corner:.1} Hz), or an added mass that moves the resonance, would separate them",
+        main_creep.tau_s * 1e3,
+        pre_creep.tau_s * 1e3,
+        100.0 * rel_split,
+        100.0 * TAU_FREE_COVERAGE * rel_se,
+        100.0 * ACCURACY_K_OF_X,
+    );
+    s.validity.k_of_x.mark(State::Unreliable, &why);
+}
+
 /// Marks the small-signal values from the model with creep `unreliable`
 /// when, with creep's tau free, their uncertainty is wider than their
 /// stated accuracy (decision 0072); see [`mark_creep_tau_main`].

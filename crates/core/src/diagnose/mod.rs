@@ -242,6 +242,16 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
                         k0(&ss)
                     ));
                 }
+                // The same creep fitted on both sweeps (decision 0129): the
+                // pre-measurement's, where the small-signal values take it.
+                if opts.analyze.method == crate::identify::Method::TwoSignal {
+                    headline::mark_creep_two_sweeps(
+                        &mut report.stiffness,
+                        &claimed,
+                        ss.effects.creep,
+                        report.large_signal.resonance_hz,
+                    );
+                }
                 report.small_signal = Some(ss);
                 let mut sm = pre.small_signal_model();
                 if pre_unexplained.present {
