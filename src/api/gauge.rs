@@ -465,17 +465,39 @@ pub struct BenchCalibrationRequest {
     pub procedure: Option<crate::qc::ProcedureMode>,
 }
 
-fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> Value {
-    json!({
-        "id": r.id,
-        "recipe": r.recipe_name,
-        "bench_id": r.bench_id,
-        "procedure": r.procedure,
-        "state": r.state,
-        "calibration": r.calibration,
-        "created_by": r.created_by,
-        "created_at": r.created_at,
-    })
+/// A bench calibration as served (`POST` and `GET .../bench-calibrations`).
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct BenchCalibrationDocument {
+    pub id: String,
+    pub recipe: String,
+    pub bench_id: String,
+    /// `full` or `production`: the procedure it was measured with and corrects.
+    pub procedure: String,
+    /// `in_calibration` or `out_of_calibration`.
+    pub state: String,
+    pub calibration: crate::qc::BenchCalibration,
+    /// The token that made it (null with open access).
+    pub created_by: Option<String>,
+    pub created_at: String,
+}
+
+/// `GET /api/v1/recipes/{name}/bench-calibrations`: newest first.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct BenchCalibrationList {
+    pub items: Vec<BenchCalibrationDocument>,
+}
+
+fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> BenchCalibrationDocument {
+    BenchCalibrationDocument {
+        id: r.id.clone(),
+        recipe: r.recipe_name.clone(),
+        bench_id: r.bench_id.clone(),
+        procedure: r.procedure.clone(),
+        state: r.state.clone(),
+        calibration: r.calibration.clone(),
+        created_by: r.created_by.clone(),
+        created_at: r.created_at.clone(),
+    }
 }
 
 #[utoipa::path(post, path = "/api/v1/recipes/{name}/bench-calibrations", tag = "qc",
@@ -483,7 +505,7 @@ fn calibration_doc(r: &crate::store::BenchCalibrationRow) -> Value {
     params(("name" = String, Path, description = "Recipe name")),
     request_body(content = BenchCalibrationRequest, content_type = "application/json"),
     responses(
-        (status = 201, description = "Stored (in or out of calibration)", body = serde_json::Value),
+        (status = 201, description = "Stored (in or out of calibration)", body = BenchCalibrationDocument),
         (status = 422, description = "Invalid fields, or too few golden units measured on both benches"),
         (status = 503, description = "Storage unavailable or the disk is full")))]
 /// `POST /api/v1/recipes/{name}/bench-calibrations`.
@@ -575,20 +597,20 @@ pub async fn create_calibration(
         created_at: crate::store::now(),
     };
     st.store.insert_bench_calibration(&row).await?;
-    Ok((StatusCode::CREATED, Json(calibration_doc(&row))).into_response())
+    Ok((StatusCode::CREATED, Json(Sorted(calibration_doc(&row)))).into_response())
 }
 
 #[utoipa::path(get, path = "/api/v1/recipes/{name}/bench-calibrations", tag = "qc",
     summary = "The bench calibrations of a recipe, newest first (the newest per bench is in effect).",
     params(("name" = String, Path, description = "Recipe name")),
-    responses((status = 200, description = "Calibrations", body = serde_json::Value)))]
+    responses((status = 200, description = "Calibrations", body = BenchCalibrationList)))]
 /// `GET /api/v1/recipes/{name}/bench-calibrations`.
 pub async fn list_calibrations(
     State(st): State<AppState>,
     Path(name): Path<String>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Json<Sorted<BenchCalibrationList>>> {
     let rows = st.store.list_bench_calibrations(&name).await?;
-    Ok(Json(
-        json!({ "items": rows.iter().map(calibration_doc).collect::<Vec<_>>() }),
-    ))
+    Ok(Json(Sorted(BenchCalibrationList {
+        items: rows.iter().map(calibration_doc).collect(),
+    })))
 }
