@@ -2412,5 +2412,92 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
         .await;
     b.assert_no_console_errors("on the long-term test's page")
         .await;
+
+    // The printable report (decision 0131) from the page's button: the
+    // API's page, fetched with the session's token and saved as a file
+    // (the blob caught as it is made): the same page as the API's but for
+    // the time it was made.
+    assert_eq!(b.text("#lt-report").await, "Printable report");
+    b.run("window.__blobs = []; const made = URL.createObjectURL; URL.createObjectURL = (o) => { window.__blobs.push(o); return made.call(URL, o); };")
+        .await;
+    b.click("#lt-report").await;
+    b.wait("the report's file", "window.__blobs.length === 1")
+        .await;
+    b.run("window.__blobs[0].text().then((t) => { window.__report = t; });")
+        .await;
+    b.wait("the report's text", "typeof window.__report === 'string'")
+        .await;
+    let html = b.js("return window.__report;", vec![]).await;
+    let html = html.as_str().unwrap().to_string();
+    let api_html = Api::with(&d, VIEWER)
+        .text(&format!("/api/v1/long-term-tests/{id}/report.html"))
+        .await;
+    let unmade = |s: &str| -> String {
+        let (a, rest) = s.split_once(", made ").unwrap();
+        format!("{a}{}", rest.split_once("</p>").unwrap().1)
+    };
+    assert_eq!(unmade(&html), unmade(&api_html));
+    // The law's state as the document's; not valid: on every parameter.
+    assert!(
+        html.contains(&format!("<p id=\"law-state\" data-state=\"{state}\">")),
+        "law {state}"
+    );
+    let params = html.matches("<tr id=\"law-").count();
+    assert!(params >= 7, "{params} law rows");
+    let not_valid = format!("NOT VALID ({})", state.replace('_', " "));
+    assert_eq!(
+        html.matches(&not_valid).count() >= params,
+        state != "valid",
+        "law {state}: every row says so"
+    );
+    // The ambient conditions with their sources, the user's pause and
+    // resumption, one K(x) curve per interval.
+    let row = |k: usize| {
+        let a = format!("<tr data-index=\"{k}\">");
+        let i = html.find(&a).unwrap();
+        html[i..i + html[i..].find("</tr>").unwrap()].to_string()
+    };
+    assert!(row(1).contains("21.5 \u{b0}C (by hand)"), "{}", row(1));
+    assert!(row(1).contains("45.0 % (sensor)"), "{}", row(1));
+    assert!(
+        row(0).contains(&format!(
+            "{:.1} \u{b0}C (sensor)",
+            f(&doc["intervals"][0]["temperature_k"]) - 273.15
+        )),
+        "{}",
+        row(0)
+    );
+    assert_eq!(
+        html.matches("<tr data-kind=\"paused\"><td class=\"num\">")
+            .count()
+            + html
+                .matches("<tr data-kind=\"resumed\"><td class=\"num\">")
+                .count(),
+        2
+    );
+    assert_eq!(html.matches(" (user)</td>").count(), 2);
+    let kx = &html[html.find("<figure id=\"plot-kx\"").unwrap()..];
+    let kx = &kx[..kx.find("</figure>").unwrap()];
+    assert_eq!(kx.matches("<path ").count(), n, "K(x) curves");
+    // Printed by Chromium on A4 and Letter.
+    let file = browser::artifacts_dir().join("long-term-report.html");
+    std::fs::write(&file, &html).unwrap();
+    b.goto(&format!("file://{}", file.display())).await;
+    b.wait_for("#plots svg").await;
+    b.screenshot("long-term-report").await;
+    for letter in [false, true] {
+        let pdf = b.print_pdf(letter).await;
+        let pages = browser::pdf_pages(&pdf);
+        let paper = if letter { "letter" } else { "a4" };
+        std::fs::write(
+            browser::artifacts_dir().join(format!("long-term-report-{paper}.pdf")),
+            &pdf,
+        )
+        .unwrap();
+        eprintln!("long-term report on {paper}: {pages} pages");
+        assert!((1..=4).contains(&pages), "{paper}: {pages} pages");
+        let images = pdf.windows(14).filter(|w| w == b"/Subtype /Image").count();
+        assert_eq!(images, 0, "{paper}: vector plots, {images} images");
+    }
     b.finish("long-term test page").await;
 }

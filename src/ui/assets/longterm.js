@@ -3,7 +3,7 @@
 // test time or accumulated load with the fitted law and its 95 % band, the
 // prediction, the events (pauses, resumptions, the failure), progress and
 // time left, pause, resume and cancel, the printable report (the API's
-// page, decision 0131), the ambient conditions per interval
+// page saved as a file, decision 0131), the ambient conditions per interval
 // (°C and % beside the values; entered by hand by an operator), and the
 // series as CSV / JSON. A law that is not valid
 // is drawn dashed and grey and says so in its legend and its table.
@@ -183,7 +183,7 @@ async function renderTest(main, ctx, id) {
     h('option', { value: 'load' }, 'accumulated load (kJ)'));
   const csvBtn = h('button', { id: 'lt-csv' }, 'Series as CSV');
   const jsonBtn = h('button', { id: 'lt-json' }, 'Series as JSON');
-  const reportBtn = h('button', { id: 'lt-report', dataset: { href: `/api/v1/long-term-tests/${encodeURIComponent(id)}/report.html` } }, 'Printable report');
+  const reportBtn = h('button', { id: 'lt-report', title: 'The report as an HTML file: open it and print it (A4 or Letter)', dataset: { href: `/api/v1/long-term-tests/${encodeURIComponent(id)}/report.html` } }, 'Printable report');
   const cancelBtn = h('button', { id: 'lt-cancel', class: 'danger' }, 'Cancel the test');
   const pauseBtn = h('button', { id: 'lt-pause' }, 'Pause the test');
   const resumeBtn = h('button', { id: 'lt-resume' }, 'Resume the test');
@@ -236,28 +236,14 @@ async function renderTest(main, ctx, id) {
     const out = { test_id: id, part_serial: doc.job.part_serial, bench_id: doc.job.bench_id, accelerated: doc.accelerated, intervals: doc.intervals, events: doc.events, failure: doc.state && doc.state.failure, ageing: series };
     saveText(`long-term-${id}.json`, JSON.stringify(out, null, 2), 'application/json');
   });
-  // The report is the API's page (decision 0131): fetched with the session's
-  // token, opened in a new tab to print (saved as a file when the browser
-  // allows no new tab).
-  reportBtn.addEventListener('click', async () => {
-    const w = window.open('', '_blank');
-    try {
-      const r = await api(reportBtn.dataset.href, { raw: true, headers: { Accept: 'text/html' } });
-      const url = URL.createObjectURL(new Blob([await r.text()], { type: 'text/html' }));
-      if (w) w.location = url;
-      else {
-        const a = h('a', { href: url, download: `long-term-${id}-report.html` });
-        document.body.append(a);
-        a.click();
-        a.remove();
-      }
-      setTimeout(() => URL.revokeObjectURL(url), 60000);
-    } catch (e) {
-      if (w) w.close();
-      msg.className = 'status error';
-      msg.textContent = String(e.message || e);
-    }
-  });
+  // The report is the API's page (decision 0131), saved as a file to open
+  // and print: a plain link cannot send the session's token, and a tab or
+  // frame made from this page would carry this page's policy, which refuses
+  // the report's inline styles.
+  reportBtn.addEventListener('click', () => download(reportBtn.dataset.href, `long-term-${id}-report.html`).catch((e) => {
+    msg.className = 'status error';
+    msg.textContent = String(e.message || e);
+  }));
   wavLink.addEventListener('click', () => download(doc.last_signals, `long-term-${id}-last-signals.wav`).catch((e) => (msg.textContent = String(e.message || e))));
   cancelBtn.addEventListener('click', async () => {
     if (!(await ctx.confirm(`Cancel long-term test ${shortId(id)} of ${doc.job.part_serial}? The finished intervals stay.`, { yes: 'Yes, cancel the test', no: 'Keep running' }))) return;
