@@ -458,6 +458,11 @@ async fn the_report_prints_the_documents_numbers(
             between(&page, "<td class=\"mono\" id=\"measurement-ids\">", "</td>").contains(mid)
         );
     }
+    // A marked value's reason is printed under the table.
+    assert_eq!(
+        page.contains("<p id=\"interval-reasons\""),
+        between(&page, "<table id=\"interval-table\">", "</table>").contains(" (UNRELIABLE)"),
+    );
     // The law: its state and its stiffness parameters, rounded to their errors.
     let law = &doc["law"];
     let state = law["validity"]["state"].as_str().unwrap();

@@ -486,7 +486,12 @@ fn intervals_section(doc: &LongTermDocument, measured: &[Measured]) -> String {
         "<section id=\"intervals\"><h2>Intervals</h2><p class=\"muted\">K(0) rounded to its standard error (two significant digits of the error); f0, Keff and the load to 5 significant digits, Xpeak to 4; a value that is not valid is marked with its state.</p>\
          <table id=\"interval-table\"><tr><th>#</th><th>test time</th><th>load</th><th>K(0)</th><th>f0</th><th>Keff</th><th>Xpeak</th><th>air temperature</th><th>relative humidity</th><th>measurement</th></tr>",
     );
+    // Why a value is marked: each distinct reason once, under the table.
+    let reasons = std::cell::RefCell::new(std::collections::BTreeSet::<String>::new());
     let marked = |v: &HeadlineValidity, text: String| -> String {
+        if v.state != State::Valid {
+            reasons.borrow_mut().insert(state_text(v));
+        }
         match v.state {
             State::Valid => text,
             State::NotDetermined => format!(
@@ -542,7 +547,16 @@ fn intervals_section(doc: &LongTermDocument, measured: &[Measured]) -> String {
             esc(&iv.measurement_id),
         );
     }
-    s.push_str("</table></section>");
+    s.push_str("</table>");
+    let reasons = reasons.into_inner();
+    if !reasons.is_empty() {
+        s.push_str("<p id=\"interval-reasons\" class=\"muted\">Marked values, as their measurements state them:</p><ul>");
+        for r in &reasons {
+            let _ = write!(s, "<li>{}</li>", esc(r));
+        }
+        s.push_str("</ul>");
+    }
+    s.push_str("</section>");
     s
 }
 
