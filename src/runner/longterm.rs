@@ -795,12 +795,15 @@ fn run_blocking(
         let _ = tx.send(Msg::Progress { progress: p, eta_s });
     };
     // A stimulus held at a drive level keeps the velocity amplitude at the
-    // resonance that `excursion_m` had on the part at the test's start.
-    let held_velocity = (spec.stimulus.hold == Hold::Drive).then(|| {
-        let mut new_part = part.clone();
-        new_part.moving_mass_kg += vcfg.clamp_mass_kg;
-        ageing::velocity_at_excursion_m_per_s(&new_part, 0.0, spec.stimulus.excursion_m)
-    });
+    // resonance that its level's excursion had on the new part (each level
+    // step its own drive level, decision 0132).
+    let held_velocity = |x: f64| {
+        (spec.stimulus.hold == Hold::Drive).then(|| {
+            let mut new_part = part.clone();
+            new_part.moving_mass_kg += vcfg.clamp_mass_kg;
+            ageing::velocity_at_excursion_m_per_s(&new_part, 0.0, x)
+        })
+    };
     for index in start..n {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -831,11 +834,19 @@ fn run_blocking(
             }
             // The user's pause stops the stimulus at the next step.
             room.hold_while_paused(tx, &obs, t)?;
-            let step = (t_start - t).min(STIMULUS_STEP_S);
-            let on = spec.stimulus.on_time_s(t, t + step);
-            match held_velocity {
+            // A step ends at a level change (decision 0132): each piece
+            // holds one level, the load accrues at that level's excursion.
+            let mut end = (t + STIMULUS_STEP_S).min(t_start);
+            if let Some(c) = spec.stimulus.next_change_s(t) {
+                end = end.min(c);
+            }
+            let step = end - t;
+            let level_m = spec.stimulus.excursion_at_m(t);
+            let on = spec.stimulus.on_time_s(t, end);
+            let held = held_velocity(level_m);
+            match held {
                 None => {
-                    vb.apply_sine_load(spec.stimulus.excursion_m, on);
+                    vb.apply_sine_load(level_m, on);
                 }
                 Some(v) => {
                     vb.apply_sine_load_at_velocity(v, on);
@@ -844,11 +855,11 @@ fn run_blocking(
             if !spec.accelerated {
                 pace(step, &obs);
             }
-            t += step;
-            if let (Some(v), true) = (held_velocity, on > 0.0) {
+            t = end;
+            if let (Some(v), true) = (held, on > 0.0 && level_m > 0.0) {
                 let load = vb.ageing_load_j().unwrap_or(load_j);
                 let x = ageing::excursion_at_velocity_m(&vb.part, load, v);
-                let growth = 100.0 * (x / spec.stimulus.excursion_m - 1.0);
+                let growth = 100.0 * (x / level_m - 1.0);
                 let bound = spec.failure_limits.xpeak_runaway_percent;
                 if growth > bound {
                     let f = Failure {
@@ -858,10 +869,10 @@ fn run_blocking(
                         value: Some(growth),
                         bound: Some(bound),
                         detail: format!(
-                            "the stimulus' peak displacement ran away to {:.2} mm at {:.0} s, {growth:+.1} % over its {:.2} mm at the start, beyond +{bound} %",
+                            "the stimulus' peak displacement ran away to {:.2} mm at {:.0} s, {growth:+.1} % over its level's {:.2} mm on the new part, beyond +{bound} %",
                             1e3 * x,
                             t,
-                            1e3 * spec.stimulus.excursion_m
+                            1e3 * level_m
                         ),
                     };
                     let last = stimulus_signals(&mut vb, load, x, &obs)?;
@@ -1213,7 +1224,8 @@ const HOLD_SEARCH_S: f64 = 12.0;
 const HOLD_MAX_S: f64 = 3600.0;
 
 /// The stimulus on a hardware or emulated bench over test times `span`:
-/// the sine held at the part's resonance at `stimulus.excursion_m`
+/// the sine held at the part's resonance at the stimulus' level (`excursion_m`, then each
+/// level step's from its `from_s`: a step ends the hold and the resonance is searched again)
 /// (`procedure::hold_at_resonance`, the break-in's hold) played through the
 /// bench, so that the bench's safety rules hold for it as for a
 /// measurement: the drive clamped to the limit where it is produced and
@@ -1235,7 +1247,6 @@ fn device_stimulus(
 ) -> Result<f64, Stop> {
     let tx = room.tx;
     let (mut t, to) = span;
-    let x = spec.stimulus.excursion_m;
     let max_drive_v = d.bench.limits().max_drive_v;
     let mut load_j = 0.0;
     while t < to - 1e-9 {
@@ -1259,6 +1270,10 @@ fn device_stimulus(
             }
             _ => (true, to),
         };
+        // A level step ends the chunk: the hold's target is the level's
+        // (decision 0132), the resonance searched again at the new level.
+        let x = spec.stimulus.excursion_at_m(t);
+        let end = spec.stimulus.next_change_s(t).map_or(end, |c| end.min(c));
         let hold_s = (end - t - HOLD_SEARCH_S).min(HOLD_MAX_S);
         if on && x > 0.0 && hold_s >= 1.0 {
             let fs = d.bench.sample_rate_hz();

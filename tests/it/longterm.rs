@@ -1418,3 +1418,133 @@ async fn a_user_pause_holds_the_test_across_a_restart_and_resume_continues_it() 
     drop(d);
     drop(tmp);
 }
+
+/// Level stepping (decision 0132), against known truth: the load of a
+/// stepped test equals the sum of the loads of each step's level run alone
+/// for the step's duration. spider_3in without ageing: its load rate then
+/// depends on the level alone (not on the load taken), and each interval's
+/// measurement is the same on the same bench (its seed is the bench's plus
+/// the interval's index), so the stepped test's load after its 4 mm then its
+/// 6 mm interval is the 4 mm test's after its first interval plus what the
+/// 6 mm test's second interval added, to the rounding of the sums (1e-9).
+/// A step inside an interval (at 1350 s) splits the interval's stimulus at
+/// its time: each level's part of the stimulus at that level's load per
+/// second, to 1e-9 too. Bad steps are named; the document keeps them.
+#[tokio::test]
+async fn level_steps_load_the_part_as_each_level_alone() {
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let mut part = springbench::physics::preset("spider_3in").unwrap();
+    part.ageing = None;
+    let body = |serial: &str, stimulus: Value| {
+        let mut b = test_body(serial, 3);
+        let m = b["measurement"].as_object_mut().unwrap();
+        m.remove("preset");
+        m.insert("part_spec".into(), serde_json::to_value(&part).unwrap());
+        b["stimulus"] = stimulus;
+        b
+    };
+    // Bad steps: one message each, naming the field.
+    let r = c
+        .post(d.url("/api/v1/long-term-tests"))
+        .json(&body(
+            "LT-STEP-BAD",
+            json!({"excursion_m": 0.004, "steps": [{"from_s": 1200.0, "excursion_m": 0.006},
+                {"from_s": 600.0, "excursion_m": 0.02}, {"from_s": -1.0, "excursion_m": 0.004}]}),
+        ))
+        .send()
+        .await
+        .unwrap();
+    let p = problem(r, 422).await;
+    let fields: Vec<&str> = p["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["field"].as_str().unwrap())
+        .collect();
+    for f in [
+        "stimulus.steps[1].from_s",
+        "stimulus.steps[1].excursion_m",
+        "stimulus.steps[2].from_s",
+    ] {
+        assert!(fields.contains(&f), "{f} not in {p}");
+    }
+    let ids = [
+        submit(&c, &d, &body("LT-STEP-A", json!({"excursion_m": 0.004}))).await,
+        submit(&c, &d, &body("LT-STEP-B", json!({"excursion_m": 0.006}))).await,
+        submit(
+            &c,
+            &d,
+            &body(
+                "LT-STEP-S",
+                json!({"excursion_m": 0.004, "steps": [{"from_s": 900.0, "excursion_m": 0.006}]}),
+            ),
+        )
+        .await,
+        submit(
+            &c,
+            &d,
+            &body(
+                "LT-STEP-M",
+                json!({"excursion_m": 0.004, "steps": [{"from_s": 1350.0, "excursion_m": 0.006}]}),
+            ),
+        )
+        .await,
+    ];
+    let mut l = vec![];
+    let mut docs = vec![];
+    for id in &ids {
+        let v = wait_test(&c, &d, id, Duration::from_secs(600), terminal).await;
+        assert_eq!(v["job"]["state"], "succeeded", "{v}");
+        l.push(loads(&v));
+        docs.push(v);
+    }
+    let (a, b, s, m) = (&l[0], &l[1], &l[2], &l[3]);
+    // The same first interval (4 mm) for A, S and M.
+    assert_eq!(s[1], a[1]);
+    assert_eq!(m[1], a[1]);
+    let truth = a[1] + (b[2] - b[1]);
+    let rel = (s[2] - truth).abs() / truth;
+    eprintln!(
+        "level steps: A(4 mm) {a:?}, B(6 mm) {b:?}, stepped at 900 s {s:?}, truth {truth:.3} J (rel {rel:.2e}), stepped at 1350 s {m:?}"
+    );
+    assert!(rel < 1e-9, "stepped {} J, truth {truth} J", s[2]);
+    // The 6 mm level puts on more load per second than the 4 mm one; a step
+    // inside the interval gives between the two.
+    assert!(b[2] - b[1] > a[2] - a[1]);
+    assert!(m[2] > a[2] && m[2] < s[2], "{m:?}");
+    // Inside the interval: the stimulus runs from the measurement's end
+    // (900 s + its bench time) to 1800 s, at 4 mm up to 1350 s and at 6 mm
+    // after. Each level's load per second from its test alone: the same
+    // split of the sums.
+    let bench_time_s = docs[0]["state"]["clock_s"].as_f64().unwrap() - 1800.0;
+    assert!(
+        (20.0..120.0).contains(&bench_time_s),
+        "a measurement's bench time {bench_time_s} s"
+    );
+    for v in &docs {
+        assert_eq!(v["state"]["clock_s"], docs[0]["state"]["clock_s"]);
+    }
+    let on_s = 900.0 - bench_time_s;
+    let truth_m =
+        a[1] + (a[2] - a[1]) * (450.0 - bench_time_s) / on_s + (b[2] - b[1]) * 450.0 / on_s;
+    let rel_m = (m[2] - truth_m).abs() / truth_m;
+    eprintln!(
+        "stepped at 1350 s: {} J, truth {truth_m:.3} J (rel {rel_m:.2e})",
+        m[2]
+    );
+    assert!(
+        rel_m < 1e-9,
+        "stepped at 1350 s {} J, truth {truth_m} J",
+        m[2]
+    );
+    // The document keeps the steps (the page shows them from it).
+    assert_eq!(
+        docs[2]["job"]["request"]["stimulus"]["steps"],
+        json!([{"from_s": 900.0, "excursion_m": 0.006}]),
+        "{}",
+        docs[2]["job"]["request"]
+    );
+    assert!(docs[0]["job"]["request"]["stimulus"].get("steps").is_none());
+    drop(d);
+}

@@ -19,6 +19,8 @@ pub const MAX_INTERVALS: usize = 2000;
 pub const DEFAULT_K0_CHANGE_PERCENT: f64 = 60.0;
 /// Default failure limit: the stimulus' excursion grown by more than this (%).
 pub const DEFAULT_XPEAK_RUNAWAY_PERCENT: f64 = 30.0;
+/// Most level steps of one stimulus.
+pub const MAX_LEVEL_STEPS: usize = 100;
 
 /// What the stimulus holds as the part changes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
@@ -33,12 +35,30 @@ pub enum Hold {
     Drive,
 }
 
-/// The stimulus between two measurements.
+/// A level step of the stimulus (decision 0132): from test time `from_s`
+/// on, the sine is held at `excursion_m` (until the next step).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
-pub struct Stimulus {
-    /// Peak displacement of the sine held at the part's current resonance (m).
+pub struct LevelStep {
+    /// Test time from which this level holds (s, > 0; the level before the
+    /// first step is the stimulus' `excursion_m`).
+    pub from_s: f64,
+    /// Peak displacement of the sine from then on (m).
     pub excursion_m: f64,
+}
+
+/// The stimulus between two measurements.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Stimulus {
+    /// Peak displacement of the sine held at the part's current resonance
+    /// (m), from the test's start (until the first of `steps`).
+    pub excursion_m: f64,
+    /// Level stepping: the excursion changes at these test times (sorted,
+    /// each after the one before, within the test; at most 100). Each
+    /// level holds from its `from_s` to the next step's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub steps: Vec<LevelStep>,
     /// On/off cycling: seconds on, then `off_s` seconds off (both or neither).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub on_s: Option<f64>,
@@ -50,6 +70,35 @@ pub struct Stimulus {
 }
 
 impl Stimulus {
+    /// The target peak displacement at test time `t_s` (m): the last step
+    /// begun by then, else `excursion_m`.
+    pub fn excursion_at_m(&self, t_s: f64) -> f64 {
+        self.steps
+            .iter()
+            .rev()
+            .find(|s| s.from_s <= t_s)
+            .map_or(self.excursion_m, |s| s.excursion_m)
+    }
+
+    /// The first level change after test time `t_s` (s), if any.
+    pub fn next_change_s(&self, t_s: f64) -> Option<f64> {
+        self.steps.iter().map(|s| s.from_s).find(|&f| f > t_s)
+    }
+
+    /// The stimulus between test times `a_s` and `b_s` split at its level
+    /// changes: (seconds on, target excursion in m) per piece of constant
+    /// level, in order (a piece whose level is cycled off counts 0 s on).
+    pub fn pieces(&self, a_s: f64, b_s: f64) -> Vec<(f64, f64)> {
+        let mut out = vec![];
+        let mut t = a_s;
+        while t < b_s {
+            let end = self.next_change_s(t).map_or(b_s, |c| c.min(b_s));
+            out.push((self.on_time_s(t, end), self.excursion_at_m(t)));
+            t = end;
+        }
+        out
+    }
+
     /// Seconds of stimulus on between test times `a_s` and `b_s` (the
     /// cycle's phase runs from the test's start, so a resumed test keeps it).
     pub fn on_time_s(&self, a_s: f64, b_s: f64) -> f64 {
@@ -404,6 +453,49 @@ impl LongTermRequest {
                         ),
                     ));
                 }
+                if s.steps.len() > MAX_LEVEL_STEPS {
+                    add(FieldError::new(
+                        "stimulus.steps",
+                        format!("{} level steps: at most {MAX_LEVEL_STEPS}", s.steps.len()),
+                    ));
+                }
+                let mut before: Option<f64> = None;
+                for (i, st) in s.steps.iter().enumerate() {
+                    let f = st.from_s;
+                    let field = format!("stimulus.steps[{i}].from_s");
+                    if !(f.is_finite() && f > 0.0) {
+                        add(FieldError::new(
+                            field,
+                            format!("must be a test time > 0 s (the level at the start is stimulus.excursion_m), got {f}"),
+                        ));
+                    } else if let Some(b) = before.filter(|b| f <= *b) {
+                        add(FieldError::new(
+                            field,
+                            format!("steps must be sorted by from_s, each after the one before: {f} s is not after {b} s"),
+                        ));
+                    } else if let Some(d) = duration.filter(|d| f >= *d) {
+                        add(FieldError::new(
+                            field,
+                            format!("{f} s is not within the test (duration_s {d} s)"),
+                        ));
+                    }
+                    if f.is_finite() {
+                        before = Some(before.map_or(f, |b: f64| b.max(f)));
+                    }
+                    let x = st.excursion_m;
+                    let field = format!("stimulus.steps[{i}].excursion_m");
+                    if !(x.is_finite() && x >= 0.0) {
+                        add(FieldError::new(
+                            field,
+                            format!("must be a peak displacement >= 0 m, got {x}"),
+                        ));
+                    } else if let Some(mx) = max_x.filter(|mx| x > *mx) {
+                        add(FieldError::new(
+                            field,
+                            format!("{x} m is beyond the bench's displacement limit ({mx} m)"),
+                        ));
+                    }
+                }
                 match (s.on_s, s.off_s) {
                     (None, None) => {}
                     (Some(on), Some(off)) => {
@@ -535,6 +627,7 @@ mod tests {
     fn on_off_cycling_counts_the_on_time_from_the_tests_start() {
         let s = Stimulus {
             excursion_m: 0.005,
+            steps: vec![],
             on_s: Some(60.0),
             off_s: Some(30.0),
             hold: Hold::Excursion,
@@ -547,7 +640,7 @@ mod tests {
         let c = Stimulus {
             on_s: None,
             off_s: None,
-            ..s
+            ..s.clone()
         };
         assert_eq!(c.on_time_s(10.0, 20.0), 10.0);
     }
@@ -588,6 +681,84 @@ mod tests {
             .check()
             .len()
                 == 2
+        );
+    }
+
+    #[test]
+    fn level_steps_split_the_stimulus_at_their_times() {
+        let s = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0,
+            "stimulus": {"excursion_m": 0.004, "on_s": 60.0, "off_s": 30.0,
+                "steps": [{"from_s": 1000.0, "excursion_m": 0.006}, {"from_s": 2000.0, "excursion_m": 0.0}]}}))
+        .unwrap()
+        .stimulus;
+        assert_eq!(s.excursion_at_m(0.0), 0.004);
+        assert_eq!(s.excursion_at_m(999.9), 0.004);
+        assert_eq!(s.excursion_at_m(1000.0), 0.006);
+        assert_eq!(s.excursion_at_m(2500.0), 0.0);
+        assert_eq!(s.next_change_s(0.0), Some(1000.0));
+        assert_eq!(s.next_change_s(1000.0), Some(2000.0));
+        assert_eq!(s.next_change_s(2000.0), None);
+        // 900..2100 s: cycles of 60 s on / 30 s off from 0 s. By hand: on
+        // [900, 960), [990, 1000) -> 70 s at 4 mm; [1000, 1050), [1080,
+        // 1140), ... [1980, 2000) -> 50 + 10*60 + 20 = 670 s at 6 mm (the
+        // last cycle [1980, 2040) cut at 2000); [2000, 2040), [2070, 2100)
+        // -> 70 s at 0 mm.
+        let p = s.pieces(900.0, 2100.0);
+        assert_eq!(p.len(), 3, "{p:?}");
+        assert!((p[0].0 - 70.0).abs() < 1e-9 && p[0].1 == 0.004, "{p:?}");
+        assert!((p[1].0 - 670.0).abs() < 1e-9 && p[1].1 == 0.006, "{p:?}");
+        assert!((p[2].0 - 70.0).abs() < 1e-9 && p[2].1 == 0.0, "{p:?}");
+        // the pieces' on-time is the cycle's whole on-time
+        let whole: f64 = p.iter().map(|p| p.0).sum();
+        assert!((whole - s.on_time_s(900.0, 2100.0)).abs() < 1e-9);
+        // the document keeps the steps; a stimulus without steps keeps its form
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(
+            v["steps"][0],
+            json!({"from_s": 1000.0, "excursion_m": 0.006})
+        );
+        let c = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.004}}))
+        .unwrap()
+        .stimulus;
+        assert!(serde_json::to_value(&c).unwrap().get("steps").is_none());
+        assert_eq!(c.pieces(0.0, 100.0), vec![(100.0, 0.004)]);
+    }
+
+    #[test]
+    fn bad_level_steps_are_named() {
+        let e = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0,
+            "stimulus": {"excursion_m": 0.004, "steps": [
+                {"from_s": 0.0, "excursion_m": 0.005},
+                {"from_s": 2000.0, "excursion_m": -0.001},
+                {"from_s": 1500.0, "excursion_m": 0.02},
+                {"from_s": 3600.0, "excursion_m": 0.004}]}}))
+        .unwrap_err();
+        let msg = |f: &str| {
+            e.iter()
+                .find(|e| e.field == f)
+                .unwrap_or_else(|| panic!("{f} not in {e:?}"))
+                .message
+                .clone()
+        };
+        assert!(msg("stimulus.steps[0].from_s").contains("> 0 s"));
+        assert!(msg("stimulus.steps[1].excursion_m").contains(">= 0 m"));
+        assert!(msg("stimulus.steps[2].from_s").contains("sorted"));
+        assert!(msg("stimulus.steps[2].excursion_m").contains("displacement limit (0.012 m)"));
+        assert!(msg("stimulus.steps[3].from_s").contains("within the test"));
+        assert!(
+            !e.iter().any(|e| e.field == "stimulus.steps[1].from_s"),
+            "{e:?}"
+        );
+        let e = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0,
+            "stimulus": {"excursion_m": 0.004, "steps": [{"from_s": "NaN", "excursion_m": 0.004}]}}))
+        .unwrap_err();
+        assert!(
+            e.iter().any(|e| e.field.starts_with("stimulus.steps")),
+            "{e:?}"
         );
     }
 }

@@ -38,8 +38,8 @@ mod spec;
 mod stored;
 
 pub use long_term::{
-    Ambient, AmbientRequest, Failure, FailureLimits, Hold, LongTermRequest, LongTermSpec,
-    PartState, Stimulus,
+    Ambient, AmbientRequest, Failure, FailureLimits, Hold, LevelStep, LongTermRequest,
+    LongTermSpec, PartState, Stimulus,
 };
 pub use measurement::{
     HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,
