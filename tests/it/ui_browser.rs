@@ -2188,6 +2188,34 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
         .await;
     assert_eq!(doc["job"]["state"], "succeeded", "{doc}");
     let ad = &doc["state"]["document"];
+    // Each interval's K(0), f0 and Keff carry their measurement's state on
+    // the page (an unreliable value is never shown bare).
+    let shown = b
+        .js(
+            "return [...document.querySelectorAll('#lt-intervals tr')].map((r) => ['lt-k0', 'lt-f0', 'lt-keff'].map((c) => { const v = r.querySelector(`td.${c} .validity`); return v ? v.dataset.state : null; }));",
+            vec![],
+        )
+        .await;
+    let want: Vec<Vec<Value>> = ad["intervals"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| {
+            ["k0_n_per_m", "f0_hz", "keff_n_per_m"]
+                .iter()
+                .map(|q| v["validity"][q]["state"].clone())
+                .collect()
+        })
+        .collect();
+    assert!(
+        want.iter().flatten().all(|s| s.is_string()),
+        "every interval value has its state in the document: {want:?}"
+    );
+    assert_eq!(shown, json!(want), "the interval states on the page");
+    assert!(
+        want.iter().flatten().any(|s| s != "valid"),
+        "this test's series has a value not valid: {want:?}"
+    );
     let f = |v: &Value| v.as_f64().unwrap();
     let arr = |v: &Value| -> Vec<Option<f64>> {
         v.as_array().unwrap().iter().map(|x| x.as_f64()).collect()

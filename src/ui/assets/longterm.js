@@ -413,13 +413,15 @@ async function renderTest(main, ctx, id) {
     const d = (doc.state && doc.state.document) || { intervals: [] };
     put(tableEl, doc.intervals.map((iv, k) => {
       const v = d.intervals[k] || {};
+      const vs = v.validity || {};
       return h('tr', { dataset: { index: iv.index } },
         h('td', {}, iv.index),
         h('td', {}, `${num(hours(iv.elapsed_s), 4)} h`),
         h('td', {}, `${num(kj(iv.load_j), 4)} kJ`),
-        h('td', {}, withSe(v.k0_n_per_m, v.k0_se_n_per_m, 'N/mm', 1e-3)),
-        h('td', {}, Number.isFinite(v.f0_hz) ? `${num(v.f0_hz, 4)} Hz` : '\u2013'),
-        h('td', {}, Number.isFinite(v.keff_n_per_m) ? `${num(mm(v.keff_n_per_m), 4)} N/mm` : '\u2013'),
+        // Each value with its measurement's own state (an unreliable K(0) reads so here too).
+        h('td', { class: 'lt-k0' }, stated(withSe(v.k0_n_per_m, v.k0_se_n_per_m, 'N/mm', 1e-3), vs.k0_n_per_m)),
+        h('td', { class: 'lt-f0' }, Number.isFinite(v.f0_hz) ? stated(`${num(v.f0_hz, 4)} Hz`, vs.f0_hz) : '\u2013'),
+        h('td', { class: 'lt-keff' }, Number.isFinite(v.keff_n_per_m) ? stated(`${num(mm(v.keff_n_per_m), 4)} N/mm`, vs.keff_n_per_m) : '\u2013'),
         h('td', {}, Number.isFinite(v.xpeak_m) ? `${num(v.xpeak_m * 1000, 4)} mm` : '\u2013'),
         h('td', { class: 'lt-temp', dataset: { k: Number.isFinite(iv.temperature_k) ? String(iv.temperature_k) : '' } },
           Number.isFinite(iv.temperature_k) ? `${(iv.temperature_k - 273.15).toFixed(1)} \u00b0C${iv.temperature_source === 'hand' ? ' (by hand)' : ''}` : '\u2013'),

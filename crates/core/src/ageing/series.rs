@@ -39,6 +39,18 @@ pub struct IntervalValues {
     /// for the family of curves.
     pub k_coefficients_n_per_m_pow_i_plus_1: Vec<f64>,
     pub valid_range_m: [f64; 2],
+    /// The states of the measurement's own K(0), f0 and Keff (a value that
+    /// is not `valid` is marked wherever the series is shown).
+    #[serde(default)]
+    pub validity: IntervalValidity,
+}
+
+/// The states of an interval's values, as its measurement gave them.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct IntervalValidity {
+    pub k0_n_per_m: HeadlineValidity,
+    pub f0_hz: HeadlineValidity,
+    pub keff_n_per_m: HeadlineValidity,
 }
 
 /// The fitted law, named in the units of the series' load coordinate.
@@ -219,6 +231,17 @@ pub fn analyse(intervals: &[Interval], predict_s: Option<f64>) -> AgeingDocument
                 k_at_large_excursion_n_per_m: [k_at(c, x_large[0]), k_at(c, x_large[1])],
                 k_coefficients_n_per_m_pow_i_plus_1: c.clone(),
                 valid_range_m: r.stiffness.valid_range_m,
+                validity: IntervalValidity {
+                    k0_n_per_m: ss.map_or_else(
+                        || not_measured("no small-signal fit"),
+                        |s| s.validity.k0_n_per_m.clone(),
+                    ),
+                    f0_hz: ss.map_or_else(
+                        || not_measured("no small-signal fit"),
+                        |s| s.validity.f0_hz.clone(),
+                    ),
+                    keff_n_per_m: r.large_signal.validity.keff_n_per_m.clone(),
+                },
             }
         })
         .collect();
@@ -500,4 +523,13 @@ fn prediction_validity(law: &HeadlineValidity, ts: f64, t_last: f64) -> Headline
         };
     }
     HeadlineValidity::default()
+}
+
+/// The state of a value the measurement did not give.
+fn not_measured(why: &str) -> HeadlineValidity {
+    HeadlineValidity {
+        state: State::NotDetermined,
+        reason: Some(why.to_string()),
+        fit_value: None,
+    }
 }
