@@ -2038,6 +2038,14 @@ async fn a_long_term_test_is_at_the_center_read_only_while_it_runs_and_after() {
         !b.exists("#lt-cancel:not([hidden])").await,
         "no cancel at the center"
     );
+    // The printable report is the station's route: not offered at the center.
+    assert!(
+        !b.exists("#lt-report:not([hidden])").await,
+        "no report button at the center"
+    );
+    fa.get_reply(&format!("{doc_path}/report.html"))
+        .await
+        .problem(404);
     b.screenshot("center-long-term-test").await;
     b.assert_no_console_errors("on the center's long-term page")
         .await;

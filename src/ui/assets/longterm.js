@@ -317,7 +317,9 @@ async function renderTest(main, ctx, id) {
     show(resumeBtn, running && station && !!doc.user_pause && ctx.can('operator'));
     show(wavLink, !!doc.last_signals);
     show(ambientForm, station && doc.intervals.length > 0 && ctx.can('operator'));
-    // At the fleet's center the signals' bytes stay at the station (decision 0134).
+    // At the fleet's center (decision 0134) the report is the station's page:
+    // not offered; the signals' bytes stay at the station: the button says where.
+    show(reportBtn, station);
     if (doc.station_id) {
       wavLink.disabled = true;
       wavLink.textContent = `Last 10 s of signals: at station ${doc.station_id}`;
