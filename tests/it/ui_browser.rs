@@ -2052,15 +2052,24 @@ async fn full_screen_then_a_scan_starts_the_part() {
 async fn two_benches_finishing_out_of_order_keep_both_verdicts() {
     let (mut b, d) = open_browser!(&tokens_two_benches());
     admin(&d).create_recipe(&strict_recipe()).await;
-    // The same limits measured twice: SN-A, started first, takes about twice
-    // as long (the job's own `repeats` may not override a recipe's).
+    // The same limits measured three times: SN-A, started first, takes about
+    // three times as long (the job's own `repeats` may not override a
+    // recipe's). Twice was not enough margin: on a loaded machine SN-B's one
+    // repeat once took longer than SN-A's two (CI, 29 Nov 2026: 1.84 s
+    // against 1.76 s), and the order the test is about did not happen.
     let mut twice = strict_recipe();
     twice["name"] = json!("spider-strict-x2");
-    twice["procedure"]["repeats"] = json!(2);
+    twice["procedure"]["repeats"] = json!(3);
     admin(&d).create_recipe(&twice).await;
     b.login(&d.base, OPERATOR, "operator").await;
     b.wait("a verdict panel per bench", "document.querySelector('#verdict-virtual-1') && document.querySelector('#verdict-virtual-2')").await;
     let a = station(&d).submit(&json!({"part": {"serial": "SN-A"}, "recipe": "spider-strict-x2", "bench": "virtual-1"})).await;
+    // SN-B only once SN-A runs: SN-A has a head start as well.
+    admin(&d)
+        .poll(&format!("/api/v1/jobs/{a}"), Duration::from_secs(60), |j| {
+            j["state"] != "queued"
+        })
+        .await;
     let bj = station(&d)
         .submit(
             &json!({"part": {"serial": "SN-B"}, "recipe": "spider-strict", "bench": "virtual-2"}),
