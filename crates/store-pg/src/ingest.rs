@@ -702,19 +702,8 @@ impl CenterIngest for PgStore {
                 }
                 held.last_seq = held.last_seq.max(Some(item.seq));
                 if let Err(e) = apply_item(&mut tx, station, item).await {
-                    // Nothing of the batch is written; an item the center
-                    // refuses (it contradicts itself or the center's rules,
-                    // or its values do not fit the database: a NUL byte) is
-                    // recorded with its reason, so the readers of the fleet
-                    // see it, and the station parks it (decision 0105).
                     drop(tx);
-                    let e = as_refusal(e, item);
-                    if let StoreError::Invalid(why) = &e {
-                        let _ = self
-                            .record_refusal(station, Some(station), &id, Some(item.seq), why)
-                            .await;
-                    }
-                    return Err(e);
+                    return Err(self.refused(station, &id, item, e).await);
                 }
                 report.inserted += 1;
                 continue;
@@ -734,7 +723,7 @@ impl CenterIngest for PgStore {
                 // one. It replaces the held one (decision 0134).
                 if let Err(e) = apply_item(&mut tx, station, item).await {
                     drop(tx);
-                    return Err(as_refusal(e, item));
+                    return Err(self.refused(station, &id, item, e).await);
                 }
                 sqlx::query("UPDATE station_items SET content_sha256 = $2 WHERE item_id = $1")
                     .bind(&id)
@@ -806,6 +795,29 @@ fn clock_skew_s(sent_at: &str, center: &str) -> Option<f64> {
 /// number out of range; an integrity or size limit) is the item's fault,
 /// `Invalid`, not an outage, so the station parks it and goes on; the
 /// reason names the item, not the database's internals.
+impl PgStore {
+    /// An item whose application failed: nothing of its batch is written
+    /// (the caller dropped the transaction). An item the center refuses (it
+    /// contradicts itself or the center's rules, or its values do not fit the
+    /// database: a NUL byte) is recorded with its reason, so the readers of
+    /// the fleet see it, and the station parks it (decision 0105).
+    async fn refused(
+        &self,
+        station: &str,
+        id: &str,
+        item: &ReplicationItem,
+        e: StoreError,
+    ) -> StoreError {
+        let e = as_refusal(e, item);
+        if let StoreError::Invalid(why) = &e {
+            let _ = self
+                .record_refusal(station, Some(station), id, Some(item.seq), why)
+                .await;
+        }
+        e
+    }
+}
+
 fn as_refusal(e: StoreError, item: &ReplicationItem) -> StoreError {
     let name = format!("item {} ({})", item.seq, item.item_id());
     match e {
