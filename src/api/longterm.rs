@@ -189,15 +189,21 @@ pub async fn list(
     State(st): State<AppState>,
     axum::extract::Query(q): axum::extract::Query<ListQuery>,
 ) -> ApiResult<Json<LongTermList>> {
-    let limit = q.limit.unwrap_or(100);
+    let items = st.store.long_term_summaries(list_limit(q.limit)?).await?;
+    Ok(Json(LongTermList { items }))
+}
+
+/// The list's `limit` (default 100, 1 to 1000), at a station and at the
+/// fleet's center.
+pub fn list_limit(limit: Option<i64>) -> ApiResult<i64> {
+    let limit = limit.unwrap_or(100);
     if !(1..=1000).contains(&limit) {
         return Err(Problem::validation(vec![FieldError::new(
             "limit",
             format!("must be 1 to 1000, got {limit}"),
         )]));
     }
-    let items = st.store.long_term_summaries(limit).await?;
-    Ok(Json(LongTermList { items }))
+    Ok(limit)
 }
 
 fn num(v: Option<f64>) -> String {

@@ -60,13 +60,7 @@ pub async fn list(
     State(st): State<FleetState>,
     Query(q): Query<ListQuery>,
 ) -> ApiResult<Json<Sorted<CenterLongTermList>>> {
-    let limit = q.limit.unwrap_or(100);
-    if !(1..=1000).contains(&limit) {
-        return Err(Problem::validation(vec![crate::job::FieldError::new(
-            "limit",
-            format!("must be 1 to 1000, got {limit}"),
-        )]));
-    }
+    let limit = crate::api::longterm::list_limit(q.limit)?;
     let items = st
         .store
         .long_term_tests(q.station.as_deref(), limit)
