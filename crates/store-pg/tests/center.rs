@@ -1568,3 +1568,80 @@ async fn a_renamed_station_keeps_its_history_without_false_gaps() {
         .is_some());
     assert!(s.get_measurement("r-3").await.unwrap().is_some());
 }
+
+fn long_term_item(seq: i64, job: &str, serial: &str, state: &str, k0: f64) -> ReplicationItem {
+    ReplicationItem {
+        seq,
+        body: ItemBody::LongTermTest(Box::new(springbench_store::fleet::LongTermTestItem {
+            job_id: job.into(),
+            part_serial: serial.into(),
+            bench_id: "virtual-1".into(),
+            job_state: state.into(),
+            created_at: time(0),
+            document: json!({"id": job, "state": state, "intervals": [{"k0_n_per_m": k0}]}),
+            summary: json!({"id": job, "state": state}),
+            last_signals_at_station: false,
+        })),
+    }
+}
+
+/// Issue 32 (decision 0134): a long-term test's id is the station's. Another
+/// station that sends a document under the same id is refused (recorded,
+/// listed), and the owner's copy stays as it was; the owner's newer copy
+/// replaces it, an older one (a late resend) does not.
+#[tokio::test]
+async fn a_long_term_test_held_by_another_station_is_refused_and_kept() {
+    let Some(s) = store("long_term_owner").await else {
+        return;
+    };
+    s.ingest(
+        "line-1",
+        &[long_term_item(5, "lt-1", "LT-1", "running", 4000.0)],
+    )
+    .await
+    .unwrap();
+    match s
+        .ingest(
+            "line-2",
+            &[long_term_item(9, "lt-1", "LT-STOLEN", "succeeded", 1.0)],
+        )
+        .await
+    {
+        Err(StoreError::Invalid(m)) => assert!(
+            m.contains("long-term test lt-1 is held from station line-1"),
+            "{m}"
+        ),
+        r => panic!("{r:?}"),
+    }
+    let held = s.long_term_test("lt-1").await.unwrap().unwrap();
+    assert_eq!(
+        (held.station_id.as_str(), held.part_serial.as_str()),
+        ("line-1", "LT-1")
+    );
+    assert_eq!((held.job_state.as_str(), held.item_seq), ("running", 5));
+    assert_eq!(held.document["intervals"][0]["k0_n_per_m"], 4000.0);
+    let refused = s.refusals(Some("line-2"), None, 100).await.unwrap();
+    let ids: Vec<&str> = refused.iter().map(|r| r.item_id.as_str()).collect();
+    assert_eq!(ids, ["long_term_test:lt-1:9"]);
+    assert_eq!(
+        s.long_term_tests(Some("line-2"), 100).await.unwrap().len(),
+        0
+    );
+
+    // The owner's newer copy replaces; a late resend of an older one does not.
+    s.ingest(
+        "line-1",
+        &[long_term_item(7, "lt-1", "LT-1", "succeeded", 3900.0)],
+    )
+    .await
+    .unwrap();
+    s.ingest(
+        "line-1",
+        &[long_term_item(6, "lt-1", "LT-1", "running", 3950.0)],
+    )
+    .await
+    .unwrap();
+    let held = s.long_term_test("lt-1").await.unwrap().unwrap();
+    assert_eq!((held.job_state.as_str(), held.item_seq), ("succeeded", 7));
+    assert_eq!(held.document["intervals"][0]["k0_n_per_m"], 3900.0);
+}
