@@ -8,7 +8,7 @@
 
 use super::events::StudyStep;
 use super::execute::make_bench;
-use super::{JobEvent, Runner, Slot, CANCEL};
+use super::{JobEvent, Runner, Slot, CANCEL, COMMIT};
 use crate::diagnose::studies::{
     analyze_added_mass, attribute_added_mass, MassRun, Study, StudyPlan, StudyResult, StudyState,
 };
@@ -123,6 +123,39 @@ impl Runner {
         let res = self
             .study_result(slot, job, &study, &cancel, &mut log)
             .await?;
+        // From here on a cancel is too late (409); one that came before
+        // still wins, so a 202 always ends as `cancelled` (as a measurement
+        // job: `Runner::record`).
+        let cancelled_late = cancel.swap(COMMIT, Ordering::SeqCst) == CANCEL;
+        let stopped = match res {
+            Ok(_) if cancelled_late => Some(JobState::Cancelled),
+            Err(Halt::Aborted) if self.shutdown.load(Ordering::SeqCst) => {
+                Some(JobState::Interrupted)
+            }
+            Err(Halt::Aborted) => Some(JobState::Cancelled),
+            _ => None,
+        };
+        if let Some(state) = stopped {
+            // Cancelled by the user, or cut off by the shutdown: the job
+            // says which (a cancelled study used to end `failed`).
+            self.store.finish_study(&job.id, kind, None).await?;
+            let p = (state == JobState::Interrupted).then(|| {
+                JobProblem::new(
+                    ProblemKind::Interrupted,
+                    "Job interrupted",
+                    "the daemon was stopped while this study was running; the bench was ramped down and the study was not re-run (submit it again)",
+                )
+            });
+            let commit =
+                self.store
+                    .finish_job(&job.id, state, p.as_ref(), None, &log, &[], vec![], vec![]);
+            self.commit_settled(slot, &job.id, commit).await?;
+            tracing::info!(job = %job.id, bench = %slot.cfg.id, "{kind} study {}", state.as_str());
+            self.events
+                .publish(Some(&job.id), &JobEvent::Failed { state, problem: p })
+                .await?;
+            return Ok(());
+        }
         match res {
             Ok((result, bench_time_s)) => {
                 self.store
@@ -155,6 +188,7 @@ impl Runner {
                 self.store.finish_study(&job.id, kind, None).await?;
                 let p = match h {
                     Halt::Failed(p) => p,
+                    // Handled above; kept for the match.
                     Halt::Aborted => JobProblem::new(
                         ProblemKind::Other("cancelled".into()),
                         "Study stopped",

@@ -46,6 +46,7 @@ pub const ASSETS: &[Asset] = &[
     asset!("compare.js", JS),
     asset!("diagnostics.js", JS),
     asset!("longterm.js", JS),
+    asset!("studies.js", JS),
     asset!("qc.js", JS),
     asset!("verdict.js", JS),
     asset!("export.js", JS),

@@ -2538,3 +2538,515 @@ async fn long_term_test_page_shows_the_kx_family_the_time_plots_and_the_predicti
     }
     b.finish("long-term test page").await;
 }
+
+// --- issue 33: the material's memory in the UI (decision 0142) -------------------
+
+/// A virtual bench `id` (spider_4in) whose parts carry `effects` (TOML
+/// tables below `[benches.virtual.part_effects]`, decision 0121).
+fn memory_bench(id: &str, seed: u64, effects: &str) -> String {
+    roles()
+        .toml(&format!(
+            "[[benches]]\nid = \"{id}\"\npreset = \"spider_4in\"\nseed = {seed}\n{effects}"
+        ))
+        .text()
+}
+
+/// Sets a form field's value as a user would (the `input` and `change` events fire).
+async fn set_field(b: &Browser, css: &str, value: &str) {
+    b.js(
+        "const e = document.querySelector(arguments[0]); e.value = arguments[1]; e.dispatchEvent(new Event('input', {bubbles: true})); e.dispatchEvent(new Event('change', {bubbles: true})); return true;",
+        vec![json!(css), json!(value)],
+    )
+    .await;
+}
+
+/// A figure as the page shows it ("30130 N/m²", "-199.2 N/m", "1.891 s"):
+/// the number and the unit after it.
+fn shown(text: &str) -> (f64, String) {
+    let t = text.trim();
+    let (n, u) = t.split_once(' ').unwrap_or((t, ""));
+    let v: f64 = n
+        .replace('\u{2212}', "-")
+        .parse()
+        .unwrap_or_else(|e| panic!("not a number on the page: {text:?} ({e})"));
+    (v, u.trim().to_string())
+}
+
+/// The page's figure is the API's value rounded to `digits` significant digits.
+fn rounded_from(page: f64, api: f64, digits: i32) -> bool {
+    if api == 0.0 {
+        return page == 0.0;
+    }
+    let half_ulp = 0.5 * 10f64.powi(api.abs().log10().floor() as i32 - (digits - 1));
+    (page - api).abs() <= half_ulp * (1.0 + 1e-9)
+}
+
+/// Issue 33: a recovery measurement started from the UI. The bench mounts
+/// spider_4in with a reversible softening of 3e4 N/m² and 2 s
+/// (`[benches.virtual.part_effects]`); the operator chooses the recovery
+/// on the study form, a bad probe list comes back as the API's refusal
+/// naming `plan.recovery.delays_s` beside its input, then the study runs
+/// and the page shows the depth (N/m²) and the time constant (s): each the
+/// API document's value to the digits shown, within 10 % of the truth (the
+/// issue's acceptance), valid (softening found), with the probes plotted.
+/// Before this the UI had no study at all.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
+    let cfg = memory_bench(
+        "virtual-soft",
+        11,
+        "[benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n",
+    );
+    let (mut b, d) = open_browser!(&cfg);
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.visit(
+        "#/study",
+        SHORT,
+        "the study form",
+        "document.querySelector('#study-form') && document.querySelector('#study-bench option')",
+    )
+    .await;
+    set_field(&b, "#study-kind", "recovery").await;
+    set_field(&b, "#study-serial", "SN-UI-REC").await;
+    set_field(&b, "#study-mass-g", "50").await;
+    // One probe is too few: the daemon's 422 names the field, beside its input.
+    set_field(&b, "#study-delays", "0.5").await;
+    b.click("#study-submit").await;
+    b.wait(
+        "the refusal naming plan.recovery.delays_s",
+        "document.querySelector('#study-errors li[data-field=\"plan.recovery.delays_s\"]')",
+    )
+    .await;
+    let beside = b.text("#study-delays-error").await;
+    assert!(beside.starts_with("plan.recovery.delays_s: "), "{beside}");
+    assert_eq!(
+        b.find("#study-delays")
+            .await
+            .attr("aria-invalid")
+            .await
+            .unwrap()
+            .as_deref(),
+        Some("true")
+    );
+    b.assert_no_console_errors_but("after the refused study", |m| m.contains("422"))
+        .await;
+    // The paper's probes (the form's default), a 2 s excitation at 30 Hz, 50 V.
+    set_field(&b, "#study-delays", "0.5, 1, 2, 5, 10, 30").await;
+    b.click("#study-submit").await;
+    let id = b
+        .wait(
+            "the study's page",
+            "location.hash.startsWith('#/study/') && location.hash.slice(8)",
+        )
+        .await
+        .as_str()
+        .unwrap()
+        .to_string();
+    b.wait_js(
+        "document.querySelector('#recovery-result') || document.querySelector('#study-problem')",
+        Duration::from_secs(300),
+        "the recovery's result",
+    )
+    .await;
+    assert!(
+        !b.exists("#study-problem").await,
+        "{}",
+        b.text("#study-problem").await
+    );
+    let s = admin(&d).get(&format!("/api/v1/studies/{id}")).await;
+    assert_eq!(s["state"], "succeeded", "{s}");
+    let r = &s["result"];
+    assert_eq!(r["kind"], "recovery", "{s}");
+    assert_eq!(
+        s["request"]["plan"]["recovery"],
+        json!({"excitation_hz": 30.0, "excitation_v": 50.0, "excitation_s": 2.0, "probe_v": 1.5,
+            "delays_s": [0.5, 1.0, 2.0, 5.0, 10.0, 30.0]}),
+        "the form sent the plan shown"
+    );
+    assert_eq!(
+        b.text("#study-job-state").await,
+        "succeeded",
+        "the page's job state"
+    );
+    let (depth, du) = shown(&b.text("#rec-depth").await);
+    let (tau, tu) = shown(&b.text("#rec-tau").await);
+    let (api_depth, api_tau) = (
+        r["depth_n_per_m2"].as_f64().unwrap(),
+        r["tau_s"].as_f64().unwrap(),
+    );
+    eprintln!(
+        "page: depth {depth} {du} (API {api_depth:.2}, truth 3e4, {:+.1} %), tau {tau} {tu} (API {api_tau:.4}, truth 2 s, {:+.1} %)",
+        100.0 * (depth / 3e4 - 1.0),
+        100.0 * (tau / 2.0 - 1.0)
+    );
+    assert_eq!((du.as_str(), tu.as_str()), ("N/m\u{b2}", "s"));
+    assert!(rounded_from(depth, api_depth, 4), "{depth} vs {api_depth}");
+    assert!(rounded_from(tau, api_tau, 4), "{tau} vs {api_tau}");
+    assert!((depth / 3e4 - 1.0).abs() <= 0.10, "depth {depth}");
+    assert!((tau / 2.0 - 1.0).abs() <= 0.10, "tau {tau}");
+    // Valid where the values are: the part softened.
+    assert_eq!(r["softening_found"], true);
+    let states = b
+        .js(
+            "return [...document.querySelectorAll('#recovery-figures .validity')].map(e => e.dataset.state).join(',');",
+            vec![],
+        )
+        .await;
+    assert_eq!(states, json!("valid,valid,valid"));
+    let (misfit, mu) = shown(&b.text("#rec-misfit").await);
+    assert!(
+        rounded_from(misfit, r["misfit_n_per_m"].as_f64().unwrap(), 4) && mu == "N/m",
+        "{misfit} {mu}"
+    );
+    let probes = b
+        .js(
+            "return document.querySelectorAll('#recovery-points tbody tr').length;",
+            vec![],
+        )
+        .await;
+    assert_eq!(probes, json!(6));
+    b.wait(
+        "the recovery plot",
+        "document.querySelector('#plot-recovery canvas')",
+    )
+    .await;
+    // No cancel or prompt once it has finished.
+    assert!(!b.find("#study-cancel").await.is_displayed().await.unwrap());
+    b.screenshot("study-recovery").await;
+    b.finish("on the recovery study").await;
+}
+
+/// The added-mass study's form as the diagnostics workspace opens it (part,
+/// bench, weighed mass and level filled in), submitted; waits for the
+/// operator's prompt; the study's id.
+async fn start_added_mass_study(b: &Browser) -> String {
+    let form = "#/study?serial=SN-UI-AM&bench=virtual-am&mass_g=50&level_mm=6&kind=added_mass";
+    b.visit(
+        form,
+        SHORT,
+        "the study form, filled in",
+        "document.querySelector('#study-form') && document.querySelector('#study-bench').value === 'virtual-am'",
+    )
+    .await;
+    let filled = b
+        .js(
+            "return ['#study-kind', '#study-serial', '#study-mass-g', '#study-added-g', '#study-level-mm'].map(s => document.querySelector(s).value).join('|');",
+            vec![],
+        )
+        .await;
+    assert_eq!(filled, json!("added_mass|SN-UI-AM|50|20|6"));
+    b.click("#study-submit").await;
+    let id = b
+        .wait(
+            "the study's page",
+            "location.hash.startsWith('#/study/') && location.hash.slice(8)",
+        )
+        .await;
+    b.wait_js(
+        "document.querySelector('#study-prompt-text') && !document.querySelector('#study-prompt').hidden",
+        Duration::from_secs(300),
+        "the operator's prompt",
+    )
+    .await;
+    id.as_str().unwrap().to_string()
+}
+
+/// Issue 33: an added-mass study from the UI. The bench mounts spider_4in
+/// with a reversible softening (3e4 N/m², 2 s). The study form (opened as
+/// the diagnostics workspace's link opens it: serial, bench, weighed mass
+/// filled in) starts the study; the page tells the operator to add the
+/// mass, naming it (20 g, sent as 0.02 kg); cancel asks first and cancels
+/// the job. A second study waits: the API and the page stay at
+/// `awaiting_operator` until the operator presses confirm (POST
+/// .../confirm from the button); then the attribution the page shows is
+/// the API document's (each figure to the digits shown, with its unit):
+/// the amplitude-dependent share within 20 % of the part's law
+/// (-depth x Xpeak), none frequency-dependent (the part has no creep).
+/// Before this the UI had no study at all.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attribution() {
+    let cfg = memory_bench(
+        "virtual-am",
+        21,
+        "[benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n",
+    );
+    let (mut b, d) = open_browser!(&cfg);
+    let api = admin(&d);
+    b.login(&d.base, OPERATOR, "operator").await;
+    // The first study: the prompt, then cancel (asked first).
+    let first = start_added_mass_study(&b).await;
+    let prompt = b.text("#study-prompt-text").await;
+    assert_eq!(
+        prompt,
+        "Add 20 g to the slide of bench \u{2018}virtual-am\u{2019} (part SN-UI-AM), then confirm."
+    );
+    let s = api.get(&format!("/api/v1/studies/{first}")).await;
+    assert_eq!(
+        s["request"]["plan"]["added_mass"],
+        json!({"added_mass_kg": 0.02, "level_m": 0.006}),
+        "{s}"
+    );
+    assert_eq!(s["request"]["moving_mass_kg"], json!(0.05), "{s}");
+    assert_eq!(s["state"], "awaiting_operator", "{s}");
+    b.click("#study-cancel").await;
+    b.confirm(true).await;
+    b.wait_long(
+        "the cancelled study",
+        "document.querySelector('#study-job-state').textContent === 'cancelled' && document.querySelector('#study-prompt').hidden",
+    )
+    .await;
+    // The job is `cancelled` (a cancelled study ended `failed` before).
+    let s = api.get(&format!("/api/v1/studies/{first}")).await;
+    assert_eq!(s["job_state"], "cancelled", "{s}");
+    assert!(s["result"].is_null() && s["problem"].is_null(), "{s}");
+    let ended = b.text("#study-ended").await;
+    assert_eq!(ended, "The study was cancelled: no result.");
+
+    // The second: it waits for the operator, then goes on with the mass.
+    let id = start_added_mass_study(&b).await;
+    assert_ne!(id, first);
+    let url = format!("/api/v1/studies/{id}");
+    assert_eq!(api.get(&url).await["state"], "awaiting_operator");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let s = api.get(&url).await;
+    assert_eq!(
+        (&s["state"], &s["job_state"], &s["result"]),
+        (&json!("awaiting_operator"), &json!("running"), &Value::Null),
+        "it waits: {s}"
+    );
+    assert_eq!(
+        b.js(
+            "return document.querySelector('#view').dataset.studyState;",
+            vec![]
+        )
+        .await,
+        json!("awaiting_operator")
+    );
+    b.screenshot("study-added-mass-prompt").await;
+    b.click("#study-confirm").await;
+    b.wait_js(
+        "document.querySelector('#attribution') || document.querySelector('#study-problem')",
+        Duration::from_secs(300),
+        "the attribution",
+    )
+    .await;
+    assert!(
+        !b.exists("#study-problem").await,
+        "{}",
+        b.text("#study-problem").await
+    );
+    let s = api.get(&url).await;
+    assert_eq!(s["state"], "succeeded", "{s}");
+    assert_eq!(s["confirmed_by"], "station-1", "{s}");
+    let r = &s["result"];
+    let at = &r["attribution"];
+    let f = |v: &Value, k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
+    let page = |css: &'static str| {
+        let b = &b;
+        async move { shown(&b.text(css).await) }
+    };
+    let (freq, fu) = page("#att-frequency").await;
+    let (ampl, au) = page("#att-amplitude").await;
+    let (mass, mu) = page("#att-mass").await;
+    let (xpk, xu) = page("#att-xpeak").await;
+    let (derived, du) = page("#am-mass").await;
+    let res = b.text("#att-resonances").await;
+    eprintln!(
+        "page: frequency-dependent {freq} {fu}, amplitude-dependent {ampl} {au} (truth {:.1}), mass {mass} {mu}, Xpeak {xpk} {xu}, resonances {res}; derived mass {derived} {du}; API {at}",
+        -3e4 * f(at, "xpeak_m")
+    );
+    assert_eq!(
+        (
+            fu.as_str(),
+            au.as_str(),
+            mu.as_str(),
+            xu.as_str(),
+            du.as_str()
+        ),
+        ("N/m", "N/m", "kg", "mm", "kg")
+    );
+    assert!(rounded_from(freq, f(at, "frequency_dependent_n_per_m"), 4));
+    assert!(rounded_from(ampl, f(at, "amplitude_dependent_n_per_m"), 4));
+    assert!(rounded_from(mass, f(at, "moving_mass_kg"), 4));
+    assert!(rounded_from(xpk, 1e3 * f(at, "xpeak_m"), 4));
+    assert!(rounded_from(derived, f(r, "moving_mass_derived_kg"), 4));
+    let hz: Vec<f64> = res.split('\u{2192}').map(|p| shown(p).0).collect();
+    assert!(
+        res.matches(" Hz").count() == 2
+            && rounded_from(hz[0], at["resonances_hz"][0].as_f64().unwrap(), 4)
+            && rounded_from(hz[1], at["resonances_hz"][1].as_f64().unwrap(), 4),
+        "{res} vs {}",
+        at["resonances_hz"]
+    );
+    // The cause the part has, and none it lacks (said beside the 0).
+    let truth = -3e4 * f(at, "xpeak_m");
+    assert!((ampl / truth - 1.0).abs() <= 0.2, "{ampl} vs {truth}");
+    assert_eq!(freq, 0.0);
+    let row = b.text("#attribution-figures").await;
+    assert!(row.contains("none found: no creep"), "{row}");
+    // Every effect of the joint model (the order aside), with its parameters.
+    let effects = b
+        .js(
+            "return [...document.querySelectorAll('#att-effects li')].map(l => l.dataset.effect).sort().join(',');",
+            vec![],
+        )
+        .await;
+    let api_effects: Vec<&str> = at["effects"]
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(|s| s.as_str())
+        .collect();
+    assert_eq!(effects.as_str().unwrap(), api_effects.join(","));
+    let soft = b
+        .text("#att-effects li[data-effect=\"reversible_softening\"]")
+        .await;
+    assert!(soft.contains("N/m\u{b2}") && soft.contains(" s"), "{soft}");
+    b.screenshot("study-added-mass-result").await;
+    b.finish("on the added-mass study").await;
+}
+
+/// Issue 33: the memory effects in the diagnostics workspace. The bench
+/// mounts spider_4in with a hysteresis (360 N/m, x_yield 1 mm); after a
+/// job at 8 mm the workspace lists hysteresis among the candidates with its
+/// parameters in units; one click adds it, and the model error the page
+/// shows falls from the base model's to the refit's, each the API's figure
+/// to the digits shown. New against the workspace before: the fitted
+/// parameters of the model's effects are shown with their units and
+/// standard errors (`#model-params`; hysteresis' stiffness in N/mm, its
+/// yield excursion in mm, each the fit's value), and the memory card opens
+/// the study form filled in with the measurement's part, bench and mass.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn diagnostics_workspace_adds_hysteresis_and_shows_its_parameters_in_units() {
+    let cfg = memory_bench(
+        "virtual-hyst",
+        31,
+        "[benches.virtual.part_effects.hysteresis]\nk_n_per_m = 360.0\nx_yield_m = 0.001\n",
+    );
+    let (mut b, d) = open_browser!(&cfg);
+    let api = admin(&d);
+    let mid = station(&d)
+        .measured(&json!({"part": {"serial": "SN-UI-HYS"}, "levels_m": [0.008]}))
+        .await
+        .pop()
+        .unwrap();
+    b.login(&d.base, OPERATOR, "operator").await;
+    b.visit(
+        &format!("#/diagnostics/{mid}"),
+        LONG,
+        "the base model's ladder",
+        "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '1'",
+    )
+    .await;
+    let diag = api
+        .get(&format!("/api/v1/measurements/{mid}/diagnostics"))
+        .await;
+    let dg = &diag["diagnostics"];
+    let base = dg["base_model"]["model_error_percent"].as_f64().unwrap();
+    eprintln!(
+        "candidates: {}",
+        dg["candidates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| format!(
+                "{} {:.2} % sig {}",
+                c["effect"], c["error_reduction_percent"], c["significant"]
+            ))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
+    let (shown_base, _) = shown(&b.text("#model-error").await);
+    assert!(rounded_from(shown_base, base, 3), "{shown_base} vs {base}");
+    let cand = b.text("#candidates tr[data-effect=\"hysteresis\"]").await;
+    assert!(
+        cand.contains("hysteretic stiffness = ")
+            && cand.contains(" N/mm")
+            && cand.contains("yield excursion = ")
+            && cand.contains(" mm"),
+        "{cand}"
+    );
+    b.click("#add-hysteresis").await;
+    b.wait_long(
+        "the ladder's second step",
+        "document.querySelector('#ladder').dataset.steps === '2'",
+    )
+    .await;
+    let fits = api.get(&format!("/api/v1/measurements/{mid}/fits")).await;
+    let fit = &fits["items"][0];
+    assert_eq!(fit["request"]["effects"], json!(["hysteresis"]), "{fit}");
+    let fm = &fit["result"]["diagnostics"]["final_model"];
+    let after = fm["model_error_percent"].as_f64().unwrap();
+    let (shown_after, unit) = shown(&b.text("#model-error").await);
+    let status = b.text("#diag-status").await;
+    eprintln!("page: model error {shown_base} % -> {shown_after} {unit}; API {base:.4} -> {after:.4} %; {status}");
+    assert_eq!(unit, "%");
+    assert!(
+        rounded_from(shown_after, after, 3),
+        "{shown_after} vs {after}"
+    );
+    assert!(after < base, "the refit explains more: {base} -> {after}");
+    let ladder: Vec<f64> = b
+        .find("#ladder")
+        .await
+        .attr("data-errors")
+        .await
+        .unwrap()
+        .unwrap()
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert!(
+        rounded_from(ladder[0], base, 4) && rounded_from(ladder[1], after, 4),
+        "{ladder:?}"
+    );
+    assert!(
+        status.contains(&format!(
+            "model error {} % \u{2192} {} %",
+            springbench_fmt3(base),
+            springbench_fmt3(after)
+        )),
+        "{status}"
+    );
+    // The fitted hysteresis with its units: each the fit's value.
+    let p = &fm["parameters"]["hysteresis"];
+    let params = b
+        .js(
+            "return [...document.querySelectorAll('#model-params .model-effect[data-effect=\"hysteresis\"] .param')].map(e => [e.dataset.param, Number(e.dataset.si), e.textContent]);",
+            vec![],
+        )
+        .await;
+    let params = params.as_array().unwrap();
+    eprintln!("page: {params:?}; API {p}");
+    assert_eq!(params.len(), 2, "{params:?}");
+    for q in params {
+        let name = q[0].as_str().unwrap();
+        assert_eq!(q[1].as_f64(), p[name].as_f64(), "{name}");
+        let text = q[2].as_str().unwrap();
+        let unit = if name == "k_n_per_m" { " N/mm" } else { " mm" };
+        assert!(text.ends_with(unit), "{text}");
+    }
+    b.screenshot("diagnostics-hysteresis").await;
+    // The memory card opens the study form with the measurement's figures.
+    let m = api.get(&format!("/api/v1/measurements/{mid}")).await;
+    let mass_g = 1e3 * m["large_signal"]["moving_mass_kg"].as_f64().unwrap();
+    b.click("#start-added-mass").await;
+    b.wait(
+        "the study form",
+        "document.querySelector('#study-form') && document.querySelector('#study-serial').value",
+    )
+    .await;
+    let filled = b
+        .js(
+            "return ['#study-kind', '#study-serial', '#study-bench', '#study-mass-g'].map(s => document.querySelector(s).value);",
+            vec![],
+        )
+        .await;
+    assert_eq!(filled[0], "added_mass");
+    assert_eq!(filled[1], "SN-UI-HYS");
+    assert_eq!(filled[2], "virtual-hyst");
+    let g: f64 = filled[3].as_str().unwrap().parse().unwrap();
+    assert!((g - mass_g).abs() <= 1e-5 * mass_g, "{g} g vs {mass_g} g");
+    b.finish("in the diagnostics workspace with hysteresis")
+        .await;
+}

@@ -12,6 +12,7 @@ import * as diagnostics from './diagnostics.js';
 import * as qc from './qc.js';
 import * as report from './report.js';
 import * as longterm from './longterm.js';
+import * as studies from './studies.js';
 
 const ROLES = ['viewer', 'operator', 'admin'];
 const main = document.getElementById('view');
@@ -31,6 +32,7 @@ const views = {
   qc: qc.render,
   report: report.render,
   'long-term': longterm.render,
+  study: studies.render,
 };
 
 /** True when the session's role includes `role`. */
@@ -136,6 +138,7 @@ export function errorText(e) {
 const CENTER_ONLY_AT_STATION = {
   operator: 'The fleet\u2019s center runs no bench: jobs are submitted and watched at a station. Here: the parts, measurements, comparisons and QC of every station.',
   diagnostics: 'The diagnostics workspace refits a measurement from its recordings: open it on the station that measured it.',
+  study: 'A study of a part\u2019s memory runs on a bench: start and watch it at the station that has the bench.',
 };
 
 function centerNote(text) {

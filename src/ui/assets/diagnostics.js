@@ -105,6 +105,8 @@ export async function render(main, ctx) {
   const ssEl = h('div', { id: 'plot-small-signal' });
   const candBody = h('tbody', { id: 'candidates' });
   const modelEl = h('p', { id: 'model-effects' });
+  // The fitted parameters of the effects in the current model, with their units.
+  const paramsEl = h('div', { id: 'model-params' });
   const undo = h('button', { id: 'undo', disabled: true }, 'Remove the last effect');
   undo.addEventListener('click', () => {
     if (steps.length > 1) {
@@ -121,6 +123,7 @@ export async function render(main, ctx) {
     h('section', { class: 'card' },
       h('h1', {}, 'Diagnostics workspace: measurement ', h('a', { href: `#/measurement/${id}`, class: 'mono' }, shortId(id)), ' of part ', h('span', { class: 'serial' }, info.part_serial || '?')),
       h('div', { class: 'toolbar' }, h('span', {}, 'Model error now: '), errEl, modelEl, undo),
+      paramsEl,
       status),
     h('div', { class: 'diag-top' },
       h('section', { class: 'card' }, h('h2', {}, 'Model ladder'),
@@ -131,6 +134,7 @@ export async function render(main, ctx) {
       h('table', { class: 'list candidates' },
         h('thead', {}, h('tr', {}, h('th', {}, 'effect'), h('th', {}, 'error reduction'), h('th', {}, 'significant'), h('th', {}, 'parameters \u00b1 standard error'), h('th', {}, 'notes'), h('th', {}, ''))),
         candBody)),
+    memoryCard(doc, ctx),
     h('section', { class: 'card', id: 'diag-time' }, h('h2', {}, 'Model against measurement (largest excursion), residual beneath on the same time axis'), fitEl, resEl),
     h('section', { class: 'card', id: 'diag-residuals' }, h('div', { class: 'plot-grid' }, rxEl, rvEl)),
     h('section', { class: 'card', id: 'diag-spectra' }, h('div', { class: 'plot-grid' }, spEl, ssEl)),
@@ -296,10 +300,29 @@ export async function render(main, ctx) {
     });
   }
 
+  function drawParams() {
+    const s = steps[current];
+    const ids = Object.keys(s.params || {});
+    paramsEl.dataset.effects = ids.join(',');
+    if (!ids.length) {
+      put(paramsEl);
+      return;
+    }
+    put(paramsEl, h('span', { class: 'muted' }, 'Fitted parameters \u00b1 standard error: '),
+      ids.map((e, n) => h('span', { class: 'model-effect', dataset: { effect: e } }, n ? '; ' : '', h('b', {}, effectName(e)), ' ',
+        Object.entries(s.params[e] || {}).map(([k, v], i) => {
+          const d = effectParam(e, k);
+          const se = ((s.paramsSe || {})[e] || {})[k];
+          return h('span', { class: 'param', title: `${e}.${k}`, dataset: { param: k, si: String(v) } }, `${i ? ', ' : ''}${d.label} = ${withSe(v, se, d.unit, d.scale)}`);
+        }))));
+  }
+
   function draw() {
     const s = steps[current];
     errEl.textContent = `${num(s.error, 3)} %`;
+    errEl.dataset.si = String(s.error);
     put(modelEl, s.effects.length ? `effects in the model: ${s.effects.map(effectName).join(', ')}` : 'base model (no extra effects)');
+    drawParams();
     undo.disabled = steps.length < 2 || !ctx.can('operator');
     drawLadder();
     drawK();
@@ -317,4 +340,33 @@ export async function render(main, ctx) {
     ? `The base model misses something: significant candidates ${sig.join(', ')}.${ctx.can('operator') ? ' Add one to refit.' : ''}`
     : 'No candidate effect is significant: the base model explains the measurement down to the noise.';
   draw();
+}
+
+/**
+ * The material's memory (issue 33): the two experiments that tell its
+ * effects apart, started for this part on the bench that measured it
+ * (the study form filled in with the measurement's part, bench, moving
+ * mass and level).
+ */
+function memoryCard(doc, ctx) {
+  const info = doc.measurement || {};
+  const ls = doc.large_signal || {};
+  const ss = doc.small_signal || {};
+  if (!info.bench_id || !info.part_serial) return null;
+  const ps = new URLSearchParams({ serial: info.part_serial, bench: info.bench_id });
+  if (Number.isFinite(ls.moving_mass_kg)) ps.set('mass_g', String(Number((ls.moving_mass_kg * 1e3).toPrecision(6))));
+  const level = [info.target_xpeak_m, ls.target_xpeak_m, ls.xpeak_m].find(Number.isFinite);
+  if (Number.isFinite(level)) ps.set('level_mm', String(Number((level * 1e3).toPrecision(4))));
+  if (Number.isFinite(ss.f0_hz)) ps.set('f0_hz', String(Number(ss.f0_hz.toPrecision(4))));
+  const link = (kind, id, text) => {
+    const q = new URLSearchParams(ps);
+    q.set('kind', kind);
+    return h('a', { href: `#/study?${q}`, id, class: 'button' }, text);
+  };
+  return h('section', { class: 'card', id: 'diag-memory' },
+    h('h2', {}, 'The material\u2019s memory: experiments that tell its effects apart'),
+    h('p', { class: 'muted' }, 'Hysteresis, creep and a reversible softening can explain the same sweep. An added-mass study (the same part with a second mass on the slide) splits the stiffness change into a frequency-dependent share (creep) and an amplitude-dependent one (softening); a recovery measurement gives the softening\u2019s depth and time constant.'),
+    ctx.can('operator')
+      ? h('p', { class: 'toolbar' }, link('added_mass', 'start-added-mass', `Added-mass study of ${info.part_serial} on ${info.bench_id}`), ' ', link('recovery', 'start-recovery', `Recovery measurement of ${info.part_serial} on ${info.bench_id}`))
+      : h('p', { class: 'muted' }, 'Starting a study needs the operator role.'));
 }

@@ -5,6 +5,7 @@
 import { api, daemon } from './api.js';
 import { h, put, q, when, shortId, VERDICT_WORDS, stated } from './util.js';
 import { verdictCard } from './verdict.js';
+import { studyKind, KIND_TEXT } from './studies.js';
 
 /** A verdict badge (or a dash for a part never judged). */
 export function verdictBadge(v) {
@@ -160,12 +161,16 @@ export async function renderPart(main, ctx) {
         h('thead', {}, h('tr', {}, h('th', {}, ''), h('th', {}, 'measured'), daemon.center ? h('th', {}, 'station') : null, h('th', {}, 'source'), h('th', {}, 'target Xpeak'), h('th', {}, 'Xpeak'), h('th', {}, 'Keff(Xpeak)'), h('th', {}, 'resonance'), h('th', {}, ''))),
         h('tbody', {}, mrows.length ? mrows : h('tr', {}, h('td', { colspan: daemon.center ? '9' : '8', class: 'muted' }, 'none')))),
       compareBtn,
+      // The memory's studies (issue 33): on the bench of the part's newest job.
+      !daemon.center && ctx.can('operator')
+        ? h('p', { class: 'toolbar' }, h('a', { class: 'button', id: 'part-study', href: `#/study?${new URLSearchParams({ serial: part.serial, ...(jobs && jobs.items[0] ? { bench: jobs.items[0].bench_id } : {}) })}` }, 'Study this part\u2019s memory (added mass, recovery)'))
+        : null,
       h('h2', { class: 'after-toolbar' }, 'Jobs'),
       !jobs ? h('p', { class: 'muted', id: 'part-jobs-center' }, 'Jobs are held by the station that ran them; the fleet\u2019s center holds their measurements and verdicts (above).') : h('table', { class: 'list', id: 'part-jobs' },
         h('thead', {}, h('tr', {}, h('th', {}, 'job'), h('th', {}, 'state'), h('th', {}, 'verdict'), h('th', {}, 'recipe'), h('th', {}, 'bench'), h('th', {}, 'submitted'), h('th', {}, 'bench time'), h('th', {}, 'problem'))),
         h('tbody', {}, jobs.items.length ? null : h('tr', {}, h('td', { colspan: '8', class: 'muted' }, mrows.length ? 'none: this part was not measured by a job here (its measurements were imported)' : 'none')),
-          jobs.items.map((j) => h('tr', { dataset: { job: j.id, verdict: j.verdict || '' } },
-          h('td', {}, shortId(j.id)),
+          jobs.items.map((j) => h('tr', { dataset: { job: j.id, verdict: j.verdict || '', study: studyKind(j) || '' } },
+          h('td', {}, studyKind(j) ? h('a', { href: `#/study/${encodeURIComponent(j.id)}`, class: 'mono', title: KIND_TEXT[studyKind(j)] }, `${shortId(j.id)} (${KIND_TEXT[studyKind(j)]})`) : shortId(j.id)),
           h('td', {}, h('span', { class: `badge state-${j.state}` }, j.state)),
           h('td', {}, verdictBadge(j.verdict)),
           h('td', {}, j.request && j.request.recipe ? `${j.request.recipe.name} v${j.request.recipe.version}` : '\u2013'),

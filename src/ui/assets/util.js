@@ -150,6 +150,7 @@ export function displayUnit(si) {
     'N s^2/m^2': ['N\u00b7s\u00b2/m\u00b2', 1],
     'N s/m^2': ['N\u00b7s/m\u00b2', 1],
     'N s/m^3': ['N\u00b7s/m\u00b3', 1],
+    'N/m^2': ['N/m\u00b2', 1],
     'N/(m s)': ['N/(mm\u00b7s)', 1e-3],
     'm/s': ['mm/s', 1e3],
     s: ['ms', 1e3],
@@ -216,7 +217,8 @@ export const EFFECTS = {
   stiffness_drift: { name: 'stiffness drift (warming)', params: { dk0_dt_n_per_m_s: 'drift of k0' } },
   channel_delay: { name: 'delay between channels', params: { delay_s: 'delay' } },
   hysteresis: { name: 'hysteresis (material memory)', params: { k_n_per_m: 'hysteretic stiffness', x_yield_m: 'yield excursion' } },
-  reversible_softening: { name: 'reversible softening (recovers in seconds)', params: { depth_n_per_m2: 'K(0) drop per m of excursion', tau_s: 'recovery time' } },
+  // Recovers in seconds: its time constant in s, not ms (`units`: SI unit -> shown unit and scale).
+  reversible_softening: { name: 'reversible softening (recovers in seconds)', params: { depth_n_per_m2: 'K(0) drop per m of excursion', tau_s: 'recovery time' }, units: { tau_s: ['s', 1] } },
   stiffness_order: { name: 'higher K(x) order', params: {} },
 };
 
@@ -244,8 +246,10 @@ export function unitOfParam(name) {
 
 /** {label, unit, scale} of an effect parameter ("friction force", "N", 1). */
 export function effectParam(effect, name) {
-  const label = (EFFECTS[effect] && EFFECTS[effect].params[name]) || name.replace(/_/g, ' ');
-  return { label, ...displayUnit(unitOfParam(name)) };
+  const e = EFFECTS[effect];
+  const label = (e && e.params[name]) || name.replace(/_/g, ' ');
+  const own = e && e.units && e.units[name];
+  return { label, ...(own ? { unit: own[0], scale: own[1] } : displayUnit(unitOfParam(name))) };
 }
 
 /** A judged parameter's label: the recipe's name; a K(x) mask point names its x. */
