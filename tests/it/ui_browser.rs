@@ -2823,6 +2823,26 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
         json!("awaiting_operator")
     );
     b.screenshot("study-added-mass-prompt").await;
+    // The station screen says the same where the operator stands, and
+    // leads back to the study's confirm.
+    b.visit(
+        "#/operator",
+        SHORT,
+        "the station's prompt",
+        "document.querySelector('#verdict-prompt') && document.querySelector('#study-link-virtual-am')",
+    )
+    .await;
+    assert_eq!(b.text("#verdict-big").await, "ADD THE MASS");
+    assert_eq!(b.text("#verdict-prompt").await, prompt);
+    // No time left that looks measured: the wait is the operator's.
+    assert_eq!(b.text("#eta-virtual-am").await, "until you confirm");
+    b.screenshot("study-added-mass-station").await;
+    b.click("#study-link-virtual-am").await;
+    b.wait(
+        "the study's prompt again",
+        &format!("location.hash === '#/study/{id}' && document.querySelector('#study-confirm')"),
+    )
+    .await;
     b.click("#study-confirm").await;
     b.wait_js(
         "document.querySelector('#attribution') || document.querySelector('#study-problem')",
@@ -2918,15 +2938,20 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
 /// the study form filled in with the measurement's part, bench and mass.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn diagnostics_workspace_adds_hysteresis_and_shows_its_parameters_in_units() {
-    let cfg = memory_bench(
-        "virtual-hyst",
-        31,
-        "[benches.virtual.part_effects.hysteresis]\nk_n_per_m = 360.0\nx_yield_m = 0.001\n",
-    );
+    let cfg = roles()
+        .toml(
+            "[[benches]]\nid = \"virtual-hyst\"\npreset = \"spider_4in\"\nseed = 31\n\
+             [benches.virtual.part_effects.hysteresis]\nk_n_per_m = 360.0\nx_yield_m = 0.001\n\
+             [[benches]]\nid = \"virtual-soft\"\npreset = \"spider_4in\"\nseed = 41\n\
+             [benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n",
+        )
+        .text();
     let (mut b, d) = open_browser!(&cfg);
     let api = admin(&d);
     let mid = station(&d)
-        .measured(&json!({"part": {"serial": "SN-UI-HYS"}, "levels_m": [0.008]}))
+        .measured(
+            &json!({"part": {"serial": "SN-UI-HYS"}, "bench": "virtual-hyst", "levels_m": [0.008]}),
+        )
         .await
         .pop()
         .unwrap();
@@ -3047,6 +3072,67 @@ async fn diagnostics_workspace_adds_hysteresis_and_shows_its_parameters_in_units
     assert_eq!(filled[2], "virtual-hyst");
     let g: f64 = filled[3].as_str().unwrap().parse().unwrap();
     assert!((g - mass_g).abs() <= 1e-5 * mass_g, "{g} g vs {mass_g} g");
-    b.finish("in the diagnostics workspace with hysteresis")
+
+    // The softening, the same way: one click, the error falls by the API's
+    // figure, its depth in N/m² and its time constant in s (it read
+    // "2000 ms" before).
+    let mid = station(&d)
+        .measured(&json!({"part": {"serial": "SN-UI-SOFT"}, "bench": "virtual-soft", "levels_m": [0.008]}))
+        .await
+        .pop()
+        .unwrap();
+    b.visit(
+        &format!("#/diagnostics/{mid}"),
+        LONG,
+        "the softening part's ladder",
+        "document.querySelector('#ladder') && document.querySelector('#ladder').dataset.steps === '1' && document.querySelector('#add-reversible_softening')",
+    )
+    .await;
+    let diag = api
+        .get(&format!("/api/v1/measurements/{mid}/diagnostics"))
+        .await;
+    let base = diag["diagnostics"]["base_model"]["model_error_percent"]
+        .as_f64()
+        .unwrap();
+    b.click("#add-reversible_softening").await;
+    b.wait_long(
+        "the softening's step",
+        "document.querySelector('#ladder').dataset.steps === '2'",
+    )
+    .await;
+    let fits = api.get(&format!("/api/v1/measurements/{mid}/fits")).await;
+    let fm = &fits["items"][0]["result"]["diagnostics"]["final_model"];
+    let after = fm["model_error_percent"].as_f64().unwrap();
+    let (shown_after, _) = shown(&b.text("#model-error").await);
+    let params = b
+        .js(
+            "return [...document.querySelectorAll('#model-params .model-effect[data-effect=\"reversible_softening\"] .param')].map(e => [e.dataset.param, Number(e.dataset.si), e.textContent]);",
+            vec![],
+        )
+        .await;
+    eprintln!(
+        "softening: model error {base:.4} -> {after:.4} % (page {shown_after} %); page {params:?}; API {}",
+        fm["parameters"]["reversible_softening"]
+    );
+    assert!(after < base, "{base} -> {after}");
+    assert!(
+        rounded_from(shown_after, after, 3),
+        "{shown_after} vs {after}"
+    );
+    let params = params.as_array().unwrap();
+    assert_eq!(params.len(), 2, "{params:?}");
+    for q in params {
+        let name = q[0].as_str().unwrap();
+        assert_eq!(
+            q[1].as_f64(),
+            fm["parameters"]["reversible_softening"][name].as_f64(),
+            "{name}"
+        );
+        let text = q[2].as_str().unwrap();
+        let unit = if name == "tau_s" { " s" } else { " N/m\u{b2}" };
+        assert!(text.ends_with(unit), "{text}");
+    }
+    b.screenshot("diagnostics-softening").await;
+    b.finish("in the diagnostics workspace with hysteresis and softening")
         .await;
 }

@@ -10,14 +10,24 @@ import { api, events, ApiError, Unreachable } from './api.js';
 import { h, put, q, dur, when, shortId, pick, VERDICT_WORDS, validityOf, stated } from './util.js';
 import { rankReasons, reasonText, failureText } from './verdict.js';
 import { chart } from './plots.js';
+import { studyKind, promptText, KIND_TEXT } from './studies.js';
 
 const STEPS = {
   pre_measurement: 'pre-measurement',
   resonance_search: 'resonance search',
   narrow_sweep: 'narrow sweep',
   fit: 'fit',
+  // A study of the part's memory (issue 33): the operator's step, the second run.
+  awaiting_operator: 'waiting for the operator',
+  added_mass: 'measuring with the added mass',
 };
 const FINISHED = ['succeeded', 'failed', 'cancelled', 'interrupted'];
+
+/** Time left, or nothing while a study waits for the operator (its time is the operator's: no "0 s left"). */
+function etaText(step, eta) {
+  if (step === 'awaiting_operator') return 'until you confirm';
+  return eta !== null && eta !== undefined ? `${dur(eta)} left` : '';
+}
 
 // Where the station keeps its choices (this browser is the station).
 const STATION_KEY = 'springbench.station';
@@ -296,8 +306,10 @@ export async function render(main, ctx) {
         h('div', { class: 'bench-step' },
           h('span', { class: 'step', id: `step-${b.id}` }, STEPS[j.step] || j.step || 'waiting'),
           h('span', { class: 'pct', id: `pct-${b.id}` }, `${Math.round(100 * (j.progress || 0))} %`),
-          h('span', { class: 'eta', id: `eta-${b.id}` }, j.eta_s !== null && j.eta_s !== undefined ? `${dur(j.eta_s)} left` : '')),
+          h('span', { class: 'eta', id: `eta-${b.id}` }, etaText(j.step, j.eta_s))),
         prog,
+        // A study's own page: its prompt, confirm and result (decision 0142).
+        studyKind(j) ? h('a', { href: `#/study/${encodeURIComponent(j.id)}`, id: `study-link-${b.id}`, class: 'button' }, j.step === 'awaiting_operator' ? 'Add the mass: open the study to confirm' : `open the ${KIND_TEXT[studyKind(j)]}`) : null,
         cancelButton(j),
       );
     } else if (stateName === 'idle') {
@@ -374,7 +386,7 @@ export async function render(main, ctx) {
     prog.dataset.updates = String(progressSeen.get(jobId));
     document.getElementById(`step-${b.id}`).textContent = STEPS[data.step] || data.step;
     document.getElementById(`pct-${b.id}`).textContent = `${Math.round(100 * data.progress)} %`;
-    document.getElementById(`eta-${b.id}`).textContent = data.eta_s !== null && data.eta_s !== undefined ? `${dur(data.eta_s)} left` : '';
+    document.getElementById(`eta-${b.id}`).textContent = etaText(data.step, data.eta_s);
   }
 
   // --- lists and verdict -----------------------------------------------------
@@ -385,7 +397,9 @@ export async function render(main, ctx) {
   }
 
   function jobRow(j, finished) {
-    const link = j.measurement_ids && j.measurement_ids.length ? h('a', { href: `#/measurement/${j.measurement_ids[0]}` }, shortId(j.id)) : shortId(j.id);
+    const link = studyKind(j)
+      ? h('a', { href: `#/study/${encodeURIComponent(j.id)}`, title: KIND_TEXT[studyKind(j)] }, `${shortId(j.id)} (study)`)
+      : j.measurement_ids && j.measurement_ids.length ? h('a', { href: `#/measurement/${j.measurement_ids[0]}` }, shortId(j.id)) : shortId(j.id);
     return h('tr', { dataset: { job: j.id, state: j.state, verdict: j.verdict || '' } },
       h('td', {}, link),
       h('td', {}, j.part_serial),
@@ -460,8 +474,10 @@ export async function render(main, ctx) {
   /** The verdict panel shows the part on the bench: a running job, else the last finished. */
   async function drawVerdict(vp, j) {
     const verdictEl = vp.el;
-    if (!j || vp.verdictFor === `${j.id}:${j.state}`) return;
-    vp.verdictFor = `${j.id}:${j.state}`;
+    // A study's panel also changes with its step (the operator's prompt).
+    const key = j ? `${j.id}:${j.state}${studyKind(j) ? `:${j.step}` : ''}` : '';
+    if (!j || vp.verdictFor === key) return;
+    vp.verdictFor = key;
     const head = (cls, big, ...sub) => {
       verdictEl.className = `verdict ${cls}`;
       verdictEl.dataset.verdict = cls;
@@ -474,6 +490,20 @@ export async function render(main, ctx) {
         sub,
       ];
     };
+    const sk = studyKind(j);
+    if (sk) {
+      // A study judges no part: its page has the prompt and the result.
+      const link = h('a', { href: `#/study/${encodeURIComponent(j.id)}`, id: vp.id('open-study') }, 'open the study');
+      if (!FINISHED.includes(j.state) && j.step === 'awaiting_operator') {
+        put(verdictEl, head('running', 'ADD THE MASS', h('p', { class: 'verdict-why', id: vp.id('verdict-prompt') }, promptText(j)), link));
+      } else if (!FINISHED.includes(j.state)) {
+        put(verdictEl, head('running', 'STUDYING\u2026', h('p', { class: 'verdict-step' }, `${KIND_TEXT[sk]}: `, h('span', { id: vp.id('verdict-step') }, STEPS[j.step] || j.step || 'measuring')), link));
+      } else {
+        put(verdictEl, head(j.state === 'succeeded' ? 'measured' : 'not-measured', j.state === 'succeeded' ? 'STUDY DONE' : 'NO RESULT',
+          h('p', { class: 'verdict-why' }, `${KIND_TEXT[sk]} ${j.state}${j.problem && j.problem.detail ? `: ${j.problem.detail}` : ''}. No QC verdict: a study judges no part.`), link));
+      }
+      return;
+    }
     if (!FINISHED.includes(j.state)) {
       const pct = Math.round(100 * (j.progress || 0));
       put(verdictEl, head('running', 'MEASURING\u2026',
@@ -692,9 +722,10 @@ export async function render(main, ctx) {
       if (ev.type === 'job.samples') onSamples(ev);
       else if (ev.type === 'job.progress') {
         updateProgress(ev.job_id, ev.data || {});
-      } else if (ev.type === 'job.state') {
+      } else if (ev.type === 'job.state' || ev.type === 'study.state') {
+        // A study's step (its prompt) refreshes too; its `state` is the study's, not the job's.
         const j = jobs.get(ev.job_id);
-        if (j && ev.data && ev.data.state) j.state = ev.data.state;
+        if (j && ev.type === 'job.state' && ev.data && ev.data.state) j.state = ev.data.state;
         if (timer) clearTimeout(timer);
         timer = setTimeout(refresh, 50);
       }

@@ -156,6 +156,7 @@ async function renderForm(main, ctx) {
 
 /** The operator's prompt of an added-mass study, from the request (the API's added mass in kg). */
 export function promptText(s) {
+  // A study view and a job both carry the request as `request`.
   const r = s.request || {};
   const am = (r.plan || {}).added_mass || {};
   return `Add ${num(am.added_mass_kg * 1e3, 4)} g to the slide of bench \u2018${r.bench}\u2019 (part ${r.part_serial}), then confirm.`;
