@@ -2592,11 +2592,14 @@ fn rounded_from(page: f64, api: f64, digits: i32) -> bool {
 /// Before this the UI had no study at all.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
-    let cfg = memory_bench(
-        "virtual-soft",
-        11,
-        "[benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n",
-    );
+    // virtual-soft: the softening; virtual-plain: the same part without it.
+    let cfg = roles()
+        .toml(
+            "[[benches]]\nid = \"virtual-soft\"\npreset = \"spider_4in\"\nseed = 11\n\
+             [benches.virtual.part_effects.reversible_softening]\ndepth_n_per_m2 = 30000.0\ntau_s = 2.0\n\
+             [[benches]]\nid = \"virtual-plain\"\npreset = \"spider_4in\"\nseed = 12\n",
+        )
+        .text();
     let (mut b, d) = open_browser!(&cfg);
     b.login(&d.base, OPERATOR, "operator").await;
     b.visit(
@@ -2607,6 +2610,7 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
     )
     .await;
     set_field(&b, "#study-kind", "recovery").await;
+    set_field(&b, "#study-bench", "virtual-soft").await;
     set_field(&b, "#study-serial", "SN-UI-REC").await;
     set_field(&b, "#study-mass-g", "50").await;
     // One probe is too few: the daemon's 422 names the field, beside its input.
@@ -2713,6 +2717,65 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
     // No cancel or prompt once it has finished.
     assert!(!b.find("#study-cancel").await.is_displayed().await.unwrap());
     b.screenshot("study-recovery").await;
+    // A part without the softening: depth, tau and drop are NOT DETERMINED
+    // where they stand, with the reason, and no number that looks measured
+    // (the fit's own number only under its diagnostic label).
+    let plain = json!({"bench": "virtual-plain", "part_serial": "SN-UI-PLAIN", "moving_mass_kg": 0.05,
+        "plan": {"recovery": {"excitation_hz": 30.0, "excitation_v": 50.0, "excitation_s": 2.0,
+            "probe_v": 1.5, "delays_s": [0.5, 1.0, 2.0, 5.0, 10.0, 30.0]}}});
+    let pid = station(&d)
+        .post("/api/v1/studies", &plain)
+        .await
+        .expect(202)["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    b.visit(
+        &format!("#/study/{pid}"),
+        Duration::from_secs(300),
+        "the plain part's recovery",
+        "document.querySelector('#recovery-result') || document.querySelector('#study-problem')",
+    )
+    .await;
+    let ps = admin(&d).get(&format!("/api/v1/studies/{pid}")).await;
+    assert_eq!(ps["result"]["softening_found"], false, "{ps}");
+    assert_eq!(
+        b.js(
+            "return [...document.querySelectorAll('#recovery-figures .validity')].map(e => e.dataset.state).join(',');",
+            vec![]
+        )
+        .await,
+        json!("not_determined,not_determined,not_determined")
+    );
+    assert!(!b.exists("#rec-depth").await && !b.exists("#rec-tau").await);
+    let figures = b.text("#recovery-figures").await;
+    assert!(
+        figures.contains("NOT DETERMINED")
+            && figures.contains("no reversible softening found")
+            && figures.contains("fit value (diagnostic, not a measurement)"),
+        "{figures}"
+    );
+    b.screenshot("study-recovery-none").await;
+    // A viewer reads the study, and can neither start nor cancel one.
+    b.click("#logout").await;
+    b.login(&d.base, VIEWER, "viewer").await;
+    b.visit(
+        &format!("#/study/{id}"),
+        SHORT,
+        "the study as a viewer",
+        "document.querySelector('#rec-depth')",
+    )
+    .await;
+    assert_eq!(shown(&b.text("#rec-depth").await).0, depth);
+    assert!(!b.find("#study-cancel").await.is_displayed().await.unwrap());
+    b.visit(
+        "#/study",
+        SHORT,
+        "the form refused to a viewer",
+        "document.querySelector('#study-role')",
+    )
+    .await;
+    assert!(!b.exists("#study-form").await);
     b.finish("on the recovery study").await;
 }
 
@@ -2923,6 +2986,32 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
         .await;
     assert!(soft.contains("N/m\u{b2}") && soft.contains(" s"), "{soft}");
     b.screenshot("study-added-mass-result").await;
+    // The part's page lists both studies among its jobs, each linked to its
+    // page, and starts another on the part's bench.
+    b.visit(
+        "#/part/SN-UI-AM",
+        SHORT,
+        "the part's jobs",
+        "document.querySelectorAll('#part-jobs tr[data-study=\"added_mass\"]').length === 2",
+    )
+    .await;
+    let links = b
+        .js(
+            "return [...document.querySelectorAll('#part-jobs tr[data-study] a')].map(a => a.getAttribute('href')).sort().join(' ');",
+            vec![],
+        )
+        .await;
+    let mut want = [format!("#/study/{first}"), format!("#/study/{id}")];
+    want.sort();
+    assert_eq!(links.as_str().unwrap(), want.join(" "));
+    let again = b
+        .find("#part-study")
+        .await
+        .attr("href")
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(again, "#/study?serial=SN-UI-AM&bench=virtual-am");
     b.finish("on the added-mass study").await;
 }
 

@@ -14,7 +14,7 @@
 // beside the inputs.
 
 import { api } from './api.js';
-import { h, put, num, shortId, row, stated, effectName, effectParam, withSe, linspace } from './util.js';
+import { h, put, num, shortId, row, stated, effectName, effectParam, withSe, linspace, foldRepeatedReasons } from './util.js';
 import { chart } from './plots.js';
 
 const TERMINAL = ['succeeded', 'failed', 'cancelled', 'interrupted'];
@@ -296,7 +296,7 @@ function recoveryResult(r) {
     h('p', { id: 'recovery-found', class: r.softening_found ? '' : 'error' }, r.softening_found
       ? 'The part softens reversibly: K(0) falls after the large excitation and recovers with the time constant below.'
       : 'No reversible softening found.'),
-    h('table', { class: 'kv', id: 'recovery-figures' },
+    foldRepeatedReasons(h('table', { class: 'kv', id: 'recovery-figures' },
       row('depth (K(0) drop per m of the excitation\u2019s peak excursion)', stated(val('rec-depth', r.depth_n_per_m2, 'N/m\u00b2'), v, { unit: 'N/m\u00b2', raw: r.depth_n_per_m2 })),
       row('time constant of the recovery', stated(val('rec-tau', r.tau_s, 's'), v, { unit: 's', raw: r.tau_s })),
       row('drop of K(0) when the excitation ends', stated(val('rec-drop', r.depth_n_per_m, 'N/m'), v, { unit: 'N/m', raw: r.depth_n_per_m })),
@@ -304,7 +304,7 @@ function recoveryResult(r) {
       row('K(0) once recovered', val('rec-k', r.k_recovered_n_per_m, 'N/mm', 4, 1e-3)),
       row('peak excursion of the excitation', val('rec-xpeak', r.excitation_peak_m, 'mm', 4, 1e3)),
       row('damping of the probes', val('rec-r', r.r_ns_per_m, 'N\u00b7s/m')),
-      row('probes', String(pts.length))),
+      row('probes', String(pts.length)))),
     plot,
     h('table', { class: 'list', id: 'recovery-points' },
       h('thead', {}, h('tr', {}, h('th', {}, 't after the excitation (s)'), h('th', {}, 'K (N/mm)'), h('th', {}, 'peak excursion (mm)'))),
