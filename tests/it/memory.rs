@@ -289,58 +289,71 @@ fn matrix_full() {
     );
 }
 
-/// A hysteresis the record cannot weigh (decision 0123): the 18" cone with
-/// k = 0.15 x k0, x_yield 1 mm, seed 902. The block test finds it (p about
-/// 1e-42, the first candidate), but the noise floor (6.9 %) is estimated
-/// above the base model's held-out residual, so the model error reads 0 and
-/// the 5 % relevance rule cannot be met: it is not added, and K(x) carries
-/// its share (1.08 % RMS from the elastic truth). Before the fix the
-/// document said nothing and K(x), Keff and fR were `valid`; now it says
-/// "cannot tell whether hysteresis matters" with the separating
-/// experiment, and marks them.
+/// A hysteresis the noise floor cannot weigh but the headline can
+/// (decisions 0123, 0140): the 18" cone with k = 0.15 x k0, x_yield 1 mm,
+/// seed 902. The block test finds it (p about 1e-42, the first candidate),
+/// but the noise floor (6.9 %) is estimated above the base model's held-out
+/// residual, so the model error reads 0 and the 5 % relevance rule cannot
+/// be met. Leaving it out moves the headline beyond its stated accuracy
+/// (K(x) 1.0 % RMS, R -8.4 %, Keff -1.5 %), so it is added: before, it was
+/// left out with "cannot tell whether hysteresis matters" and K(x) 1.08 %
+/// RMS from the elastic truth, marked `unreliable`. Now the elastic K(x)
+/// is within 0.2 % of the truth and `valid`, k within 20 %.
 #[test]
-fn a_hysteresis_the_record_cannot_weigh_is_cannot_tell() {
+fn a_hysteresis_the_floor_cannot_weigh_is_weighed_by_the_headline() {
     use springbench::bench::simulate::simulate_recording_set;
     use springbench::diagnose::{diagnose, DiagnoseOptions};
-    use springbench::identify::validity::State::Unreliable;
+    use springbench::identify::validity::State::Valid;
     let mut part = preset("cone_18in").unwrap();
-    part.effects = hysteresis(0.15 * part.k_coeffs_si[0], 1e-3);
+    let k = 0.15 * part.k_coeffs_si[0];
+    part.effects = hysteresis(k, 1e-3);
     let set = simulate_recording_set(&part, 902).unwrap();
     let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
     let diag = d.report.diagnostics.as_ref().unwrap();
     let first = &diag.candidates[0];
+    let s = &d.report.stiffness;
+    let [lo, hi] = s.valid_range_m;
+    let (mut se, mut st) = (0.0, 0.0);
+    for i in 0..=100 {
+        let x = lo + (hi - lo) * i as f64 / 100.0;
+        let kt = part.stiffness_n_per_m(x);
+        let kf = s
+            .coefficients_n_per_m_pow_i_plus_1
+            .iter()
+            .rev()
+            .fold(0.0, |a, c| a * x + c);
+        se += (kf - kt).powi(2);
+        st += kt * kt;
+    }
+    let k_rms = (se / st).sqrt();
+    let got = first.parameters["k_n_per_m"].as_f64().unwrap();
     eprintln!(
-        "first {} p {:.1e} alpha {:.1e} note {:?}; model {:?}; warnings {:#?}",
+        "first {} significant {} p {:.1e} k {got:.1} ({:+.1} %) K(x) {:.2} % RMS {:?} note {:?}; model {:?}; warnings {:#?}",
         first.effect,
+        first.significant,
         first.p_value,
-        first.alpha,
+        100.0 * (got / k - 1.0),
+        100.0 * k_rms,
+        s.validity.k_of_x.state,
         first.note,
         diag.final_model.effects,
         d.report.warnings
     );
     assert_eq!(first.effect, "hysteresis");
-    assert!(!first.significant && first.p_value < first.alpha * 1e-6);
-    assert!(diag.final_model.effects.is_empty());
-    let experiment = Term::Effect(EffectId::Hysteresis).separating_experiment();
-    let note = first.note.as_deref().unwrap();
-    assert!(
-        note.starts_with("cannot tell whether hysteresis matters") && note.contains(experiment),
-        "{note}"
-    );
-    assert!(d
+    assert!(first.significant && first.p_value < first.alpha * 1e-6);
+    assert_eq!(diag.final_model.effects, vec![EffectId::Hysteresis]);
+    assert!(first
+        .note
+        .as_deref()
+        .is_some_and(|n| n.starts_with("added because leaving it out moves the headline")));
+    assert!((got / k - 1.0).abs() <= 0.2, "{got} against {k}");
+    assert!(k_rms <= 0.01, "{k_rms}");
+    assert_eq!(s.validity.k_of_x.state, Valid);
+    assert!(!d
         .report
         .warnings
         .iter()
-        .any(|w| note.starts_with(w.as_str())));
-    assert_eq!(d.report.stiffness.validity.k_of_x.state, Unreliable);
-    assert_eq!(
-        d.report.large_signal.validity.keff_n_per_m.state,
-        Unreliable
-    );
-    assert_eq!(
-        d.report.large_signal.validity.resonance_hz.state,
-        Unreliable
-    );
+        .any(|w| w.starts_with("cannot tell whether")));
 }
 
 /// A hysteresis within the floor's resolution (decisions 0123, 0128): the

@@ -174,6 +174,7 @@ pub fn diagnose(set: &RecordingSet, opts: &DiagnoseOptions) -> Result<Diagnosis,
         // alone confounds time and frequency: drift and creep look alike
         // there), the ladder may add more.
         let mut pre_opts = engine_opts.clone();
+        pre_opts.headline_relevance = false;
         for e in claimed.model.effect_ids.iter() {
             if !pre_opts.forced.contains(e) {
                 pre_opts.forced.push(*e);

@@ -28,6 +28,12 @@ pub struct EngineOptions {
     pub min_reduction_percent: f64,
     /// Highest K(x) power the order selection and `stiffness_order` may reach.
     pub max_order: usize,
+    /// Weigh a memory effect by the headline values it moves (K(x), R,
+    /// Keff of this sweep) where the model error is within the noise
+    /// floor's resolution (decision 0140). Off for the pre-measurement: its
+    /// small-signal model takes the memory effects the main sweep's model
+    /// has (forced), so that the two sweeps describe one part.
+    pub headline_relevance: bool,
 }
 
 impl Default for EngineOptions {
@@ -43,6 +49,7 @@ impl Default for EngineOptions {
             max_steps: 6,
             min_reduction_percent: 5.0,
             max_order: 10,
+            headline_relevance: true,
         }
     }
 }

@@ -3,12 +3,15 @@
 
 use super::design::{Built, Col, Prepared, Role, Spec};
 use super::fit::{
-    dmic_of, effect_params, effect_se, evaluate, model_error, pct, wald_last, Evaluated,
+    describe, dmic_of, effect_params, effect_se, evaluate, model_error, pct, wald_last, Evaluated,
 };
 use super::options::{EngineOptions, Term};
+use crate::diagnose::headline::MODEL_ERROR_RESOLUTION;
 use crate::diagnose::regress::collinearity_r2;
 use crate::effects::EffectId;
 use crate::identify::documents::CandidateResult;
+use crate::identify::large::describing_function_keff;
+use crate::identify::validity::{ACCURACY_K_OF_X, ACCURACY_R};
 
 /// Ranks every candidate against `built`.
 pub(super) fn rank(
@@ -117,8 +120,24 @@ pub(super) fn rank(
             b.iter().zip(&c).filter(|(b, c)| c < b).count()
         };
         let stable = 2 * folds_won > opts.folds;
+        // Where the record cannot weigh the model error (its estimate is
+        // within the floor's resolution, decision 0128), a memory effect's
+        // relevance is what leaving it out does to the headline (decision
+        // 0140): K(x), R or Keff moved beyond its stated accuracy.
+        let systematic = ev.p_value < alpha && cv < base_cv;
+        let moved = match term {
+            Term::Effect(e @ (EffectId::Hysteresis | EffectId::ReversibleSoftening))
+                if systematic
+                    && opts.headline_relevance
+                    && reduction < opts.min_reduction_percent
+                    && me_base <= MODEL_ERROR_RESOLUTION * noise_percent =>
+            {
+                headline_move(p, built, opts, e, ev.hyper).filter(|m| m.beyond())
+            }
+            _ => None,
+        };
         let significant =
-            ev.p_value < alpha && cv < base_cv && reduction >= opts.min_reduction_percent;
+            systematic && (reduction >= opts.min_reduction_percent || moved.is_some());
         let not_added = match (&implausible, stable) {
             (Some(why), _) => Some(format!("implausible parameters ({why})")),
             (None, false) => Some(format!(
@@ -128,6 +147,7 @@ pub(super) fn rank(
             (None, true) => None,
         };
         let note = match (identifiable, significant) {
+            (true, true) if moved.is_some() => moved.map(|m| m.note(term, me_base, noise_percent)),
             (true, _) => None,
             (false, false) => Some(format!(
                 "cannot tell from this data: {} is collinear with {} (variance inflation {:.0}); to separate them: {}",
@@ -166,6 +186,73 @@ pub(super) fn rank(
         out.push((term, ev, res));
     }
     out
+}
+
+/// What leaving a candidate out does to the headline values of the sweep
+/// (decision 0140): the relative changes of K(x) (RMS over the measured
+/// range), R and Keff (the describing function of K(x) over that range)
+/// between the model with it and without it, each refitted.
+#[derive(Debug, Clone, Copy)]
+struct HeadlineMove {
+    k_of_x: f64,
+    r: f64,
+    keff: f64,
+}
+
+impl HeadlineMove {
+    /// One of them beyond its stated accuracy (Keff follows K(x)'s).
+    fn beyond(&self) -> bool {
+        self.k_of_x > ACCURACY_K_OF_X
+            || self.r.abs() > ACCURACY_R
+            || self.keff.abs() > ACCURACY_K_OF_X
+    }
+
+    fn note(&self, term: Term, me_base: f64, floor: f64) -> String {
+        format!(
+            "added because leaving it out moves the headline beyond its stated accuracy (K(x) {:.2} % RMS, R {:+.1} %, Keff {:+.2} %; accuracy {:.0} %, {:.0} %, {:.0} %): the base model's held-out model error ({me_base:.3} %) is within the resolution of the estimated noise floor ({floor:.3} %), so the share of it that {} removes cannot be weighed (decision 0140)",
+            100.0 * self.k_of_x,
+            100.0 * self.r,
+            100.0 * self.keff,
+            100.0 * ACCURACY_K_OF_X,
+            100.0 * ACCURACY_R,
+            100.0 * ACCURACY_K_OF_X,
+            term.name()
+        )
+    }
+}
+
+fn headline_move(
+    p: &Prepared,
+    built: &Built,
+    opts: &EngineOptions,
+    e: EffectId,
+    hyper: Option<f64>,
+) -> Option<HeadlineMove> {
+    let mut spec = built.spec.clone();
+    spec.effects.push((e, hyper.unwrap_or(0.0)));
+    let (without, _) = describe(p, built, opts.folds);
+    let (with, _) = describe(p, &Built::new(p, spec), opts.folds);
+    let (lo, hi) =
+        p.d.x_m
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+    let k_at = |k: &[f64], x: f64| k.iter().rev().fold(0.0, |a, c| a * x + c);
+    let kb = &without.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let kw = &with.stiffness_coefficients_n_per_m_pow_i_plus_1;
+    let (mut d2, mut k2) = (0.0, 0.0);
+    for i in 0..=100 {
+        let x = lo + (hi - lo) * i as f64 / 100.0;
+        d2 += (k_at(kw, x) - k_at(kb, x)).powi(2);
+        k2 += k_at(kb, x).powi(2);
+    }
+    let keff = |k: &[f64]| describing_function_keff(k, lo, hi);
+    let m = HeadlineMove {
+        k_of_x: (d2 / k2).sqrt(),
+        r: with.r_ns_per_m / without.r_ns_per_m - 1.0,
+        keff: keff(kw) / keff(kb) - 1.0,
+    };
+    // A value that is not a number moves nothing (NaN compares false).
+    Some(m).filter(|m| m.k_of_x.is_finite() && m.r.is_finite() && m.keff.is_finite())
 }
 
 /// True for a number above zero (false for NaN).
