@@ -2632,6 +2632,9 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
             .as_deref(),
         Some("true")
     );
+    // Only the chosen study's fields are shown.
+    assert!(!b.find("#study-added-g").await.is_displayed().await.unwrap());
+    b.screenshot_sizes("study-form-refused").await;
     b.assert_no_console_errors_but("after the refused study", |m| m.contains("422"))
         .await;
     // The paper's probes (the form's default), a 2 s excitation at 30 Hz, 50 V.
@@ -2716,7 +2719,7 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
     .await;
     // No cancel or prompt once it has finished.
     assert!(!b.find("#study-cancel").await.is_displayed().await.unwrap());
-    b.screenshot("study-recovery").await;
+    b.screenshot_sizes("study-recovery").await;
     // A part without the softening: depth, tau and drop are NOT DETERMINED
     // where they stand, with the reason, and no number that looks measured
     // (the fit's own number only under its diagnostic label).
@@ -2755,7 +2758,7 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
             && figures.contains("fit value (diagnostic, not a measurement)"),
         "{figures}"
     );
-    b.screenshot("study-recovery-none").await;
+    b.screenshot_sizes("study-recovery-none").await;
     // A viewer reads the study, and can neither start nor cancel one.
     b.click("#logout").await;
     b.login(&d.base, VIEWER, "viewer").await;
@@ -2885,7 +2888,7 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
         .await,
         json!("awaiting_operator")
     );
-    b.screenshot("study-added-mass-prompt").await;
+    b.screenshot_sizes("study-added-mass-prompt").await;
     // The station screen says the same where the operator stands, and
     // leads back to the study's confirm.
     b.visit(
@@ -2899,7 +2902,7 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
     assert_eq!(b.text("#verdict-prompt").await, prompt);
     // No time left that looks measured: the wait is the operator's.
     assert_eq!(b.text("#eta-virtual-am").await, "until you confirm");
-    b.screenshot("study-added-mass-station").await;
+    b.screenshot_sizes("study-added-mass-station").await;
     b.click("#study-link-virtual-am").await;
     b.wait(
         "the study's prompt again",
@@ -2985,7 +2988,7 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
         .text("#att-effects li[data-effect=\"reversible_softening\"]")
         .await;
     assert!(soft.contains("N/m\u{b2}") && soft.contains(" s"), "{soft}");
-    b.screenshot("study-added-mass-result").await;
+    b.screenshot_sizes("study-added-mass-result").await;
     // The part's page lists both studies among its jobs, each linked to its
     // page, and starts another on the part's bench.
     b.visit(
@@ -3140,7 +3143,7 @@ async fn diagnostics_workspace_adds_hysteresis_and_shows_its_parameters_in_units
         let unit = if name == "k_n_per_m" { " N/mm" } else { " mm" };
         assert!(text.ends_with(unit), "{text}");
     }
-    b.screenshot("diagnostics-hysteresis").await;
+    b.screenshot_sizes("diagnostics-hysteresis").await;
     // The memory card opens the study form with the measurement's figures.
     let m = api.get(&format!("/api/v1/measurements/{mid}")).await;
     let mass_g = 1e3 * m["large_signal"]["moving_mass_kg"].as_f64().unwrap();
@@ -3221,7 +3224,7 @@ async fn diagnostics_workspace_adds_hysteresis_and_shows_its_parameters_in_units
         let unit = if name == "tau_s" { " s" } else { " N/m\u{b2}" };
         assert!(text.ends_with(unit), "{text}");
     }
-    b.screenshot("diagnostics-softening").await;
+    b.screenshot_sizes("diagnostics-softening").await;
     b.finish("in the diagnostics workspace with hysteresis and softening")
         .await;
 }
