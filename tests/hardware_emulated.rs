@@ -299,3 +299,131 @@ async fn production_procedure_agrees_with_the_full_one_on_the_emulated_bench() {
         }
     }
 }
+
+/// spider_4in (K(0) 2400 N/m) with strong, fast ageing: break-in 720 N/m
+/// over 400 J, fatigue 480 N/m over 5 kJ (the preset's: 240 N/m over 3.2 kJ,
+/// 1440 N/m over 320 kJ).
+fn fast_ageing_part() -> springbench::physics::PartSpec {
+    let mut p = springbench::physics::preset("spider_4in").unwrap();
+    p.ageing = Some(springbench::physics::ageing::AgeingParams {
+        break_in_k_n_per_m: 720.0,
+        break_in_load_j: 400.0,
+        fatigue_k_n_per_m: 480.0,
+        fatigue_load_j: 5000.0,
+        width_m: 0.003,
+        collapse: None,
+    });
+    p
+}
+
+/// Issue 32 on the emulated bench (decision 0135): the emulator ages its
+/// part sample by sample with its own true load, the virtual bench's law,
+/// and carries it across runs and across a kill -9 of the daemon (the
+/// runner stores the true load with the test's state and hands it to the
+/// new emulator). A part with strong, fast ageing, 4 intervals of 60 s,
+/// the stimulus 6 mm at the resonance, killed -9 after interval 1: the
+/// measured K(0) falls at every interval and its change from interval 0
+/// follows the part's true K(0) at the emulator's true load; the load
+/// measured from the laser (`ageing::load_from_displacement_j` with the
+/// last measured K(x)) agrees with the emulator's true load. Unpaced
+/// emulator, analog laser.
+#[tokio::test]
+async fn the_emulated_part_ages_with_its_true_load_across_runs_and_a_restart() {
+    let traces = tempfile::tempdir().unwrap();
+    let cfg = config(traces.path(), "");
+    let mut d = Daemon::start(&cfg);
+    let tmp = d.take_dir().unwrap();
+    let c = client();
+    let part = fast_ageing_part();
+    let a = part.ageing.unwrap();
+    let k0_new = part.k_coeffs_si[0];
+    let id = hw::submit_long_term(
+        &c,
+        &d,
+        json!({"measurement": {"part": {"serial": "LT-AGE"}, "bench": "emu-1",
+                               "part_spec": part, "target_xpeak_m": 0.004},
+               "duration_s": 180.0, "interval_s": 60.0,
+               "stimulus": {"excursion_m": 0.006}}),
+    )
+    .await;
+    let path = format!("/api/v1/long-term-tests/{id}");
+    // Killed -9 once interval 1 is stored (during the stimulus before interval 2).
+    let t0 = std::time::Instant::now();
+    let before = loop {
+        let v = get(&c, &d, &path).await;
+        if v["intervals"].as_array().unwrap().len() >= 2
+            || common::terminal(v["job"]["state"].as_str().unwrap_or(""))
+        {
+            break v;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(600), "timed out: {v}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    d.kill9();
+    assert_eq!(before["job"]["state"], "running", "{before}");
+    assert_eq!(before["intervals"].as_array().unwrap().len(), 2, "{before}");
+    // The emulated part's truth after interval 1's measurement, as stored.
+    let part1 = before["state"]["part"].clone();
+    let true_load_1 = part1["true_load_j"].as_f64().expect("true load stored");
+    let measured_load_1 = part1["load_j"].as_f64().unwrap();
+    let k0_true_1 = part1["k0_true_n_per_m"].as_f64().unwrap();
+    d = Daemon::start_in(tmp.path(), &cfg);
+    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let t = get(&c, &d, &path).await;
+    let doc = &t["state"]["document"];
+    let k0 = hw::column(&doc["intervals"], "k0_n_per_m");
+    let loads = hw::column(&t["intervals"], "load_j");
+    // The truth at each interval's start: interval 0 the new part; 1 from
+    // the state stored with it (its K(0) at the measurement's start, its
+    // loads after it); 2 and 3 from the resumed daemon's log.
+    let after = hw::truth_lines(&j);
+    println!(
+        "emulated ageing: measured K(0) {k0:?} N/m, loads {loads:?} J; before the kill: {part1}; after: {after:?}\nlog: {}",
+        j["log"]
+    );
+    assert_eq!(k0.len(), 4, "{t}");
+    assert_eq!(after.iter().map(|r| r.0).collect::<Vec<_>>(), [2, 3], "{j}");
+    // The true load was carried across the restart: the resumed emulator's
+    // part starts from the stored one, and the stimulus adds to it.
+    assert!(after[0].1 > true_load_1, "{after:?} {part1}");
+    let k0_true = [k0_new, k0_true_1, after[0].2, after[1].2];
+    let true_loads_at_start = [0.0, f64::NAN, after[0].1, after[1].1];
+    // The log's K(0) is the law's at the log's load (both to 0.1).
+    for (i, (e, k)) in true_loads_at_start.iter().zip(&k0_true).enumerate() {
+        if e.is_finite() {
+            assert!(
+                (a.k0_n_per_m(k0_new, *e) - k).abs() < 0.2,
+                "interval {i}: K(0) true {k} at {e} J"
+            );
+        }
+    }
+    // The measured K(0) falls at every interval, and its change from
+    // interval 0 follows the truth's.
+    for i in 1..4 {
+        assert!(k0[i] < k0[i - 1], "K(0) did not fall: {k0:?}");
+        let measured = 100.0 * (k0[i] / k0[0] - 1.0);
+        let truth = 100.0 * (k0_true[i] / k0_new - 1.0);
+        println!("interval {i}: K(0) change {measured:+.2} % measured, {truth:+.2} % true");
+        assert!(
+            (measured - truth).abs() < 2.0,
+            "interval {i}: K(0) change {measured:+.2} % measured, {truth:+.2} % true"
+        );
+    }
+    // The measured load against the emulator's true load.
+    let pairs = [
+        (measured_load_1, true_load_1),
+        (after[0].3, after[0].1),
+        (after[1].3, after[1].1),
+    ];
+    // The measured load leaves out the measurements' resonance-search
+    // sweeps (the procedure does not return them).
+    for (m, e) in pairs {
+        let dev = 100.0 * (m / e - 1.0);
+        println!("load measured {m:.1} J, true {e:.1} J: {dev:+.2} %");
+        assert!((-15.0..=2.0).contains(&dev), "measured {m} J, true {e} J");
+    }
+    let last = &t["state"]["part"];
+    println!("final state {last}");
+    assert!(last["true_load_j"].as_f64().unwrap() > after[1].1, "{last}");
+}

@@ -176,36 +176,6 @@ async fn garbage_from_the_laser_mid_sweep_faults_the_bench_and_ramps_the_drive_d
     hw::fault_scenario(&cfg, traces.path(), "garbage from the laser").await;
 }
 
-/// `POST /api/v1/long-term-tests` with `body`: the answer, unread.
-async fn post_long_term(c: &reqwest::Client, d: &Daemon, body: &Value) -> reqwest::Response {
-    c.post(d.url("/api/v1/long-term-tests"))
-        .json(body)
-        .send()
-        .await
-        .unwrap()
-}
-
-/// Submits a long-term test on the emulated bench `emu-1` (after a
-/// self-check, so that the test is job 2); returns its id.
-async fn submit_long_term(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
-    let sc = hw::self_check(c, d).await;
-    assert_eq!(sc["state"], "succeeded", "{sc}");
-    let r = post_long_term(c, d, &body).await;
-    let status = r.status().as_u16();
-    let v: Value = r.json().await.unwrap();
-    assert_eq!(status, 202, "{v}");
-    v["id"].as_str().unwrap().to_string()
-}
-
-/// Every emulated run of job 2 (its traces), in order.
-fn traces_of_job_2(dir: &Path) -> Vec<Value> {
-    (1..10_000)
-        .map(|k| dir.join(format!("run-2-{k}.json")))
-        .take_while(|p| p.exists())
-        .map(|p| serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap())
-        .collect()
-}
-
 /// Issue 32 on the emulated bench: a long-term test's stimulus is played
 /// through the bench under the full procedure's safety rules. The drive
 /// limit (30 V) is below what the stimulus' 10 mm needs: the stimulus is
@@ -242,10 +212,10 @@ async fn long_term_stimulus_holds_the_drive_limit_and_ramps_down_when_the_laser_
         for (k, v) in extra.as_object().unwrap() {
             body[k] = v.clone();
         }
-        let p = common::problem(post_long_term(&c, &d, &body).await, 422).await;
+        let p = common::problem(hw::post_long_term(&c, &d, &body).await, 422).await;
         assert_eq!(p["errors"][0]["field"], field, "{p}");
     }
-    let id = submit_long_term(
+    let id = hw::submit_long_term(
         &c,
         &d,
         json!({"measurement": {"part": {"serial": "LT-E1"}, "bench": "emu-1", "target_xpeak_m": 0.003},
@@ -255,7 +225,7 @@ async fn long_term_stimulus_holds_the_drive_limit_and_ramps_down_when_the_laser_
     .await;
     let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
     let t = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
-    let runs = traces_of_job_2(traces.path());
+    let runs = hw::traces_of_job(traces.path(), 2);
     let peaks: Vec<f64> = runs
         .iter()
         .map(|r| r["peak_drive_v"].as_f64().unwrap())
@@ -349,7 +319,7 @@ async fn long_term_test_runs_paced_in_real_time_on_the_emulated_bench() {
     let d = Daemon::start(&cfg);
     let c = client();
     let t0 = std::time::Instant::now();
-    let id = submit_long_term(
+    let id = hw::submit_long_term(
         &c,
         &d,
         json!({"measurement": {"part": {"serial": "LT-P1"}, "bench": "emu-1"},
@@ -360,7 +330,7 @@ async fn long_term_test_runs_paced_in_real_time_on_the_emulated_bench() {
     let j = wait_job(&c, &d, &id, Duration::from_secs(1500), terminal).await;
     let wall_s = t0.elapsed().as_secs_f64();
     let t = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
-    let runs = traces_of_job_2(traces.path());
+    let runs = hw::traces_of_job(traces.path(), 2);
     let peak = runs
         .iter()
         .map(|r| r["peak_drive_v"].as_f64().unwrap())
@@ -394,7 +364,7 @@ async fn long_term_test_runs_paced_in_real_time_on_the_emulated_bench() {
     // Paced: the bench's time is the wall's.
     assert!(wall_s >= 600.0, "ran faster than real time: {wall_s} s");
     assert!(peak <= 100.0 * 1.0001, "{peak} V");
-    // The load grows with the stimulus; the emulated part does not age.
+    // The load grows with the stimulus.
     // The load carries each stimulus' measured load (its log line) on top
     // of the measurements' own.
     let loads: Vec<f64> = ivs.iter().map(|i| i["load_j"].as_f64().unwrap()).collect();
@@ -423,14 +393,23 @@ async fn long_term_test_runs_paced_in_real_time_on_the_emulated_bench() {
             stimulus_j[k]
         );
     }
-    let k0: Vec<f64> = doc["intervals"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|i| i["k0_n_per_m"].as_f64().unwrap())
-        .collect();
-    for k in &k0 {
-        assert!((k / k0[0] - 1.0).abs() < 0.005, "{k0:?}");
+    let k0 = hw::column(&doc["intervals"], "k0_n_per_m");
+    // The emulated part ages (decision 0135): the preset's break-in, 240
+    // N/m over 3.2 kJ. The measured K(0)'s change from interval 0 follows
+    // the emulator's truth at its own load (the log's).
+    let truth = hw::truth_lines(&j);
+    println!(
+        "the emulated part's truth (interval, true load J, K(0) N/m, measured load J): {truth:?}"
+    );
+    assert_eq!(truth.len(), 3, "{j}");
+    for (i, e, k_true, _) in &truth {
+        let i = *i as usize;
+        let measured = 100.0 * (k0[i] / k0[0] - 1.0);
+        let true_change = 100.0 * (k_true / truth[0].2 - 1.0);
+        assert!(
+            (measured - true_change).abs() < 1.0,
+            "interval {i} at {e} J: K(0) {measured:+.2} % measured, {true_change:+.2} % true"
+        );
     }
     let held = j["log"]
         .to_string()

@@ -211,7 +211,7 @@ pub(super) fn make_bench(
     match cfg.kind {
         BenchKind::Virtual => virtual_bench(cfg, part, seed, limits),
         BenchKind::Hardware | BenchKind::Emulated => {
-            hardware::open_bench(cfg, part, seed, job_seq, limits)
+            hardware::open_bench(cfg, part, seed, job_seq, limits, None)
         }
     }
 }

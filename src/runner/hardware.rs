@@ -33,6 +33,8 @@ pub fn self_check_serial(bench_id: &str) -> String {
     format!("selfcheck.{bench_id}")
 }
 
+/// Opens a hardware or emulated bench; `ageing`: the emulated part ages
+/// with this true load (a long-term test's, decision 0135).
 #[cfg(feature = "hardware")]
 pub fn open_bench(
     cfg: &BenchConfig,
@@ -40,9 +42,10 @@ pub fn open_bench(
     seed: u64,
     job_seq: i64,
     limits: crate::bench::Limits,
+    ageing: Option<crate::bench::true_part::TrueLoad>,
 ) -> Result<Box<dyn Bench>, String> {
     Ok(Box::new(crate::bench::hardware::open(
-        cfg, part, seed, job_seq, limits,
+        cfg, part, seed, job_seq, limits, ageing,
     )?))
 }
 
@@ -53,6 +56,7 @@ pub fn open_bench(
     _seed: u64,
     _job_seq: i64,
     _limits: crate::bench::Limits,
+    _ageing: Option<crate::bench::true_part::TrueLoad>,
 ) -> Result<Box<dyn Bench>, String> {
     Err(format!(
         "bench '{}' needs the `hardware` feature, which this build lacks",
@@ -65,7 +69,7 @@ pub fn open_bench(
 fn self_check_blocking(cfg: &BenchConfig, seq: i64) -> Result<SelfCheckResult, String> {
     let part = crate::physics::preset(&cfg.preset)?;
     let seed = cfg.seed.wrapping_add(seq as u64);
-    let mut b = crate::bench::hardware::open(cfg, part, seed, seq, cfg.limits)?;
+    let mut b = crate::bench::hardware::open(cfg, part, seed, seq, cfg.limits, None)?;
     match b.self_check() {
         Ok(sc) => Ok(SelfCheckResult::of(&sc)),
         Err(e) => Ok(SelfCheckResult::failed(e.to_string())),

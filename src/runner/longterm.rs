@@ -123,6 +123,8 @@ struct Resume {
     index: usize,
     clock_s: f64,
     load_j: f64,
+    /// The emulated part's true load then (J, decision 0135).
+    true_load_j: Option<f64>,
     /// The finished intervals' (elapsed_s, load_j, result).
     done: Vec<series::Interval>,
     first_k0: Option<f64>,
@@ -383,6 +385,7 @@ impl Runner {
                 index: 0,
                 clock_s: 0.0,
                 load_j: 0.0,
+                true_load_j: None,
                 done: vec![],
                 first_k0: None,
             };
@@ -413,6 +416,7 @@ impl Runner {
             index: st.intervals_done,
             clock_s: st.clock_s,
             load_j: st.load_j,
+            true_load_j: st.part.true_load_j,
             done,
             first_k0,
         };
@@ -714,6 +718,9 @@ struct Device<'a> {
     /// The part's last measured K(x) (coefficients, valid range): the
     /// load is measured with it.
     k: Option<(Vec<f64>, [f64; 2])>,
+    /// An emulated bench: the load its part has truly taken, which the
+    /// emulator ages it with (decision 0135); None on a real bench.
+    true_load: Option<crate::bench::true_part::TrueLoad>,
 }
 
 /// The test on the job's blocking thread; Ok(intervals measured in all).
@@ -743,15 +750,25 @@ fn run_blocking(
         }
         (kind, Some(calibration)) => {
             let seed = bench_cfg.seed.wrapping_add(on.job_seq as u64);
-            let bench =
-                super::execute::make_bench(bench_cfg, part.clone(), seed, on.job_seq, m.limits)
-                    .map_err(|e| {
-                        Stop::Failed(JobProblem::new(
-                            ProblemKind::Bench,
-                            "Bench not available",
-                            &e,
-                        ))
-                    })?;
+            // The emulated part ages from the true load stored with the
+            // test's state (0: a new part); a real part ages by itself.
+            let true_load = (kind == BenchKind::Emulated)
+                .then(|| crate::bench::true_part::TrueLoad::new(resume.true_load_j.unwrap_or(0.0)));
+            let bench = super::hardware::open_bench(
+                bench_cfg,
+                part.clone(),
+                seed,
+                on.job_seq,
+                m.limits,
+                true_load.clone(),
+            )
+            .map_err(|e| {
+                Stop::Failed(JobProblem::new(
+                    ProblemKind::Bench,
+                    "Bench not available",
+                    &e,
+                ))
+            })?;
             let paced =
                 kind == BenchKind::Hardware || bench_cfg.emulator.as_ref().is_some_and(|e| e.paced);
             // The last measured K(x) of a resumed test.
@@ -761,6 +778,7 @@ fn run_blocking(
                 calibration,
                 paced,
                 k,
+                true_load,
             })
         }
     };
@@ -780,6 +798,7 @@ fn run_blocking(
         index: start,
         mut clock_s,
         mut load_j,
+        true_load_j: _,
         mut done,
         mut first_k0,
     } = resume;
@@ -908,12 +927,27 @@ fn run_blocking(
             Some(_) => load_j,
             None => vb.ageing_load_j().unwrap_or(load_j),
         };
-        let k0_true = match bench_cfg.kind {
-            BenchKind::Virtual => Some(vb.k0_now_n_per_m()),
-            // The emulated part does not age: its truth is the new part's.
-            BenchKind::Emulated => part.k_coeffs_si.first().copied(),
-            BenchKind::Hardware => None,
+        // The part's truth: the virtual bench's, the emulator's (its part
+        // aged at its own true load); none on a real bench.
+        let true_load_at_start = match device.as_ref() {
+            Some(d) => d.true_load.as_ref().map(|t| t.get()),
+            None => Some(load_at_start),
         };
+        let k0_true = match (bench_cfg.kind, true_load_at_start) {
+            (BenchKind::Virtual, _) => Some(vb.k0_now_n_per_m()),
+            (BenchKind::Emulated, Some(e)) => part
+                .k_coeffs_si
+                .first()
+                .map(|&k0| part.ageing.map_or(k0, |a| a.k0_n_per_m(k0, e))),
+            _ => None,
+        };
+        if let (BenchKind::Emulated, Some(e), Some(k)) =
+            (bench_cfg.kind, true_load_at_start, k0_true)
+        {
+            let _ = tx.send(Msg::Log(format!(
+                "interval {index}: the emulated part's truth at the measurement's start: load {e:.1} J, K(0) {k:.1} N/m (measured load {load_at_start:.1} J)"
+            )));
+        }
         let wall = Instant::now();
         let runs_before = device.as_ref().map_or(0, |d| d.bench.run_records().len());
         let bench: &mut dyn Bench = match device.as_mut() {
@@ -1095,6 +1129,10 @@ fn run_blocking(
             part: PartState {
                 load_j,
                 k0_true_n_per_m: k0_true,
+                true_load_j: match device.as_ref() {
+                    Some(d) => d.true_load.as_ref().map(|t| t.get()),
+                    None => Some(load_j),
+                },
             },
             document,
             ambient,

@@ -28,6 +28,7 @@ pub mod long_term;
 pub mod procedure;
 pub mod settings;
 pub mod simulate;
+pub mod true_part;
 pub mod truth;
 pub mod virtual_bench;
 

@@ -6,6 +6,7 @@ use crate::{Bench, BenchError, Block, Control, Limits};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use springbench_core::physics::ageing::AgeingStep;
 use springbench_core::physics::model::{idx, BenchParams, Integrator, Model};
 use springbench_core::physics::PartSpec;
 use springbench_core::recording::{ChannelScale, Signals};
@@ -241,14 +242,13 @@ impl Bench for VirtualBench {
         );
         self.runs += 1;
         let mut sim = Integrator::new(Model::new(&self.part, &b), fs, b.substeps);
-        // Ageing: the loss at the load so far, updated every block (the part
-        // changes over thousands of cycles, not within one block).
-        let ageing = self.part.ageing.zip(self.ageing_load_j);
-        let mut load_j = self.ageing_load_j.unwrap_or(0.0);
-        if let Some((a, _)) = ageing {
-            sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
-            sim.model.set_ageing_collapse(a.collapse_fraction(load_j));
-        }
+        // Ageing: the loss at the load so far, updated every block of
+        // `AgeingStep::UPDATE_SAMPLES` (the emulator ages its part the same way).
+        let mut ageing = self
+            .part
+            .ageing
+            .zip(self.ageing_load_j)
+            .map(|(a, e)| AgeingStep::start(Some(a), e, &mut sim.model));
         let mic_delay = b.microphone.delay_s
             + self
                 .part
@@ -309,10 +309,9 @@ impl Bench for VirtualBench {
                 0.0
             };
             sim.step(u, u1);
-            if ageing.is_some() {
+            if let Some(a) = ageing.as_mut() {
                 // E += |F_el v| dt (the load measure, `physics::ageing`).
-                let (x, v) = (sim.state[idx::X], sim.state[idx::V]);
-                load_j += (sim.model.elastic_force(x) * v).abs() / fs;
+                a.after_step(&mut sim, fs);
             }
             let end = k + 1;
             if end - block_start == BLOCK_LEN || end == n {
@@ -326,10 +325,6 @@ impl Bench for VirtualBench {
                     abort = Some((end, BenchError::Aborted));
                 }
                 block_start = end;
-                if let Some((a, _)) = ageing {
-                    sim.model.set_ageing_loss(a.lost_k_n_per_m(load_j));
-                    sim.model.set_ageing_collapse(a.collapse_fraction(load_j));
-                }
             }
             if let Some((k0, _)) = &abort {
                 if end >= k0 + ramp_len {
@@ -337,8 +332,8 @@ impl Bench for VirtualBench {
                 }
             }
         }
-        if ageing.is_some() {
-            self.ageing_load_j = Some(load_j);
+        if let Some(a) = ageing {
+            self.ageing_load_j = Some(a.load_j());
         }
         if let Some((_, e)) = abort {
             return Err(e);

@@ -710,6 +710,7 @@ mod tests {
                 part: springbench_core::job::PartState {
                     load_j: 0.0,
                     k0_true_n_per_m: Some(2000.0),
+                    true_load_j: Some(0.0),
                 },
                 document: None,
                 ambient: Default::default(),

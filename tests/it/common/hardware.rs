@@ -193,3 +193,71 @@ pub async fn fault_scenario(cfg: &str, trace_dir: &Path, expect_in_detail: &str)
     let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
     assert_eq!(j["state"], "succeeded", "{j}");
 }
+
+/// `POST /api/v1/long-term-tests` with `body`: the answer, unread.
+pub async fn post_long_term(c: &reqwest::Client, d: &Daemon, body: &Value) -> reqwest::Response {
+    c.post(d.url("/api/v1/long-term-tests"))
+        .json(body)
+        .send()
+        .await
+        .unwrap()
+}
+
+/// Submits a long-term test on the emulated bench `emu-1` (after a
+/// self-check, so that the test is job 2); returns its id.
+pub async fn submit_long_term(c: &reqwest::Client, d: &Daemon, body: Value) -> String {
+    let sc = self_check(c, d).await;
+    assert_eq!(sc["state"], "succeeded", "{sc}");
+    let r = post_long_term(c, d, &body).await;
+    let status = r.status().as_u16();
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(status, 202, "{v}");
+    v["id"].as_str().unwrap().to_string()
+}
+
+/// Every emulated run of job `seq` (its traces), in order.
+pub fn traces_of_job(dir: &Path, seq: u32) -> Vec<Value> {
+    (1..10_000)
+        .map(|k| dir.join(format!("run-{seq}-{k}.json")))
+        .take_while(|p| p.exists())
+        .map(|p| serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap())
+        .collect()
+}
+
+/// The emulated part's truth at each interval's start from the job's log
+/// lines "interval I: the emulated part's truth at the measurement's
+/// start: load E J, K(0) K N/m (measured load M J)": (I, E, K, M).
+pub fn truth_lines(job: &Value) -> Vec<(u64, f64, f64, f64)> {
+    let num = |s: &str, after: &str| -> Option<f64> {
+        s.split(after).nth(1)?.split(' ').next()?.parse().ok()
+    };
+    job["log"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| {
+            let l = l.as_str()?;
+            let rest = l.strip_prefix("interval ")?;
+            if !l.contains("the emulated part's truth") {
+                return None;
+            }
+            let i = rest.split(':').next()?.parse().ok()?;
+            Some((
+                i,
+                num(l, "start: load ")?,
+                num(l, "K(0) ")?,
+                num(l, "(measured load ")?,
+            ))
+        })
+        .collect()
+}
+
+/// `key` of every item of the array `items` (numbers).
+pub fn column(items: &Value, key: &str) -> Vec<f64> {
+    items
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|i| i[key].as_f64().unwrap())
+        .collect()
+}

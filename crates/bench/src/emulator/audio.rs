@@ -8,14 +8,20 @@
 //! error from `read`, a part slipping in its clamp (the laser sees it), and
 //! every run can leave a trace of what the DAC played (`trace_dir`), which the
 //! tests use to measure how fast the drive reached zero.
+//!
+//! A long-term test's emulated part ages ([`EmulatedAudio::with_ageing`],
+//! decision 0135): sample by sample with its true load, as the virtual
+//! bench's part does.
 
 use crate::audio::{AudioError, AudioIo, DriveSource};
 use crate::settings::{
     Calibration, ChannelMap, EmulatorConfig, FaultKind, FaultPlan, HardwareConfig, LaserConfig,
 };
+use crate::true_part::TrueLoad;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use springbench_core::physics::ageing::AgeingStep;
 use springbench_core::physics::model::{idx, BenchParams, Integrator, Model};
 use springbench_core::physics::PartSpec;
 use std::collections::VecDeque;
@@ -58,6 +64,9 @@ pub struct EmulatedAudio {
     laser_fault_hook: Option<LaserFaultHook>,
     /// DAC samples stepped since the device was made (all runs): the emulated converter clock.
     clock_k: u64,
+    /// The part ages (its `ageing` parameters) with this true load, carried
+    /// from run to run ([`Self::with_ageing`]); None: it stays as it is.
+    ageing: Option<TrueLoad>,
 }
 
 /// State of one started stream pair.
@@ -89,6 +98,8 @@ struct Run {
     /// (a cancel request) on the emulated output.
     started: std::time::Instant,
     clock_log: Vec<(f64, usize)>,
+    /// The part's ageing over this run (its load counted sample by sample).
+    ageing: Option<AgeingStep>,
 }
 
 impl EmulatedAudio {
@@ -127,6 +138,28 @@ impl EmulatedAudio {
             tap: None,
             laser_fault_hook: None,
             clock_k: 0,
+            ageing: None,
+        }
+    }
+
+    /// Ages the mounted part as the virtual bench does
+    /// (`VirtualBench::with_ageing`): every sample adds its load
+    /// `|F_el(x) v| / fs` to `load`, K(x) near rest falls with it, and the
+    /// state carries over from one run to the next. `load` is shared: the
+    /// caller reads the part's true load from it (and may hand it to the
+    /// next emulator of the same part, decision 0135).
+    pub fn with_ageing(mut self, load: TrueLoad) -> EmulatedAudio {
+        self.ageing = Some(load);
+        self
+    }
+
+    /// Hands the part's load so far to the shared [`TrueLoad`].
+    fn publish_load(&self) {
+        if let (Some(t), Some(a)) = (
+            &self.ageing,
+            self.run.as_ref().and_then(|r| r.ageing.as_ref()),
+        ) {
+            t.set(a.load_j());
         }
     }
 
@@ -173,6 +206,9 @@ impl EmulatedAudio {
         let k = run.dac_k;
         if k > 0 {
             run.sim.step(run.u_prev, u);
+            if let Some(a) = run.ageing.as_mut() {
+                a.after_step(&mut run.sim, self.fs);
+            }
         }
         run.u_prev = u;
         run.dac_k += 1;
@@ -292,7 +328,11 @@ impl AudioIo for EmulatedAudio {
             .iter()
             .find(|f: &&FaultPlan| f.job_seq == self.job_seq && f.sweep == sweep)
             .map(|f| (f.kind, (f.at_s * self.fs).round() as usize));
-        let sim = Integrator::new(Model::new(&self.part, &self.bench), self.fs, 1);
+        let mut sim = Integrator::new(Model::new(&self.part, &self.bench), self.fs, 1);
+        let ageing = self
+            .ageing
+            .as_ref()
+            .map(|t| AgeingStep::start(self.part.ageing, t.get(), &mut sim.model));
         let rng = ChaCha8Rng::seed_from_u64(
             self.seed
                 .wrapping_mul(0x9E37_79B9_7F4A_7C15)
@@ -317,6 +357,7 @@ impl AudioIo for EmulatedAudio {
             clock_k0: self.clock_k,
             started: std::time::Instant::now(),
             clock_log: Vec::new(),
+            ageing,
         });
         Ok(())
     }
@@ -355,6 +396,7 @@ impl AudioIo for EmulatedAudio {
             .map_or(0.0, |d| d.as_secs_f64());
         run.clock_log.push((unix_s, run.dac_k));
         self.flush_tap();
+        self.publish_load();
         Ok(())
     }
 
@@ -376,6 +418,7 @@ impl AudioIo for EmulatedAudio {
             steps += 1;
         }
         self.flush_tap();
+        self.publish_load();
         let run = self.run.take().expect("started");
         self.write_trace(&run);
     }

@@ -26,13 +26,16 @@ use springbench_core::physics::PartSpec;
 
 /// Opens the bench of `cfg` for one job: the real devices (`kind = "hardware"`)
 /// or the emulator with `part` mounted (`kind = "emulated"`). `job_seq` selects
-/// the emulator's injected faults.
+/// the emulator's injected faults. `ageing`: the emulated part ages with
+/// this true load (`EmulatedAudio::with_ageing`, decision 0135); a real
+/// bench's part ages by itself and ignores it.
 pub fn open(
     cfg: &BenchConfig,
     part: PartSpec,
     seed: u64,
     job_seq: i64,
     limits: Limits,
+    ageing: Option<crate::true_part::TrueLoad>,
 ) -> Result<HardwareBench, String> {
     let hw = cfg
         .hardware
@@ -50,6 +53,9 @@ pub fn open(
                 job_seq,
                 limits.max_displacement_m,
             );
+            if let Some(load) = ageing {
+                audio = audio.with_ageing(load);
+            }
             let rig = match &hw.laser {
                 LaserConfig::Serial(lc) => {
                     let (laser, emulator) = emulated_serial_laser(

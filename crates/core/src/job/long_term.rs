@@ -200,9 +200,17 @@ pub struct PartState {
     /// one (`ageing::load_from_displacement_j`).
     pub load_j: f64,
     /// Its stiffness at rest then (N/m): the virtual part's truth, the
-    /// emulated part's; unknown (null) on a real bench.
+    /// emulated part's (aged by the emulator at `true_load_j`); unknown
+    /// (null) on a real bench.
     #[serde(default)]
     pub k0_true_n_per_m: Option<f64>,
+    /// The load the part has truly taken (J), as `load_j` after the last
+    /// interval's measurement: the virtual part's simulated load (equal to
+    /// `load_j`), the emulated part's as the emulator counted it sample by
+    /// sample (a resumed test hands it to the new emulator, decision
+    /// 0135); unknown (null) on a real bench.
+    #[serde(default)]
+    pub true_load_j: Option<f64>,
 }
 
 /// A failure limit that stopped the test.

@@ -142,6 +142,67 @@ impl AgeingParams {
     }
 }
 
+/// A part ageing sample by sample under a simulation (the virtual bench
+/// and the bench emulator share it): the load `E += |F_el(x) v| / fs`
+/// after every sample, the model's loss (`Model::set_ageing_loss`,
+/// `set_ageing_collapse`) updated every [`AgeingStep::UPDATE_SAMPLES`]
+/// (the part changes over thousands of cycles, not within a block).
+/// Without ageing parameters the load is still counted (the emulator's
+/// true load of a part that does not age).
+#[derive(Debug, Clone, Copy)]
+pub struct AgeingStep {
+    params: Option<AgeingParams>,
+    load_j: f64,
+    samples: usize,
+}
+
+impl AgeingStep {
+    /// Samples between two updates of the model (10 ms at 48 kHz).
+    pub const UPDATE_SAMPLES: usize = 480;
+
+    /// Starts a run at the load `load_j` the part has taken (J): sets the
+    /// model's loss for it.
+    pub fn start(
+        params: Option<AgeingParams>,
+        load_j: f64,
+        model: &mut super::model::Model,
+    ) -> AgeingStep {
+        let s = AgeingStep {
+            params,
+            load_j: load_j.max(0.0),
+            samples: 0,
+        };
+        s.update(model);
+        s
+    }
+
+    fn update(&self, model: &mut super::model::Model) {
+        if let Some(a) = &self.params {
+            model.set_ageing_loss(a.lost_k_n_per_m(self.load_j));
+            model.set_ageing_collapse(a.collapse_fraction(self.load_j));
+        }
+    }
+
+    /// After one sample of `sim` (sample rate `fs_hz`): adds its load.
+    #[inline]
+    pub fn after_step(&mut self, sim: &mut super::model::Integrator, fs_hz: f64) {
+        let (x, v) = (
+            sim.state[super::model::idx::X],
+            sim.state[super::model::idx::V],
+        );
+        self.load_j += (sim.model.elastic_force(x) * v).abs() / fs_hz;
+        self.samples += 1;
+        if self.samples % Self::UPDATE_SAMPLES == 0 {
+            self.update(&mut sim.model);
+        }
+    }
+
+    /// The load the part has taken so far (J).
+    pub fn load_j(&self) -> f64 {
+        self.load_j
+    }
+}
+
 /// w(x) = exp(-(x/x_w)^4) from `inv_width4` = 1/x_w^4.
 #[inline]
 pub fn shape(x_m: f64, inv_width4: f64) -> f64 {
