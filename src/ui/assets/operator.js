@@ -304,7 +304,8 @@ export async function render(main, ctx) {
           h('span', {}, 'part ', h('strong', { class: 'serial' }, j.part_serial)),
           h('span', { class: 'muted' }, ` job ${shortId(j.id)}`)),
         h('div', { class: 'bench-step' },
-          h('span', { class: 'step', id: `step-${b.id}` }, STEPS[j.step] || j.step || 'waiting'),
+          // A study reports no step while it measures: not "waiting" then.
+          h('span', { class: 'step', id: `step-${b.id}` }, STEPS[j.step] || j.step || (studyKind(j) ? 'measuring' : 'waiting')),
           h('span', { class: 'pct', id: `pct-${b.id}` }, `${Math.round(100 * (j.progress || 0))} %`),
           h('span', { class: 'eta', id: `eta-${b.id}` }, etaText(j.step, j.eta_s))),
         prog,
