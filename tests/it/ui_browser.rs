@@ -2968,6 +2968,17 @@ async fn added_mass_study_from_the_ui_waits_for_the_operator_and_shows_the_attri
     let truth = -3e4 * f(at, "xpeak_m");
     assert!((ampl / truth - 1.0).abs() <= 0.2, "{ampl} vs {truth}");
     assert_eq!(freq, 0.0);
+    // The model-free Keff change names the excursions it mixes in.
+    let note = b.text("#am-keff-note").await;
+    let x = |k: &str| {
+        let v = 1e3 * r[k]["xpeak_m"].as_f64().unwrap();
+        format!("{:.3}", v)
+    };
+    assert!(
+        note.contains(&format!("Xpeak {} mm", x("without")))
+            && note.contains(&format!("{} mm", x("with_mass"))),
+        "{note}"
+    );
     let row = b.text("#attribution-figures").await;
     assert!(row.contains("none found: no creep"), "{row}");
     // Every effect of the joint model (the order aside), with its parameters.

@@ -366,7 +366,11 @@ function addedMassResult(r) {
       row('the weighed mass against it', val('am-weighed-error', r.weighed_mass_error_percent, '%', 3)),
       row('k0 from the derived mass', val('am-k0', r.k0_derived_n_per_m, 'N/mm', 4, 1e-3)),
       row('k0 with the weighed mass against it', val('am-k0-error', r.k0_given_mass_error_percent, '%', 3)),
-      row('Keff with the mass against Keff without (same level)', val('am-keff-change', r.keff_change_with_frequency_percent, '%', 3))),
+      // Model-free: the runs' excursions differ a little, and a hardening K(x)
+      // moves Keff by more than creep does (decision 0122); said beside it.
+      row('Keff with the mass against Keff without (same target level, model-free)', h('span', {},
+        val('am-keff-change', r.keff_change_with_frequency_percent, '%', 3),
+        h('span', { class: 'muted', id: 'am-keff-note' }, ` Xpeak ${num(r.without.xpeak_m * 1e3, 4)} mm \u2192 ${num(r.with_mass.xpeak_m * 1e3, 4)} mm: Keff\u2019s change with the excursion is in this figure; the attribution below separates the causes`)))),
     h('table', { class: 'list', id: 'added-mass-runs' },
       h('thead', {}, h('tr', {}, ['run', 'mass given', 'f0 (small signal)', 'k0 with that mass', 'Keff', 'resonance (large signal)', 'Xpeak'].map((t) => h('th', {}, t)))),
       h('tbody', {}, runRow('without the added mass', r.without), runRow('with the added mass', r.with_mass))));
