@@ -81,6 +81,16 @@ pub async fn submit(
                 ),
             ));
         }
+        if spec.stimulus.kind != crate::job::StimulusKind::Sine {
+            errors.push(FieldError::new(
+                "stimulus.kind",
+                format!(
+                    "bench '{}' is {}: it plays a sine at resonance; noise is played on a virtual bench only so far",
+                    b.id,
+                    b.kind.as_str()
+                ),
+            ));
+        }
         if !errors.is_empty() {
             return Err(Problem::validation(errors));
         }

@@ -25,9 +25,9 @@ use crate::config::{BenchConfig, BenchKind};
 use crate::identify::{self, AnalyzeOptions, Report};
 use crate::job::{
     Failure, HardwareRecord, Hold, JobProblem, LongTermSpec, MeasurementConfig, PartState,
-    PreSweepSettings, ProblemKind, SweepSettings,
+    PreSweepSettings, ProblemKind, StimulusKind, SweepSettings,
 };
-use crate::physics::ageing;
+use crate::physics::{ageing, waveform};
 use crate::procedure::{self, Observer, ProcedureConfig, ProcedureError};
 use crate::recording::{Meta, Signals};
 use crate::store::hardware::CalibrationRecord;
@@ -823,6 +823,8 @@ fn run_blocking(
             ageing::velocity_at_excursion_m_per_s(&new_part, 0.0, x)
         })
     };
+    // A noise's loop and its load's rate, kept over the intervals.
+    let mut noise: Option<waveform::LoopLoad> = None;
     for index in start..n {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -863,11 +865,20 @@ fn run_blocking(
             let level_m = spec.stimulus.excursion_at_m(t);
             let on = spec.stimulus.on_time_s(t, end);
             let held = held_velocity(level_m);
-            match held {
-                None => {
+            match (spec.stimulus.kind, held) {
+                // Noise: the loop's load rate on the part as it is, held
+                // at its RMS displacement (decision 0137).
+                (StimulusKind::Noise, _) => {
+                    let l = match noise.as_mut() {
+                        Some(l) => l,
+                        None => noise.insert(noise_load(&spec.stimulus, vb.bench.sample_rate_hz)?),
+                    };
+                    vb.apply_loop_load(l, level_m, on);
+                }
+                (StimulusKind::Sine, None) => {
                     vb.apply_sine_load(level_m, on);
                 }
-                Some(v) => {
+                (StimulusKind::Sine, Some(v)) => {
                     vb.apply_sine_load_at_velocity(v, on);
                 }
             }
@@ -1381,6 +1392,21 @@ fn device_stimulus(
         report(t);
     }
     Ok(load_j)
+}
+
+/// A noise stimulus' loop at the bench's sample rate (decision 0137), for
+/// its accelerated load.
+fn noise_load(s: &crate::job::Stimulus, fs: f64) -> Result<waveform::LoopLoad, Stop> {
+    let band = s.band_hz.unwrap_or([0.0, 0.0]);
+    waveform::noise_loop(fs, band, waveform::NOISE_LOOP_S, waveform::NOISE_SEED)
+        .map(waveform::LoopLoad::new)
+        .ok_or_else(|| {
+            Stop::Failed(JobProblem::new(
+                ProblemKind::Bench,
+                "Stimulus not made",
+                format!("stimulus.band_hz {band:?} holds no line at {fs} Hz"),
+            ))
+        })
 }
 
 /// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.

@@ -1548,3 +1548,126 @@ async fn level_steps_load_the_part_as_each_level_alone() {
     assert!(docs[0]["job"]["request"]["stimulus"].get("steps").is_none());
     drop(d);
 }
+
+/// Issue 32, decision 0137: band-limited noise as the stimulus, its level
+/// the RMS displacement. On the ageing spider_3in the test runs end to end
+/// (intervals stored as measurements, the load growing, K(0) falling, the
+/// report naming the noise). Known truth on the part without its ageing
+/// table (its load rate constant): the load a noise test has taken by its
+/// second interval is the noise loop's rate (`physics::waveform`, the loop
+/// simulated through the part's model) times the stimulus' time, the same
+/// time a sine test's load gives with the sine's analytic rate
+/// (`ageing::sine_power_w`): 900 s less the first measurement's bench time.
+#[tokio::test]
+async fn a_noise_stimulus_ages_the_part_at_the_loops_load_rate() {
+    use springbench::physics::{ageing, waveform, BenchParams};
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let noise = json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.0015});
+    // Bad noise fields: named.
+    for (stim, field) in [
+        (
+            json!({"kind": "noise", "excursion_rms_m": 0.0015}),
+            "stimulus.band_hz",
+        ),
+        (
+            json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.006}),
+            "stimulus.excursion_rms_m",
+        ),
+        (
+            json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_m": 0.0015}),
+            "stimulus.excursion_m",
+        ),
+        (
+            json!({"kind": "noise", "band_hz": [300.0, 200.0], "excursion_rms_m": 0.0015}),
+            "stimulus.band_hz",
+        ),
+    ] {
+        let mut b = test_body("LT-NOISE-BAD", 3);
+        b["stimulus"] = stim.clone();
+        let r = c
+            .post(d.url("/api/v1/long-term-tests"))
+            .json(&b)
+            .send()
+            .await
+            .unwrap();
+        let p = problem(r, 422).await;
+        assert!(
+            p["errors"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|e| e["field"] == field),
+            "{stim}: {field} not named: {p}"
+        );
+    }
+    let n = 4;
+    let mut b = test_body("LT-NOISE", n);
+    b["stimulus"] = noise.clone();
+    let id = submit(&c, &d, &b).await;
+    let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+    check_intervals(&c, &d, &v, n).await;
+    let stim = &v["job"]["request"]["stimulus"];
+    for k in ["kind", "band_hz", "excursion_rms_m"] {
+        assert_eq!(stim[k], noise[k], "{stim}");
+    }
+    assert!(stim.get("excursion_m").is_none(), "{stim}");
+    let e = loads(&v);
+    assert!(e.windows(2).all(|w| w[1] > w[0]), "{e:?}");
+    let doc = &v["state"]["document"];
+    let k0 = |i: usize| doc["intervals"][i]["k0_n_per_m"].as_f64().unwrap();
+    // K(0) fell as the part's law says at those loads (the fitted K(0)
+    // carries the pre-measurement's bending, +50 N/m, at both ends).
+    let sp = springbench::physics::preset("spider_3in").unwrap();
+    let law = sp.ageing.unwrap();
+    let truth =
+        law.k0_n_per_m(sp.k_coeffs_si[0], e[0]) - law.k0_n_per_m(sp.k_coeffs_si[0], e[n - 1]);
+    let fell = k0(0) - k0(n - 1);
+    println!("noise at 1.5 mm RMS: loads {e:?} J, K(0) fell {fell} N/m, the law {truth} N/m");
+    assert!(truth > 40.0 && (fell - truth).abs() < 5.0, "{fell} {truth}");
+    let page = report_page(&c, &d, &id).await;
+    assert!(
+        page.contains("band-limited noise, 20 to 200 Hz, 1.5 mm RMS displacement held"),
+        "{page}"
+    );
+
+    // The part without ageing: a constant rate.
+    let mut part = springbench::physics::preset("spider_3in").unwrap();
+    part.ageing = None;
+    let run = |serial: &str, stimulus: Value| {
+        let mut b = test_body(serial, 2);
+        let m = b["measurement"].as_object_mut().unwrap();
+        m.remove("preset");
+        m.insert("part_spec".into(), serde_json::to_value(&part).unwrap());
+        b["stimulus"] = stimulus;
+        b
+    };
+    let a = submit(&c, &d, &run("LT-NOISE-C", noise.clone())).await;
+    let s = submit(&c, &d, &run("LT-SINE-C", json!({"excursion_m": 0.0053}))).await;
+    let mut on = vec![];
+    for (id, rate) in [
+        (a, {
+            let bench = BenchParams::default();
+            let w = waveform::noise_loop(
+                bench.sample_rate_hz,
+                [20.0, 200.0],
+                waveform::NOISE_LOOP_S,
+                waveform::NOISE_SEED,
+            )
+            .unwrap();
+            let mut l = waveform::LoopLoad::new(w);
+            // A part without ageing takes the load at one rate: 1 s of it.
+            l.apply(&part, &bench, 100.0, 0.0, 0.0015, 1.0)
+        }),
+        (s, ageing::sine_power_w(&part, 0.0, 0.0053)),
+    ] {
+        let v = wait_test(&c, &d, &id, Duration::from_secs(300), terminal).await;
+        assert_eq!(v["job"]["state"], "succeeded", "{v}");
+        let e = loads(&v);
+        on.push(e[1] / rate);
+    }
+    println!("stimulus time: noise {} s, sine {} s", on[0], on[1]);
+    assert!(on[1] > 800.0 && on[1] < 900.0, "{on:?}");
+    assert!((on[0] / on[1] - 1.0).abs() < 1e-6, "{on:?}");
+}

@@ -111,6 +111,32 @@ impl VirtualBench {
         e1 - e0
     }
 
+    /// Accelerated load of a drive loop held at an RMS displacement
+    /// `x_rms_m` for `duration_s` (band-limited noise, decision 0137): the
+    /// loop's load rate on the part as it is, re-evaluated as it ages
+    /// (`physics::waveform::LoopLoad`), within the bench's drive limit.
+    /// Returns the load added (J); 0 when this bench does not age the part.
+    pub fn apply_loop_load(
+        &mut self,
+        stimulus: &mut springbench_core::physics::waveform::LoopLoad,
+        x_rms_m: f64,
+        duration_s: f64,
+    ) -> f64 {
+        let Some(e0) = self.ageing_load_j else {
+            return 0.0;
+        };
+        let e1 = stimulus.apply(
+            &self.part,
+            &self.bench,
+            self.limits.max_drive_v,
+            e0,
+            x_rms_m,
+            duration_s,
+        );
+        self.ageing_load_j = Some(e1);
+        e1 - e0
+    }
+
     /// This bench's differences from its neighbours (`[benches.virtual]`):
     /// the laser's sensitivity error, the inner clamp's extra mass (added
     /// to the mounted part's moving mass), the effects it adds to every

@@ -145,11 +145,25 @@ fn plan_section(doc: &LongTermDocument) -> String {
             &mut s,
             "stimulus",
             format!(
-                "sine at the part\u{2019}s resonance, {} mm peak, held at its {}{}",
-                sig(st.excursion_m * 1e3, 4),
-                match st.hold {
-                    crate::job::Hold::Excursion => "excursion",
-                    crate::job::Hold::Drive => "drive level",
+                "{}{}",
+                match st.kind {
+                    crate::job::StimulusKind::Sine => format!(
+                        "sine at the part\u{2019}s resonance, {} mm peak, held at its {}",
+                        sig(st.start_level_m() * 1e3, 4),
+                        match st.hold {
+                            crate::job::Hold::Excursion => "excursion",
+                            crate::job::Hold::Drive => "drive level",
+                        }
+                    ),
+                    crate::job::StimulusKind::Noise => {
+                        let [lo, hi] = st.band_hz.unwrap_or_default();
+                        format!(
+                            "band-limited noise, {} to {} Hz, {} mm RMS displacement held",
+                            sig(lo, 4),
+                            sig(hi, 4),
+                            sig(st.start_level_m() * 1e3, 4)
+                        )
+                    }
                 },
                 match (st.on_s, st.off_s) {
                     (Some(on), Some(off)) =>

@@ -25,6 +25,15 @@ const hours = (s) => (Number.isFinite(s) ? s / 3600 : null);
 const kj = (j) => (Number.isFinite(j) ? j / 1000 : null);
 const mm = (k) => (Number.isFinite(k) ? k / 1000 : null); // N/m -> N/mm
 
+// The stimulus in words: its kind, its level in its own measure (decision 0137).
+function stimulusText(stim) {
+  if (stim.kind === 'noise') {
+    const [lo, hi] = stim.band_hz || [];
+    return `band-limited noise, ${num(lo, 4)} to ${num(hi, 4)} Hz, ${num((stim.excursion_rms_m || 0) * 1000, 3)} mm RMS displacement held`;
+  }
+  return `sine at the part\u2019s resonance, ${num((stim.excursion_m || 0) * 1000, 3)} mm peak, held at its ${stim.hold === 'drive' ? 'drive level' : 'excursion'}`;
+}
+
 function badge(state) {
   return h('span', { class: `badge state-${state}` }, state);
 }
@@ -299,8 +308,8 @@ async function renderTest(main, ctx, id) {
         h('tr', {}, h('th', {}, 'part'), h('td', { class: 'serial', id: 'lt-part' }, j.part_serial)),
         h('tr', {}, h('th', {}, 'bench'), h('td', {}, j.bench_id, doc.accelerated ? h('span', { class: 'muted', id: 'lt-accelerated' }, ' \u2014 accelerated: the stimulus applied faster than real time on the virtual bench; each measurement simulated in full') : null)),
         h('tr', {}, h('th', {}, 'test'), h('td', {}, `${num((req.duration_s || 0) / 3600, 4)} h, a measurement every ${num((req.interval_s || 0) / 60, 4)} min`)),
-        h('tr', {}, h('th', {}, 'stimulus'), h('td', {}, `sine at the part\u2019s resonance, ${num((stim.excursion_m || 0) * 1000, 3)} mm peak, held at its ${stim.hold === 'drive' ? 'drive level' : 'excursion'}${Number.isFinite(stim.on_s) ? `, ${num(stim.on_s, 4)} s on / ${num(stim.off_s, 4)} s off` : ''}`,
-          (stim.steps || []).length ? h('span', { id: 'lt-steps' }, `; level steps: ${stim.steps.map(st => `${num(st.excursion_m * 1000, 3)} mm from ${num(hours(st.from_s), 4)} h`).join(', ')}`) : null)),
+        h('tr', {}, h('th', {}, 'stimulus'), h('td', { id: 'lt-stimulus' }, `${stimulusText(stim)}${Number.isFinite(stim.on_s) ? `, ${num(stim.on_s, 4)} s on / ${num(stim.off_s, 4)} s off` : ''}`,
+          (stim.steps || []).length ? h('span', { id: 'lt-steps' }, `; level steps: ${stim.steps.map(st => `${num((stim.kind === 'noise' ? st.excursion_rms_m : st.excursion_m) * 1000, 3)} mm${stim.kind === 'noise' ? ' RMS' : ''} from ${num(hours(st.from_s), 4)} h`).join(', ')}`) : null)),
         j.problem ? h('tr', {}, h('th', {}, 'stopped'), h('td', { class: 'error', id: 'lt-problem' }, j.problem.detail || j.problem.title)) : null));
     const running = !TERMINAL.includes(j.state);
     const st = doc.state || {};

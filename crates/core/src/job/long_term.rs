@@ -21,6 +21,21 @@ pub const DEFAULT_K0_CHANGE_PERCENT: f64 = 60.0;
 pub const DEFAULT_XPEAK_RUNAWAY_PERCENT: f64 = 30.0;
 /// Most level steps of one stimulus.
 pub const MAX_LEVEL_STEPS: usize = 100;
+/// A noise's band lies within these (Hz): a suspension's stroke is below
+/// a few hundred hertz; 1 Hz is the slowest a bench's exciter follows.
+pub const NOISE_BAND_HZ: (f64, f64) = (1.0, 2000.0);
+/// A noise's band is at least this wide (Hz): four lines of its 4-s loop.
+pub const MIN_NOISE_BANDWIDTH_HZ: f64 = 1.0;
+/// The peaks of Gaussian noise reach about this many times its RMS
+/// (`physics::waveform::CREST`).
+pub use crate::physics::waveform::CREST;
+
+fn kind_name(k: StimulusKind) -> &'static str {
+    match k {
+        StimulusKind::Sine => "sine",
+        StimulusKind::Noise => "noise",
+    }
+}
 
 /// What the stimulus holds as the part changes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
@@ -35,26 +50,84 @@ pub enum Hold {
     Drive,
 }
 
+/// What the stimulus plays (decision 0137).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StimulusKind {
+    /// A sine held at the part's current resonance, its level the peak
+    /// displacement `excursion_m` (the default: every stored test is one).
+    #[default]
+    Sine,
+    /// Band-limited Gaussian noise (`band_hz`), its level the RMS
+    /// displacement `excursion_rms_m` held closed-loop on the measured
+    /// displacement.
+    Noise,
+}
+
+impl StimulusKind {
+    fn is_sine(&self) -> bool {
+        *self == StimulusKind::Sine
+    }
+
+    /// The field that gives this kind's level.
+    pub fn level_field(&self) -> &'static str {
+        match self {
+            StimulusKind::Sine => "excursion_m",
+            StimulusKind::Noise => "excursion_rms_m",
+        }
+    }
+}
+
 /// A level step of the stimulus (decision 0132): from test time `from_s`
-/// on, the sine is held at `excursion_m` (until the next step).
+/// on, the stimulus is held at the step's level (until the next step): a
+/// sine's `excursion_m`, a noise's `excursion_rms_m`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct LevelStep {
     /// Test time from which this level holds (s, > 0; the level before the
-    /// first step is the stimulus' `excursion_m`).
+    /// first step is the stimulus' own).
     pub from_s: f64,
-    /// Peak displacement of the sine from then on (m).
-    pub excursion_m: f64,
+    /// A sine's peak displacement from then on (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub excursion_m: Option<f64>,
+    /// A noise's RMS displacement from then on (m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub excursion_rms_m: Option<f64>,
+}
+
+impl LevelStep {
+    /// The step's level in its stimulus' measure (m; 0 when absent, which
+    /// validation refuses).
+    pub fn level_m(&self, kind: StimulusKind) -> f64 {
+        match kind {
+            StimulusKind::Sine => self.excursion_m,
+            StimulusKind::Noise => self.excursion_rms_m,
+        }
+        .unwrap_or(0.0)
+    }
 }
 
 /// The stimulus between two measurements.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Stimulus {
-    /// Peak displacement of the sine held at the part's current resonance
-    /// (m), from the test's start (until the first of `steps`).
-    pub excursion_m: f64,
-    /// Level stepping: the excursion changes at these test times (sorted,
+    /// `sine` (the default) or `noise` (decision 0137).
+    #[serde(default, skip_serializing_if = "StimulusKind::is_sine")]
+    pub kind: StimulusKind,
+    /// A sine's level: its peak displacement held at the part's current
+    /// resonance (m), from the test's start (until the first of `steps`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub excursion_m: Option<f64>,
+    /// A noise's level: the RMS of the part's displacement (m), from the
+    /// test's start. Its peaks reach about 4 times it: 4 × the level must
+    /// stay within the bench's displacement limit, which is checked on
+    /// every block as for the sine.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub excursion_rms_m: Option<f64>,
+    /// A noise's band (Hz, [low, high]): a flat spectrum within it, nothing outside.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub band_hz: Option<[f64; 2]>,
+    /// Level stepping: the level changes at these test times (sorted,
     /// each after the one before, within the test; at most 100). Each
     /// level holds from its `from_s` to the next step's.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -64,20 +137,39 @@ pub struct Stimulus {
     pub on_s: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub off_s: Option<f64>,
-    /// `excursion` (default) or `drive`.
+    /// `excursion` (default) or `drive` (a sine only).
     #[serde(default)]
     pub hold: Hold,
 }
 
 impl Stimulus {
-    /// The target peak displacement at test time `t_s` (m): the last step
-    /// begun by then, else `excursion_m`.
+    /// A sine at a peak displacement (m), without steps or cycling.
+    pub fn sine(excursion_m: f64) -> Stimulus {
+        Stimulus {
+            excursion_m: Some(excursion_m),
+            ..Stimulus::default()
+        }
+    }
+
+    /// The level from the test's start (m) in the kind's measure: a sine's
+    /// peak, a noise's RMS displacement.
+    pub fn start_level_m(&self) -> f64 {
+        match self.kind {
+            StimulusKind::Sine => self.excursion_m,
+            StimulusKind::Noise => self.excursion_rms_m,
+        }
+        .unwrap_or(0.0)
+    }
+
+    /// The target level at test time `t_s` (m) in the kind's measure (a
+    /// sine's peak displacement, a noise's RMS): the last step begun by
+    /// then, else the start level.
     pub fn excursion_at_m(&self, t_s: f64) -> f64 {
         self.steps
             .iter()
             .rev()
             .find(|s| s.from_s <= t_s)
-            .map_or(self.excursion_m, |s| s.excursion_m)
+            .map_or(self.start_level_m(), |s| s.level_m(self.kind))
     }
 
     /// The first level change after test time `t_s` (s), if any.
@@ -447,19 +539,101 @@ impl LongTermRequest {
                 "required: {\"excursion_m\": peak displacement of the sine at resonance}",
             )),
             Some(s) => {
-                if !(s.excursion_m.is_finite() && s.excursion_m >= 0.0) {
-                    add(FieldError::new(
-                        "stimulus.excursion_m",
-                        format!("must be a peak displacement >= 0 m, got {}", s.excursion_m),
-                    ));
-                } else if let Some(mx) = max_x.filter(|mx| s.excursion_m > *mx) {
-                    add(FieldError::new(
-                        "stimulus.excursion_m",
-                        format!(
-                            "{} m is beyond the bench's displacement limit ({mx} m)",
-                            s.excursion_m
-                        ),
-                    ));
+                let kind = s.kind;
+                // A level in the kind's measure: a sine's peak within the
+                // displacement limit, a noise's RMS whose peaks (about
+                // CREST times it) are.
+                let check_level =
+                    |x: Option<f64>, field: String, add: &mut dyn FnMut(FieldError)| {
+                        let Some(x) = x else {
+                            add(FieldError::new(
+                                field,
+                                match kind {
+                                    StimulusKind::Sine => {
+                                        "required: the sine's peak displacement (m)"
+                                    }
+                                    StimulusKind::Noise => {
+                                        "required: the noise's RMS displacement (m)"
+                                    }
+                                },
+                            ));
+                            return;
+                        };
+                        let what = match kind {
+                            StimulusKind::Sine => "a peak displacement",
+                            StimulusKind::Noise => "an RMS displacement",
+                        };
+                        if !(x.is_finite() && x >= 0.0) {
+                            add(FieldError::new(
+                                field,
+                                format!("must be {what} >= 0 m, got {x}"),
+                            ));
+                            return;
+                        }
+                        let Some(mx) = max_x else { return };
+                        match kind {
+                        StimulusKind::Sine if x > mx => add(FieldError::new(
+                            field,
+                            format!("{x} m is beyond the bench's displacement limit ({mx} m)"),
+                        )),
+                        StimulusKind::Noise if CREST * x > mx => add(FieldError::new(
+                            field,
+                            format!(
+                                "{x} m RMS: the noise's peaks reach about {CREST} times it ({} m), beyond the bench's displacement limit ({mx} m); at most {} m",
+                                CREST * x,
+                                mx / CREST
+                            ),
+                        )),
+                        _ => {}
+                    }
+                    };
+                // The other kind's fields are a mistake, not ignored.
+                let foreign: &[(&str, bool)] = match kind {
+                    StimulusKind::Sine => &[
+                        ("excursion_rms_m", s.excursion_rms_m.is_some()),
+                        ("band_hz", s.band_hz.is_some()),
+                    ],
+                    StimulusKind::Noise => &[("excursion_m", s.excursion_m.is_some())],
+                };
+                for (f, given) in foreign {
+                    if *given {
+                        add(FieldError::new(
+                            format!("stimulus.{f}"),
+                            format!(
+                                "not a field of a {} stimulus (its level is {})",
+                                kind_name(kind),
+                                kind.level_field()
+                            ),
+                        ));
+                    }
+                }
+                let level = match kind {
+                    StimulusKind::Sine => s.excursion_m,
+                    StimulusKind::Noise => s.excursion_rms_m,
+                };
+                check_level(level, format!("stimulus.{}", kind.level_field()), &mut add);
+                if kind == StimulusKind::Noise {
+                    match s.band_hz {
+                        None => add(FieldError::new(
+                            "stimulus.band_hz",
+                            format!("required: the noise's band [low, high] (Hz, within {NOISE_BAND_HZ:?})"),
+                        )),
+                        Some([lo, hi]) => {
+                            let (min, max) = NOISE_BAND_HZ;
+                            if !(lo.is_finite() && hi.is_finite() && lo >= min && hi <= max && hi - lo >= MIN_NOISE_BANDWIDTH_HZ) {
+                                add(FieldError::new(
+                                    "stimulus.band_hz",
+                                    format!("must be [low, high] within {min} to {max} Hz, high at least {MIN_NOISE_BANDWIDTH_HZ} Hz above low, got [{lo}, {hi}]"),
+                                ));
+                            }
+                        }
+                    }
+                    if s.hold == Hold::Drive {
+                        add(FieldError::new(
+                            "stimulus.hold",
+                            "a noise is held at its excursion (the RMS displacement); a drive level is held for a sine only",
+                        ));
+                    }
                 }
                 if s.steps.len() > MAX_LEVEL_STEPS {
                     add(FieldError::new(
@@ -474,7 +648,7 @@ impl LongTermRequest {
                     if !(f.is_finite() && f > 0.0) {
                         add(FieldError::new(
                             field,
-                            format!("must be a test time > 0 s (the level at the start is stimulus.excursion_m), got {f}"),
+                            format!("must be a test time > 0 s (the level at the start is stimulus.{}), got {f}", kind.level_field()),
                         ));
                     } else if let Some(b) = before.filter(|b| f <= *b) {
                         add(FieldError::new(
@@ -490,19 +664,27 @@ impl LongTermRequest {
                     if f.is_finite() {
                         before = Some(before.map_or(f, |b: f64| b.max(f)));
                     }
-                    let x = st.excursion_m;
-                    let field = format!("stimulus.steps[{i}].excursion_m");
-                    if !(x.is_finite() && x >= 0.0) {
+                    let (given, other, other_field) = match kind {
+                        StimulusKind::Sine => {
+                            (st.excursion_m, st.excursion_rms_m, "excursion_rms_m")
+                        }
+                        StimulusKind::Noise => (st.excursion_rms_m, st.excursion_m, "excursion_m"),
+                    };
+                    if other.is_some() {
                         add(FieldError::new(
-                            field,
-                            format!("must be a peak displacement >= 0 m, got {x}"),
-                        ));
-                    } else if let Some(mx) = max_x.filter(|mx| x > *mx) {
-                        add(FieldError::new(
-                            field,
-                            format!("{x} m is beyond the bench's displacement limit ({mx} m)"),
+                            format!("stimulus.steps[{i}].{other_field}"),
+                            format!(
+                                "not a field of a {} stimulus' step (its level is {})",
+                                kind_name(kind),
+                                kind.level_field()
+                            ),
                         ));
                     }
+                    check_level(
+                        given,
+                        format!("stimulus.steps[{i}].{}", kind.level_field()),
+                        &mut add,
+                    );
                 }
                 match (s.on_s, s.off_s) {
                     (None, None) => {}
@@ -634,11 +816,9 @@ mod tests {
     #[test]
     fn on_off_cycling_counts_the_on_time_from_the_tests_start() {
         let s = Stimulus {
-            excursion_m: 0.005,
-            steps: vec![],
             on_s: Some(60.0),
             off_s: Some(30.0),
-            hold: Hold::Excursion,
+            ..Stimulus::sine(0.005)
         };
         assert_eq!(s.on_time_s(0.0, 90.0), 60.0);
         assert_eq!(s.on_time_s(0.0, 900.0), 600.0);
@@ -726,6 +906,11 @@ mod tests {
             v["steps"][0],
             json!({"from_s": 1000.0, "excursion_m": 0.006})
         );
+        // ... and a sine's document keeps its form (no `kind`: old tests read alike)
+        assert!(
+            v.get("kind").is_none() && v.get("excursion_rms_m").is_none(),
+            "{v}"
+        );
         let c = check(json!({"measurement": {"part": {"serial": "LT-1"}},
             "duration_s": 3600.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.004}}))
         .unwrap()
@@ -768,5 +953,86 @@ mod tests {
             e.iter().any(|e| e.field.starts_with("stimulus.steps")),
             "{e:?}"
         );
+    }
+
+    #[test]
+    fn a_noise_stimulus_is_accepted_and_steps_at_its_rms_level() {
+        let s = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0,
+            "stimulus": {"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.002,
+                "on_s": 60.0, "off_s": 30.0,
+                "steps": [{"from_s": 1000.0, "excursion_rms_m": 0.003}]}}))
+        .unwrap()
+        .stimulus;
+        assert_eq!(s.kind, StimulusKind::Noise);
+        assert_eq!(s.excursion_at_m(0.0), 0.002);
+        assert_eq!(s.excursion_at_m(1000.0), 0.003);
+        let p = s.pieces(900.0, 2100.0);
+        assert_eq!(p.len(), 2, "{p:?}");
+        assert!((p[0].0 - 70.0).abs() < 1e-9 && p[0].1 == 0.002, "{p:?}");
+        let v = serde_json::to_value(&s).unwrap();
+        assert_eq!(v["kind"], "noise");
+        assert_eq!(v["band_hz"], json!([20.0, 200.0]));
+        // A stored sine (no kind) reads as a sine.
+        let old: Stimulus = serde_json::from_value(json!({"excursion_m": 0.004})).unwrap();
+        assert_eq!(old, Stimulus::sine(0.004));
+        assert_eq!(old.excursion_at_m(0.0), 0.004);
+    }
+
+    #[test]
+    fn bad_noise_fields_are_named() {
+        let fields = |stim: serde_json::Value| {
+            let e = check(json!({"measurement": {"part": {"serial": "LT-1"}},
+                "duration_s": 3600.0, "interval_s": 900.0, "stimulus": stim}))
+            .unwrap_err();
+            e.into_iter()
+                .map(|e| (e.field, e.message))
+                .collect::<Vec<_>>()
+        };
+        let has = |e: &[(String, String)], f: &str, m: &str| {
+            assert!(
+                e.iter().any(|(ef, em)| ef == f && em.contains(m)),
+                "{f} / {m} not in {e:?}"
+            )
+        };
+        // 4 x 3.1 mm = 12.4 mm is beyond the 12 mm limit; 3 mm is not.
+        let e =
+            fields(json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.0031}));
+        has(&e, "stimulus.excursion_rms_m", "at most 0.003 m");
+        assert!(check(json!({"measurement": {"part": {"serial": "LT-1"}},
+            "duration_s": 3600.0, "interval_s": 900.0,
+            "stimulus": {"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.003}}))
+        .is_ok());
+        let e = fields(json!({"kind": "noise", "excursion_m": 0.002}));
+        has(&e, "stimulus.band_hz", "required");
+        has(&e, "stimulus.excursion_rms_m", "required");
+        has(
+            &e,
+            "stimulus.excursion_m",
+            "not a field of a noise stimulus",
+        );
+        for band in [
+            json!([200.0, 20.0]),
+            json!([0.0, 20.0]),
+            json!([20.0, 5000.0]),
+            json!([20.0, 20.5]),
+        ] {
+            let e = fields(json!({"kind": "noise", "band_hz": band, "excursion_rms_m": 0.001}));
+            has(&e, "stimulus.band_hz", "within 1 to 2000 Hz");
+        }
+        let e = fields(
+            json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": -1.0,
+            "hold": "drive", "steps": [{"from_s": 100.0, "excursion_m": 0.001}]}),
+        );
+        has(&e, "stimulus.excursion_rms_m", "an RMS displacement >= 0 m");
+        has(&e, "stimulus.hold", "sine only");
+        has(&e, "stimulus.steps[0].excursion_m", "not a field");
+        has(&e, "stimulus.steps[0].excursion_rms_m", "required");
+        let e = fields(json!({"excursion_m": 0.002, "band_hz": [20.0, 200.0]}));
+        has(&e, "stimulus.band_hz", "not a field of a sine stimulus");
+        let e = fields(json!({"kind": "chirp", "excursion_m": 0.002}));
+        assert!(e.iter().any(|(f, _)| f.starts_with("stimulus")), "{e:?}");
+        let e = fields(json!({"on_s": 1.0, "off_s": 1.0}));
+        has(&e, "stimulus.excursion_m", "required");
     }
 }

@@ -39,7 +39,7 @@ mod stored;
 
 pub use long_term::{
     Ambient, AmbientRequest, Failure, FailureLimits, Hold, LevelStep, LongTermRequest,
-    LongTermSpec, PartState, Stimulus,
+    LongTermSpec, PartState, Stimulus, StimulusKind,
 };
 pub use measurement::{
     HardwareRecord, MeasurementConfig, PreSweepSettings, ProcedureConfig, ProcedureRun,

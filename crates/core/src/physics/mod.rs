@@ -11,6 +11,7 @@ pub mod ageing;
 pub mod memory;
 pub mod model;
 pub mod production;
+pub mod waveform;
 
 pub use model::BenchParams;
 
