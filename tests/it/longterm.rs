@@ -8,7 +8,7 @@
 //! simulated sample by sample (~2-3 s wall in a debug build), the 15 min of
 //! stimulus between two of them analytically.
 
-use crate::common::{client, problem, Daemon};
+use crate::common::{client, paused, post_status, problem, Daemon};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
@@ -1259,22 +1259,6 @@ async fn ambient_conditions_come_from_the_benchs_sensor_or_by_hand() {
     drop(d);
 }
 
-async fn post_status(c: &reqwest::Client, d: &Daemon, path: &str) -> u16 {
-    c.post(d.url(path))
-        .header("content-type", "application/json")
-        .send()
-        .await
-        .unwrap()
-        .status()
-        .as_u16()
-}
-
-fn paused(v: &Value) -> bool {
-    v["job"]["step"]
-        .as_str()
-        .is_some_and(|s| s.starts_with("paused"))
-}
-
 /// Pause and resume by the user (decision 0130): the pause holds (no
 /// interval measured, the test clock, the load and the progress stand
 /// still), outlives a kill -9 of the daemon (the resumed test stays
@@ -1359,20 +1343,7 @@ async fn a_user_pause_holds_the_test_across_a_restart_and_resume_continues_it() 
     assert_eq!(v3["intervals"], v["intervals"], "{v3}");
     assert_eq!(v3["state"]["clock_s"], v["state"]["clock_s"]);
     still(&v3, &v4);
-    let users = |v: &Value| -> Vec<(String, f64)> {
-        v["events"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|e| e["cause"] == "user")
-            .map(|e| {
-                (
-                    e["kind"].as_str().unwrap().to_string(),
-                    e["elapsed_s"].as_f64().unwrap(),
-                )
-            })
-            .collect()
-    };
+    let users = crate::common::user_events;
     // Paused at the next step: after the last measurement's end, before
     // the next interval's start (the stimulus between them is accelerated).
     let u = users(&v4);

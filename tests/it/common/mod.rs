@@ -438,3 +438,37 @@ pub fn production_equivalence_parameters(x_m: f64) -> Value {
         {"name": "model_error", "quantity": "model_error", "upper": 5.0}
     ])
 }
+
+/// POST `path` with no body; the answer's status.
+pub async fn post_status(c: &reqwest::Client, d: &Daemon, path: &str) -> u16 {
+    c.post(d.url(path))
+        .header("content-type", "application/json")
+        .send()
+        .await
+        .unwrap()
+        .status()
+        .as_u16()
+}
+
+/// A long-term test's document says it is paused (its job's step).
+pub fn paused(v: &Value) -> bool {
+    v["job"]["step"]
+        .as_str()
+        .is_some_and(|s| s.starts_with("paused"))
+}
+
+/// A long-term test's events caused by the user: (kind, test time in s).
+pub fn user_events(v: &Value) -> Vec<(String, f64)> {
+    v["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["cause"] == "user")
+        .map(|e| {
+            (
+                e["kind"].as_str().unwrap().to_string(),
+                e["elapsed_s"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}

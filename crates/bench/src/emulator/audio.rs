@@ -89,6 +89,8 @@ struct Run {
     /// First DAC sample produced after the bench asked for the ramp-down.
     abort_sample: Option<usize>,
     x_tap: Vec<f64>,
+    /// True |x| at every DAC sample of the run (m), for the trace.
+    x_abs_m: Vec<f32>,
     /// Converter clock (`clock_k`) of the first sample in `x_tap`.
     x_tap_k: u64,
     /// Converter clock at the run's first sample.
@@ -220,6 +222,7 @@ impl EmulatedAudio {
                 x += SLIP_M * ((k - at) as f64 / (SLIP_TIME_S * self.fs)).min(1.0);
             }
         }
+        run.x_abs_m.push(run.sim.state[idx::X].abs() as f32);
         if run.event_sample.is_none() && x.abs() > self.limit_m {
             run.event_sample = Some(k);
         }
@@ -271,6 +274,18 @@ impl EmulatedAudio {
             return;
         };
         let last_nonzero = run.played_v.iter().rposition(|u| u.abs() > 1e-6);
+        let first_nonzero = run.played_v.iter().position(|u| u.abs() > 1e-6);
+        let peak = |a: usize, b: usize| {
+            run.x_abs_m
+                .get(a..b.min(run.x_abs_m.len()))
+                .map_or(0.0, |s| s.iter().fold(0.0f32, |m, x| m.max(*x)))
+        };
+        // The second half of the drive's span but its last 0.3 s: a held
+        // chunk's steady sine, after its glide, before its fade.
+        let held = first_nonzero.zip(last_nonzero).map(|(a, b)| {
+            let end = b.saturating_sub((0.3 * self.fs) as usize);
+            peak((a + b) / 2, end.max((a + b) / 2))
+        });
         let fault_sample = run.fault.map(|(_, s)| s);
         let event = match run.fault {
             Some((
@@ -296,6 +311,13 @@ impl EmulatedAudio {
             "fault_sample": fault_sample,
             "event_sample": event,
             "last_nonzero_drive_sample": last_nonzero,
+            // From the first to the last nonzero drive sample (s).
+            "drive_span_s": first_nonzero.zip(last_nonzero).map(|(a, b)| (b - a) as f64 / self.fs),
+            // The part's true largest excursion in the run (m).
+            "x_true_peak_m": peak(0, run.x_abs_m.len()),
+            "x_true_peak_held_m": held,
+            // Its true load after the run (J), when it ages.
+            "true_load_j": run.ageing.as_ref().map(AgeingStep::load_j),
             "abort_sample": run.abort_sample,
             "last_2ms_peak_drive_v": tail_peak,
             "peak_drive_v": run.played_v.iter().fold(0.0f32, |a, u| a.max(u.abs())),
@@ -353,6 +375,7 @@ impl AudioIo for EmulatedAudio {
             event_sample: None,
             abort_sample: None,
             x_tap: Vec::new(),
+            x_abs_m: Vec::new(),
             x_tap_k: self.clock_k,
             clock_k0: self.clock_k,
             started: std::time::Instant::now(),
