@@ -2691,6 +2691,18 @@ async fn recovery_study_from_the_ui_shows_depth_and_time_constant() {
     assert!(rounded_from(tau, api_tau, 4), "{tau} vs {api_tau}");
     assert!((depth / 3e4 - 1.0).abs() <= 0.10, "depth {depth}");
     assert!((tau / 2.0 - 1.0).abs() <= 0.10, "tau {tau}");
+    // Each with its standard error, as the API states it (2 digits).
+    for (id, key, unit) in [
+        ("#rec-depth-se", "depth_se_n_per_m2", "N/m\u{b2}"),
+        ("#rec-tau-se", "tau_se_s", "s"),
+        ("#rec-drop-se", "depth_se_n_per_m", "N/m"),
+    ] {
+        let (se, su) = shown(&b.text(id).await);
+        let api = r[key].as_f64().unwrap_or_else(|| panic!("{key} in {r}"));
+        eprintln!("page: {id} {se} {su} (API {api:.4e})");
+        assert!(api > 0.0 && rounded_from(se, api, 2), "{id}: {se} vs {api}");
+        assert_eq!(su, unit, "{id}");
+    }
     // Valid where the values are: the part softened.
     assert_eq!(r["softening_found"], true);
     let states = b

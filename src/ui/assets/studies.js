@@ -282,6 +282,12 @@ function val(id, v, unit, digits = 4, scale = 1) {
   return h('span', { id, class: 'value', dataset: { si: String(v) } }, Number.isFinite(v) ? `${num(v * scale, digits)}${unit ? ` ${unit}` : ''}` : '\u2013');
 }
 
+/** The standard error beside a value (" \u00b1 120 N/m\u00b2 (standard error)"); nothing when the result has none (stored before it was computed). */
+function seOf(id, se, unit) {
+  if (!Number.isFinite(se)) return null;
+  return h('span', { class: 'se' }, ' \u00b1 ', h('span', { id, class: 'value', dataset: { si: String(se) } }, `${num(se, 2)} ${unit}`), ' (standard error)');
+}
+
 // --- the recovery's result ---------------------------------------------------------
 
 function recoveryResult(r) {
@@ -297,9 +303,9 @@ function recoveryResult(r) {
       ? 'The part softens reversibly: K(0) falls after the large excitation and recovers with the time constant below.'
       : 'No reversible softening found.'),
     foldRepeatedReasons(h('table', { class: 'kv', id: 'recovery-figures' },
-      row('depth (K(0) drop per m of the excitation\u2019s peak excursion)', stated(val('rec-depth', r.depth_n_per_m2, 'N/m\u00b2'), v, { unit: 'N/m\u00b2', raw: r.depth_n_per_m2 })),
-      row('time constant of the recovery', stated(val('rec-tau', r.tau_s, 's'), v, { unit: 's', raw: r.tau_s })),
-      row('drop of K(0) when the excitation ends', stated(val('rec-drop', r.depth_n_per_m, 'N/m'), v, { unit: 'N/m', raw: r.depth_n_per_m })),
+      row('depth (K(0) drop per m of the excitation\u2019s peak excursion)', stated(h('span', {}, val('rec-depth', r.depth_n_per_m2, 'N/m\u00b2'), seOf('rec-depth-se', r.depth_se_n_per_m2, 'N/m\u00b2')), v, { unit: 'N/m\u00b2', raw: r.depth_n_per_m2 })),
+      row('time constant of the recovery', stated(h('span', {}, val('rec-tau', r.tau_s, 's'), seOf('rec-tau-se', r.tau_se_s, 's')), v, { unit: 's', raw: r.tau_s })),
+      row('drop of K(0) when the excitation ends', stated(h('span', {}, val('rec-drop', r.depth_n_per_m, 'N/m'), seOf('rec-drop-se', r.depth_se_n_per_m, 'N/m')), v, { unit: 'N/m', raw: r.depth_n_per_m })),
       row('misfit of the recovery law (RMS)', val('rec-misfit', r.misfit_n_per_m, 'N/m')),
       row('K(0) once recovered', val('rec-k', r.k_recovered_n_per_m, 'N/mm', 4, 1e-3)),
       row('peak excursion of the excitation', val('rec-xpeak', r.excitation_peak_m, 'mm', 4, 1e3)),
