@@ -301,6 +301,31 @@ async fn long_term_stimulus_holds_the_drive_limit_and_ramps_down_when_the_laser_
     let b = hw::bench_state(&c, &d).await;
     assert_eq!(b["state"], "faulted", "{b}");
     assert_eq!(get(&c, &d, "/healthz").await["status"], "ok");
+    // The last signals before the fault (issue 32): the faulted chunk as
+    // captured up to the fault, the drive held at the limit until then.
+    let (ch, fs_wav) = hw::last_signals(&c, &d, &t).await;
+    let secs = ch[0].len() as f64 / fs_wav;
+    let drive = ch.last().unwrap();
+    let held = drive.iter().fold(0.0f64, |a, u| a.max(u.abs()));
+    let n = drive.len();
+    let before_end = drive[n - (0.2 * fs_wav) as usize..n - (0.1 * fs_wav) as usize]
+        .iter()
+        .fold(0.0f64, |a, u| a.max(u.abs()));
+    let x_peak = ch[0].iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    println!(
+        "last signals: {} channels, {secs:.3} s, drive peak {held:.2} V, 0.1-0.2 s before the end {before_end:.2} V, displacement peak {:.3} mm",
+        ch.len(),
+        1e3 * x_peak
+    );
+    assert!(
+        secs > 2.5 && secs < 3.5,
+        "{secs} s: the fault was 3 s into the chunk"
+    );
+    assert!(held > 0.99 * 30.0 && held <= 30.0 * 1.0001, "{held} V");
+    assert!(
+        before_end > 0.9 * 30.0,
+        "the drive was not on before the fault: {before_end} V"
+    );
 }
 
 /// Issue 32's acceptance "Emulated hardware", by hand (10.6 min):

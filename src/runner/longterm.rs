@@ -69,6 +69,11 @@ enum Msg {
         Option<(NewRecording, f64)>,
         std::sync::mpsc::SyncSender<Result<(), String>>,
     ),
+    /// The last signals of a test a bench fault stopped.
+    LastSignals(
+        (NewRecording, f64),
+        std::sync::mpsc::SyncSender<Result<(), String>>,
+    ),
 }
 
 /// At the daemon's start: long-term tests still `running` (a crash, a kill,
@@ -525,6 +530,14 @@ impl Runner {
                     .map_err(|e| e.to_string());
                 let _ = reply.send(r);
             }
+            Msg::LastSignals(signals, reply) => {
+                let r = self
+                    .store
+                    .set_long_term_last_signals(job_id, signals)
+                    .await
+                    .map_err(|e| e.to_string());
+                let _ = reply.send(r);
+            }
         }
     }
 }
@@ -846,7 +859,8 @@ fn run_blocking(
         if let Some(d) = device.as_mut() {
             // Played through the bench, under its safety rules.
             let mut report = |t_now: f64| progress(index, t_now, None);
-            load_j += device_stimulus(d, &pcfg, spec, (t, t_start), &obs, room, &mut report)?;
+            load_j += device_stimulus(d, &pcfg, spec, (t, t_start), &obs, room, &mut report)
+                .map_err(|s| keep_fault_signals(d, s, tx))?;
             t = t_start;
         }
         while t < t_start {
@@ -985,7 +999,13 @@ fn run_blocking(
                 }
                 return Err(failure_problem(&f));
             }
-            Err(e) => return Err(super::execute::procedure_stop(e)),
+            Err(e) => {
+                let stop = super::execute::procedure_stop(e);
+                return Err(match device.as_mut() {
+                    Some(d) => keep_fault_signals(d, stop, tx),
+                    None => stop,
+                });
+            }
         };
         if !spec.accelerated && device.is_none() {
             pace(out.bench_time_s - wall.elapsed().as_secs_f64(), &obs);
@@ -1407,6 +1427,37 @@ fn noise_load(s: &crate::job::Stimulus, fs: f64) -> Result<waveform::LoopLoad, S
                 format!("stimulus.band_hz {band:?} holds no line at {fs} Hz"),
             ))
         })
+}
+
+/// A bench fault on a hardware or emulated bench: the last seconds the
+/// bench captured before it (the faulted run's, up to the fault and its
+/// ramp) are stored as the test's last signals (issue 32: "on a failure
+/// the last seconds of the signals are stored"); the stop is returned as
+/// it was, and a failure to store them is only logged.
+fn keep_fault_signals(d: &mut Device<'_>, stop: Stop, tx: &mpsc::UnboundedSender<Msg>) -> Stop {
+    let Stop::Failed(p) = &stop else {
+        return stop;
+    };
+    if p.kind != ProblemKind::BenchFault {
+        return stop;
+    }
+    let Some(sig) = d.bench.take_fault_signals() else {
+        return stop;
+    };
+    let last = tail(&sig, LAST_SIGNALS_S);
+    let secs = last.len() as f64 / last.sample_rate_hz;
+    let res = d.bench.resolution();
+    let stored = super::execute::recording("main", &last, res.as_ref())
+        .map_err(|_| "not encoded".to_string())
+        .and_then(|rec| {
+            send_and_wait(tx, |r| Msg::LastSignals((rec, secs), r))
+                .map_err(|_| "not stored".to_string())
+        });
+    let _ = tx.send(Msg::Log(match stored {
+        Ok(()) => format!("the last {secs:.2} s before the bench fault stored (last-signals.wav)"),
+        Err(e) => format!("the last signals before the bench fault: {e}"),
+    }));
+    stop
 }
 
 /// Waits `seconds` of real time (a paced, not accelerated, test), polling the cancel.

@@ -96,4 +96,11 @@ pub trait Bench: Send {
     fn resolution(&self) -> Option<springbench_recording::codec::Resolution> {
         None
     }
+    /// What the last run captured before a fault ended it ([`BenchError::Fault`]),
+    /// in drive time, handed out once; None when the last run did not
+    /// fault or the bench keeps nothing (a long-term test stores its last
+    /// seconds, issue 32).
+    fn take_fault_signals(&mut self) -> Option<Signals> {
+        None
+    }
 }

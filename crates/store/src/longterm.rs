@@ -365,18 +365,24 @@ impl Store {
                 "test {job_id} has no finished interval to fail after"
             )));
         }
-        if let Some((rec, duration_s)) = signals {
-            let ids = insert_results(&mut tx, vec![rec], vec![]).await?;
-            sqlx::query(
-                "INSERT OR REPLACE INTO long_term_signals (job_id, recording_id, duration_s, created_at) VALUES (?, ?, ?, ?)",
-            )
-            .bind(job_id)
-            .bind(ids[0])
-            .bind(duration_s)
-            .bind(&t)
-            .execute(&mut *tx)
-            .await?;
+        if let Some(signals) = signals {
+            insert_last_signals(&mut tx, job_id, signals, &t).await?;
         }
+        tx.commit().await?;
+        Ok(())
+    }
+
+    /// Stores the last signals of a test stopped by something other than a
+    /// failure limit (a bench fault on a hardware or emulated bench): the
+    /// recording and its duration (s).
+    pub async fn set_long_term_last_signals(
+        &self,
+        job_id: &str,
+        signals: (NewRecording, f64),
+    ) -> StoreResult<()> {
+        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        crate::jobs::running_job(&mut tx, job_id).await?;
+        insert_last_signals(&mut tx, job_id, signals, &now()).await?;
         tx.commit().await?;
         Ok(())
     }
@@ -591,4 +597,24 @@ impl Store {
             })
             .collect()
     }
+}
+
+/// A test's last signals: the recording, linked to the test (one per test).
+async fn insert_last_signals(
+    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    job_id: &str,
+    (rec, duration_s): (NewRecording, f64),
+    at: &str,
+) -> StoreResult<()> {
+    let ids = insert_results(tx, vec![rec], vec![]).await?;
+    sqlx::query(
+        "INSERT OR REPLACE INTO long_term_signals (job_id, recording_id, duration_s, created_at) VALUES (?, ?, ?, ?)",
+    )
+    .bind(job_id)
+    .bind(ids[0])
+    .bind(duration_s)
+    .bind(at)
+    .execute(&mut **tx)
+    .await?;
+    Ok(())
 }

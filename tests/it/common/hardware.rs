@@ -261,3 +261,21 @@ pub fn column(items: &Value, key: &str) -> Vec<f64> {
         .map(|i| i[key].as_f64().unwrap())
         .collect()
 }
+
+/// The last signals of a stopped long-term test (its document `t`): the
+/// WAV's channels (displacement m, microphone V, drive V, as stored) and
+/// its sample rate.
+pub async fn last_signals(c: &reqwest::Client, d: &Daemon, t: &Value) -> (Vec<Vec<f64>>, f64) {
+    let url = t["last_signals"].as_str().expect("last signals stored");
+    let r = c.get(d.url(url)).send().await.unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let wav = r.bytes().await.unwrap();
+    let mut h = hound::WavReader::new(std::io::Cursor::new(wav.to_vec())).unwrap();
+    let spec = h.spec();
+    let ch = spec.channels as usize;
+    let mut out = vec![Vec::new(); ch];
+    for (k, s) in h.samples::<f32>().enumerate() {
+        out[k % ch].push(s.unwrap() as f64);
+    }
+    (out, spec.sample_rate as f64)
+}

@@ -83,6 +83,8 @@ pub struct HardwareBench {
     clock: (u32, u64),
     /// Captures started (the epoch when the device does not say).
     captures: u32,
+    /// What the last run captured before a fault ended it (drive time).
+    fault_signals: Option<Signals>,
 }
 
 impl HardwareBench {
@@ -97,6 +99,7 @@ impl HardwareBench {
             serial: None,
             clock: (0, 0),
             captures: 0,
+            fault_signals: None,
         }
     }
 
@@ -252,7 +255,31 @@ impl HardwareBench {
             }
             rig.end_sweep();
         }
+        self.fault_signals = match &outcome {
+            Err(BenchError::Fault(_)) => self.drive_time(&cap),
+            _ => None,
+        };
         outcome.map(|_| (cap, shared.clamped()))
+    }
+
+    /// A capture cut off by a fault, in drive time (shifted by the last
+    /// measured latency), every channel to the length all have; None
+    /// without a displacement (never zeros where nothing was measured).
+    fn drive_time(&self, cap: &Capture) -> Option<Signals> {
+        let l = self.last_latency;
+        let n = cap
+            .len()
+            .min(cap.microphone_v.len())
+            .min(cap.displacement_m.len());
+        if n <= l {
+            return None;
+        }
+        Some(Signals {
+            sample_rate_hz: self.fs(),
+            displacement_m: cap.displacement_m[l..n].to_vec(),
+            microphone_v: cap.microphone_v[l..n].to_vec(),
+            drive_v: Some(cap.drive_v[l..n].to_vec()),
+        })
     }
 
     /// Latency of the loopback behind the digital drive; a fault when the loopback does not show it.
@@ -285,6 +312,10 @@ impl Bench for HardwareBench {
 
     fn limits(&self) -> Limits {
         self.limits
+    }
+
+    fn take_fault_signals(&mut self) -> Option<Signals> {
+        self.fault_signals.take()
     }
 
     fn run_records(&self) -> Vec<serde_json::Value> {
