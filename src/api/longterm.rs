@@ -26,7 +26,7 @@ pub struct LongTermList {
 }
 
 #[utoipa::path(post, path = "/api/v1/long-term-tests", tag = "jobs",
-    summary = "Submit a long-term test: the full procedure at intervals while a sine held at the part's current resonance ages it (a virtual bench accelerated or paced; a hardware or emulated bench in real time under its safety rules; cancel it as a job).",
+    summary = "Submit a long-term test: the full procedure at intervals while a stimulus ages it (a sine held at the part's current resonance, or band-limited noise at an RMS displacement; a virtual bench accelerated or paced; a hardware or emulated bench in real time under its safety rules; cancel it as a job).",
     request_body(content = crate::job::LongTermRequest, content_type = "application/json",
         example = json!({"measurement": {"part": {"serial": "LT-0001"}, "preset": "spider_3in", "target_xpeak_m": 0.006},
             "duration_s": 36000.0, "interval_s": 900.0, "stimulus": {"excursion_m": 0.0053}})),
@@ -76,16 +76,6 @@ pub async fn submit(
                 "stimulus.hold",
                 format!(
                     "bench '{}' is {}: its stimulus holds the excursion (\"excursion\")",
-                    b.id,
-                    b.kind.as_str()
-                ),
-            ));
-        }
-        if spec.stimulus.kind != crate::job::StimulusKind::Sine {
-            errors.push(FieldError::new(
-                "stimulus.kind",
-                format!(
-                    "bench '{}' is {}: it plays a sine at resonance; noise is played on a virtual bench only so far",
                     b.id,
                     b.kind.as_str()
                 ),

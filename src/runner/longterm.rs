@@ -838,6 +838,7 @@ fn run_blocking(
     };
     // A noise's loop and its load's rate, kept over the intervals.
     let mut noise: Option<waveform::LoopLoad> = None;
+    let mut noise_short = false;
     for index in start..n {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -888,6 +889,24 @@ fn run_blocking(
                         None => noise.insert(noise_load(&spec.stimulus, vb.bench.sample_rate_hz)?),
                     };
                     vb.apply_loop_load(l, level_m, on);
+                    // Never a level that looks met when it is not: the
+                    // drive limit holding the noise below its target is said.
+                    let short = l.last().filter(|r| r.x_rms_m < 0.98 * level_m);
+                    if short.is_some() != noise_short {
+                        noise_short = short.is_some();
+                        let _ = tx.send(Msg::Log(match short {
+                            Some(r) => format!(
+                                "test time {t:.0} s: the noise reaches {:.3} mm RMS of its {:.3} mm at the drive limit ({} V at its peak)",
+                                1e3 * r.x_rms_m,
+                                1e3 * level_m,
+                                m.limits.max_drive_v
+                            ),
+                            None => format!(
+                                "test time {t:.0} s: the noise reaches its {:.3} mm RMS",
+                                1e3 * level_m
+                            ),
+                        }));
+                    }
                 }
                 (StimulusKind::Sine, None) => {
                     vb.apply_sine_load(level_m, on);
@@ -1318,6 +1337,8 @@ fn device_stimulus(
     let (mut t, to) = span;
     let max_drive_v = d.bench.limits().max_drive_v;
     let mut load_j = 0.0;
+    // A noise's loop and where it stands (decision 0137).
+    let (mut noise_wave, mut noise_phase): (Option<Vec<f64>>, usize) = (None, 0);
     while t < to - 1e-9 {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -1343,8 +1364,69 @@ fn device_stimulus(
         // (decision 0132), the resonance searched again at the new level.
         let x = spec.stimulus.excursion_at_m(t);
         let end = spec.stimulus.next_change_s(t).map_or(end, |c| end.min(c));
-        let hold_s = (end - t - HOLD_SEARCH_S).min(HOLD_MAX_S);
-        if on && x > 0.0 && hold_s >= 1.0 {
+        let noise = spec.stimulus.kind == StimulusKind::Noise;
+        let hold_s = if noise {
+            procedure::waveform::held_within_s(end - t).min(HOLD_MAX_S)
+        } else {
+            (end - t - HOLD_SEARCH_S).min(HOLD_MAX_S)
+        };
+        if noise && on && x > 0.0 && hold_s >= 1.0 {
+            // Band-limited noise (decision 0137): the loop played in faded
+            // chunks, levelled on the measured RMS displacement, under the
+            // same limits and checks as the sine's hold.
+            let fs = d.bench.sample_rate_hz();
+            let wave = match &noise_wave {
+                Some(w) => w,
+                None => noise_wave.insert(noise_load(&spec.stimulus, fs)?.wave().to_vec()),
+            };
+            let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
+            let k = d.k.clone();
+            let t0 = t;
+            let done = procedure::waveform::hold_loop(
+                d.bench.as_mut(),
+                wave,
+                &mut noise_phase,
+                x,
+                hold_s,
+                &mut || obs.cancelled(),
+                &mut || room.paused(),
+                &mut |sig: &Signals| {
+                    if let Some((c, r)) = &k {
+                        e += ageing_law::load_from_displacement_j(&sig.displacement_m, fs, c, *r);
+                    }
+                    if let Some(u) = &sig.drive_v {
+                        peak_v = u.iter().fold(peak_v, |a, v| a.max(v.abs()));
+                    }
+                    played_s += sig.len() as f64 / fs;
+                    report(t0 + played_s);
+                },
+            )
+            .map_err(|e| match super::execute::procedure_stop(e) {
+                Stop::Failed(mut p) => {
+                    p.detail = format!(
+                        "during the stimulus at test time {:.0} s: {}",
+                        t0 + played_s,
+                        p.detail
+                    );
+                    Stop::Failed(p)
+                }
+                s => s,
+            })?;
+            load_j += e;
+            let _ = tx.send(Msg::Log(format!(
+                "noise stimulus from test time {t0:.0} s: {:.0} s held, RMS displacement {:.3} mm (target {:.3} mm), peak drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",
+                done.held_s,
+                1e3 * done.x_rms_m,
+                1e3 * x,
+                done.drive_peak_v,
+                peak_v,
+            )));
+            t += done.bench_time_s;
+            if room.paused() {
+                report(t);
+                continue;
+            }
+        } else if on && x > 0.0 && hold_s >= 1.0 {
             let fs = d.bench.sample_rate_hz();
             let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
             let k = d.k.clone();

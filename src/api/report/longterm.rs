@@ -158,7 +158,7 @@ fn plan_section(doc: &LongTermDocument) -> String {
                     crate::job::StimulusKind::Noise => {
                         let [lo, hi] = st.band_hz.unwrap_or_default();
                         format!(
-                            "band-limited noise, {} to {} Hz, {} mm RMS displacement held",
+                            "band-limited noise, {} to {} Hz, target {} mm RMS displacement",
                             sig(lo, 4),
                             sig(hi, 4),
                             sig(st.start_level_m() * 1e3, 4)

@@ -29,7 +29,7 @@ const mm = (k) => (Number.isFinite(k) ? k / 1000 : null); // N/m -> N/mm
 function stimulusText(stim) {
   if (stim.kind === 'noise') {
     const [lo, hi] = stim.band_hz || [];
-    return `band-limited noise, ${num(lo, 4)} to ${num(hi, 4)} Hz, ${num((stim.excursion_rms_m || 0) * 1000, 3)} mm RMS displacement held`;
+    return `band-limited noise, ${num(lo, 4)} to ${num(hi, 4)} Hz, target ${num((stim.excursion_rms_m || 0) * 1000, 3)} mm RMS displacement`;
   }
   return `sine at the part\u2019s resonance, ${num((stim.excursion_m || 0) * 1000, 3)} mm peak, held at its ${stim.hold === 'drive' ? 'drive level' : 'excursion'}`;
 }

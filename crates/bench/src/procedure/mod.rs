@@ -144,6 +144,7 @@ pub mod pace;
 pub mod production;
 mod run;
 pub mod sweep;
+pub mod waveform;
 pub use break_in::{break_in, hold_at_resonance, BreakIn, BreakInDone};
 pub use production::run_production;
 pub use run::run;
