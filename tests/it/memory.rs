@@ -265,9 +265,9 @@ fn matrix(presets: &[&str], strengths: &[usize], seeds: u64) {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-/// spider_4in at the larger strength; the open cases of the full matrix
-/// (the 18" cone's hysteresis with seed 902, its model error below the
-/// noise floor's resolution) are listed in docs/diagnostics.md.
+/// spider_4in at the larger strength; the full matrix (60 of 60 since
+/// decision 0141) is in docs/diagnostics.md; its hardest cases (the 18"
+/// cone's hysteresis with seed 902) are always-on tests below.
 #[test]
 fn matrix_subset() {
     matrix(&["spider_4in"], &[1], 1);
@@ -289,23 +289,25 @@ fn matrix_full() {
     );
 }
 
-/// A hysteresis the noise floor cannot weigh but the headline can
-/// (decisions 0123, 0140): the 18" cone with k = 0.15 x k0, x_yield 1 mm,
-/// seed 902. The block test finds it (p about 1e-42, the first candidate),
-/// but the noise floor (6.9 %) is estimated above the base model's held-out
-/// residual, so the model error reads 0 and the 5 % relevance rule cannot
-/// be met. Leaving it out moves the headline beyond its stated accuracy
-/// (K(x) 1.0 % RMS, R -8.4 %, Keff -1.5 %), so it is added: before, it was
-/// left out with "cannot tell whether hysteresis matters" and K(x) 1.08 %
-/// RMS from the elastic truth, marked `unreliable`. Now the elastic K(x)
-/// is within 0.2 % of the truth and `valid`, k within 20 %.
-#[test]
-fn a_hysteresis_the_floor_cannot_weigh_is_weighed_by_the_headline() {
+/// The 18" cone's hysteresis (x_yield 1 mm) with seed 902, whose noise
+/// floor the spectrum's estimator puts above the base model's held-out
+/// residual (decisions 0123, 0128, 0140, 0141): the block test finds it
+/// (p about 1e-47 and 1e-42, the first candidate), but with that floor the
+/// model error reads 0 and the 5 % relevance rule cannot be met. Weighed
+/// against the floor read by the residual's own estimator (the mean square
+/// times the noise's share of the spectrum), it removes 7.8 % and 30.9 %
+/// of the held-out model error and is added.
+/// - k = 0.06 x k0: before (decision 0140) "cannot tell whether hysteresis
+///   matters", nothing added, K(x) 0.42 % RMS from the elastic truth and
+///   `unreliable`; now added, k within 2 % of the truth, K(x) 0.01 % RMS.
+/// - k = 0.15 x k0: added since decision 0140 (by the headline it moves),
+///   now by the 5 % rule; K(x) 0.15 % RMS, `valid`, k within 20 %.
+fn hysteresis_of_seed_902_is_added(f: f64, k_rms_max: f64) {
     use springbench::bench::simulate::simulate_recording_set;
     use springbench::diagnose::{diagnose, DiagnoseOptions};
     use springbench::identify::validity::State::Valid;
     let mut part = preset("cone_18in").unwrap();
-    let k = 0.15 * part.k_coeffs_si[0];
+    let k = f * part.k_coeffs_si[0];
     part.effects = hysteresis(k, 1e-3);
     let set = simulate_recording_set(&part, 902).unwrap();
     let d = diagnose(&set, &DiagnoseOptions::default()).unwrap();
@@ -328,7 +330,7 @@ fn a_hysteresis_the_floor_cannot_weigh_is_weighed_by_the_headline() {
     let k_rms = (se / st).sqrt();
     let got = first.parameters["k_n_per_m"].as_f64().unwrap();
     eprintln!(
-        "first {} significant {} p {:.1e} k {got:.1} ({:+.1} %) K(x) {:.2} % RMS {:?} note {:?}; model {:?}; warnings {:#?}",
+        "x{f}: first {} significant {} p {:.1e} k {got:.1} ({:+.1} %) K(x) {:.2} % RMS {:?} note {:?}; model {:?}; warnings {:#?}",
         first.effect,
         first.significant,
         first.p_value,
@@ -345,15 +347,25 @@ fn a_hysteresis_the_floor_cannot_weigh_is_weighed_by_the_headline() {
     assert!(first
         .note
         .as_deref()
-        .is_some_and(|n| n.starts_with("added because leaving it out moves the headline")));
+        .is_some_and(|n| n.starts_with("added because it removes")));
     assert!((got / k - 1.0).abs() <= 0.2, "{got} against {k}");
-    assert!(k_rms <= 0.01, "{k_rms}");
+    assert!(k_rms <= k_rms_max, "{k_rms}");
     assert_eq!(s.validity.k_of_x.state, Valid);
     assert!(!d
         .report
         .warnings
         .iter()
         .any(|w| w.starts_with("cannot tell whether")));
+}
+
+#[test]
+fn a_weak_hysteresis_is_weighed_against_the_floor_the_residual_is_read_by() {
+    hysteresis_of_seed_902_is_added(0.06, 0.001);
+}
+
+#[test]
+fn a_strong_hysteresis_the_spectrums_floor_cannot_weigh_is_added() {
+    hysteresis_of_seed_902_is_added(0.15, 0.002);
 }
 
 /// A hysteresis within the floor's resolution (decisions 0123, 0128): the

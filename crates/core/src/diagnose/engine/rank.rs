@@ -19,6 +19,7 @@ pub(super) fn rank(
     built: &Built,
     opts: &EngineOptions,
     noise_percent: f64,
+    memory_noise_percent: f64,
 ) -> Vec<(Term, Evaluated, CandidateResult)> {
     let mut terms: Vec<Term> = EffectId::ALL
         .into_iter()
@@ -98,14 +99,31 @@ pub(super) fn rank(
                 (serde_json::json!({ "order": power }), serde_json::json!({}))
             }
         };
-        // Practical relevance: the share of the structured (held-out) error it removes.
-        let me_base = model_error(pct(p, base_cv), noise_percent);
-        let me_cand = model_error(pct(p, cv), noise_percent);
-        let reduction = if me_base > 0.0 {
-            100.0 * (1.0 - me_cand / me_base)
-        } else {
-            0.0
+        // Practical relevance: the share of the structured (held-out) error
+        // it removes. A memory effect on a sweep whose headline it weighs
+        // is weighed against the floor read by the residual's own estimator
+        // (decision 0141).
+        let cut = |floor: f64| {
+            let me_base = model_error(pct(p, base_cv), floor);
+            let me_cand = model_error(pct(p, cv), floor);
+            let reduction = if me_base > 0.0 {
+                100.0 * (1.0 - me_cand / me_base)
+            } else {
+                0.0
+            };
+            (me_base, reduction)
         };
+        let (spectrum_floor, spectrum_cut) = (noise_percent, cut(noise_percent));
+        let own_floor = matches!(
+            term,
+            Term::Effect(EffectId::Hysteresis | EffectId::ReversibleSoftening)
+        ) && opts.headline_relevance;
+        let noise_percent = if own_floor {
+            memory_noise_percent
+        } else {
+            noise_percent
+        };
+        let (me_base, reduction) = cut(noise_percent);
         // An effect enters only with plausible parameters and a held-out
         // gain that holds in most folds, not one fold's luck (issue 22).
         let implausible = match term {
@@ -146,8 +164,21 @@ pub(super) fn rank(
             )),
             (None, true) => None,
         };
+        // Relevant only against the residual's own floor: said, since the
+        // document's figures use the spectrum's (decision 0141).
+        let own_floor_note = (own_floor
+            && significant
+            && moved.is_none()
+            && spectrum_cut.1 < opts.min_reduction_percent)
+            .then(|| {
+                format!(
+                    "added because it removes {reduction:.1} % of the base model's held-out model error ({me_base:.3} %) against the noise floor read by the residual's own estimator ({noise_percent:.3} %: its mean square times the noise's share of its spectrum); against the spectrum's floor estimate ({:.3} %) the model error reads {:.3} % and cannot weigh it (decision 0141)",
+                    spectrum_floor, spectrum_cut.0
+                )
+            });
         let note = match (identifiable, significant) {
             (true, true) if moved.is_some() => moved.map(|m| m.note(term, me_base, noise_percent)),
+            (true, true) if own_floor_note.is_some() => own_floor_note,
             (true, _) => None,
             (false, false) => Some(format!(
                 "cannot tell from this data: {} is collinear with {} (variance inflation {:.0}); to separate them: {}",
