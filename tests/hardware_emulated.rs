@@ -705,3 +705,89 @@ async fn a_noise_stimulus_plays_under_the_drive_limit_on_the_emulated_bench() {
     let loads = hw::column(&t["intervals"], "load_j");
     assert!(loads.windows(2).all(|w| w[1] > w[0]), "{loads:?}");
 }
+
+/// Issue 32, decision 0144: a WAV file as a long-term test's stimulus on
+/// the emulated bench, played as the noise is (the loop in faded chunks,
+/// levelled on the measured RMS displacement, under the drive limit).
+/// The file: 4 s of a 25 + 40 Hz two-tone at 48 kHz, 16 bit, uploaded
+/// once. Unpaced emulator, analog laser.
+#[tokio::test]
+async fn a_wav_stimulus_plays_on_the_emulated_bench() {
+    let traces = tempfile::tempdir().unwrap();
+    let d = Daemon::start(&config(traces.path(), ""));
+    let c = client();
+    let wav = {
+        let spec = hound::WavSpec {
+            channels: 1,
+            sample_rate: 48000,
+            bits_per_sample: 16,
+            sample_format: hound::SampleFormat::Int,
+        };
+        let mut cur = std::io::Cursor::new(Vec::new());
+        let mut w = hound::WavWriter::new(&mut cur, spec).unwrap();
+        for i in 0..192000 {
+            let t = i as f64 / 48000.0;
+            let v = 0.4 * (2.0 * std::f64::consts::PI * 25.0 * t).sin()
+                + 0.3 * (2.0 * std::f64::consts::PI * 40.0 * t).sin();
+            w.write_sample((v * 32767.0) as i16).unwrap();
+        }
+        w.finalize().unwrap();
+        cur.into_inner()
+    };
+    let r = c
+        .post(d.url("/api/v1/stimuli"))
+        .bearer_auth("open-access")
+        .header("content-type", "audio/wav")
+        .body(wav)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let wav_id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let id = hw::submit_long_term(
+        &c,
+        &d,
+        json!({"measurement": {"part": {"serial": "LT-WAV-E"}, "bench": "emu-1", "target_xpeak_m": 0.004},
+               "duration_s": 120.0, "interval_s": 60.0,
+               "stimulus": {"kind": "wav", "wav_id": wav_id, "excursion_rms_m": 0.001}}),
+    )
+    .await;
+    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
+    let t = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
+    let peaks: Vec<f64> = hw::traces_of_job(traces.path(), 2)
+        .iter()
+        .map(|r| r["peak_drive_v"].as_f64().unwrap())
+        .collect();
+    let log: Vec<&str> = j["log"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| l.as_str())
+        .filter(|l| l.starts_with("WAV file stimulus"))
+        .collect();
+    println!("job {j}\npeak drive per run {peaks:?}\n{log:#?}");
+    assert_eq!(j["state"], "succeeded", "{j}");
+    assert_eq!(t["intervals"].as_array().unwrap().len(), 3, "{t}");
+    for p in &peaks {
+        assert!(*p <= 100.0 + 1e-3, "beyond the drive limit: {peaks:?}");
+    }
+    assert_eq!(log.len(), 2, "{j}");
+    for l in &log {
+        assert!(l.contains("(target 1.000 mm)"), "{l}");
+        let x: f64 = l
+            .split("RMS displacement ")
+            .nth(1)
+            .unwrap()
+            .split(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!((x - 1.0).abs() < 0.1, "held {x} mm of 1 mm: {l}");
+    }
+    let loads = hw::column(&t["intervals"], "load_j");
+    assert!(loads.windows(2).all(|w| w[1] > w[0]), "{loads:?}");
+}

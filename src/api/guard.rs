@@ -88,9 +88,11 @@ fn has_bearer(headers: &HeaderMap) -> bool {
         .unwrap_or(false)
 }
 
-/// True for the route that takes a multipart upload (its body limit is `max_upload_bytes`).
+/// True for the routes that take a file (a multipart recording set, a WAV
+/// stimulus): their body limit here is `max_upload_bytes` (each route may
+/// set a lower one of its own).
 pub fn is_upload(method: &Method, path: &str) -> bool {
-    method == Method::POST && path == "/api/v1/measurements"
+    method == Method::POST && (path == "/api/v1/measurements" || path == "/api/v1/stimuli")
 }
 
 fn forbidden(kind: &'static str, title: &'static str, detail: String) -> Response {
@@ -149,7 +151,13 @@ pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next
         .into_response();
     }
     let limit = if is_upload(m, req.uri().path()) {
-        st.cfg.max_upload_bytes
+        if req.uri().path() == "/api/v1/stimuli" {
+            st.cfg
+                .max_upload_bytes
+                .min(super::stimuli::MAX_STIMULUS_BYTES)
+        } else {
+            st.cfg.max_upload_bytes
+        }
     } else {
         st.cfg.max_json_bytes
     };

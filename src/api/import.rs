@@ -71,7 +71,7 @@ impl Received {
             h.update(k.as_bytes());
             h.update(d);
         }
-        hex(&h.finalize())
+        super::hex(&h.finalize())
     }
 
     fn text(&self, k: &str) -> Option<String> {
@@ -79,10 +79,6 @@ impl Received {
             .get(k)
             .map(|b| String::from_utf8_lossy(b).trim().to_string())
     }
-}
-
-fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 fn multipart_problem(e: MultipartError, limit: usize) -> Problem {

@@ -86,7 +86,7 @@ pub(crate) async fn enqueue(
     // Refused (503) rather than acknowledged when its results could not be kept.
     st.store.check_space(st.cfg.min_free_bytes)?;
     // serde_json maps are sorted: the text is canonical for equal bodies.
-    let sha = hex(&Sha256::digest(body.to_string().as_bytes()));
+    let sha = super::hex(&Sha256::digest(body.to_string().as_bytes()));
     // Parsed once into the typed request; a recipe fills in its procedure
     // settings (and names the version judged by), read once.
     let parsed = crate::job::parse_lenient::<job::JobRequest>(body);
@@ -137,10 +137,6 @@ pub(crate) async fn enqueue(
         st.runner.wake(&j.bench_id);
     }
     Ok(inserted)
-}
-
-fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 #[derive(Deserialize, utoipa::IntoParams)]

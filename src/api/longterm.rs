@@ -85,6 +85,37 @@ pub async fn submit(
             return Err(Problem::validation(errors));
         }
     }
+    // A WAV stimulus names a file uploaded here, at the bench's sample rate
+    // (decision 0144: it is played as recorded, not resampled).
+    if spec.stimulus.kind == crate::job::StimulusKind::Wav {
+        let id = spec.stimulus.wav_id.clone().unwrap_or_default();
+        // A hardware or emulated bench's converters' rate, a virtual bench's simulation's.
+        let fs = bench
+            .and_then(|b| b.hardware.as_ref())
+            .filter(|_| bench.is_some_and(|b| b.kind != BenchKind::Virtual))
+            .map_or(
+                crate::physics::model::BenchParams::default().sample_rate_hz,
+                |h| f64::from(h.sample_rate_hz),
+            );
+        match st.store.stimulus(&id).await? {
+            None => {
+                return Err(Problem::field(
+                    "stimulus.wav_id",
+                    format!("no stimulus '{id}' on this station: upload the WAV file with POST /api/v1/stimuli"),
+                ))
+            }
+            Some(w) if f64::from(w.sample_rate_hz) != fs => {
+                return Err(Problem::field(
+                    "stimulus.wav_id",
+                    format!(
+                        "the file runs at {} Hz, the bench at {fs} Hz: resample it to {fs} Hz and upload it again",
+                        w.sample_rate_hz
+                    ),
+                ))
+            }
+            Some(_) => {}
+        }
+    }
     st.store
         .check_admission(st.cfg.min_free_bytes, spec.intervals() as u64)
         .await?;
@@ -92,7 +123,7 @@ pub async fn submit(
     super::benches::refuse_faulted(&st, &spec.measurement.bench)?;
     let m = &spec.measurement;
     let request = StoredRequest::LongTerm(spec.clone());
-    let sha = hex(&sha2::Digest::finalize(sha2::Digest::chain_update(
+    let sha = super::hex(&sha2::Digest::finalize(sha2::Digest::chain_update(
         <sha2::Sha256 as sha2::Digest>::new(),
         body.to_string().as_bytes(),
     )));
@@ -137,10 +168,6 @@ pub async fn submit(
         r.headers_mut().insert(header::LOCATION, v);
     }
     Ok(r)
-}
-
-fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 async fn test_job(st: &AppState, id: &str) -> ApiResult<(crate::store::Job, LongTermSpec)> {

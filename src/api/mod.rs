@@ -28,6 +28,7 @@ pub mod report;
 pub mod schema;
 pub mod server;
 pub mod session;
+pub mod stimuli;
 pub mod studies;
 
 use crate::config::Config;
@@ -62,6 +63,11 @@ pub struct AppState {
     pub shutdown: watch::Receiver<bool>,
     /// The link to the fleet's center (a station with `[fleet]`).
     pub fleet: Option<Arc<crate::fleet::Link>>,
+}
+
+/// Lowercase hex digits of `b` (a digest's id).
+pub(crate) fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 struct Reg {
@@ -169,6 +175,13 @@ pub fn routes(cfg: &Config) -> (Router<AppState>, Vec<(&'static str, &'static st
         post(studies::submit).layer(json_limit),
     )
     .add("get", "/api/v1/studies/{id}", get(studies::get_one))
+    .add(
+        "post",
+        "/api/v1/stimuli",
+        post(stimuli::upload).layer(DefaultBodyLimit::max(stimuli::MAX_STIMULUS_BYTES)),
+    )
+    .add("get", "/api/v1/stimuli", get(stimuli::list))
+    .add("get", "/api/v1/stimuli/{id}", get(stimuli::get_one))
     .add(
         "post",
         "/api/v1/studies/{id}/confirm",

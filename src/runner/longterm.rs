@@ -265,6 +265,11 @@ impl Runner {
                 )
                 .await?;
         }
+        // A WAV stimulus' file, read from the store once for the test.
+        let wav = match self.wav_loop(&spec).await? {
+            Ok(w) => w,
+            Err(p) => return self.finish_failed(slot, job, p).await,
+        };
         let (tx, mut rx) = mpsc::unbounded_channel();
         let bench_cfg = slot.cfg.clone();
         let shutdown = self.shutdown.clone();
@@ -286,6 +291,7 @@ impl Runner {
                 job_seq,
                 bench_cfg: &bench_cfg,
                 calibration: calibration.as_ref(),
+                wav: wav.as_ref(),
             };
             run_blocking(on, &spec2, resume, &tx, &flag, &shutdown, &room)
         });
@@ -379,6 +385,38 @@ impl Runner {
             )
             .await?;
         Ok(())
+    }
+
+    /// A WAV stimulus' loop (its sample rate and samples at unit RMS, read
+    /// from the stored file; decision 0144); None for other kinds; Err: the
+    /// file is gone or unusable (the test fails naming it).
+    async fn wav_loop(
+        &self,
+        spec: &LongTermSpec,
+    ) -> StoreResult<Result<Option<(u32, Vec<f64>)>, JobProblem>> {
+        if spec.stimulus.kind != StimulusKind::Wav {
+            return Ok(Ok(None));
+        }
+        let id = spec.stimulus.wav_id.as_deref().unwrap_or_default();
+        let problem = |m: String| {
+            JobProblem::new(
+                ProblemKind::Bench,
+                "Stimulus not made",
+                format!("stimulus.wav_id: {m}"),
+            )
+        };
+        let Some(bytes) = self.store.stimulus_bytes(id).await? else {
+            return Ok(Err(problem(format!("no stimulus '{id}' on this station"))));
+        };
+        Ok(crate::api::stimuli::decode(&bytes)
+            .and_then(|d| {
+                Ok((
+                    d.sample_rate_hz,
+                    crate::api::stimuli::drive_loop(&d.samples)?,
+                ))
+            })
+            .map(Some)
+            .map_err(problem))
     }
 
     async fn resume_point(
@@ -718,6 +756,8 @@ struct On<'a> {
     bench_cfg: &'a BenchConfig,
     /// The calibration record in effect (hardware and emulated benches).
     calibration: Option<&'a CalibrationRecord>,
+    /// A WAV stimulus' file (decision 0144): its sample rate and unit-RMS loop.
+    wav: Option<&'a (u32, Vec<f64>)>,
 }
 
 /// A hardware or emulated bench, opened once for the test (a virtual bench
@@ -734,6 +774,8 @@ struct Device<'a> {
     /// An emulated bench: the load its part has truly taken, which the
     /// emulator ages it with (decision 0135); None on a real bench.
     true_load: Option<crate::bench::true_part::TrueLoad>,
+    /// A WAV stimulus' file: its sample rate and unit-RMS loop (decision 0144).
+    wav: Option<&'a (u32, Vec<f64>)>,
 }
 
 /// The test on the job's blocking thread; Ok(intervals measured in all).
@@ -746,7 +788,7 @@ fn run_blocking(
     shutdown: &AtomicBool,
     room: &Room<'_>,
 ) -> Result<usize, Stop> {
-    let (job_id, bench_cfg) = (on.job_id, on.bench_cfg);
+    let (job_id, bench_cfg, wav) = (on.job_id, on.bench_cfg, on.wav);
     let m = &spec.measurement;
     let part = super::job::mounted_part(m, bench_cfg)
         .map_err(|e| Stop::Failed(JobProblem::new(ProblemKind::Part, "Part not available", &e)))?;
@@ -792,6 +834,7 @@ fn run_blocking(
                 paced,
                 k,
                 true_load,
+                wav,
             })
         }
     };
@@ -883,10 +926,12 @@ fn run_blocking(
             match (spec.stimulus.kind, held) {
                 // Noise: the loop's load rate on the part as it is, held
                 // at its RMS displacement (decision 0137).
-                (StimulusKind::Noise, _) => {
+                (StimulusKind::Noise | StimulusKind::Wav, _) => {
                     let l = match noise.as_mut() {
                         Some(l) => l,
-                        None => noise.insert(noise_load(&spec.stimulus, vb.bench.sample_rate_hz)?),
+                        None => {
+                            noise.insert(loop_load(&spec.stimulus, vb.bench.sample_rate_hz, wav)?)
+                        }
                     };
                     vb.apply_loop_load(l, level_m, on);
                     // Never a level that looks met when it is not: the
@@ -896,13 +941,15 @@ fn run_blocking(
                         noise_short = short.is_some();
                         let _ = tx.send(Msg::Log(match short {
                             Some(r) => format!(
-                                "test time {t:.0} s: the noise reaches {:.3} mm RMS of its {:.3} mm at the drive limit ({} V at its peak)",
+                                "test time {t:.0} s: the {} reaches {:.3} mm RMS of its {:.3} mm at the drive limit ({} V at its peak)",
+                                loop_name(spec.stimulus.kind),
                                 1e3 * r.x_rms_m,
                                 1e3 * level_m,
                                 m.limits.max_drive_v
                             ),
                             None => format!(
-                                "test time {t:.0} s: the noise reaches its {:.3} mm RMS",
+                                "test time {t:.0} s: the {} reaches its {:.3} mm RMS",
+                                loop_name(spec.stimulus.kind),
                                 1e3 * level_m
                             ),
                         }));
@@ -1364,7 +1411,8 @@ fn device_stimulus(
         // (decision 0132), the resonance searched again at the new level.
         let x = spec.stimulus.excursion_at_m(t);
         let end = spec.stimulus.next_change_s(t).map_or(end, |c| end.min(c));
-        let noise = spec.stimulus.kind == StimulusKind::Noise;
+        // A noise or a WAV file: a loop held at its RMS displacement.
+        let noise = spec.stimulus.kind.is_loop();
         let hold_s = if noise {
             procedure::waveform::held_within_s(end - t).min(HOLD_MAX_S)
         } else {
@@ -1377,7 +1425,7 @@ fn device_stimulus(
             let fs = d.bench.sample_rate_hz();
             let wave = match &noise_wave {
                 Some(w) => w,
-                None => noise_wave.insert(noise_load(&spec.stimulus, fs)?.wave().to_vec()),
+                None => noise_wave.insert(loop_load(&spec.stimulus, fs, d.wav)?.wave().to_vec()),
             };
             let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
             let k = d.k.clone();
@@ -1414,7 +1462,8 @@ fn device_stimulus(
             })?;
             load_j += e;
             let _ = tx.send(Msg::Log(format!(
-                "noise stimulus from test time {t0:.0} s: {:.0} s held, RMS displacement {:.3} mm (target {:.3} mm), peak drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",
+                "{} stimulus from test time {t0:.0} s: {:.0} s held, RMS displacement {:.3} mm (target {:.3} mm), peak drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",
+                loop_name(spec.stimulus.kind),
                 done.held_s,
                 1e3 * done.x_rms_m,
                 1e3 * x,
@@ -1496,9 +1545,40 @@ fn device_stimulus(
     Ok(load_j)
 }
 
-/// A noise stimulus' loop at the bench's sample rate (decision 0137), for
-/// its accelerated load.
-fn noise_load(s: &crate::job::Stimulus, fs: f64) -> Result<waveform::LoopLoad, Stop> {
+/// A loop stimulus' name in the job's log.
+fn loop_name(kind: StimulusKind) -> &'static str {
+    if kind == StimulusKind::Wav {
+        "WAV file"
+    } else {
+        "noise"
+    }
+}
+
+/// A loop stimulus' loop at the bench's sample rate, for its accelerated
+/// load: the noise's (decision 0137) or the WAV file's (decision 0144),
+/// which must be at the bench's rate (it is not resampled).
+fn loop_load(
+    s: &crate::job::Stimulus,
+    fs: f64,
+    wav: Option<&(u32, Vec<f64>)>,
+) -> Result<waveform::LoopLoad, Stop> {
+    if s.kind == StimulusKind::Wav {
+        let Some((rate, wave)) = wav else {
+            return Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Bench,
+                "Stimulus not made",
+                "the WAV stimulus' file was not read",
+            )));
+        };
+        if f64::from(*rate) != fs {
+            return Err(Stop::Failed(JobProblem::new(
+                ProblemKind::Bench,
+                "Stimulus not made",
+                format!("stimulus.wav_id: the file runs at {rate} Hz, the bench at {fs} Hz (it is not resampled)"),
+            )));
+        }
+        return Ok(waveform::LoopLoad::new(wave.clone()));
+    }
     let band = s.band_hz.unwrap_or([0.0, 0.0]);
     waveform::noise_loop(fs, band, waveform::NOISE_LOOP_S, waveform::NOISE_SEED)
         .map(waveform::LoopLoad::new)

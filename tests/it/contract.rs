@@ -857,6 +857,56 @@ async fn every_route_answers_as_its_schema_says() {
     assert_eq!(v["result"]["kind"], "added_mass", "{}", short(&v));
     a.get(sp, "/api/v1/studies/nope", 404).await;
 
+    // Stimulus files (issue 32, decision 0144): a WAV uploaded (201; the
+    // same bytes again 200), a file that is no WAV a 422 naming the body,
+    // the list, one read back, an unknown id 404.
+    let wav = {
+        let spec = hound::WavSpec {
+            channels: 1,
+            sample_rate: 48000,
+            bits_per_sample: 16,
+            sample_format: hound::SampleFormat::Int,
+        };
+        let mut cur = std::io::Cursor::new(Vec::new());
+        let mut w = hound::WavWriter::new(&mut cur, spec).unwrap();
+        for i in 0..96000 {
+            let v = (2.0 * std::f64::consts::PI * 50.0 * i as f64 / 48000.0).sin();
+            w.write_sample((v * 16000.0) as i16).unwrap();
+        }
+        w.finalize().unwrap();
+        cur.into_inner()
+    };
+    let mut stimulus_id = String::new();
+    for (bytes, status) in [(wav.clone(), 201), (wav, 200), (b"no wav".to_vec(), 422)] {
+        let resp =
+            a.c.post(a.d.url("/api/v1/stimuli"))
+                .bearer_auth(OPERATOR)
+                .header("content-type", "audio/wav")
+                .body(bytes)
+                .send()
+                .await
+                .unwrap();
+        let (s, v) = a.take("post", "/api/v1/stimuli", resp).await;
+        assert_eq!(s, status, "{v}");
+        if s == 201 {
+            stimulus_id = v["id"].as_str().unwrap().to_string();
+        } else if s == 422 {
+            assert_eq!(v["errors"][0]["field"], "body", "{v}");
+        }
+    }
+    let list = a.get("/api/v1/stimuli", "/api/v1/stimuli", 200).await;
+    assert_eq!(list["items"][0]["id"], stimulus_id.as_str(), "{list}");
+    let one = a
+        .get(
+            "/api/v1/stimuli/{id}",
+            &format!("/api/v1/stimuli/{stimulus_id}"),
+            200,
+        )
+        .await;
+    assert_eq!(one["duration_s"], 2.0, "{one}");
+    a.get("/api/v1/stimuli/{id}", "/api/v1/stimuli/nope", 404)
+        .await;
+
     // Every route of the router was answered and validated, with a success
     // except where a success needs a hardware bench (feature `hardware`),
     // and where it needs a fleet center (the station's link: its 200 is

@@ -1655,3 +1655,301 @@ async fn a_noise_stimulus_ages_the_part_at_the_loops_load_rate() {
     assert!(on[1] > 800.0 && on[1] < 900.0, "{on:?}");
     assert!((on[0] / on[1] - 1.0).abs() < 1e-6, "{on:?}");
 }
+
+/// A mono WAV file of `samples` at `fs` (32-bit float, or 16-bit int).
+fn wav_bytes(samples: &[f64], fs: u32, channels: u16, float: bool) -> Vec<u8> {
+    let spec = hound::WavSpec {
+        channels,
+        sample_rate: fs,
+        bits_per_sample: if float { 32 } else { 16 },
+        sample_format: if float {
+            hound::SampleFormat::Float
+        } else {
+            hound::SampleFormat::Int
+        },
+    };
+    let mut cur = std::io::Cursor::new(Vec::new());
+    {
+        let mut w = hound::WavWriter::new(&mut cur, spec).unwrap();
+        for &v in samples {
+            for _ in 0..channels {
+                if float {
+                    w.write_sample(v as f32).unwrap();
+                } else {
+                    w.write_sample((v * 32767.0).round() as i16).unwrap();
+                }
+            }
+        }
+        w.finalize().unwrap();
+    }
+    cur.into_inner()
+}
+
+async fn upload(c: &reqwest::Client, d: &Daemon, bytes: Vec<u8>, query: &str) -> reqwest::Response {
+    c.post(d.url(&format!("/api/v1/stimuli{query}")))
+        .header("content-type", "audio/wav")
+        // Not JSON: a bearer header (any value with open access) is the cross-site guard's proof.
+        .bearer_auth("open-access")
+        .body(bytes)
+        .send()
+        .await
+        .unwrap()
+}
+
+/// Issue 32, decision 0144: a WAV file as the stimulus. Uploaded once
+/// (named by the SHA-256 of its bytes; the same bytes again are the same
+/// stimulus), refused with the reason when it cannot be played, and played
+/// as a loop held at an RMS displacement like the noise. Known truth: the
+/// noise loop written to a WAV file (32-bit float) and played as a file
+/// loads the part without ageing as the noise test does, to the float's
+/// rounding.
+#[tokio::test]
+async fn a_wav_stimulus_plays_its_file_as_a_loop() {
+    use sha2::Digest;
+    use springbench::physics::{waveform, BenchParams};
+    let d = Daemon::start(BENCHES);
+    let c = client();
+    let fs = BenchParams::default().sample_rate_hz;
+    let wave = waveform::noise_loop(
+        fs,
+        [20.0, 200.0],
+        waveform::NOISE_LOOP_S,
+        waveform::NOISE_SEED,
+    )
+    .unwrap();
+    let bytes = wav_bytes(&wave, fs as u32, 1, true);
+    let sha: String = sha2::Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    let r = upload(&c, &d, bytes.clone(), "?name=noise-20-200.wav").await;
+    assert_eq!(r.status(), 201);
+    assert_eq!(
+        r.headers()["location"].to_str().unwrap(),
+        format!("/api/v1/stimuli/{sha}")
+    );
+    let info: Value = r.json().await.unwrap();
+    assert_eq!(info["id"], sha);
+    assert_eq!(info["frames"], wave.len());
+    assert_eq!(info["sample_rate_hz"], 48000);
+    assert_eq!(info["duration_s"], 4.0);
+    assert_eq!(
+        (info["bits"].as_u64(), info["sample_format"].as_str()),
+        (Some(32), Some("float"))
+    );
+    assert_eq!(info["file_name"], "noise-20-200.wav");
+    assert_eq!(info["size_bytes"], bytes.len());
+    let rms = info["rms_fs"].as_f64().unwrap();
+    let peak = wave.iter().fold(0.0f64, |p, v| p.max(v.abs()));
+    assert!((rms - 1.0).abs() < 1e-6, "{info}");
+    assert!(
+        (info["peak_fs"].as_f64().unwrap() / peak - 1.0).abs() < 1e-6,
+        "{info}"
+    );
+    // The same bytes again: the same stimulus, 200.
+    let r = upload(&c, &d, bytes.clone(), "").await;
+    assert_eq!(r.status(), 200);
+    let again: Value = r.json().await.unwrap();
+    assert_eq!(
+        (again["id"].clone(), again["created_at"].clone()),
+        (sha.clone().into(), info["created_at"].clone())
+    );
+    let one: Value = c
+        .get(d.url(&format!("/api/v1/stimuli/{sha}")))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(one, info);
+    let list: Value = c
+        .get(d.url("/api/v1/stimuli"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(list["items"].as_array().unwrap().len(), 1);
+
+    // Files that cannot be played: a 422 naming the body and the reason.
+    let mut nan = wave.clone();
+    nan[1000] = f64::NAN;
+    let short = &wave[..48000];
+    for (body, why) in [
+        (vec![], "the body is empty"),
+        (b"RIFF\x04\x00\x00\x00WAVE".to_vec(), "not a WAV file"),
+        (wav_bytes(&wave, 48000, 2, true), "2 channels"),
+        (
+            wav_bytes(short, 48000, 1, true),
+            "a stimulus loop lasts 2 to 600 s",
+        ),
+        (
+            wav_bytes(&nan, 48000, 1, true),
+            "sample 1000 is not a finite number",
+        ),
+        (
+            wav_bytes(&vec![0.25; 192000], 48000, 1, false),
+            "the file is silent",
+        ),
+    ] {
+        let p = problem(upload(&c, &d, body, "").await, 422).await;
+        assert_eq!(p["errors"][0]["field"], "body", "{p}");
+        assert!(
+            p["errors"][0]["message"].as_str().unwrap().contains(why),
+            "{why}: {p}"
+        );
+    }
+    let p = problem(upload(&c, &d, bytes.clone(), "?name=a%0Ab").await, 422).await;
+    assert_eq!(p["errors"][0]["field"], "name", "{p}");
+    // Larger than 32 MiB: the declared length is refused before the body is
+    // read (headers only: sending the body races the server's early close).
+    let addr = d.addr().to_string();
+    let answer = tokio::task::spawn_blocking(move || {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        write!(
+            s,
+            "POST /api/v1/stimuli HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer open-access\r\nContent-Type: audio/wav\r\nContent-Length: {}\r\nConnection: close\r\n\r\nRIFF",
+            33 * 1024 * 1024
+        )
+        .unwrap();
+        let mut answer = String::new();
+        let _ = s.read_to_string(&mut answer);
+        answer
+    })
+    .await
+    .unwrap();
+    assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
+    assert!(
+        answer.contains("application/problem+json") && answer.contains("33554432 bytes"),
+        "{answer}"
+    );
+    assert_eq!(
+        c.get(d.url("/api/v1/stimuli"))
+            .send()
+            .await
+            .unwrap()
+            .json::<Value>()
+            .await
+            .unwrap()["items"]
+            .as_array()
+            .unwrap()
+            .len(),
+        1,
+        "nothing refused was stored"
+    );
+    // A 44.1 kHz file is stored, but a virtual bench (48 kHz) refuses to play it.
+    let r = upload(&c, &d, wav_bytes(&wave[..96000], 44100, 1, false), "").await;
+    assert_eq!(r.status(), 201);
+    let id441 = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+
+    // A test's WAV fields: named.
+    for (stim, field, why) in [
+        (
+            json!({"kind": "wav", "excursion_rms_m": 0.0015}),
+            "stimulus.wav_id",
+            "required",
+        ),
+        (
+            json!({"kind": "wav", "wav_id": "NOISE", "excursion_rms_m": 0.0015}),
+            "stimulus.wav_id",
+            "64 lowercase hex",
+        ),
+        (
+            json!({"kind": "wav", "wav_id": "0".repeat(64), "excursion_rms_m": 0.0015}),
+            "stimulus.wav_id",
+            "no stimulus",
+        ),
+        (
+            json!({"kind": "wav", "wav_id": id441, "excursion_rms_m": 0.0015}),
+            "stimulus.wav_id",
+            "44100 Hz",
+        ),
+        (
+            json!({"kind": "wav", "wav_id": sha, "band_hz": [20.0, 200.0], "excursion_rms_m": 0.0015}),
+            "stimulus.band_hz",
+            "not a field",
+        ),
+        (
+            json!({"kind": "wav", "wav_id": sha, "excursion_m": 0.0015}),
+            "stimulus.excursion_m",
+            "not a field",
+        ),
+        (
+            json!({"excursion_m": 0.005, "wav_id": sha}),
+            "stimulus.wav_id",
+            "not a field",
+        ),
+    ] {
+        let mut b = test_body("LT-WAV-BAD", 3);
+        b["stimulus"] = stim.clone();
+        let r = c
+            .post(d.url("/api/v1/long-term-tests"))
+            .json(&b)
+            .send()
+            .await
+            .unwrap();
+        let p = problem(r, 422).await;
+        assert!(
+            p["errors"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|e| e["field"] == field && e["message"].as_str().unwrap().contains(why)),
+            "{stim}: {field} ({why}) not named: {p}"
+        );
+    }
+
+    // Played: the same load as the noise it holds.
+    let mut part = springbench::physics::preset("spider_3in").unwrap();
+    part.ageing = None;
+    let run = |serial: &str, stimulus: Value| {
+        let mut b = test_body(serial, 2);
+        let m = b["measurement"].as_object_mut().unwrap();
+        m.remove("preset");
+        m.insert("part_spec".into(), serde_json::to_value(&part).unwrap());
+        b["stimulus"] = stimulus;
+        b
+    };
+    let wav_stim = json!({"kind": "wav", "wav_id": sha, "excursion_rms_m": 0.0015});
+    let w = submit(&c, &d, &run("LT-WAV", wav_stim.clone())).await;
+    let n = submit(
+        &c,
+        &d,
+        &run(
+            "LT-WAV-NOISE",
+            json!({"kind": "noise", "band_hz": [20.0, 200.0], "excursion_rms_m": 0.0015}),
+        ),
+    )
+    .await;
+    let mut e = vec![];
+    for id in [&w, &n] {
+        let v = wait_test(&c, &d, id, Duration::from_secs(300), terminal).await;
+        assert_eq!(v["job"]["state"], "succeeded", "{v}");
+        e.push(loads(&v));
+    }
+    let rel = (e[0][1] / e[1][1] - 1.0).abs();
+    println!(
+        "WAV of the noise loop: {} J, the noise: {} J (rel {rel:.2e})",
+        e[0][1], e[1][1]
+    );
+    assert!(e[0][1] > 0.0 && rel < 1e-5, "{e:?}");
+    let v = wait_test(&c, &d, &w, Duration::from_secs(5), terminal).await;
+    for k in ["kind", "wav_id", "excursion_rms_m"] {
+        assert_eq!(v["job"]["request"]["stimulus"][k], wav_stim[k], "{k}");
+    }
+    let page = report_page(&c, &d, &w).await;
+    assert!(
+        page.contains(&format!(
+            "WAV file {sha} as a loop, target 1.5 mm RMS displacement"
+        )),
+        "{page}"
+    );
+    drop(d);
+}

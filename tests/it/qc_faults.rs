@@ -425,6 +425,18 @@ async fn every_route_checks_the_role_of_its_matched_template() {
         );
         assert_eq!(policy(m, t), Some(2), "{m} {t}");
     }
+    // Uploading a stimulus file (decision 0144) is an operator's, reading a viewer's.
+    for (m, t, level) in [
+        ("post", "/api/v1/stimuli", 2),
+        ("get", "/api/v1/stimuli", 1),
+        ("get", "/api/v1/stimuli/{id}", 1),
+    ] {
+        assert!(
+            templates.contains(&format!("{m} {t}")),
+            "{m} {t} not checked"
+        );
+        assert_eq!(policy(m, t), Some(level), "{m} {t}");
+    }
     // Its printable report (decision 0131) is a viewer's.
     let t = "/api/v1/long-term-tests/{id}/report.html";
     assert!(

@@ -27,6 +27,7 @@ pub mod qc;
 mod raw;
 mod replication;
 pub mod results;
+pub mod stimuli;
 pub mod studies;
 
 pub use blob::BlobRef;

@@ -155,6 +155,11 @@ fn plan_section(doc: &LongTermDocument) -> String {
                             crate::job::Hold::Drive => "drive level",
                         }
                     ),
+                    crate::job::StimulusKind::Wav => format!(
+                        "WAV file {} as a loop, target {} mm RMS displacement",
+                        st.wav_id.as_deref().unwrap_or("?"),
+                        sig(st.start_level_m() * 1e3, 4)
+                    ),
                     crate::job::StimulusKind::Noise => {
                         let [lo, hi] = st.band_hz.unwrap_or_default();
                         format!(

@@ -31,6 +31,9 @@ function stimulusText(stim) {
     const [lo, hi] = stim.band_hz || [];
     return `band-limited noise, ${num(lo, 4)} to ${num(hi, 4)} Hz, target ${num((stim.excursion_rms_m || 0) * 1000, 3)} mm RMS displacement`;
   }
+  if (stim.kind === 'wav') {
+    return `WAV file ${String(stim.wav_id || '').slice(0, 12)} as a loop, target ${num((stim.excursion_rms_m || 0) * 1000, 3)} mm RMS displacement`;
+  }
   return `sine at the part\u2019s resonance, ${num((stim.excursion_m || 0) * 1000, 3)} mm peak, held at its ${stim.hold === 'drive' ? 'drive level' : 'excursion'}`;
 }
 
@@ -309,7 +312,7 @@ async function renderTest(main, ctx, id) {
         h('tr', {}, h('th', {}, 'bench'), h('td', {}, j.bench_id, doc.accelerated ? h('span', { class: 'muted', id: 'lt-accelerated' }, ' \u2014 accelerated: the stimulus applied faster than real time on the virtual bench; each measurement simulated in full') : null)),
         h('tr', {}, h('th', {}, 'test'), h('td', {}, `${num((req.duration_s || 0) / 3600, 4)} h, a measurement every ${num((req.interval_s || 0) / 60, 4)} min`)),
         h('tr', {}, h('th', {}, 'stimulus'), h('td', { id: 'lt-stimulus' }, `${stimulusText(stim)}${Number.isFinite(stim.on_s) ? `, ${num(stim.on_s, 4)} s on / ${num(stim.off_s, 4)} s off` : ''}`,
-          (stim.steps || []).length ? h('span', { id: 'lt-steps' }, `; level steps: ${stim.steps.map(st => `${num((stim.kind === 'noise' ? st.excursion_rms_m : st.excursion_m) * 1000, 3)} mm${stim.kind === 'noise' ? ' RMS' : ''} from ${num(hours(st.from_s), 4)} h`).join(', ')}`) : null)),
+          (stim.steps || []).length ? h('span', { id: 'lt-steps' }, `; level steps: ${stim.steps.map(st => `${num((stim.kind && stim.kind !== 'sine' ? st.excursion_rms_m : st.excursion_m) * 1000, 3)} mm${stim.kind && stim.kind !== 'sine' ? ' RMS' : ''} from ${num(hours(st.from_s), 4)} h`).join(', ')}`) : null)),
         j.problem ? h('tr', {}, h('th', {}, 'stopped'), h('td', { class: 'error', id: 'lt-problem' }, j.problem.detail || j.problem.title)) : null));
     const running = !TERMINAL.includes(j.state);
     const st = doc.state || {};

@@ -30,10 +30,19 @@ pub const MIN_NOISE_BANDWIDTH_HZ: f64 = 1.0;
 /// (`physics::waveform::CREST`).
 pub use crate::physics::waveform::CREST;
 
+/// A stimulus id: the SHA-256 of the WAV file's bytes, 64 lowercase hex digits.
+pub fn is_wav_id(id: &str) -> bool {
+    id.len() == 64
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
 fn kind_name(k: StimulusKind) -> &'static str {
     match k {
         StimulusKind::Sine => "sine",
         StimulusKind::Noise => "noise",
+        StimulusKind::Wav => "wav",
     }
 }
 
@@ -62,6 +71,10 @@ pub enum StimulusKind {
     /// displacement `excursion_rms_m` held closed-loop on the measured
     /// displacement.
     Noise,
+    /// A WAV file uploaded to the station (`POST /api/v1/stimuli`, named by
+    /// `wav_id`) played as a loop, its level the RMS displacement
+    /// `excursion_rms_m` as for the noise (decision 0144).
+    Wav,
 }
 
 impl StimulusKind {
@@ -73,8 +86,13 @@ impl StimulusKind {
     pub fn level_field(&self) -> &'static str {
         match self {
             StimulusKind::Sine => "excursion_m",
-            StimulusKind::Noise => "excursion_rms_m",
+            StimulusKind::Noise | StimulusKind::Wav => "excursion_rms_m",
         }
+    }
+
+    /// A loop of drive samples held at an RMS displacement (noise, WAV file).
+    pub fn is_loop(&self) -> bool {
+        !self.is_sine()
     }
 }
 
@@ -101,7 +119,7 @@ impl LevelStep {
     pub fn level_m(&self, kind: StimulusKind) -> f64 {
         match kind {
             StimulusKind::Sine => self.excursion_m,
-            StimulusKind::Noise => self.excursion_rms_m,
+            StimulusKind::Noise | StimulusKind::Wav => self.excursion_rms_m,
         }
         .unwrap_or(0.0)
     }
@@ -127,6 +145,10 @@ pub struct Stimulus {
     /// A noise's band (Hz, [low, high]): a flat spectrum within it, nothing outside.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub band_hz: Option<[f64; 2]>,
+    /// A WAV stimulus' file: the id `POST /api/v1/stimuli` answered (the
+    /// SHA-256 of its bytes, 64 hex digits).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wav_id: Option<String>,
     /// Level stepping: the level changes at these test times (sorted,
     /// each after the one before, within the test; at most 100). Each
     /// level holds from its `from_s` to the next step's.
@@ -156,7 +178,7 @@ impl Stimulus {
     pub fn start_level_m(&self) -> f64 {
         match self.kind {
             StimulusKind::Sine => self.excursion_m,
-            StimulusKind::Noise => self.excursion_rms_m,
+            StimulusKind::Noise | StimulusKind::Wav => self.excursion_rms_m,
         }
         .unwrap_or(0.0)
     }
@@ -552,8 +574,8 @@ impl LongTermRequest {
                                     StimulusKind::Sine => {
                                         "required: the sine's peak displacement (m)"
                                     }
-                                    StimulusKind::Noise => {
-                                        "required: the noise's RMS displacement (m)"
+                                    StimulusKind::Noise | StimulusKind::Wav => {
+                                        "required: the RMS displacement (m) the stimulus is held at"
                                     }
                                 },
                             ));
@@ -561,7 +583,7 @@ impl LongTermRequest {
                         };
                         let what = match kind {
                             StimulusKind::Sine => "a peak displacement",
-                            StimulusKind::Noise => "an RMS displacement",
+                            StimulusKind::Noise | StimulusKind::Wav => "an RMS displacement",
                         };
                         if !(x.is_finite() && x >= 0.0) {
                             add(FieldError::new(
@@ -576,10 +598,10 @@ impl LongTermRequest {
                             field,
                             format!("{x} m is beyond the bench's displacement limit ({mx} m)"),
                         )),
-                        StimulusKind::Noise if CREST * x > mx => add(FieldError::new(
+                        StimulusKind::Noise | StimulusKind::Wav if CREST * x > mx => add(FieldError::new(
                             field,
                             format!(
-                                "{x} m RMS: the noise's peaks reach about {CREST} times it ({} m), beyond the bench's displacement limit ({mx} m); at most {} m",
+                                "{x} m RMS: the stimulus' peaks reach about {CREST} times it ({} m), beyond the bench's displacement limit ({mx} m); at most {} m",
                                 CREST * x,
                                 mx / CREST
                             ),
@@ -592,8 +614,16 @@ impl LongTermRequest {
                     StimulusKind::Sine => &[
                         ("excursion_rms_m", s.excursion_rms_m.is_some()),
                         ("band_hz", s.band_hz.is_some()),
+                        ("wav_id", s.wav_id.is_some()),
                     ],
-                    StimulusKind::Noise => &[("excursion_m", s.excursion_m.is_some())],
+                    StimulusKind::Noise => &[
+                        ("excursion_m", s.excursion_m.is_some()),
+                        ("wav_id", s.wav_id.is_some()),
+                    ],
+                    StimulusKind::Wav => &[
+                        ("excursion_m", s.excursion_m.is_some()),
+                        ("band_hz", s.band_hz.is_some()),
+                    ],
                 };
                 for (f, given) in foreign {
                     if *given {
@@ -609,8 +639,27 @@ impl LongTermRequest {
                 }
                 let level = match kind {
                     StimulusKind::Sine => s.excursion_m,
-                    StimulusKind::Noise => s.excursion_rms_m,
+                    StimulusKind::Noise | StimulusKind::Wav => s.excursion_rms_m,
                 };
+                if kind == StimulusKind::Wav {
+                    match s.wav_id.as_deref() {
+                        None => add(FieldError::new(
+                            "stimulus.wav_id",
+                            "required: the id POST /api/v1/stimuli answered for the WAV file",
+                        )),
+                        Some(id) if !is_wav_id(id) => add(FieldError::new(
+                            "stimulus.wav_id",
+                            format!("must be a stimulus id (64 lowercase hex digits, the SHA-256 of the file), got '{id}'"),
+                        )),
+                        Some(_) => {}
+                    }
+                    if s.hold == Hold::Drive {
+                        add(FieldError::new(
+                            "stimulus.hold",
+                            "a WAV file is held at its excursion (the RMS displacement); a drive level is held for a sine only",
+                        ));
+                    }
+                }
                 check_level(level, format!("stimulus.{}", kind.level_field()), &mut add);
                 if kind == StimulusKind::Noise {
                     match s.band_hz {
@@ -668,7 +717,9 @@ impl LongTermRequest {
                         StimulusKind::Sine => {
                             (st.excursion_m, st.excursion_rms_m, "excursion_rms_m")
                         }
-                        StimulusKind::Noise => (st.excursion_rms_m, st.excursion_m, "excursion_m"),
+                        StimulusKind::Noise | StimulusKind::Wav => {
+                            (st.excursion_rms_m, st.excursion_m, "excursion_m")
+                        }
                     };
                     if other.is_some() {
                         add(FieldError::new(

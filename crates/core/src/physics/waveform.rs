@@ -71,6 +71,23 @@ pub fn noise_loop(fs: f64, band_hz: [f64; 2], len_s: f64, seed: u64) -> Option<V
     Some(out)
 }
 
+/// A recorded drive (a WAV file's samples) as a loop: its mean removed (the
+/// exciter holds no static pressure; a mean would only offset the part)
+/// and scaled to unit RMS, so that a test's level sets the gain as for
+/// [`noise_loop`]. None when nothing is left (silent, or not finite).
+pub fn unit_loop(samples: &[f64]) -> Option<Vec<f64>> {
+    if samples.is_empty() || samples.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let n = samples.len() as f64;
+    let mean = samples.iter().sum::<f64>() / n;
+    let rms = (samples.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    if !(rms.is_finite() && rms > 0.0) {
+        return None;
+    }
+    Some(samples.iter().map(|v| (v - mean) / rms).collect())
+}
+
 /// The part's steady response to a loop played at a drive gain.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LoopResponse {

@@ -1,0 +1,190 @@
+//! Stimulus files (issue 32, decision 0144): a WAV file uploaded to the
+//! station for a long-term test to play as a loop (`stimulus.kind` `wav`,
+//! `stimulus.wav_id`). Kept as sent, named by the SHA-256 of its bytes.
+
+use super::problem::{ApiResult, Problem};
+use super::AppState;
+use crate::store::stimuli::StimulusInfo;
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+/// The largest stimulus file (bytes): 10 minutes of mono 24-bit audio at 96 kHz.
+pub const MAX_STIMULUS_BYTES: usize = 32 * 1024 * 1024;
+/// The longest loop (s): a stimulus longer than this is a test of its own.
+pub const MAX_STIMULUS_S: f64 = 600.0;
+/// The shortest loop (s): two periods of the slowest tone a bench plays (1 Hz).
+pub const MIN_STIMULUS_S: f64 = 2.0;
+
+/// The samples of a mono WAV file, full scale = 1, and what was read.
+pub struct Decoded {
+    pub samples: Vec<f64>,
+    pub sample_rate_hz: u32,
+    pub bits: u16,
+    pub sample_format: &'static str,
+}
+
+/// Reads a WAV file's samples (one line saying what is wrong otherwise).
+pub fn decode(bytes: &[u8]) -> Result<Decoded, String> {
+    if bytes.is_empty() {
+        return Err("the body is empty: send the WAV file's bytes".into());
+    }
+    let mut r = hound::WavReader::new(std::io::Cursor::new(bytes))
+        .map_err(|e| format!("not a WAV file this daemon reads: {e}"))?;
+    let spec = r.spec();
+    if spec.channels != 1 {
+        return Err(format!(
+            "{} channels: a stimulus is one channel (the exciter's drive); mix down or pick a channel first",
+            spec.channels
+        ));
+    }
+    let (samples, format): (Result<Vec<f64>, hound::Error>, _) = match spec.sample_format {
+        hound::SampleFormat::Float => (
+            r.samples::<f32>().map(|s| s.map(f64::from)).collect(),
+            "float",
+        ),
+        hound::SampleFormat::Int => {
+            let full = (1i64 << (spec.bits_per_sample.max(1) - 1)) as f64;
+            (
+                r.samples::<i32>()
+                    .map(|s| s.map(|v| v as f64 / full))
+                    .collect(),
+                "int",
+            )
+        }
+    };
+    let samples = samples.map_err(|e| format!("the WAV file's samples are unreadable: {e}"))?;
+    let fs = spec.sample_rate;
+    let len_s = samples.len() as f64 / f64::from(fs.max(1));
+    if let Some(i) = samples.iter().position(|v| !v.is_finite()) {
+        return Err(format!("sample {i} is not a finite number"));
+    }
+    if !(MIN_STIMULUS_S..=MAX_STIMULUS_S).contains(&len_s) {
+        return Err(format!(
+            "{len_s} s long ({} frames at {fs} Hz): a stimulus loop lasts {MIN_STIMULUS_S} to {MAX_STIMULUS_S} s",
+            samples.len()
+        ));
+    }
+    Ok(Decoded {
+        samples,
+        sample_rate_hz: fs,
+        bits: spec.bits_per_sample,
+        sample_format: format,
+    })
+}
+
+/// The loop a test plays: the samples without their mean, at unit RMS
+/// (its level is set by the test's `excursion_rms_m`). Err: silent.
+pub fn drive_loop(samples: &[f64]) -> Result<Vec<f64>, String> {
+    crate::physics::waveform::unit_loop(samples)
+        .ok_or_else(|| "the file is silent (its samples less their mean are all zero)".to_string())
+}
+
+/// `POST /api/v1/stimuli` query.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+pub struct UploadQuery {
+    /// A name for people (the file's name); not used by the daemon.
+    pub name: Option<String>,
+}
+
+#[utoipa::path(post, path = "/api/v1/stimuli", tag = "jobs",
+    summary = "Upload a WAV file (mono, 2 to 600 s, at most 32 MiB) for a long-term test to play as a loop (stimulus.kind \"wav\", stimulus.wav_id = the answer's id). The body is the file's bytes; being not JSON, the request needs an Authorization: Bearer header (the cross-site guard).",
+    params(UploadQuery),
+    request_body(content = Vec<u8>, content_type = "audio/wav"),
+    responses(
+        (status = 201, description = "Stored", body = StimulusInfo,
+            headers(("Location" = String, description = "The stimulus"))),
+        (status = 200, description = "The same bytes were uploaded before: that stimulus", body = StimulusInfo),
+        (status = 413, description = "Larger than 32 MiB"),
+        (status = 422, description = "Not a usable WAV file; `errors[0].field` is `body` (not a WAV, more than one channel, shorter than 2 s or longer than 600 s, a sample not finite, silent) or `name`"),
+        (status = 503, description = "Storage unavailable or the disk is full")))]
+/// `POST /api/v1/stimuli`.
+pub async fn upload(
+    State(st): State<AppState>,
+    axum::Extension(caller): axum::Extension<super::auth::Caller>,
+    Query(q): Query<UploadQuery>,
+    body: Result<Bytes, BytesRejection>,
+) -> ApiResult<Response> {
+    let bytes = body.map_err(|e| match e {
+        BytesRejection::FailedToBufferBody(_) => Problem::too_large(MAX_STIMULUS_BYTES),
+        e => Problem::bad_request(e.body_text()),
+    })?;
+    st.store.check_space(st.cfg.min_free_bytes)?;
+    if let Some(n) = &q.name {
+        if n.len() > 200 || n.chars().any(char::is_control) {
+            return Err(Problem::field(
+                "name",
+                "at most 200 characters, no control characters",
+            ));
+        }
+    }
+    let d = decode(&bytes).map_err(|m| Problem::field("body", m))?;
+    drive_loop(&d.samples).map_err(|m| Problem::field("body", m))?;
+    let n = d.samples.len() as f64;
+    let rms = (d.samples.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
+    let peak = d.samples.iter().fold(0.0f64, |p, v| p.max(v.abs()));
+    let info = StimulusInfo {
+        id: super::hex(&Sha256::digest(&bytes)),
+        created_at: String::new(),
+        uploaded_by: caller.0.clone(),
+        file_name: q.name.clone(),
+        sample_rate_hz: d.sample_rate_hz,
+        frames: d.samples.len() as u64,
+        duration_s: n / f64::from(d.sample_rate_hz),
+        bits: d.bits,
+        sample_format: d.sample_format.to_string(),
+        rms_fs: rms,
+        peak_fs: peak,
+        size_bytes: bytes.len() as u64,
+    };
+    let (stored, new) = st.store.put_stimulus(&info, &bytes).await?;
+    let status = if new {
+        StatusCode::CREATED
+    } else {
+        StatusCode::OK
+    };
+    let mut res = (status, Json(&stored)).into_response();
+    if let Ok(v) = HeaderValue::from_str(&format!("/api/v1/stimuli/{}", stored.id)) {
+        res.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(res)
+}
+
+/// `GET /api/v1/stimuli`.
+#[derive(Debug, Serialize, utoipa::ToSchema)]
+pub struct StimulusList {
+    pub items: Vec<StimulusInfo>,
+}
+
+#[utoipa::path(get, path = "/api/v1/stimuli", tag = "jobs",
+    summary = "The station's uploaded stimulus files, newest first (at most 500).",
+    responses((status = 200, description = "The list", body = StimulusList)))]
+/// `GET /api/v1/stimuli`.
+pub async fn list(State(st): State<AppState>) -> ApiResult<Json<StimulusList>> {
+    Ok(Json(StimulusList {
+        items: st.store.list_stimuli(500).await?,
+    }))
+}
+
+#[utoipa::path(get, path = "/api/v1/stimuli/{id}", tag = "jobs",
+    summary = "One uploaded stimulus file: what the daemon read from it.",
+    params(("id" = String, Path, description = "The SHA-256 of the file's bytes")),
+    responses(
+        (status = 200, description = "The stimulus", body = StimulusInfo),
+        (status = 404, description = "No such stimulus")))]
+/// `GET /api/v1/stimuli/{id}`.
+pub async fn get_one(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<StimulusInfo>> {
+    st.store
+        .stimulus(&id)
+        .await?
+        .map(Json)
+        .ok_or_else(|| Problem::not_found("stimulus", &id))
+}
