@@ -408,11 +408,11 @@ impl Runner {
         let Some(bytes) = self.store.stimulus_bytes(id).await? else {
             return Ok(Err(problem(format!("no stimulus '{id}' on this station"))));
         };
-        Ok(crate::api::stimuli::decode(&bytes)
+        Ok(crate::recording::stimulus::decode(&bytes)
             .and_then(|d| {
                 Ok((
                     d.sample_rate_hz,
-                    crate::api::stimuli::drive_loop(&d.samples)?,
+                    crate::recording::stimulus::drive_loop(&d.samples)?,
                 ))
             })
             .map(Some)
@@ -1371,6 +1371,59 @@ const HOLD_MAX_S: f64 = 3600.0;
 /// time the hold could not fill, pass idle (waited for on a bench that runs
 /// in real time). Returns the load it put on the part, measured from the
 /// displacement with the last measured K(x) (J).
+/// What a hold on a hardware or emulated bench has played so far: the load
+/// measured from the laser with the part's last K(x) (J), the loopback's
+/// peak (V), the seconds played from test time `t0_s`.
+struct Played {
+    k: Option<(Vec<f64>, [f64; 2])>,
+    fs: f64,
+    t0_s: f64,
+    load_j: f64,
+    peak_v: f64,
+    played_s: f64,
+}
+
+impl Played {
+    fn new(k: Option<(Vec<f64>, [f64; 2])>, fs: f64, t0_s: f64) -> Played {
+        Played {
+            k,
+            fs,
+            t0_s,
+            load_j: 0.0,
+            peak_v: 0.0,
+            played_s: 0.0,
+        }
+    }
+
+    /// One chunk played: its load, its drive's peak, the test's progress.
+    fn chunk(&mut self, sig: &Signals, report: &mut dyn FnMut(f64)) {
+        if let Some((c, r)) = &self.k {
+            self.load_j +=
+                ageing_law::load_from_displacement_j(&sig.displacement_m, self.fs, c, *r);
+        }
+        if let Some(u) = &sig.drive_v {
+            self.peak_v = u.iter().fold(self.peak_v, |a, v| a.max(v.abs()));
+        }
+        self.played_s += sig.len() as f64 / self.fs;
+        report(self.t0_s + self.played_s);
+    }
+
+    /// The hold's error as the test's stop, saying when in the test it came.
+    fn stop(&self, e: ProcedureError) -> Stop {
+        match super::execute::procedure_stop(e) {
+            Stop::Failed(mut p) => {
+                p.detail = format!(
+                    "during the stimulus at test time {:.0} s: {}",
+                    self.t0_s + self.played_s,
+                    p.detail
+                );
+                Stop::Failed(p)
+            }
+            s => s,
+        }
+    }
+}
+
 fn device_stimulus(
     d: &mut Device<'_>,
     pcfg: &ProcedureConfig,
@@ -1427,10 +1480,8 @@ fn device_stimulus(
                 Some(w) => w,
                 None => noise_wave.insert(loop_load(&spec.stimulus, fs, d.wav)?.wave().to_vec()),
             };
-            let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
-            let k = d.k.clone();
-            let t0 = t;
-            let done = procedure::waveform::hold_loop(
+            let (mut p, t0) = (Played::new(d.k.clone(), fs, t), t);
+            let r = procedure::waveform::hold_loop(
                 d.bench.as_mut(),
                 wave,
                 &mut noise_phase,
@@ -1438,28 +1489,10 @@ fn device_stimulus(
                 hold_s,
                 &mut || obs.cancelled(),
                 &mut || room.paused(),
-                &mut |sig: &Signals| {
-                    if let Some((c, r)) = &k {
-                        e += ageing_law::load_from_displacement_j(&sig.displacement_m, fs, c, *r);
-                    }
-                    if let Some(u) = &sig.drive_v {
-                        peak_v = u.iter().fold(peak_v, |a, v| a.max(v.abs()));
-                    }
-                    played_s += sig.len() as f64 / fs;
-                    report(t0 + played_s);
-                },
-            )
-            .map_err(|e| match super::execute::procedure_stop(e) {
-                Stop::Failed(mut p) => {
-                    p.detail = format!(
-                        "during the stimulus at test time {:.0} s: {}",
-                        t0 + played_s,
-                        p.detail
-                    );
-                    Stop::Failed(p)
-                }
-                s => s,
-            })?;
+                &mut |sig: &Signals| p.chunk(sig, report),
+            );
+            let done = r.map_err(|e| p.stop(e))?;
+            let (e, peak_v) = (p.load_j, p.peak_v);
             load_j += e;
             let _ = tx.send(Msg::Log(format!(
                 "{} stimulus from test time {t0:.0} s: {:.0} s held, RMS displacement {:.3} mm (target {:.3} mm), peak drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",
@@ -1477,10 +1510,8 @@ fn device_stimulus(
             }
         } else if on && x > 0.0 && hold_s >= 1.0 {
             let fs = d.bench.sample_rate_hz();
-            let (mut e, mut peak_v, mut played_s) = (0.0, 0.0f64, 0.0);
-            let k = d.k.clone();
-            let t0 = t;
-            let done = procedure::hold_at_resonance(
+            let (mut p, t0) = (Played::new(d.k.clone(), fs, t), t);
+            let r = procedure::hold_at_resonance(
                 d.bench.as_mut(),
                 pcfg,
                 &procedure::BreakIn {
@@ -1489,28 +1520,10 @@ fn device_stimulus(
                 },
                 &mut || obs.cancelled(),
                 &mut || room.paused(),
-                &mut |sig: &Signals| {
-                    if let Some((c, r)) = &k {
-                        e += ageing_law::load_from_displacement_j(&sig.displacement_m, fs, c, *r);
-                    }
-                    if let Some(u) = &sig.drive_v {
-                        peak_v = u.iter().fold(peak_v, |a, v| a.max(v.abs()));
-                    }
-                    played_s += sig.len() as f64 / fs;
-                    report(t0 + played_s);
-                },
-            )
-            .map_err(|e| match super::execute::procedure_stop(e) {
-                Stop::Failed(mut p) => {
-                    p.detail = format!(
-                        "during the stimulus at test time {:.0} s: {}",
-                        t0 + played_s,
-                        p.detail
-                    );
-                    Stop::Failed(p)
-                }
-                s => s,
-            })?;
+                &mut |sig: &Signals| p.chunk(sig, report),
+            );
+            let done = r.map_err(|e| p.stop(e))?;
+            let (e, peak_v) = (p.load_j, p.peak_v);
             load_j += e;
             let _ = tx.send(Msg::Log(format!(
                 "stimulus from test time {t0:.0} s: {:.0} s held at {:.2} Hz, mean peak displacement {:.3} mm (target {:.3} mm), drive {:.2} V, peak drive on the loopback {:.2} V (limit {max_drive_v} V), load +{e:.1} J",

@@ -18,6 +18,7 @@
 //! This module does file I/O; everything downstream of it works on [`Signals`].
 
 pub mod codec;
+pub mod stimulus;
 pub mod stream;
 
 pub use springbench_core::recording::*;

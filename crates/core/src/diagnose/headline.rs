@@ -3,7 +3,7 @@
 //! were asked for); the base model's values stay beside them with the change
 //! at the ends of the measured range. Pure.
 
-use super::engine::{CreepTauFree, EngineResult, FittedModel};
+use super::engine::{CreepTauFree, EngineResult, FittedModel, MODEL_ERROR_RESOLUTION};
 use crate::identify::validity::{
     State, ACCURACY_F0, ACCURACY_K0, ACCURACY_K_OF_X, ACCURACY_Q, ACCURACY_R,
     ACCURACY_SMALL_SIGNAL_R,
@@ -493,16 +493,6 @@ pub fn mark_memory(s: &mut Stiffness, l: &mut LargeSignal, r: &EngineResult) {
         l.validity.resonance_hz.mark(State::Unreliable, &why);
     }
 }
-
-/// The model error a record resolves (decision 0128), as a fraction of its
-/// noise floor: on 30 records without any hidden effect (5 presets, seeds
-/// 900-905; the base model is the truth, the noise-free twin leaves below
-/// 0.0001 % of the variance) the reported model error reads 0-12.8 % of
-/// the floor. That is the floor estimator's own scatter (the Welch sum
-/// against the time-domain mean square, and noise bins above the running
-/// quantile counted as structure), not the model's; a model error below
-/// it is not resolved.
-pub const MODEL_ERROR_RESOLUTION: f64 = 0.15;
 
 /// A memory effect the record cannot weigh (decisions 0123, 0128): the
 /// block test finds it systematic (p below its corrected alpha), it lowers

@@ -203,12 +203,8 @@ impl AgeingStep {
     }
 }
 
-/// w(x) = exp(-(x/x_w)^4) from `inv_width4` = 1/x_w^4.
-#[inline]
-pub fn shape(x_m: f64, inv_width4: f64) -> f64 {
-    let u = x_m * x_m;
-    (-(u * u * inv_width4)).exp()
-}
+/// w(x) = exp(-(x/x_w)^4): where the loss is (the model's, which uses it in every step).
+pub use super::model::ageing_shape as shape;
 
 /// The elastic restoring force of a part at a load (N): K(x, E) x.
 pub fn elastic_force_n(part: &super::PartSpec, load_j: f64, x_m: f64) -> f64 {

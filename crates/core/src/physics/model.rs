@@ -277,6 +277,14 @@ pub struct Energy {
     pub stored_j: f64,
 }
 
+/// w(x) = exp(-(x/x_w)^4) from `inv_width4` = 1/x_w^4: the shape of the
+/// stiffness an ageing part loses near rest (`physics::ageing`).
+#[inline]
+pub fn ageing_shape(x_m: f64, inv_width4: f64) -> f64 {
+    let u = x_m * x_m;
+    (-(u * u * inv_width4)).exp()
+}
+
 impl Model {
     pub fn new(part: &super::PartSpec, bench: &BenchParams) -> Model {
         let bx = bench.box_;
@@ -359,7 +367,7 @@ impl Model {
             k *= 1.0 - self.ageing_collapse;
         }
         if self.ageing_loss_n_per_m > 0.0 {
-            k -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4);
+            k -= self.ageing_loss_n_per_m * ageing_shape(x, self.ageing_inv_width4);
         }
         k * x
     }
@@ -409,7 +417,7 @@ impl Model {
             f += m.force(x);
         }
         if self.ageing_loss_n_per_m > 0.0 {
-            f -= self.ageing_loss_n_per_m * super::ageing::shape(x, self.ageing_inv_width4) * x;
+            f -= self.ageing_loss_n_per_m * ageing_shape(x, self.ageing_inv_width4) * x;
         }
         if self.ageing_collapse > 0.0 {
             f -= self.ageing_collapse * self.stiffness(x) * x;

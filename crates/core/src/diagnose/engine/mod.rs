@@ -16,7 +16,7 @@ mod result;
 
 pub use crate::identify::documents::{CandidateResult, LadderStep};
 pub use design::Prepared;
-pub use options::{EngineOptions, Term};
+pub use options::{EngineOptions, Term, MODEL_ERROR_RESOLUTION};
 pub use result::{fundamental_range_hz, CreepTauFree, EngineResult, FittedModel};
 
 use crate::diagnose::spectrum;

@@ -5,8 +5,7 @@ use super::design::{Built, Col, Prepared, Role, Spec};
 use super::fit::{
     describe, dmic_of, effect_params, effect_se, evaluate, model_error, pct, wald_last, Evaluated,
 };
-use super::options::{EngineOptions, Term};
-use crate::diagnose::headline::MODEL_ERROR_RESOLUTION;
+use super::options::{EngineOptions, Term, MODEL_ERROR_RESOLUTION};
 use crate::diagnose::regress::collinearity_r2;
 use crate::effects::EffectId;
 use crate::identify::documents::CandidateResult;
