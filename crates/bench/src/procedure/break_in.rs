@@ -64,9 +64,10 @@ pub struct BreakInDone {
     pub bench_time_s: f64,
 }
 
-/// Length of one held chunk (s) and its fades.
-const CHUNK_S: f64 = 10.0;
-const FADE_S: f64 = 0.25;
+/// Length of one held chunk (s) and its fades (the loop's hold,
+/// `waveform::hold_loop`, plays the same chunks).
+pub(super) const CHUNK_S: f64 = 10.0;
+pub(super) const FADE_S: f64 = 0.25;
 /// Each chunk glides up from this fraction of its frequency over `RAMP_S`.
 const GLIDE_FROM: f64 = 0.7;
 const RAMP_S: f64 = 1.5;
@@ -207,13 +208,7 @@ pub fn hold_at_resonance(
         let mut phase = 0.0f64;
         let drive: Vec<f64> = (0..n)
             .map(|k| {
-                let g = if k < nf {
-                    0.5 * (1.0 - (std::f64::consts::PI * k as f64 / nf as f64).cos())
-                } else if k + nf > n {
-                    0.5 * (1.0 - (std::f64::consts::PI * (n - k) as f64 / nf as f64).cos())
-                } else {
-                    1.0
-                };
+                let g = chunk_fade(k, n, nf);
                 let fk = if k < nr {
                     f * (GLIDE_FROM + (1.0 - GLIDE_FROM) * k as f64 / nr as f64)
                 } else {
@@ -224,25 +219,11 @@ pub fn hold_at_resonance(
                 u
             })
             .collect();
-        let mut hit = false;
-        let sig = bench.run(&drive, &mut |blk: Block<'_>| {
-            if blk.displacement_m.iter().any(|x| x.abs() > limit) {
-                hit = true;
-                return Control::Abort;
-            }
-            if cancelled() {
-                return Control::Abort;
-            }
-            Control::Continue
-        });
+        let played = play_chunk(bench, &drive, limit, cancelled);
         bench_time += len_s;
-        if hit {
+        let Some(sig) = played? else {
             v *= 0.7;
             continue;
-        }
-        let sig = match sig {
-            Err(crate::BenchError::Aborted) => return Err(ProcedureError::Cancelled),
-            r => r?,
         };
         on_run(&sig);
         // The steady second half of the held part.
@@ -286,6 +267,47 @@ pub fn hold_at_resonance(
         drive_v: drive_used,
         bench_time_s: bench_time,
     })
+}
+
+/// The weight of sample `k` of an `n`-sample chunk: a raised-cosine fade
+/// over its first and last `nf` samples, 1 between.
+pub(super) fn chunk_fade(k: usize, n: usize, nf: usize) -> f64 {
+    if k < nf {
+        0.5 * (1.0 - (std::f64::consts::PI * k as f64 / nf as f64).cos())
+    } else if k + nf > n {
+        0.5 * (1.0 - (std::f64::consts::PI * (n - k) as f64 / nf as f64).cos())
+    } else {
+        1.0
+    }
+}
+
+/// Plays one held chunk, stopped as soon as |x| passes `limit` (Ok(None):
+/// the bench ramped down, the caller lowers the level and plays again) or
+/// the test is cancelled (Err(Cancelled)).
+pub(super) fn play_chunk(
+    bench: &mut dyn Bench,
+    drive: &[f64],
+    limit: f64,
+    cancelled: &mut dyn FnMut() -> bool,
+) -> Result<Option<crate::Signals>, ProcedureError> {
+    let mut hit = false;
+    let sig = bench.run(drive, &mut |blk: Block<'_>| {
+        if blk.displacement_m.iter().any(|x| x.abs() > limit) {
+            hit = true;
+            return Control::Abort;
+        }
+        if cancelled() {
+            return Control::Abort;
+        }
+        Control::Continue
+    });
+    if hit {
+        return Ok(None);
+    }
+    match sig {
+        Err(crate::BenchError::Aborted) => Err(ProcedureError::Cancelled),
+        r => Ok(Some(r?)),
+    }
 }
 
 /// Plays a probe or search sweep, stopped as soon as |x| passes `limit`:

@@ -10,12 +10,11 @@
 //! on the measured displacement: each chunk's gain is the last one's scaled
 //! by the target over the RMS displacement measured in its steady part.
 
+// The chunks, their fades and their guarded play are the sine's hold's.
+use super::break_in::{chunk_fade, play_chunk, CHUNK_S, FADE_S};
 use super::ProcedureError;
-use crate::{Bench, Block, Control};
+use crate::Bench;
 
-/// Length of one chunk (s) and its fades.
-const CHUNK_S: f64 = 10.0;
-const FADE_S: f64 = 0.25;
 /// The first chunk is this short, at a low gain: a probe of the level.
 const PROBE_S: f64 = 2.0;
 /// The probe's drive peak (V), below the drive limit.
@@ -103,37 +102,14 @@ pub fn hold_loop(
         let n = ((hold + 2.0 * FADE_S) * fs).round() as usize;
         let start = *phase;
         let drive: Vec<f64> = (0..n)
-            .map(|k| {
-                let f = if k < nf {
-                    0.5 * (1.0 - (std::f64::consts::PI * k as f64 / nf as f64).cos())
-                } else if k + nf > n {
-                    0.5 * (1.0 - (std::f64::consts::PI * (n - k) as f64 / nf as f64).cos())
-                } else {
-                    1.0
-                };
-                f * g * wave[(start + k) % wave.len()]
-            })
+            .map(|k| chunk_fade(k, n, nf) * g * wave[(start + k) % wave.len()])
             .collect();
-        let mut hit = false;
-        let sig = bench.run(&drive, &mut |blk: Block<'_>| {
-            if blk.displacement_m.iter().any(|x| x.abs() > limit) {
-                hit = true;
-                return Control::Abort;
-            }
-            if cancelled() {
-                return Control::Abort;
-            }
-            Control::Continue
-        });
+        let played = play_chunk(bench, &drive, limit, cancelled);
         bench_time += n as f64 / fs;
-        if hit {
+        let Some(sig) = played? else {
             // The bench ramped the drive down; lower the level's gain.
             g *= 0.7;
             continue;
-        }
-        let sig = match sig {
-            Err(crate::BenchError::Aborted) => return Err(ProcedureError::Cancelled),
-            r => r?,
         };
         on_run(&sig);
         *phase = (start + n) % wave.len();
