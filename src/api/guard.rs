@@ -88,11 +88,15 @@ fn has_bearer(headers: &HeaderMap) -> bool {
         .unwrap_or(false)
 }
 
-/// True for the routes that take a file (a multipart recording set, a WAV
-/// stimulus): their body limit here is `max_upload_bytes` (each route may
-/// set a lower one of its own).
-pub fn is_upload(method: &Method, path: &str) -> bool {
-    method == Method::POST && (path == "/api/v1/measurements" || path == "/api/v1/stimuli")
+/// The declared body a request may have (bytes): a multipart recording set
+/// `max_upload_bytes`, a WAV stimulus the smaller of it and the stimulus
+/// file's limit, everything else `max_json_bytes`.
+pub fn body_limit(cfg: &crate::config::Config, method: &Method, path: &str) -> usize {
+    match (method == Method::POST, path) {
+        (true, "/api/v1/measurements") => cfg.max_upload_bytes,
+        (true, "/api/v1/stimuli") => cfg.max_upload_bytes.min(super::stimuli::MAX_STIMULUS_BYTES),
+        _ => cfg.max_json_bytes,
+    }
 }
 
 fn forbidden(kind: &'static str, title: &'static str, detail: String) -> Response {
@@ -150,17 +154,7 @@ pub async fn browser_safety(State(st): State<AppState>, req: Request, next: Next
         )
         .into_response();
     }
-    let limit = if is_upload(m, req.uri().path()) {
-        if req.uri().path() == "/api/v1/stimuli" {
-            st.cfg
-                .max_upload_bytes
-                .min(super::stimuli::MAX_STIMULUS_BYTES)
-        } else {
-            st.cfg.max_upload_bytes
-        }
-    } else {
-        st.cfg.max_json_bytes
-    };
+    let limit = body_limit(&st.cfg, m, req.uri().path());
     if let Some(len) = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())

@@ -90,13 +90,13 @@ pub async fn submit(
     if spec.stimulus.kind == crate::job::StimulusKind::Wav {
         let id = spec.stimulus.wav_id.clone().unwrap_or_default();
         // A hardware or emulated bench's converters' rate, a virtual bench's simulation's.
-        let fs = bench
-            .and_then(|b| b.hardware.as_ref())
-            .filter(|_| bench.is_some_and(|b| b.kind != BenchKind::Virtual))
-            .map_or(
-                crate::physics::model::BenchParams::default().sample_rate_hz,
-                |h| f64::from(h.sample_rate_hz),
-            );
+        let fs = match bench {
+            Some(b) if b.kind != BenchKind::Virtual => {
+                b.hardware.as_ref().map(|h| f64::from(h.sample_rate_hz))
+            }
+            _ => None,
+        }
+        .unwrap_or(crate::physics::model::BenchParams::default().sample_rate_hz);
         match st.store.stimulus(&id).await? {
             None => {
                 return Err(Problem::field(
