@@ -4,7 +4,7 @@
 
 use super::problem::{ApiResult, Problem};
 use super::AppState;
-use crate::store::stimuli::StimulusInfo;
+use crate::store::stimuli::{NewStimulus, StimulusInfo};
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, Query, State};
@@ -56,22 +56,17 @@ pub async fn upload(
     }
     let d = decode(&bytes).map_err(|m| Problem::field("body", m))?;
     drive_loop(&d.samples).map_err(|m| Problem::field("body", m))?;
-    let n = d.samples.len() as f64;
-    let rms = (d.samples.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
-    let peak = d.samples.iter().fold(0.0f64, |p, v| p.max(v.abs()));
-    let info = StimulusInfo {
-        id: super::hex(&Sha256::digest(&bytes)),
-        created_at: String::new(),
-        uploaded_by: caller.0.clone(),
-        file_name: q.name.clone(),
+    let id = super::hex(&Sha256::digest(&bytes));
+    let info = NewStimulus {
+        id: &id,
+        uploaded_by: caller.0.as_deref(),
+        file_name: q.name.as_deref(),
         sample_rate_hz: d.sample_rate_hz,
         frames: d.samples.len() as u64,
-        duration_s: n / f64::from(d.sample_rate_hz),
         bits: d.bits,
-        sample_format: d.sample_format.to_string(),
-        rms_fs: rms,
-        peak_fs: peak,
-        size_bytes: bytes.len() as u64,
+        sample_format: d.sample_format,
+        rms_fs: d.rms_fs(),
+        peak_fs: d.peak_fs(),
     };
     let (stored, new) = st.store.put_stimulus(&info, &bytes).await?;
     let status = if new {

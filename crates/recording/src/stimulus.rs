@@ -18,6 +18,16 @@ pub struct Decoded {
     pub sample_format: &'static str,
 }
 
+impl Decoded {
+    /// RMS and peak of the samples (full scale = 1).
+    pub fn rms_fs(&self) -> f64 {
+        (self.samples.iter().map(|v| v * v).sum::<f64>() / self.samples.len() as f64).sqrt()
+    }
+    pub fn peak_fs(&self) -> f64 {
+        self.samples.iter().fold(0.0f64, |p, v| p.max(v.abs()))
+    }
+}
+
 /// Reads a WAV file's samples (one line saying what is wrong otherwise).
 pub fn decode(bytes: &[u8]) -> Result<Decoded, String> {
     if bytes.is_empty() {

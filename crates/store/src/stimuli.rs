@@ -30,6 +30,21 @@ pub struct StimulusInfo {
     pub size_bytes: u64,
 }
 
+/// An uploaded file to keep: its id and what was read from it (the store
+/// stamps the time; duration and size follow from the row).
+#[derive(Debug, Clone)]
+pub struct NewStimulus<'a> {
+    pub id: &'a str,
+    pub uploaded_by: Option<&'a str>,
+    pub file_name: Option<&'a str>,
+    pub sample_rate_hz: u32,
+    pub frames: u64,
+    pub bits: u16,
+    pub sample_format: &'a str,
+    pub rms_fs: f64,
+    pub peak_fs: f64,
+}
+
 fn info(r: &sqlx::sqlite::SqliteRow) -> StimulusInfo {
     let rate: i64 = r.get("sample_rate_hz");
     let frames: i64 = r.get("frames");
@@ -59,31 +74,31 @@ macro_rules! cols {
 }
 
 impl Store {
-    /// Keeps an uploaded file (its `info` read from `bytes`); the same bytes
+    /// Keeps an uploaded file (`info` read from `bytes`); the same bytes
     /// again change nothing. Returns the stored info and whether it is new.
     pub async fn put_stimulus(
         &self,
-        info: &StimulusInfo,
+        info: &NewStimulus<'_>,
         bytes: &[u8],
     ) -> StoreResult<(StimulusInfo, bool)> {
         let done = sqlx::query(
             "INSERT OR IGNORE INTO stimuli (id, created_at, uploaded_by, file_name, sample_rate_hz, \
              frames, bits, sample_format, rms_fs, peak_fs, bytes) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
         )
-        .bind(&info.id)
+        .bind(info.id)
         .bind(now())
-        .bind(&info.uploaded_by)
-        .bind(&info.file_name)
+        .bind(info.uploaded_by)
+        .bind(info.file_name)
         .bind(i64::from(info.sample_rate_hz))
         .bind(info.frames as i64)
         .bind(i64::from(info.bits))
-        .bind(&info.sample_format)
+        .bind(info.sample_format)
         .bind(info.rms_fs)
         .bind(info.peak_fs)
         .bind(bytes)
         .execute(&self.pool)
         .await?;
-        let stored = self.stimulus(&info.id).await?.ok_or_else(|| {
+        let stored = self.stimulus(info.id).await?.ok_or_else(|| {
             crate::StoreError::Corrupt(format!("stimulus {} not found after storing it", info.id))
         })?;
         Ok((stored, done.rows_affected() == 1))
