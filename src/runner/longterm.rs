@@ -929,9 +929,11 @@ fn run_blocking(
                 (StimulusKind::Noise | StimulusKind::Wav, _) => {
                     let l = match noise.as_mut() {
                         Some(l) => l,
-                        None => {
-                            noise.insert(loop_load(&spec.stimulus, vb.bench.sample_rate_hz, wav)?)
-                        }
+                        None => noise.insert(waveform::LoopLoad::new(loop_wave(
+                            &spec.stimulus,
+                            vb.bench.sample_rate_hz,
+                            wav,
+                        )?)),
                     };
                     vb.apply_loop_load(l, level_m, on);
                     // Never a level that looks met when it is not: the
@@ -1478,7 +1480,7 @@ fn device_stimulus(
             let fs = d.bench.sample_rate_hz();
             let wave = match &noise_wave {
                 Some(w) => w,
-                None => noise_wave.insert(loop_load(&spec.stimulus, fs, d.wav)?.wave().to_vec()),
+                None => noise_wave.insert(loop_wave(&spec.stimulus, fs, d.wav)?),
             };
             let (mut p, t0) = (Played::new(d.k.clone(), fs, t), t);
             let r = procedure::waveform::hold_loop(
@@ -1567,14 +1569,15 @@ fn loop_name(kind: StimulusKind) -> &'static str {
     }
 }
 
-/// A loop stimulus' loop at the bench's sample rate, for its accelerated
-/// load: the noise's (decision 0137) or the WAV file's (decision 0144),
-/// which must be at the bench's rate (it is not resampled).
-fn loop_load(
+/// A loop stimulus' loop at the bench's sample rate (the accelerated
+/// load's on a virtual bench, the hold's on a hardware one): the noise's
+/// (decision 0137) or the WAV file's (decision 0144), which must be at the
+/// bench's rate (it is not resampled).
+fn loop_wave(
     s: &crate::job::Stimulus,
     fs: f64,
     wav: Option<&(u32, Vec<f64>)>,
-) -> Result<waveform::LoopLoad, Stop> {
+) -> Result<Vec<f64>, Stop> {
     if s.kind == StimulusKind::Wav {
         let Some((rate, wave)) = wav else {
             return Err(Stop::Failed(JobProblem::new(
@@ -1590,18 +1593,16 @@ fn loop_load(
                 format!("stimulus.wav_id: the file runs at {rate} Hz, the bench at {fs} Hz (it is not resampled)"),
             )));
         }
-        return Ok(waveform::LoopLoad::new(wave.clone()));
+        return Ok(wave.clone());
     }
     let band = s.band_hz.unwrap_or([0.0, 0.0]);
-    waveform::noise_loop(fs, band, waveform::NOISE_LOOP_S, waveform::NOISE_SEED)
-        .map(waveform::LoopLoad::new)
-        .ok_or_else(|| {
-            Stop::Failed(JobProblem::new(
-                ProblemKind::Bench,
-                "Stimulus not made",
-                format!("stimulus.band_hz {band:?} holds no line at {fs} Hz"),
-            ))
-        })
+    waveform::noise_loop(fs, band, waveform::NOISE_LOOP_S, waveform::NOISE_SEED).ok_or_else(|| {
+        Stop::Failed(JobProblem::new(
+            ProblemKind::Bench,
+            "Stimulus not made",
+            format!("stimulus.band_hz {band:?} holds no line at {fs} Hz"),
+        ))
+    })
 }
 
 /// A bench fault on a hardware or emulated bench: the last seconds the

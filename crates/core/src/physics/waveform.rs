@@ -276,10 +276,6 @@ impl LoopLoad {
         }
     }
 
-    pub fn wave(&self) -> &[f64] {
-        &self.wave
-    }
-
     /// The response of the piece the last [`Self::apply`] ended in.
     pub fn last(&self) -> Option<LoopResponse> {
         self.piece.map(|p| p.3)
