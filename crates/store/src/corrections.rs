@@ -139,7 +139,7 @@ impl Corrections for Store {
         let bad = |m: String| StoreError::Invalid(format!("correction {}: {m}", c.id));
         // The write lock first (as every station write, lib.rs): this reads,
         // then writes, and a deferred transaction cannot wait for it.
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let known: Option<i64> = sqlx::query_scalar("SELECT seq FROM corrections WHERE id = ?")
             .bind(c.id.clone())
             .fetch_optional(&mut *tx)

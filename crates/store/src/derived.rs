@@ -45,7 +45,7 @@ impl Store {
         fit_id: &str,
         items: &[Derived],
     ) -> StoreResult<()> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let t = now();
         for d in items {
             sqlx::query(

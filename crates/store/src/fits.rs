@@ -26,7 +26,7 @@ impl Store {
         .bind(result.to_string())
         .bind(springbench_core::VERSION)
         .bind(t.clone())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(Fit {
             id: id.to_string(),
@@ -54,7 +54,7 @@ impl Store {
         .bind(fit_id.map(str::to_string))
         .bind(chosen_by.map(str::to_string))
         .bind(t.clone())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(HeadlineChoice {
             fit_id: fit_id.map(str::to_string),

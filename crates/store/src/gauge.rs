@@ -39,7 +39,7 @@ impl Store {
         .bind(crate::json_text(&runs))
         .bind(created_by)
         .bind(now())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -49,7 +49,7 @@ impl Store {
         sqlx::query("UPDATE gauge_studies SET runs = ? WHERE id = ?")
             .bind(crate::json_text(&runs))
             .bind(id)
-            .execute(&self.pool)
+            .execute(&mut *self.writer().await?)
             .await?;
         Ok(())
     }
@@ -127,7 +127,7 @@ impl Store {
         .bind(crate::json_text(&row.calibration))
         .bind(&row.created_by)
         .bind(&row.created_at)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }

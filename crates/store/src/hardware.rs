@@ -93,7 +93,7 @@ fn calibration_row(r: &sqlx::sqlite::SqliteRow) -> CalibrationRecord {
 impl Store {
     /// Stores a self-check; a passing one clears the bench's open faults (one transaction).
     pub async fn insert_calibration(&self, rec: &CalibrationRecord) -> StoreResult<()> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         sqlx::query(
             "INSERT INTO calibrations (id, bench_id, job_id, passed, calibration_json, sensors_json, result_json, created_at) \
              VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
@@ -167,7 +167,7 @@ impl Store {
         .bind(job_id)
         .bind(detail)
         .bind(now())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -204,7 +204,7 @@ impl Store {
         sqlx::query("UPDATE measurements SET calibration_id = ? WHERE job_id = ?")
             .bind(calibration_id)
             .bind(job_id)
-            .execute(&self.pool)
+            .execute(&mut *self.writer().await?)
             .await?;
         Ok(())
     }

@@ -247,7 +247,7 @@ impl Store {
     pub async fn probe_write(&self) -> StoreResult<()> {
         sqlx::query("INSERT OR REPLACE INTO store_probe (id, at) VALUES (1, ?)")
             .bind(now())
-            .execute(&self.pool)
+            .execute(&mut *self.writer().await?)
             .await?;
         Ok(())
     }

@@ -59,7 +59,7 @@ impl Store {
             }
         }
         self.upsert_part(part.0, part.1, part.2).await?;
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let mid = measurement.id.clone();
         let mut rec_ids = vec![];
         for r in recordings {

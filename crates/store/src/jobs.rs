@@ -210,7 +210,7 @@ impl Store {
             .bind(now())
             .bind(problem)
             .bind(bench)
-            .fetch_all(&self.pool)
+            .fetch_all(&mut *self.writer().await?)
             .await?;
             ids.extend(done.iter().map(|r| r.get::<String, _>(0)));
         }
@@ -234,7 +234,7 @@ impl Store {
                 return Ok(replay_or_conflict(j, request_sha256));
             }
         }
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let t = now();
         sqlx::query(
             "INSERT INTO parts (serial, kind, notes, created_at, updated_at) VALUES (?, ?, ?, ?, ?) \
@@ -358,7 +358,7 @@ impl Store {
         )
         .bind(now())
         .bind(id.to_string())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -377,7 +377,7 @@ impl Store {
         .bind(progress)
         .bind(eta_s)
         .bind(id.to_string())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -389,7 +389,7 @@ impl Store {
         )
         .bind(now())
         .bind(id.to_string())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -437,7 +437,7 @@ impl Store {
         measurements: Vec<NewMeasurement>,
         records: &qc::JobRecords,
     ) -> StoreResult<()> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let ids = insert_results(&mut tx, recordings, measurements).await?;
         let _ = ids;
         qc::insert_job_records(&mut tx, records).await?;
@@ -480,7 +480,7 @@ impl Store {
         warnings: &[String],
         records: &qc::JobRecords,
     ) -> StoreResult<bool> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let r = sqlx::query(
             "UPDATE jobs SET state = ?, finished_at = ?, problem_json = ?, bench_time_s = ?, log_json = ?, warnings_json = ?, eta_s = NULL \
              WHERE id = ? AND state = 'running'",
@@ -525,7 +525,7 @@ impl Store {
         recordings: Vec<NewRecording>,
         measurements: Vec<NewMeasurement>,
     ) -> StoreResult<Vec<i64>> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         running_job(&mut tx, job_id).await?;
         let new = insert_results(&mut tx, recordings, vec![]).await?;
         let ids: Vec<i64> = known.iter().chain(&new).copied().collect();
@@ -546,7 +546,7 @@ impl Store {
             Option<springbench_core::identify::Report>,
         )>,
     ) -> StoreResult<()> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         running_job(&mut tx, job_id).await?;
         for (id, config, result) in updates {
             let r = sqlx::query(
@@ -584,14 +584,11 @@ impl Store {
 }
 
 /// Refuses to add to a job that is not running.
-pub(crate) async fn running_job(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
-    job_id: &str,
-) -> StoreResult<()> {
+pub(crate) async fn running_job(tx: &mut sqlx::SqliteConnection, job_id: &str) -> StoreResult<()> {
     let running: Option<i64> =
         sqlx::query_scalar("SELECT 1 FROM jobs WHERE id = ? AND state = 'running'")
             .bind(job_id.to_string())
-            .fetch_optional(&mut **tx)
+            .fetch_optional(&mut *tx)
             .await?;
     match running {
         Some(_) => Ok(()),

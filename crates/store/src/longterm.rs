@@ -189,7 +189,7 @@ impl Store {
     ) -> StoreResult<()> {
         let part = to_json(&iv.part)?;
         let doc = iv.document.as_ref().map(to_json).transpose()?;
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         crate::jobs::running_job(&mut tx, job_id).await?;
         let done: i64 = sqlx::query_scalar(
             "SELECT COALESCE((SELECT intervals_done FROM long_term_state WHERE job_id = ?), 0)",
@@ -335,7 +335,7 @@ impl Store {
         .bind(hand)
         .bind(job_id)
         .bind(index as i64)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -349,7 +349,7 @@ impl Store {
         signals: Option<(NewRecording, f64)>,
     ) -> StoreResult<()> {
         let f = to_json(failure)?;
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         crate::jobs::running_job(&mut tx, job_id).await?;
         let t = now();
         let r = sqlx::query(
@@ -380,7 +380,7 @@ impl Store {
         job_id: &str,
         signals: (NewRecording, f64),
     ) -> StoreResult<()> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         crate::jobs::running_job(&mut tx, job_id).await?;
         insert_last_signals(&mut tx, job_id, signals, &now()).await?;
         tx.commit().await?;
@@ -432,7 +432,7 @@ impl Store {
     /// The resumption is recorded with the test's state (when an interval
     /// was stored), in the same transaction.
     pub async fn requeue_running(&self, job_id: &str) -> StoreResult<bool> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let r = sqlx::query(
             "UPDATE jobs SET state = 'queued', step = NULL, eta_s = NULL WHERE id = ? AND state = 'running'",
         )
@@ -472,7 +472,7 @@ impl Store {
              SELECT id, created_at FROM jobs WHERE id = ?",
         )
         .bind(job_id)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -510,7 +510,7 @@ impl Store {
                 .bind(now())
                 .bind(by)
                 .bind(job_id)
-                .execute(&self.pool)
+                .execute(&mut *self.writer().await?)
                 .await?
             }
             None => {
@@ -518,7 +518,7 @@ impl Store {
                     "UPDATE long_term_tests SET paused_at = NULL, paused_by = NULL WHERE job_id = ? AND paused_at IS NOT NULL",
                 )
                 .bind(job_id)
-                .execute(&self.pool)
+                .execute(&mut *self.writer().await?)
                 .await?
             }
         };
@@ -562,7 +562,7 @@ impl Store {
         .bind(detail)
         .bind(now())
         .bind(cause.as_str())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -601,7 +601,7 @@ impl Store {
 
 /// A test's last signals: the recording, linked to the test (one per test).
 async fn insert_last_signals(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     job_id: &str,
     (rec, duration_s): (NewRecording, f64),
     at: &str,
@@ -614,7 +614,7 @@ async fn insert_last_signals(
     .bind(ids[0])
     .bind(duration_s)
     .bind(at)
-    .execute(&mut **tx)
+    .execute(&mut *tx)
     .await?;
     Ok(())
 }

@@ -40,7 +40,7 @@ impl Store {
         measurements: Vec<NewMeasurement>,
     ) -> StoreResult<()> {
         self.upsert_part(part.0, part.1, part.2).await?;
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         insert_results(&mut tx, recordings, measurements).await?;
         tx.commit().await?;
         Ok(())
@@ -76,7 +76,7 @@ impl Store {
 }
 
 pub(crate) async fn insert_results(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     recordings: Vec<NewRecording>,
     measurements: Vec<NewMeasurement>,
 ) -> StoreResult<Vec<i64>> {
@@ -93,7 +93,7 @@ pub(crate) async fn insert_results(
 /// [`insert_results`] made by `software_version` at `t` (a measurement
 /// ingested from a station keeps the station's).
 async fn insert_results_at(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     recordings: Vec<NewRecording>,
     measurements: Vec<NewMeasurement>,
     software_version: &str,
@@ -114,7 +114,7 @@ async fn insert_results_at(
                 .map(|c| serde_json::to_string(&c).unwrap_or_default()),
         )
         .bind(t.to_string())
-        .fetch_one(&mut **tx)
+        .fetch_one(&mut *tx)
         .await?;
         rec_ids.push(row.get::<i64, _>(0));
     }
@@ -124,7 +124,7 @@ async fn insert_results_at(
 
 /// The measurement rows; `pre` / `main` index into `rec_ids`.
 pub(crate) async fn insert_measurement_rows(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     measurements: Vec<NewMeasurement>,
     rec_ids: &[i64],
 ) -> StoreResult<()> {
@@ -132,7 +132,7 @@ pub(crate) async fn insert_measurement_rows(
 }
 
 async fn insert_measurement_rows_at(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     measurements: Vec<NewMeasurement>,
     rec_ids: &[i64],
     software_version: &str,
@@ -172,7 +172,7 @@ async fn insert_measurement_rows_at(
         .bind(pre)
         .bind(main)
         .bind(t.to_string())
-        .execute(&mut **tx)
+        .execute(&mut *tx)
         .await?;
     }
     Ok(())
@@ -265,7 +265,7 @@ impl ResultIngest for Store {
                 v.id, m.id
             )));
         }
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let known: Option<i64> = sqlx::query_scalar("SELECT 1 FROM measurements WHERE id = ?")
             .bind(m.id.clone())
             .fetch_optional(&mut *tx)

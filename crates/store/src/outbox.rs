@@ -184,7 +184,7 @@ impl Store {
     /// The center acknowledged these events.
     pub async fn outbox_delivered(&self, seqs: &[i64]) -> StoreResult<()> {
         let t = now();
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         for s in seqs {
             sqlx::query(
                 "UPDATE fleet_outbox SET delivered_at = ?, attempts = attempts + 1, last_attempt_at = ?, \
@@ -204,7 +204,7 @@ impl Store {
     /// answered and refused them; otherwise it was not reached).
     pub async fn outbox_failed(&self, seqs: &[i64], error: &str, refused: bool) -> StoreResult<()> {
         let t = now();
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         for s in seqs {
             sqlx::query(
                 "UPDATE fleet_outbox SET attempts = attempts + 1, last_attempt_at = ?, last_error = ?, \
@@ -227,7 +227,7 @@ impl Store {
         sqlx::query("UPDATE fleet_outbox SET last_error = ? WHERE seq = ?")
             .bind(note.to_string())
             .bind(seq)
-            .execute(&self.pool)
+            .execute(&mut *self.writer().await?)
             .await?;
         Ok(())
     }
@@ -238,7 +238,7 @@ impl Store {
         let r = sqlx::query(
             "UPDATE fleet_outbox SET refused_at = NULL WHERE refused_at IS NOT NULL AND delivered_at IS NULL",
         )
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected())
     }
@@ -431,7 +431,7 @@ impl Store {
     /// the same number and another hash is left alone and named.
     pub async fn apply_center_recipes(&self, rows: &[RecipeRow]) -> StoreResult<RecipeSync> {
         let mut out = RecipeSync::default();
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         for r in rows {
             let held: Option<(String, i64, String)> = sqlx::query_as(
                 "SELECT sha256, retired, source FROM qc_recipes WHERE name = ? AND version = ?",

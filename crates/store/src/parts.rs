@@ -25,7 +25,7 @@ impl Store {
         .bind(notes.map(str::to_string))
         .bind(t.clone())
         .bind(t)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }

@@ -193,7 +193,7 @@ macro_rules! delivery_select {
 
 /// Writes verdicts made at `t` inside the caller's transaction.
 pub(crate) async fn insert_verdicts(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     verdicts: &[NewVerdict],
     t: &str,
 ) -> StoreResult<()> {
@@ -213,7 +213,7 @@ pub(crate) async fn insert_verdicts(
         .bind(v.detail.to_string())
         .bind(v.trace.to_string())
         .bind(t.to_string())
-        .execute(&mut **tx)
+        .execute(&mut *tx)
         .await?;
     }
     Ok(())
@@ -221,7 +221,7 @@ pub(crate) async fn insert_verdicts(
 
 /// Writes verdicts, messages and deliveries inside a job's result transaction.
 pub(super) async fn insert_job_records(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     rec: &JobRecords,
 ) -> StoreResult<()> {
     let t = now();
@@ -233,7 +233,7 @@ pub(super) async fn insert_job_records(
 /// stored already (a job's `WorkStarted`, written when the job started and
 /// again with its end) is kept once, with its deliveries.
 async fn insert_messages(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     rec: &JobRecords,
     t: &str,
 ) -> StoreResult<()> {
@@ -248,7 +248,7 @@ async fn insert_messages(
         .bind(m.job_id.clone())
         .bind(m.body.to_string())
         .bind(t.to_string())
-        .fetch_optional(&mut **tx)
+        .fetch_optional(&mut *tx)
         .await?;
         let Some(row) = row else { continue };
         let seq: i64 = row.get(0);
@@ -262,7 +262,7 @@ async fn insert_messages(
             .bind(m.part_serial.clone())
             .bind(t.to_string())
             .bind(t.to_string())
-            .execute(&mut **tx)
+            .execute(&mut *tx)
             .await?;
         }
     }
@@ -285,7 +285,7 @@ impl Store {
         created_by: Option<&str>,
         expect: RecipeExpect,
     ) -> StoreResult<RecipeWrite> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let cur = current_version(&mut tx, name).await?;
         let ok = match expect {
             RecipeExpect::Any => true,
@@ -304,7 +304,7 @@ impl Store {
     pub async fn retire_recipe(&self, name: &str) -> StoreResult<bool> {
         let r = sqlx::query("UPDATE qc_recipes SET retired = 1 WHERE name = ?")
             .bind(name.to_string())
-            .execute(&self.pool)
+            .execute(&mut *self.writer().await?)
             .await?;
         Ok(r.rows_affected() > 0)
     }
@@ -334,7 +334,7 @@ impl Store {
         .bind(text)
         .bind(created_by.map(str::to_string))
         .bind(now())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         self.get_proposal(id)
             .await?
@@ -373,7 +373,7 @@ impl Store {
         recipe: &springbench_core::qc::Recipe,
         by: Option<&str>,
     ) -> StoreResult<Approval> {
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let Some(p) = sqlx::query(
             "SELECT recipe_name, recipe_version FROM qc_limit_proposals WHERE id = ? AND state = 'proposed'",
         )
@@ -431,7 +431,7 @@ impl Store {
         .bind(by.map(str::to_string))
         .bind(now())
         .bind(id.to_string())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -497,7 +497,7 @@ impl Store {
         started_at: &str,
         rec: &JobRecords,
     ) -> StoreResult<bool> {
-        let mut tx = self.pool.begin().await?;
+        let mut tx = self.begin_write().await?;
         let r = sqlx::query(
             "UPDATE jobs SET state = 'running', started_at = ?, progress = 0 WHERE id = ? AND state = 'queued'",
         )
@@ -557,7 +557,7 @@ impl Store {
         .bind(t.clone())
         .bind(t)
         .bind(id)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -579,7 +579,7 @@ impl Store {
         .bind(now())
         .bind(give_up)
         .bind(id)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -616,7 +616,7 @@ impl Store {
         .bind(t.clone())
         .bind(t)
         .bind(id)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -628,7 +628,7 @@ impl Store {
         )
         .bind(now())
         .bind(id)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -676,14 +676,14 @@ pub enum Approval {
 
 /// The newest version of a recipe and whether it is retired.
 async fn current_version(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     name: &str,
 ) -> StoreResult<Option<(i64, bool)>> {
     let r = sqlx::query(
         "SELECT version, retired FROM qc_recipes WHERE name = ? ORDER BY version DESC LIMIT 1",
     )
     .bind(name.to_string())
-    .fetch_optional(&mut **tx)
+    .fetch_optional(&mut *tx)
     .await?;
     Ok(r.map(|r| (r.get::<i64, _>(0), r.get::<i64, _>(1) != 0)))
 }
@@ -700,7 +700,7 @@ pub struct GoldenRow {
 }
 
 async fn insert_recipe_tx(
-    tx: &mut sqlx::Transaction<'_, sqlx::Sqlite>,
+    tx: &mut sqlx::SqliteConnection,
     name: &str,
     sha256: &str,
     body: &springbench_core::qc::Recipe,
@@ -721,7 +721,7 @@ async fn insert_recipe_tx(
     .bind(proposal_id.map(str::to_string))
     .bind(created_by.map(str::to_string))
     .bind(t.clone())
-    .fetch_one(&mut **tx)
+    .fetch_one(&mut *tx)
     .await?;
     Ok(RecipeRow {
         name: name.to_string(),

@@ -204,7 +204,7 @@ impl Store {
                 .to_rfc3339_opts(chrono::SecondsFormat::Millis, true)
         });
         let keep_last = policy.raw_keep_last_per_part.map(i64::from);
-        let mut tx = self.pool.begin_with("BEGIN IMMEDIATE").await?;
+        let mut tx = self.begin_write().await?;
         let row = sqlx::query(concat!(
             "SELECT COUNT(*), COALESCE(SUM(length(wav) + COALESCE((SELECT length(bytes) FROM recording_blobs \
              WHERE recording_id = recordings.id), 0)), 0) FROM recordings WHERE id IN (",

@@ -96,7 +96,7 @@ impl Store {
         .bind(info.rms_fs)
         .bind(info.peak_fs)
         .bind(bytes)
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         let stored = self.stimulus(info.id).await?.ok_or_else(|| {
             crate::StoreError::Corrupt(format!("stimulus {} not found after storing it", info.id))

@@ -38,7 +38,7 @@ impl Store {
         .bind(state.as_str())
         .bind(instruction.map(str::to_string))
         .bind(now())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
@@ -51,7 +51,7 @@ impl Store {
         .bind(by.map(str::to_string))
         .bind(now())
         .bind(job_id.to_string())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(r.rows_affected() == 1)
     }
@@ -81,7 +81,7 @@ impl Store {
         .bind(state.as_str())
         .bind(text)
         .bind(now())
-        .execute(&self.pool)
+        .execute(&mut *self.writer().await?)
         .await?;
         Ok(())
     }
