@@ -881,7 +881,8 @@ fn run_blocking(
     };
     // A noise's loop and its load's rate, kept over the intervals.
     let mut noise: Option<waveform::LoopLoad> = None;
-    let mut noise_short = false;
+    // Whether the drive limit holds the stimulus below its level (said when it changes).
+    let mut held_short = false;
     for index in start..n {
         if obs.cancelled() {
             return Err(Stop::Aborted);
@@ -939,8 +940,8 @@ fn run_blocking(
                     // Never a level that looks met when it is not: the
                     // drive limit holding the noise below its target is said.
                     let short = l.last().filter(|r| r.x_rms_m < 0.98 * level_m);
-                    if short.is_some() != noise_short {
-                        noise_short = short.is_some();
+                    if short.is_some() != held_short {
+                        held_short = short.is_some();
                         let _ = tx.send(Msg::Log(match short {
                             Some(r) => format!(
                                 "test time {t:.0} s: the {} reaches {:.3} mm RMS of its {:.3} mm at the drive limit ({} V at its peak)",
@@ -958,6 +959,22 @@ fn run_blocking(
                     }
                 }
                 (StimulusKind::Sine, None) => {
+                    // The same for the sine (at its peak excursion).
+                    let reach = vb.sine_reach_m(level_m);
+                    let short = reach < 0.98 * level_m;
+                    if short != held_short {
+                        held_short = short;
+                        let _ = tx.send(Msg::Log(if short {
+                            format!(
+                                "test time {t:.0} s: the sine reaches {:.3} mm of its {:.3} mm at the drive limit ({} V at its peak)",
+                                1e3 * reach,
+                                1e3 * level_m,
+                                m.limits.max_drive_v
+                            )
+                        } else {
+                            format!("test time {t:.0} s: the sine reaches its {:.3} mm", 1e3 * level_m)
+                        }));
+                    }
                     vb.apply_sine_load(level_m, on);
                 }
                 (StimulusKind::Sine, Some(v)) => {

@@ -2,11 +2,11 @@
 //! converges, the linear case matches the analytic transfer function, the
 //! energy balance holds.
 
-use nalgebra::{Complex, Matrix4, Vector4};
+use nalgebra::{Complex, Vector4};
 use springbench::effects::{
     CoulombFriction, Creep, DampingVsDisplacement, Effects, QuadraticDamping,
 };
-use springbench::physics::model::{idx, BenchParams, Integrator, Model, NSTATE};
+use springbench::physics::model::{idx, linear_amplitudes, BenchParams, Integrator, Model, NSTATE};
 use springbench::physics::{preset, PartSpec};
 use springbench::procedure::SweepSpec;
 use std::f64::consts::PI;
@@ -93,35 +93,10 @@ fn step_halving_converges() {
     }
 }
 
-/// Steady-state complex amplitudes [I, Xd, X, P] for a unit cosine drive.
+/// Steady-state complex amplitudes [I, Xd, X, P] for a unit cosine drive
+/// (`physics::model::linear_amplitudes`, at the part's K(0)).
 fn analytic(part: &PartSpec, b: &BenchParams, f_hz: f64) -> Vector4<Complex<f64>> {
-    let w = 2.0 * PI * f_hz;
-    let j = Complex::new(0.0, 1.0);
-    let c = |v: f64| Complex::new(v, 0.0);
-    let e = &b.exciter;
-    let kbox = b.box_.gamma * b.box_.p0_pa / b.box_.volume_m3;
-    let k0 = part.k_coeffs_si[0];
-    let m = Matrix4::new(
-        c(e.re_ohm) + j * w * e.le_h,
-        j * w * e.bl_tm,
-        c(0.0),
-        c(0.0),
-        c(-e.bl_tm),
-        c(-w * w * e.mmd_kg + e.kmd_n_per_m) + j * w * e.rmd_ns_per_m,
-        c(0.0),
-        c(e.sd_m2),
-        c(0.0),
-        c(0.0),
-        c(-w * w * part.moving_mass_kg + k0) + j * w * part.r_ns_per_m,
-        c(-part.ss_m2),
-        c(0.0),
-        -j * w * kbox * e.sd_m2,
-        j * w * kbox * part.ss_m2,
-        j * w + 1.0 / b.box_.leak_tau_s,
-    );
-    m.lu()
-        .solve(&Vector4::new(c(1.0), c(0.0), c(0.0), c(0.0)))
-        .unwrap()
+    linear_amplitudes(part, b, part.k_coeffs_si[0], f_hz).expect("a regular system")
 }
 
 #[test]

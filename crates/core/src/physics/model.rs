@@ -285,6 +285,34 @@ pub fn ageing_shape(x_m: f64, inv_width4: f64) -> f64 {
     (-(u * u * inv_width4)).exp()
 }
 
+/// The linear model's steady state for a unit cosine drive at `f_hz`: the
+/// complex amplitudes of [I (A), Xd (m), X (m), P (Pa)] per volt, the part's
+/// stiffness `k_n_per_m` (its K(0), or an effective stiffness at a level)
+/// and its damping R, the box's air spring linearised. None when the
+/// system is singular there.
+pub fn linear_amplitudes(
+    part: &super::PartSpec,
+    bench: &BenchParams,
+    k_n_per_m: f64,
+    f_hz: f64,
+) -> Option<nalgebra::Vector4<nalgebra::Complex<f64>>> {
+    use nalgebra::{Complex, Matrix4, Vector4};
+    let w = 2.0 * std::f64::consts::PI * f_hz;
+    let j = Complex::new(0.0, 1.0);
+    let c = |v: f64| Complex::new(v, 0.0);
+    let e = &bench.exciter;
+    let bx = &bench.box_;
+    let kbox = bx.gamma * bx.p0_pa / bx.volume_m3;
+    #[rustfmt::skip]
+    let m = Matrix4::new(
+        c(e.re_ohm) + j * w * e.le_h, j * w * e.bl_tm, c(0.0), c(0.0),
+        c(-e.bl_tm), c(-w * w * e.mmd_kg + e.kmd_n_per_m) + j * w * e.rmd_ns_per_m, c(0.0), c(e.sd_m2),
+        c(0.0), c(0.0), c(-w * w * part.moving_mass_kg + k_n_per_m) + j * w * part.r_ns_per_m, c(-part.ss_m2),
+        c(0.0), -j * w * kbox * e.sd_m2, j * w * kbox * part.ss_m2, j * w + 1.0 / bx.leak_tau_s,
+    );
+    m.lu().solve(&Vector4::new(c(1.0), c(0.0), c(0.0), c(0.0)))
+}
+
 impl Model {
     pub fn new(part: &super::PartSpec, bench: &BenchParams) -> Model {
         let bx = bench.box_;
