@@ -960,7 +960,7 @@ fn run_blocking(
                 }
                 (StimulusKind::Sine, None) => {
                     // The same for the sine (at its peak excursion).
-                    let reach = vb.sine_reach_m(level_m);
+                    let reach = vb.apply_sine_load(level_m, on).reach_m;
                     let short = reach < 0.98 * level_m;
                     if short != held_short {
                         held_short = short;
@@ -975,7 +975,6 @@ fn run_blocking(
                             format!("test time {t:.0} s: the sine reaches its {:.3} mm", 1e3 * level_m)
                         }));
                     }
-                    vb.apply_sine_load(level_m, on);
                 }
                 (StimulusKind::Sine, Some(v)) => {
                     vb.apply_sine_load_at_velocity(v, on);

@@ -42,6 +42,16 @@ pub struct VirtualBench {
 /// time) while the drive limit holds it short.
 pub const SINE_REACH_STEP_S: f64 = 60.0;
 
+/// An accelerated sine as applied ([`VirtualBench::apply_sine_load`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SineApplied {
+    /// The load added (J).
+    pub load_j: f64,
+    /// The peak excursion reached at its start (m): its target, or less
+    /// where the drive limit holds it short.
+    pub reach_m: f64,
+}
+
 /// Default limits of the virtual bench: the exciter's +-20 mm are the part's too.
 pub const DEFAULT_LIMITS: Limits = Limits {
     max_displacement_m: 0.02,
@@ -103,16 +113,20 @@ impl VirtualBench {
     /// instead of simulated sample by sample, within the drive limit: where
     /// it holds the sine short, at the excursion reached
     /// ([`Self::sine_reach_m`], again every [`SINE_REACH_STEP_S`] as the part
-    /// changes). Returns the load added (J); 0 when this bench does not age
-    /// the part.
-    pub fn apply_sine_load(&mut self, xpeak_m: f64, duration_s: f64) -> f64 {
+    /// changes). The load added (0 when this bench does not age the part)
+    /// and the excursion reached at the start.
+    pub fn apply_sine_load(&mut self, xpeak_m: f64, duration_s: f64) -> SineApplied {
+        let mut reach = self.sine_reach_m(xpeak_m);
         let Some(e0) = self.ageing_load_j else {
-            return 0.0;
+            return SineApplied {
+                load_j: 0.0,
+                reach_m: reach,
+            };
         };
+        let reach_m = reach;
         let mut left = duration_s.max(0.0);
         let mut e = e0;
         loop {
-            let reach = self.sine_reach_m(xpeak_m);
             // Reached: a softening part needs less drive as it goes on.
             let span = if reach >= xpeak_m {
                 left
@@ -125,8 +139,12 @@ impl VirtualBench {
             if left <= 0.0 {
                 break;
             }
+            reach = self.sine_reach_m(xpeak_m);
         }
-        e - e0
+        SineApplied {
+            load_j: e - e0,
+            reach_m,
+        }
     }
 
     /// As [`Self::apply_sine_load`], the sine held at a drive level: its
@@ -427,13 +445,15 @@ mod tests {
         let mut vb = VirtualBench::new(stiff.clone(), 1).with_ageing(0.0);
         let reach = vb.sine_reach_m(x);
         assert!(reach < 0.01 * x, "{} mm", 1e3 * reach);
-        let added = vb.apply_sine_load(x, SINE_REACH_STEP_S);
+        let applied = vb.apply_sine_load(x, SINE_REACH_STEP_S);
+        assert_eq!(applied.reach_m, reach);
+        let added = applied.load_j;
         assert_eq!(added, apply_sine(&stiff, 0.0, reach, SINE_REACH_STEP_S));
         assert!(added < 1e-3 * apply_sine(&stiff, 0.0, x, SINE_REACH_STEP_S));
         let mut vb = VirtualBench::new(part.clone(), 1).with_ageing(0.0);
         assert_eq!(vb.sine_reach_m(x), x);
         assert_eq!(
-            vb.apply_sine_load(x, 900.0),
+            vb.apply_sine_load(x, 900.0).load_j,
             apply_sine(&part, 0.0, x, 900.0)
         );
     }

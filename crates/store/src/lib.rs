@@ -101,12 +101,9 @@ pub struct WriteTx {
 }
 
 impl WriteTx {
+    /// Commits; dropped uncommitted, the transaction rolls back.
     pub async fn commit(self) -> Result<(), sqlx::Error> {
         self.tx.commit().await
-    }
-
-    pub async fn rollback(self) -> Result<(), sqlx::Error> {
-        self.tx.rollback().await
     }
 }
 

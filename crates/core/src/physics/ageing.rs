@@ -384,6 +384,22 @@ pub fn apply_sine_at_velocity(
     e
 }
 
+/// spider_3in with a strong, quick break-in and fatigue: the part of this
+/// module's tests and of `physics::waveform`'s.
+#[cfg(test)]
+pub(crate) fn aged() -> super::PartSpec {
+    let mut p = super::preset("spider_3in").unwrap();
+    p.ageing = Some(AgeingParams {
+        break_in_k_n_per_m: 200.0,
+        break_in_load_j: 50.0,
+        fatigue_k_n_per_m: 500.0,
+        fatigue_load_j: 2000.0,
+        width_m: 0.004,
+        collapse: None,
+    });
+    p
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -456,19 +472,6 @@ mod tests {
         );
         // Its load at the excursion reached, far below the target's.
         assert!(sine_power_w(&stiff, 0.0, reach) < 0.25 * sine_power_w(&stiff, 0.0, x));
-    }
-
-    fn aged() -> super::super::PartSpec {
-        let mut p = super::super::preset("spider_3in").unwrap();
-        p.ageing = Some(AgeingParams {
-            break_in_k_n_per_m: 200.0,
-            break_in_load_j: 50.0,
-            fatigue_k_n_per_m: 500.0,
-            fatigue_load_j: 2000.0,
-            width_m: 0.004,
-            collapse: None,
-        });
-        p
     }
 
     fn torn() -> super::super::PartSpec {

@@ -346,7 +346,7 @@ impl LoopLoad {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::physics::ageing::AgeingParams;
+    use crate::physics::ageing::aged;
 
     #[test]
     fn the_noise_loop_is_gaussian_in_its_band_and_loops() {
@@ -410,19 +410,6 @@ mod tests {
             "linear part: simulated {} W, analytic {truth} W ({rel:+.4})",
             r.load_rate_w
         );
-    }
-
-    fn aged() -> PartSpec {
-        let mut p = crate::physics::preset("spider_3in").unwrap();
-        p.ageing = Some(AgeingParams {
-            break_in_k_n_per_m: 200.0,
-            break_in_load_j: 50.0,
-            fatigue_k_n_per_m: 500.0,
-            fatigue_load_j: 2000.0,
-            width_m: 0.004,
-            collapse: None,
-        });
-        p
     }
 
     #[test]
