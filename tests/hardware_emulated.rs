@@ -640,6 +640,45 @@ async fn a_stepped_stimulus_on_the_emulated_bench_holds_each_levels_excursion() 
     );
 }
 
+/// A two-interval long-term test (60 s apart) of `stimulus` on `emu-1`,
+/// run to its end: its job, its test document, each run's peak drive from
+/// the bench's traces, and the job's log lines that begin with `prefix`
+/// (one per held stimulus). Asserts it succeeded with its three intervals.
+async fn run_loop_test(
+    c: &reqwest::Client,
+    d: &Daemon,
+    traces: &std::path::Path,
+    serial: &str,
+    stimulus: Value,
+    prefix: &str,
+) -> (Value, Value, Vec<f64>, Vec<String>) {
+    let id = hw::submit_long_term(
+        c,
+        d,
+        json!({"measurement": {"part": {"serial": serial}, "bench": "emu-1", "target_xpeak_m": 0.004},
+               "duration_s": 120.0, "interval_s": 60.0, "stimulus": stimulus}),
+    )
+    .await;
+    let j = wait_job(c, d, &id, Duration::from_secs(600), terminal).await;
+    let t = get(c, d, &format!("/api/v1/long-term-tests/{id}")).await;
+    let peaks: Vec<f64> = hw::traces_of_job(traces, 2)
+        .iter()
+        .map(|r| r["peak_drive_v"].as_f64().unwrap())
+        .collect();
+    let log: Vec<String> = j["log"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| l.as_str())
+        .filter(|l| l.starts_with(prefix))
+        .map(str::to_string)
+        .collect();
+    println!("job {j}\npeak drive per run {peaks:?}\n{log:#?}");
+    assert_eq!(j["state"], "succeeded", "{j}");
+    assert_eq!(t["intervals"].as_array().unwrap().len(), 3, "{t}");
+    (j, t, peaks, log)
+}
+
 /// Issue 32, decision 0137: band-limited noise as a long-term test's
 /// stimulus on the emulated bench, played through the hardware path in
 /// faded chunks under the bench's safety rules. The drive limit (30 V) is
@@ -654,30 +693,15 @@ async fn a_noise_stimulus_plays_under_the_drive_limit_on_the_emulated_bench() {
     let cfg = config(traces.path(), "").replace("max_drive_v = 100.0", "max_drive_v = 30.0");
     let d = Daemon::start(&cfg);
     let c = client();
-    let id = hw::submit_long_term(
+    let (j, t, peaks, log) = run_loop_test(
         &c,
         &d,
-        json!({"measurement": {"part": {"serial": "LT-NOISE-E"}, "bench": "emu-1", "target_xpeak_m": 0.004},
-               "duration_s": 120.0, "interval_s": 60.0,
-               "stimulus": {"kind": "noise", "band_hz": [20.0, 100.0], "excursion_rms_m": 0.0015}}),
+        traces.path(),
+        "LT-NOISE-E",
+        json!({"kind": "noise", "band_hz": [20.0, 100.0], "excursion_rms_m": 0.0015}),
+        "noise stimulus",
     )
     .await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
-    let t = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
-    let peaks: Vec<f64> = hw::traces_of_job(traces.path(), 2)
-        .iter()
-        .map(|r| r["peak_drive_v"].as_f64().unwrap())
-        .collect();
-    let log: Vec<&str> = j["log"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|l| l.as_str())
-        .filter(|l| l.starts_with("noise stimulus"))
-        .collect();
-    println!("job {j}\npeak drive per run {peaks:?}\n{log:#?}");
-    assert_eq!(j["state"], "succeeded", "{j}");
-    assert_eq!(t["intervals"].as_array().unwrap().len(), 3, "{t}");
     for p in &peaks {
         assert!(*p <= 30.0 + 1e-3, "beyond the drive limit: {peaks:?}");
     }
@@ -747,30 +771,15 @@ async fn a_wav_stimulus_plays_on_the_emulated_bench() {
         .as_str()
         .unwrap()
         .to_string();
-    let id = hw::submit_long_term(
+    let (j, t, peaks, log) = run_loop_test(
         &c,
         &d,
-        json!({"measurement": {"part": {"serial": "LT-WAV-E"}, "bench": "emu-1", "target_xpeak_m": 0.004},
-               "duration_s": 120.0, "interval_s": 60.0,
-               "stimulus": {"kind": "wav", "wav_id": wav_id, "excursion_rms_m": 0.001}}),
+        traces.path(),
+        "LT-WAV-E",
+        json!({"kind": "wav", "wav_id": wav_id, "excursion_rms_m": 0.001}),
+        "WAV file stimulus",
     )
     .await;
-    let j = wait_job(&c, &d, &id, Duration::from_secs(600), terminal).await;
-    let t = get(&c, &d, &format!("/api/v1/long-term-tests/{id}")).await;
-    let peaks: Vec<f64> = hw::traces_of_job(traces.path(), 2)
-        .iter()
-        .map(|r| r["peak_drive_v"].as_f64().unwrap())
-        .collect();
-    let log: Vec<&str> = j["log"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|l| l.as_str())
-        .filter(|l| l.starts_with("WAV file stimulus"))
-        .collect();
-    println!("job {j}\npeak drive per run {peaks:?}\n{log:#?}");
-    assert_eq!(j["state"], "succeeded", "{j}");
-    assert_eq!(t["intervals"].as_array().unwrap().len(), 3, "{t}");
     for p in &peaks {
         assert!(*p <= 100.0 + 1e-3, "beyond the drive limit: {peaks:?}");
     }

@@ -31,6 +31,28 @@ async fn get(c: &reqwest::Client, d: &Daemon, path: &str) -> Value {
     r.json().await.unwrap()
 }
 
+/// A test whose stimulus is `stim` is refused (422) with an error naming
+/// `field`, its message containing `why` ("": any message).
+async fn stimulus_refused(c: &reqwest::Client, d: &Daemon, stim: &Value, field: &str, why: &str) {
+    let mut b = test_body("LT-STIMULUS-BAD", 3);
+    b["stimulus"] = stim.clone();
+    let r = c
+        .post(d.url("/api/v1/long-term-tests"))
+        .json(&b)
+        .send()
+        .await
+        .unwrap();
+    let p = problem(r, 422).await;
+    assert!(
+        p["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["field"] == field && e["message"].as_str().unwrap().contains(why)),
+        "{stim}: {field} ({why}) not named: {p}"
+    );
+}
+
 async fn submit(c: &reqwest::Client, d: &Daemon, body: &Value) -> String {
     let r = c
         .post(d.url("/api/v1/long-term-tests"))
@@ -1616,23 +1638,7 @@ async fn a_noise_stimulus_ages_the_part_at_the_loops_load_rate() {
             "stimulus.band_hz",
         ),
     ] {
-        let mut b = test_body("LT-NOISE-BAD", 3);
-        b["stimulus"] = stim.clone();
-        let r = c
-            .post(d.url("/api/v1/long-term-tests"))
-            .json(&b)
-            .send()
-            .await
-            .unwrap();
-        let p = problem(r, 422).await;
-        assert!(
-            p["errors"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .any(|e| e["field"] == field),
-            "{stim}: {field} not named: {p}"
-        );
+        stimulus_refused(&c, &d, &stim, field, "").await;
     }
     let n = 4;
     let mut b = test_body("LT-NOISE", n);
@@ -1815,23 +1821,8 @@ async fn a_wav_stimulus_plays_its_file_as_a_loop() {
         (again["id"].clone(), again["created_at"].clone()),
         (sha.clone().into(), info["created_at"].clone())
     );
-    let one: Value = c
-        .get(d.url(&format!("/api/v1/stimuli/{sha}")))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    assert_eq!(one, info);
-    let list: Value = c
-        .get(d.url("/api/v1/stimuli"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    assert_eq!(get(&c, &d, &format!("/api/v1/stimuli/{sha}")).await, info);
+    let list = get(&c, &d, "/api/v1/stimuli").await;
     assert_eq!(list["items"].as_array().unwrap().len(), 1);
 
     // Files that cannot be played: a 422 naming the body and the reason.
@@ -1889,13 +1880,7 @@ async fn a_wav_stimulus_plays_its_file_as_a_loop() {
         "{answer}"
     );
     assert_eq!(
-        c.get(d.url("/api/v1/stimuli"))
-            .send()
-            .await
-            .unwrap()
-            .json::<Value>()
-            .await
-            .unwrap()["items"]
+        get(&c, &d, "/api/v1/stimuli").await["items"]
             .as_array()
             .unwrap()
             .len(),
@@ -1948,23 +1933,7 @@ async fn a_wav_stimulus_plays_its_file_as_a_loop() {
             "not a field",
         ),
     ] {
-        let mut b = test_body("LT-WAV-BAD", 3);
-        b["stimulus"] = stim.clone();
-        let r = c
-            .post(d.url("/api/v1/long-term-tests"))
-            .json(&b)
-            .send()
-            .await
-            .unwrap();
-        let p = problem(r, 422).await;
-        assert!(
-            p["errors"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .any(|e| e["field"] == field && e["message"].as_str().unwrap().contains(why)),
-            "{stim}: {field} ({why}) not named: {p}"
-        );
+        stimulus_refused(&c, &d, &stim, field, why).await;
     }
 
     // Played: the same load as the noise it holds.
